@@ -1,0 +1,111 @@
+//! The in-memory scene graph: what the fusion thread hands to the publisher, the recorder and the
+//! refiner. Plain owned data; the publisher copies it into the shared-memory
+//! [`op3dsg_ipc_types::GraphSnapshot`] and `op3dsg dump --json` writes its JSON form.
+
+use op3dsg_drivers::graph_json::{EdgeJson, GraphJson, NodeJson};
+use op3dsg_ipc_types::{EdgeKind, EdgeOrigin, NodeKind};
+
+/// One node of the graph.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GraphNode {
+    /// Stable id.
+    pub id: u32,
+    /// Object or part.
+    pub kind: NodeKind,
+    /// Parent object of a part.
+    pub parent_id: Option<u32>,
+    /// Voted label.
+    pub label: String,
+    /// Confidence in [0, 1].
+    pub confidence: f32,
+    /// Centre of the node's points, world, metres.
+    pub centre_m: [f32; 3],
+    /// Axis-aligned box, world, metres.
+    pub box_min_m: [f32; 3],
+    /// Axis-aligned box, world, metres.
+    pub box_max_m: [f32; 3],
+    /// Keyframe detections fused.
+    pub observation_count: u32,
+    /// Bit set over `op3dsg_ipc_types::AFFORDANCES`.
+    pub affordance_bits: u16,
+    /// Stamp of the last keyframe that saw it, nanoseconds.
+    pub last_seen_stamp_ns: u64,
+}
+
+/// One directed edge.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GraphEdge {
+    /// Source node id.
+    pub source_id: u32,
+    /// Target node id.
+    pub target_id: u32,
+    /// Spatial or functional.
+    pub kind: EdgeKind,
+    /// Canonical relation id (see `op3dsg_ipc_types::relation_id`).
+    pub relation_id: u16,
+    /// Confidence in [0, 1].
+    pub confidence: f32,
+    /// Where it came from.
+    pub origin: EdgeOrigin,
+}
+
+/// One consistent version of the graph.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SceneGraph {
+    /// Graph version (increases with every published change).
+    pub version: u64,
+    /// Stamp of the newest fused keyframe, nanoseconds.
+    pub stamp_ns: u64,
+    /// Nodes sorted by id.
+    pub nodes: Vec<GraphNode>,
+    /// Edges.
+    pub edges: Vec<GraphEdge>,
+}
+
+impl SceneGraph {
+    /// Number of object nodes.
+    pub fn object_count(&self) -> usize {
+        self.nodes.iter().filter(|n| n.kind == NodeKind::Object).count()
+    }
+
+    /// Number of part nodes.
+    pub fn part_count(&self) -> usize {
+        self.nodes.iter().filter(|n| n.kind == NodeKind::Part).count()
+    }
+
+    /// The JSON form (see `op3dsg_drivers::graph_json`).
+    pub fn to_json(&self, source: &str) -> GraphJson {
+        let mut json = GraphJson::new(source);
+        json.graph_version = self.version;
+        json.stamp_ns = self.stamp_ns;
+        json.nodes = self
+            .nodes
+            .iter()
+            .map(|n| NodeJson {
+                id: n.id,
+                label: n.label.clone(),
+                kind: n.kind.as_str().to_owned(),
+                parent: n.parent_id,
+                centre_m: n.centre_m,
+                box_min_m: n.box_min_m,
+                box_max_m: n.box_max_m,
+                affordances: op3dsg_ipc_types::affordance_names(n.affordance_bits).map(str::to_owned).collect(),
+                confidence: n.confidence,
+                observation_count: n.observation_count,
+            })
+            .collect();
+        json.edges = self
+            .edges
+            .iter()
+            .map(|e| EdgeJson {
+                source: e.source_id,
+                target: e.target_id,
+                kind: e.kind.as_str().to_owned(),
+                relation: op3dsg_ipc_types::relation_phrase(e.relation_id).unwrap_or("unknown").to_owned(),
+                confidence: e.confidence,
+                origin: e.origin.as_str().to_owned(),
+            })
+            .collect();
+        json
+    }
+}

@@ -1,0 +1,203 @@
+//! The scene-graph JSON form: one schema for the synthetic ground truth (`op3dsg gt`) and for a
+//! published graph (`op3dsg dump --json`), so `op3dsg eval --pred a.json --gt b.json` compares
+//! like with like.
+//!
+//! ```json
+//! {
+//!   "schema": "op3dsg.graph/1",
+//!   "source": "synthetic kitchen seed 1",
+//!   "graph_version": 0,
+//!   "stamp_ns": 0,
+//!   "nodes": [
+//!     { "id": 1, "label": "cabinet", "kind": "object", "parent": null,
+//!       "centre_m": [1.0, 0.3, 0.45], "box_min_m": [0.7, 0.0, 0.0], "box_max_m": [1.3, 0.6, 0.9],
+//!       "affordances": [], "confidence": 1.0, "observation_count": 0 },
+//!     { "id": 2, "label": "cabinet handle", "kind": "part", "parent": 1, ...,
+//!       "affordances": ["hook_pull"] }
+//!   ],
+//!   "edges": [
+//!     { "source": 2, "target": 1, "kind": "spatial", "relation": "part of",
+//!       "confidence": 1.0, "origin": "geometry" },
+//!     { "source": 2, "target": 1, "kind": "functional", "relation": "pull to open or close",
+//!       "confidence": 1.0, "origin": "knowledge" }
+//!   ]
+//! }
+//! ```
+//!
+//! Field by field:
+//! - `schema`: always `op3dsg.graph/1` for this layout.
+//! - `source`: free text naming what produced the file.
+//! - `graph_version`, `stamp_ns`: the published graph version and the stamp of its newest
+//!   keyframe (0 in ground truth).
+//! - `nodes[].id`: unique within the file. `label`: text; a label of the form `a / b` means
+//!   either name is correct (ground truth only). `kind`: `object` or `part`. `parent`: the id of
+//!   a part's object, `null` otherwise. `centre_m`, `box_min_m`, `box_max_m`: world frame,
+//!   metres, axis-aligned. `affordances`: names from the 9 canonical affordances.
+//!   `confidence` in [0, 1] (1 in ground truth). `observation_count`: keyframe detections fused
+//!   (0 in ground truth).
+//! - `edges[].source`, `target`: node ids; the source relates to the target as `relation`
+//!   says (handle `part of` cabinet, remote `remote to control` TV). `kind`: `spatial` or
+//!   `functional`. `relation`: a canonical phrase (`op3dsg_ipc_types::SPATIAL_RELATIONS` or
+//!   `FUNCTIONAL_RELATIONS`). `origin`: `geometry`, `knowledge`, `llm`, `knowledge+llm`, or
+//!   `ground_truth`.
+
+use serde::{Deserialize, Serialize};
+
+/// Schema tag written into every file.
+pub const GRAPH_JSON_SCHEMA: &str = "op3dsg.graph/1";
+
+/// A whole graph in JSON form.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GraphJson {
+    /// Always [`GRAPH_JSON_SCHEMA`].
+    pub schema: String,
+    /// What produced the file.
+    pub source: String,
+    /// Published graph version (0 in ground truth).
+    #[serde(default)]
+    pub graph_version: u64,
+    /// Stamp of the newest keyframe, nanoseconds (0 in ground truth).
+    #[serde(default)]
+    pub stamp_ns: u64,
+    /// Nodes.
+    pub nodes: Vec<NodeJson>,
+    /// Edges.
+    pub edges: Vec<EdgeJson>,
+}
+
+/// A node in JSON form.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NodeJson {
+    /// Unique id within the file.
+    pub id: u32,
+    /// Label; `a / b` lists alternatives (ground truth only).
+    pub label: String,
+    /// `object` or `part`.
+    pub kind: String,
+    /// Parent object of a part.
+    #[serde(default)]
+    pub parent: Option<u32>,
+    /// Centre, world frame, metres.
+    pub centre_m: [f32; 3],
+    /// Axis-aligned box minimum corner, world frame, metres.
+    pub box_min_m: [f32; 3],
+    /// Axis-aligned box maximum corner, world frame, metres.
+    pub box_max_m: [f32; 3],
+    /// Canonical affordance names.
+    #[serde(default)]
+    pub affordances: Vec<String>,
+    /// Confidence in [0, 1].
+    #[serde(default = "one")]
+    pub confidence: f32,
+    /// Keyframe detections fused into the node.
+    #[serde(default)]
+    pub observation_count: u32,
+}
+
+/// An edge in JSON form.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EdgeJson {
+    /// Source node id.
+    pub source: u32,
+    /// Target node id.
+    pub target: u32,
+    /// `spatial` or `functional`.
+    pub kind: String,
+    /// Canonical relation phrase.
+    pub relation: String,
+    /// Confidence in [0, 1].
+    #[serde(default = "one")]
+    pub confidence: f32,
+    /// `geometry`, `knowledge`, `llm`, `knowledge+llm` or `ground_truth`.
+    pub origin: String,
+}
+
+fn one() -> f32 {
+    1.0
+}
+
+impl GraphJson {
+    /// An empty graph from `source`.
+    pub fn new(source: impl Into<String>) -> Self {
+        Self { schema: GRAPH_JSON_SCHEMA.to_owned(), source: source.into(), graph_version: 0, stamp_ns: 0, nodes: Vec::new(), edges: Vec::new() }
+    }
+
+    /// Reads and checks a file: the schema tag, unique node ids, edges between existing nodes.
+    /// Errors name the file and the offending entry.
+    pub fn read(path: &std::path::Path) -> Result<Self, String> {
+        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let graph: Self = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+        graph.check().map_err(|e| format!("{}: {e}", path.display()))?;
+        Ok(graph)
+    }
+
+    /// Checks the schema tag, unique node ids, known kinds and edge endpoints.
+    pub fn check(&self) -> Result<(), String> {
+        if self.schema != GRAPH_JSON_SCHEMA {
+            return Err(format!("schema: expected \"{GRAPH_JSON_SCHEMA}\", found \"{}\"", self.schema));
+        }
+        let mut ids = std::collections::HashSet::new();
+        for (i, node) in self.nodes.iter().enumerate() {
+            if !ids.insert(node.id) {
+                return Err(format!("nodes[{i}].id: duplicate id {}", node.id));
+            }
+            if node.kind != "object" && node.kind != "part" {
+                return Err(format!("nodes[{i}].kind: expected \"object\" or \"part\", found \"{}\"", node.kind));
+            }
+        }
+        for (i, edge) in self.edges.iter().enumerate() {
+            for (field, id) in [("source", edge.source), ("target", edge.target)] {
+                if !ids.contains(&id) {
+                    return Err(format!("edges[{i}].{field}: no node with id {id}"));
+                }
+            }
+            if edge.kind != "spatial" && edge.kind != "functional" {
+                return Err(format!("edges[{i}].kind: expected \"spatial\" or \"functional\", found \"{}\"", edge.kind));
+            }
+        }
+        Ok(())
+    }
+
+    /// The node with `id`.
+    pub fn node(&self, id: u32) -> Option<&NodeJson> {
+        self.nodes.iter().find(|n| n.id == id)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn check_names_the_bad_entry() {
+        let mut g = GraphJson::new("test");
+        let node = NodeJson {
+            id: 1,
+            label: "cabinet".into(),
+            kind: "object".into(),
+            parent: None,
+            centre_m: [0.0; 3],
+            box_min_m: [0.0; 3],
+            box_max_m: [1.0; 3],
+            affordances: vec![],
+            confidence: 1.0,
+            observation_count: 0,
+        };
+        g.nodes.push(node.clone());
+        g.edges.push(EdgeJson { source: 1, target: 7, kind: "spatial".into(), relation: "on".into(), confidence: 1.0, origin: "geometry".into() });
+        assert_eq!(g.check().unwrap_err(), "edges[0].target: no node with id 7");
+        g.edges.clear();
+        g.nodes.push(node);
+        assert_eq!(g.check().unwrap_err(), "nodes[1].id: duplicate id 1");
+    }
+
+    #[test]
+    fn round_trips_through_json() {
+        let g = GraphJson::new("x");
+        let text = serde_json::to_string(&g).unwrap();
+        assert_eq!(serde_json::from_str::<GraphJson>(&text).unwrap(), g);
+    }
+}
