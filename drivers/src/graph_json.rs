@@ -122,7 +122,14 @@ fn one() -> f32 {
 impl GraphJson {
     /// An empty graph from `source`.
     pub fn new(source: impl Into<String>) -> Self {
-        Self { schema: GRAPH_JSON_SCHEMA.to_owned(), source: source.into(), graph_version: 0, stamp_ns: 0, nodes: Vec::new(), edges: Vec::new() }
+        Self {
+            schema: GRAPH_JSON_SCHEMA.to_owned(),
+            source: source.into(),
+            graph_version: 0,
+            stamp_ns: 0,
+            nodes: Vec::new(),
+            edges: Vec::new(),
+        }
     }
 
     /// Reads and checks a file: the schema tag, unique node ids, edges between existing nodes.
@@ -155,7 +162,10 @@ impl GraphJson {
                 }
             }
             if edge.kind != "spatial" && edge.kind != "functional" {
-                return Err(format!("edges[{i}].kind: expected \"spatial\" or \"functional\", found \"{}\"", edge.kind));
+                return Err(format!(
+                    "edges[{i}].kind: expected \"spatial\" or \"functional\", found \"{}\"",
+                    edge.kind
+                ));
             }
         }
         Ok(())
@@ -187,7 +197,14 @@ mod tests {
             observation_count: 0,
         };
         g.nodes.push(node.clone());
-        g.edges.push(EdgeJson { source: 1, target: 7, kind: "spatial".into(), relation: "on".into(), confidence: 1.0, origin: "geometry".into() });
+        g.edges.push(EdgeJson {
+            source: 1,
+            target: 7,
+            kind: "spatial".into(),
+            relation: "on".into(),
+            confidence: 1.0,
+            origin: "geometry".into(),
+        });
         assert_eq!(g.check().unwrap_err(), "edges[0].target: no node with id 7");
         g.edges.clear();
         g.nodes.push(node);

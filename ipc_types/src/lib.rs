@@ -63,17 +63,8 @@ pub const NO_NODE: u32 = u32::MAX;
 
 /// The 9 canonical affordances (the SceneFun3D set used by UniGraph3D), in bit order:
 /// bit `i` of [`Node::affordance_bits`] is `AFFORDANCES[i]`.
-pub const AFFORDANCES: [&str; 9] = [
-    "rotate",
-    "key_press",
-    "tip_push",
-    "hook_pull",
-    "pinch_pull",
-    "hook_turn",
-    "foot_push",
-    "plug_in",
-    "unplug",
-];
+pub const AFFORDANCES: [&str; 9] =
+    ["rotate", "key_press", "tip_push", "hook_pull", "pinch_pull", "hook_turn", "foot_push", "plug_in", "unplug"];
 
 /// The 11 canonical functional relations of UniGraph3D. A functional [`Edge`]'s
 /// `relation_id` is `FUNCTIONAL_RELATIONS` index + [`FUNCTIONAL_RELATION_BASE`].
@@ -611,10 +602,7 @@ mod tests {
         assert_eq!(size_of::<PoseStamped>(), 104);
         assert_eq!(size_of::<StageHealth>(), 64);
         assert_eq!(size_of::<QueueHealth>(), 56);
-        assert_eq!(
-            size_of::<GraphSnapshot>(),
-            56 + MAX_NODES * size_of::<Node>() + MAX_EDGES * size_of::<Edge>()
-        );
+        assert_eq!(size_of::<GraphSnapshot>(), 56 + MAX_NODES * size_of::<Node>() + MAX_EDGES * size_of::<Edge>());
     }
 
     #[test]
