@@ -1,6 +1,31 @@
 //! # op3dsg daemon library
 //!
-//! The pipeline stages of `op3dsgd` and the pieces the `op3dsg` CLI shares with it.
+//! The pipeline stages of `op3dsgd` and the pieces the `op3dsg` CLI shares with it:
+//!
+//! | module | what |
+//! |---|---|
+//! | [`config`] | the layered, strictly validated TOML profile |
+//! | [`pipeline`] | named stage threads, bounded queues, health, the shutdown ladder |
+//! | [`queue`] | bounded queues with latest-wins / block policies and drop counters |
+//! | [`perception`] | the `Detector` trait, detections and masks; the synthetic oracle |
+//! | [`fusion`] | the map: multi-view association of detections into 3D nodes |
+//! | [`graph`] | the in-memory scene graph handed from fusion to publisher and tools |
+//! | [`ipc`] | the iceoryx2 services: graph, update event, health, pose input |
+//! | [`stats`] | per-stage counters and latency percentiles |
+//!
+//! ```no_run
+//! use std::sync::{Arc, atomic::AtomicBool};
+//! let loaded = op3dsg_daemon::config::load(None, &["run.max_frames=30".to_owned()]).unwrap();
+//! let pipeline = op3dsg_daemon::pipeline::Pipeline::start(&loaded.profile, Arc::new(AtomicBool::new(false))).unwrap();
+//! let summary = pipeline.wait().unwrap();
+//! println!("{} keyframes/s", summary.keyframes_per_s());
+//! ```
 
+pub mod config;
+pub mod fusion;
 pub mod graph;
+pub mod ipc;
 pub mod perception;
+pub mod pipeline;
+pub mod queue;
+pub mod stats;

@@ -1,1 +1,133 @@
-fn main() {}
+//! `op3dsgd`: the op3dsg scene-graph daemon.
+//!
+//! Runs the pipeline described by a profile (the built-in synthetic kitchen when none is given)
+//! and serves the graph over iceoryx2 until SIGINT/SIGTERM, or until `--max-frames` frames /
+//! the end of a finite source with `--exit-at-end`.
+//!
+//! Exit codes: 0 clean stop, 1 runtime failure, 2 bad profile or arguments, 130 second signal.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+
+use clap::Parser;
+use op3dsg_daemon::config;
+use op3dsg_daemon::pipeline::Pipeline;
+use tracing::{error, info};
+
+#[derive(Debug, Parser)]
+#[command(name = "op3dsgd", version, about = "op3dsg daemon: live part-aware 3D scene graph served over iceoryx2")]
+struct Args {
+    /// Profile (TOML) overriding the built-in base (the synthetic kitchen). See profiles/.
+    #[arg(long, short = 'p', env = "OP3DSG_PROFILE")]
+    profile: Option<PathBuf>,
+
+    /// Override one profile value, TOML syntax: --set detector.workers=4 (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+
+    /// Stop after this many source frames and exit once the final graph is published.
+    #[arg(long)]
+    max_frames: Option<u64>,
+
+    /// Exit when a finite source ends (default: keep serving the last graph).
+    #[arg(long)]
+    exit_at_end: bool,
+
+    /// iceoryx2 service prefix (overrides ipc.prefix).
+    #[arg(long, env = "OP3DSG_PREFIX")]
+    prefix: Option<String>,
+
+    /// Print the effective profile (all layers merged) and exit.
+    #[arg(long)]
+    print_config: bool,
+
+    /// Log filter (tracing EnvFilter syntax), e.g. "info" or "op3dsg_daemon=debug".
+    #[arg(long, env = "OP3DSG_LOG", default_value = "info")]
+    log: String,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    let filter = tracing_subscriber::EnvFilter::try_new(&args.log).unwrap_or_else(|_| "info".into());
+    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
+    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
+
+    let mut overrides = args.set.clone();
+    if let Some(n) = args.max_frames {
+        overrides.push(format!("run.max_frames={n}"));
+    }
+    if args.exit_at_end {
+        overrides.push("run.exit_at_end=true".to_owned());
+    }
+    if let Some(prefix) = &args.prefix {
+        overrides.push(format!("ipc.prefix=\"{}\"", prefix.replace('"', "")));
+    }
+    let loaded = match config::load(args.profile.as_deref(), &overrides) {
+        Ok(loaded) => loaded,
+        Err(e) => {
+            eprintln!("op3dsgd: bad profile: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    if args.print_config {
+        match toml::to_string_pretty(&loaded.effective) {
+            Ok(text) => {
+                println!("# layers: {}\n{text}", loaded.layers.join(" <- "));
+                return ExitCode::SUCCESS;
+            }
+            Err(e) => {
+                eprintln!("op3dsgd: cannot print the profile: {e}");
+                return ExitCode::FAILURE;
+            }
+        }
+    }
+
+    // First signal: orderly shutdown ladder. Second: exit at once.
+    let stop = Arc::new(AtomicBool::new(false));
+    let signals = Arc::new(AtomicU32::new(0));
+    {
+        let stop = stop.clone();
+        let signals = signals.clone();
+        if let Err(e) = ctrlc::set_handler(move || {
+            if signals.fetch_add(1, Ordering::SeqCst) == 0 {
+                stop.store(true, Ordering::SeqCst);
+            } else {
+                std::process::exit(130);
+            }
+        }) {
+            error!(error = %e, "cannot install the signal handler");
+            return ExitCode::FAILURE;
+        }
+    }
+
+    let profile = &loaded.profile;
+    info!(layers = %loaded.layers.join(" <- "), prefix = %profile.ipc.prefix, "op3dsgd starting");
+    let pipeline = match Pipeline::start(profile, stop.clone()) {
+        Ok(p) => p,
+        Err(e) => {
+            error!("cannot start: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    info!(prefix = %profile.ipc.prefix, "serving");
+    match pipeline.wait() {
+        Ok(summary) => {
+            info!(
+                frames = summary.frames,
+                keyframes = summary.keyframes,
+                graph_version = summary.graph_version,
+                map_nodes = summary.map_nodes,
+                elapsed_s = format!("{:.2}", summary.elapsed_s),
+                keyframes_per_s = format!("{:.1}", summary.keyframes_per_s()),
+                "stopped"
+            );
+            ExitCode::SUCCESS
+        }
+        Err(stuck) => {
+            error!(stages = ?stuck, "shutdown timed out");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,581 @@
+//! The profile: typed, strict, layered configuration of the daemon.
+//!
+//! A profile is TOML. The effective configuration is built in layers, each overriding the one
+//! below key by key:
+//! 1. the built-in base (`profiles/base.toml`, compiled into the binary: the synthetic kitchen);
+//! 2. the chain of `extends = "other.toml"` files of the chosen profile (paths relative to the
+//!    file that names them), farthest first;
+//! 3. the profile given with `--profile`;
+//! 4. `--set section.key=value` overrides from the command line (value in TOML syntax).
+//!
+//! Every struct denies unknown fields; [`Profile::validate`] checks ranges. Errors name the file
+//! that set the offending key and the dotted field path, e.g.
+//! `profiles/robot.toml: fusion.voxel_size_m: must be > 0, got -0.01`.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use op3dsg_drivers::synthetic::SyntheticConfig;
+use serde::{Deserialize, Serialize};
+
+use crate::fusion::FusionConfig;
+use crate::ipc::IpcConfig;
+use crate::perception::oracle::OracleConfig;
+use crate::queue::QueueConfig;
+
+/// The built-in base profile.
+pub const BASE_PROFILE: &str = include_str!("../../profiles/base.toml");
+/// Name used for the built-in base in messages.
+pub const BASE_PROFILE_NAME: &str = "<built-in profiles/base.toml>";
+
+/// The whole daemon configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Profile {
+    /// A profile this one overrides (only meaningful in files; resolved while loading).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub extends: Option<String>,
+    /// Where frames come from.
+    pub source: SourceConfig,
+    /// Where poses come from.
+    pub pose: PoseConfig,
+    /// Which frames become keyframes.
+    pub keyframe: KeyframeConfig,
+    /// Detection worker pool and backend.
+    pub detector: DetectorConfig,
+    /// Multi-view fusion.
+    pub fusion: FusionConfig,
+    /// Queues between stages.
+    pub queues: QueuesConfig,
+    /// iceoryx2 services.
+    pub ipc: IpcConfig,
+    /// Health reporting.
+    pub health: HealthConfig,
+    /// Run control (stop conditions, shutdown).
+    pub run: RunConfig,
+    /// World frame conventions.
+    pub world: WorldConfig,
+}
+
+/// Frame source kinds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SourceKind {
+    /// Seeded procedural room with ground truth (no camera needed).
+    Synthetic,
+}
+
+/// `[source]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SourceConfig {
+    /// Which source.
+    pub kind: SourceKind,
+    /// Delivery rate for sources that can go faster than real time, Hz; 0 = as fast as the
+    /// pipeline takes frames.
+    pub rate_hz: f64,
+    /// Frames allocated for the frame pool on top of the queue capacities and workers.
+    pub pool_headroom: usize,
+    /// `[source.synthetic]`.
+    pub synthetic: SyntheticConfig,
+}
+
+/// Pose source kinds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PoseSourceKind {
+    /// The frame source carries `world_from_camera` (synthetic, replay).
+    Frame,
+    /// The navigation stack publishes [`op3dsg_ipc_types::PoseStamped`] on `<prefix>/pose`.
+    Ipc,
+}
+
+/// A fixed transform in the profile.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TransformConfig {
+    /// Translation, metres.
+    pub translation_m: [f64; 3],
+    /// Unit quaternion `[x, y, z, w]`.
+    pub rotation_xyzw: [f64; 4],
+}
+
+impl TransformConfig {
+    /// As an isometry.
+    pub fn to_isometry(&self) -> op3dsg_drivers::pose::Isometry {
+        let [x, y, z, w] = self.rotation_xyzw;
+        op3dsg_drivers::pose::Isometry::new(glam::DQuat::from_xyzw(x, y, z, w), glam::DVec3::from_array(self.translation_m))
+    }
+}
+
+/// `[pose]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PoseConfig {
+    /// Where poses come from.
+    pub source: PoseSourceKind,
+    /// A frame without a pose within this many milliseconds is dropped and counted.
+    pub tolerance_ms: f64,
+    /// Poses kept for interpolation.
+    pub buffer_len: usize,
+    /// Fixed `base_from_camera` for `world_from_base` poses (rigid mounts only).
+    #[serde(default)]
+    pub base_from_camera: Option<TransformConfig>,
+}
+
+/// `[keyframe]`: a frame becomes a keyframe when the camera moved or turned enough since the
+/// last keyframe, or when `max_interval_s` passed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct KeyframeConfig {
+    /// Translation since the last keyframe, metres.
+    pub min_translation_m: f64,
+    /// Rotation since the last keyframe, degrees.
+    pub min_rotation_deg: f64,
+    /// Longest time without a keyframe, seconds (0 = every frame is a keyframe).
+    pub max_interval_s: f64,
+}
+
+/// Detector backends.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DetectorKind {
+    /// Reads the synthetic source's instance ids, with configurable noise.
+    Oracle,
+}
+
+/// `[detector]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DetectorConfig {
+    /// Backend.
+    pub kind: DetectorKind,
+    /// Worker threads (`op3dsg-detect-<i>`), each with its own detector instance.
+    pub workers: usize,
+    /// `[detector.oracle]`: a `preset = "clean" | "realistic"` plus any knob to override.
+    pub oracle: OracleConfig,
+}
+
+/// `[queues]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QueuesConfig {
+    /// Capture → keyframe gate.
+    pub frames: QueueConfig,
+    /// Keyframe gate → detection workers.
+    pub keyframes: QueueConfig,
+    /// Detection workers → fusion.
+    pub detections: QueueConfig,
+    /// Fusion → publisher.
+    pub graph: QueueConfig,
+}
+
+/// `[health]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HealthConfig {
+    /// Period of health records and of the log summary, milliseconds.
+    pub period_ms: u64,
+    /// Log a one-line summary at info every this many periods (0 = never).
+    pub log_every_periods: u32,
+}
+
+/// `[run]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunConfig {
+    /// Stop after this many source frames (0 = no limit).
+    pub max_frames: u64,
+    /// Exit once a finite source ended and its last graph is published; otherwise keep serving.
+    pub exit_at_end: bool,
+    /// Longest orderly shutdown before the daemon gives up on a stuck stage, seconds.
+    pub shutdown_timeout_s: f64,
+    /// Minimum time between two published graph versions, milliseconds (0 = every change).
+    pub min_publish_interval_ms: u64,
+}
+
+/// Up axis of the world frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum UpAxis {
+    /// +z up (robotics convention; the synthetic world).
+    Z,
+    /// +y up.
+    Y,
+    /// -y up (OpenCV camera-like worlds).
+    NegY,
+}
+
+/// `[world]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WorldConfig {
+    /// Which axis is up (gravity is opposite).
+    pub up_axis: UpAxis,
+}
+
+/// A profile that could not be loaded. The message names the file and the field.
+#[derive(Debug, thiserror::Error)]
+#[error("{file}: {message}")]
+pub struct ProfileError {
+    /// The file that set the offending value (or could not be read).
+    pub file: String,
+    /// Field path and what is wrong.
+    pub message: String,
+}
+
+impl ProfileError {
+    fn new(file: impl Into<String>, message: impl Into<String>) -> Self {
+        Self { file: file.into(), message: message.into() }
+    }
+}
+
+/// A loaded profile with where each value came from.
+#[derive(Debug, Clone)]
+pub struct LoadedProfile {
+    /// The typed, validated profile.
+    pub profile: Profile,
+    /// The merged TOML (for `--print-config`).
+    pub effective: toml::Table,
+    /// The files in layer order (base first).
+    pub layers: Vec<String>,
+}
+
+/// Loads the built-in base, the optional profile file (with its `extends` chain) and the
+/// `--set` overrides, then deserialises and validates.
+pub fn load(profile_path: Option<&Path>, overrides: &[String]) -> Result<LoadedProfile, ProfileError> {
+    let mut layers: Vec<(String, toml::Table)> = Vec::new();
+    layers.push((BASE_PROFILE_NAME.to_owned(), parse_toml(BASE_PROFILE, BASE_PROFILE_NAME)?));
+    if let Some(path) = profile_path {
+        let mut chain = Vec::new();
+        collect_chain(path, &mut chain, 0)?;
+        chain.reverse();
+        layers.extend(chain);
+    }
+    if !overrides.is_empty() {
+        let mut table = toml::Table::new();
+        for set in overrides {
+            let (key, value) = set
+                .split_once('=')
+                .ok_or_else(|| ProfileError::new("--set", format!("'{set}': expected section.key=value")))?;
+            let value = parse_value(value.trim())
+                .map_err(|e| ProfileError::new("--set", format!("{}: {e}", key.trim())))?;
+            insert_dotted(&mut table, key.trim(), value)
+                .map_err(|e| ProfileError::new("--set", format!("{}: {e}", key.trim())))?;
+        }
+        layers.push(("--set".to_owned(), table));
+    }
+
+    let mut origins: BTreeMap<String, String> = BTreeMap::new();
+    let mut merged = toml::Table::new();
+    for (name, table) in &layers {
+        record_origins(table, "", name, &mut origins);
+        merge(&mut merged, table.clone());
+    }
+    merged.remove("extends");
+    let origin_of = |path: &str| -> String {
+        let mut p = path.to_owned();
+        loop {
+            if let Some(file) = origins.get(&p) {
+                return file.clone();
+            }
+            match p.rfind('.') {
+                Some(i) => p.truncate(i),
+                None => return layers.last().map(|(n, _)| n.clone()).unwrap_or_default(),
+            }
+        }
+    };
+
+    apply_oracle_preset(&mut merged).map_err(|(path, msg)| ProfileError::new(origin_of(&path), format!("{path}: {msg}")))?;
+
+    let profile: Profile = serde_path_to_error::deserialize(toml::Value::Table(merged.clone())).map_err(|e| {
+        let path = e.path().to_string();
+        let inner = e.into_inner().to_string();
+        ProfileError::new(origin_of(&path), format!("{path}: {}", inner.trim()))
+    })?;
+    profile.validate().map_err(|(path, msg)| ProfileError::new(origin_of(&path), format!("{path}: {msg}")))?;
+    Ok(LoadedProfile { profile, effective: merged, layers: layers.into_iter().map(|(n, _)| n).collect() })
+}
+
+fn parse_toml(text: &str, name: &str) -> Result<toml::Table, ProfileError> {
+    text.parse::<toml::Table>().map_err(|e| ProfileError::new(name, e.to_string().trim().to_owned()))
+}
+
+fn collect_chain(path: &Path, chain: &mut Vec<(String, toml::Table)>, depth: usize) -> Result<(), ProfileError> {
+    let name = path.display().to_string();
+    if depth > 8 {
+        return Err(ProfileError::new(name, "extends: chain deeper than 8 files (a cycle?)"));
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| ProfileError::new(&name, format!("cannot read profile: {e}")))?;
+    let table = parse_toml(&text, &name)?;
+    let parent = match table.get("extends") {
+        None => None,
+        Some(toml::Value::String(s)) => Some(s.clone()),
+        Some(other) => {
+            return Err(ProfileError::new(&name, format!("extends: expected a file path string, found {}", other.type_str())));
+        }
+    };
+    chain.push((name, table));
+    if let Some(parent) = parent {
+        let base_dir = path.parent().map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from("."));
+        collect_chain(&base_dir.join(parent), chain, depth + 1)?;
+    }
+    Ok(())
+}
+
+fn parse_value(text: &str) -> Result<toml::Value, String> {
+    // Parse as the right-hand side of a TOML assignment; a bare word is taken as a string.
+    match format!("v = {text}").parse::<toml::Table>() {
+        Ok(mut t) => t.remove("v").ok_or_else(|| "no value".to_owned()),
+        Err(_) if text.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '/' || c == '.') => {
+            Ok(toml::Value::String(text.to_owned()))
+        }
+        Err(e) => Err(format!("not a TOML value: {}", e.to_string().trim())),
+    }
+}
+
+fn insert_dotted(table: &mut toml::Table, key: &str, value: toml::Value) -> Result<(), String> {
+    let mut parts = key.split('.').peekable();
+    let mut current = table;
+    while let Some(part) = parts.next() {
+        if part.is_empty() {
+            return Err("empty key segment".to_owned());
+        }
+        if parts.peek().is_none() {
+            current.insert(part.to_owned(), value);
+            return Ok(());
+        }
+        let entry = current.entry(part.to_owned()).or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        current = entry.as_table_mut().ok_or_else(|| format!("{part} is not a table"))?;
+    }
+    Ok(())
+}
+
+fn merge(into: &mut toml::Table, from: toml::Table) {
+    for (key, value) in from {
+        match (into.get_mut(&key), value) {
+            (Some(toml::Value::Table(existing)), toml::Value::Table(incoming)) => merge(existing, incoming),
+            (_, value) => {
+                into.insert(key, value);
+            }
+        }
+    }
+}
+
+fn record_origins(table: &toml::Table, prefix: &str, file: &str, origins: &mut BTreeMap<String, String>) {
+    for (key, value) in table {
+        let path = if prefix.is_empty() { key.clone() } else { format!("{prefix}.{key}") };
+        origins.insert(path.clone(), file.to_owned());
+        if let toml::Value::Table(inner) = value {
+            record_origins(inner, &path, file, origins);
+        }
+    }
+}
+
+/// Replaces `detector.oracle.preset = "<name>"` by the preset's knobs, keeping the keys set
+/// next to it as overrides.
+fn apply_oracle_preset(merged: &mut toml::Table) -> Result<(), (String, String)> {
+    let Some(oracle) = merged
+        .get_mut("detector")
+        .and_then(|d| d.as_table_mut())
+        .and_then(|d| d.get_mut("oracle"))
+        .and_then(|o| o.as_table_mut())
+    else {
+        return Ok(());
+    };
+    let Some(preset) = oracle.remove("preset") else {
+        return Ok(());
+    };
+    let path = "detector.oracle.preset".to_owned();
+    let name = preset.as_str().ok_or_else(|| (path.clone(), format!("expected a string, found {}", preset.type_str())))?;
+    let config = OracleConfig::preset(name)
+        .ok_or_else(|| (path.clone(), format!("unknown preset \"{name}\", expected \"clean\" or \"realistic\"")))?;
+    let mut base = toml::Table::try_from(&config).map_err(|e| (path.clone(), e.to_string()))?;
+    merge(&mut base, std::mem::take(oracle));
+    *oracle = base;
+    Ok(())
+}
+
+fn check(ok: bool, path: &str, message: impl FnOnce() -> String) -> Result<(), (String, String)> {
+    if ok { Ok(()) } else { Err((path.to_owned(), message())) }
+}
+
+/// Splits a `path: message` string from a sub-config's `validate` into its parts.
+fn split_message(message: String) -> (String, String) {
+    match message.split_once(": ") {
+        Some((path, msg)) => (path.to_owned(), msg.to_owned()),
+        None => (String::new(), message),
+    }
+}
+
+impl Profile {
+    /// Range checks across the profile. Errors are `(field path, message)`.
+    pub fn validate(&self) -> Result<(), (String, String)> {
+        check(self.source.rate_hz >= 0.0 && self.source.rate_hz <= 1000.0, "source.rate_hz", || {
+            format!("must be within [0, 1000] (0 = as fast as possible), got {}", self.source.rate_hz)
+        })?;
+        check(self.source.pool_headroom <= 64, "source.pool_headroom", || {
+            format!("must be at most 64, got {}", self.source.pool_headroom)
+        })?;
+        let syn = &self.source.synthetic;
+        check(syn.frame_rate_hz > 0.0 && syn.frame_rate_hz <= 1000.0, "source.synthetic.frame_rate_hz", || {
+            format!("must be within (0, 1000], got {}", syn.frame_rate_hz)
+        })?;
+        check(syn.intrinsics.width >= 16 && syn.intrinsics.height >= 16, "source.synthetic.intrinsics", || {
+            format!("image must be at least 16x16, got {}x{}", syn.intrinsics.width, syn.intrinsics.height)
+        })?;
+        check(syn.intrinsics.fx > 0.0 && syn.intrinsics.fy > 0.0, "source.synthetic.intrinsics.fx", || {
+            "focal lengths must be > 0".to_owned()
+        })?;
+        if let Some(noise) = &syn.depth_noise {
+            let p = "source.synthetic.depth_noise";
+            check(noise.sigma_at_1m_m >= 0.0 && noise.sigma_at_1m_m < 0.1, &format!("{p}.sigma_at_1m_m"), || {
+                format!("must be within [0, 0.1) metres, got {}", noise.sigma_at_1m_m)
+            })?;
+            check(
+                noise.min_range_m >= 0.0 && noise.max_range_m > noise.min_range_m,
+                &format!("{p}.max_range_m"),
+                || format!("must be greater than min_range_m ({}), got {}", noise.min_range_m, noise.max_range_m),
+            )?;
+            for (name, v) in [
+                ("edge_hole_probability", noise.edge_hole_probability),
+                ("random_hole_probability", noise.random_hole_probability),
+            ] {
+                check((0.0..=1.0).contains(&v), &format!("{p}.{name}"), || format!("must be within [0, 1], got {v}"))?;
+            }
+        }
+        check(self.pose.tolerance_ms > 0.0 && self.pose.tolerance_ms <= 5000.0, "pose.tolerance_ms", || {
+            format!("must be within (0, 5000], got {}", self.pose.tolerance_ms)
+        })?;
+        check((2..=100_000).contains(&self.pose.buffer_len), "pose.buffer_len", || {
+            format!("must be within [2, 100000], got {}", self.pose.buffer_len)
+        })?;
+        if let Some(t) = &self.pose.base_from_camera {
+            let norm = t.rotation_xyzw.iter().map(|v| v * v).sum::<f64>().sqrt();
+            check((norm - 1.0).abs() < 1e-3, "pose.base_from_camera.rotation_xyzw", || {
+                format!("must be a unit quaternion, norm is {norm}")
+            })?;
+        }
+        let k = &self.keyframe;
+        check(k.min_translation_m >= 0.0, "keyframe.min_translation_m", || format!("must be >= 0, got {}", k.min_translation_m))?;
+        check((0.0..=180.0).contains(&k.min_rotation_deg), "keyframe.min_rotation_deg", || {
+            format!("must be within [0, 180], got {}", k.min_rotation_deg)
+        })?;
+        check(k.max_interval_s >= 0.0, "keyframe.max_interval_s", || format!("must be >= 0, got {}", k.max_interval_s))?;
+        check((1..=64).contains(&self.detector.workers), "detector.workers", || {
+            format!("must be within [1, 64], got {}", self.detector.workers)
+        })?;
+        self.detector.oracle.validate("detector.oracle").map_err(split_message)?;
+        self.fusion.validate("fusion").map_err(split_message)?;
+        self.queues.frames.validate("queues.frames").map_err(split_message)?;
+        self.queues.keyframes.validate("queues.keyframes").map_err(split_message)?;
+        self.queues.detections.validate("queues.detections").map_err(split_message)?;
+        self.queues.graph.validate("queues.graph").map_err(split_message)?;
+        self.ipc.validate("ipc").map_err(split_message)?;
+        check((10..=60_000).contains(&self.health.period_ms), "health.period_ms", || {
+            format!("must be within [10, 60000], got {}", self.health.period_ms)
+        })?;
+        check(self.run.shutdown_timeout_s > 0.0 && self.run.shutdown_timeout_s <= 600.0, "run.shutdown_timeout_s", || {
+            format!("must be within (0, 600], got {}", self.run.shutdown_timeout_s)
+        })?;
+        check(
+            self.pose.source == PoseSourceKind::Ipc || self.source.kind == SourceKind::Synthetic,
+            "pose.source",
+            || "\"frame\" needs a source that carries poses".to_owned(),
+        )?;
+        Ok(())
+    }
+
+    /// Frames the frame pool needs so that no stage starves another: every queue full, every
+    /// worker busy, one in capture, one in fusion, plus headroom.
+    pub fn frame_pool_capacity(&self) -> usize {
+        self.queues.frames.capacity
+            + self.queues.keyframes.capacity
+            + self.queues.detections.capacity
+            + self.detector.workers
+            + 3
+            + self.source.pool_headroom
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(dir: &tempfile::TempDir, name: &str, text: &str) -> PathBuf {
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        path
+    }
+
+    #[test]
+    fn built_in_base_loads_and_validates() {
+        let loaded = load(None, &[]).unwrap();
+        assert_eq!(loaded.profile.source.kind, SourceKind::Synthetic);
+        assert_eq!(loaded.layers, [BASE_PROFILE_NAME]);
+    }
+
+    #[test]
+    fn unknown_key_names_file_and_field() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = write(&dir, "robot.toml", "[fusion]\nvoxel_sise_m = 0.02\n");
+        let err = load(Some(&path), &[]).unwrap_err();
+        assert_eq!(err.file, path.display().to_string());
+        assert!(err.message.starts_with("fusion"), "{err}");
+        assert!(err.message.contains("voxel_sise_m"), "{err}");
+    }
+
+    #[test]
+    fn wrong_type_names_file_and_field() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = write(&dir, "robot.toml", "[detector]\nworkers = \"two\"\n");
+        let err = load(Some(&path), &[]).unwrap_err();
+        assert_eq!(err.file, path.display().to_string());
+        assert!(err.message.starts_with("detector.workers: "), "{err}");
+    }
+
+    #[test]
+    fn out_of_range_names_file_and_field() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = write(&dir, "robot.toml", "[detector]\nworkers = 0\n");
+        let err = load(Some(&path), &[]).unwrap_err();
+        assert_eq!(err.to_string(), format!("{}: detector.workers: must be within [1, 64], got 0", path.display()));
+        let path = write(&dir, "r2.toml", "[detector.oracle]\npart_miss_rate = 1.5\n");
+        let err = load(Some(&path), &[]).unwrap_err();
+        assert_eq!(err.file, path.display().to_string());
+        assert!(err.message.starts_with("detector.oracle.part_miss_rate: "), "{err}");
+    }
+
+    #[test]
+    fn extends_chain_and_set_overrides_layer_in_order() {
+        let dir = tempfile::tempdir().unwrap();
+        write(&dir, "common.toml", "[detector]\nworkers = 3\n[health]\nperiod_ms = 250\n");
+        let path = write(&dir, "robot.toml", "extends = \"common.toml\"\n[detector]\nworkers = 4\n");
+        let loaded = load(Some(&path), &["health.period_ms=500".to_owned()]).unwrap();
+        assert_eq!(loaded.profile.detector.workers, 4);
+        assert_eq!(loaded.profile.health.period_ms, 500);
+        assert_eq!(loaded.layers.len(), 4);
+        let err = load(Some(&path), &["detector.workers=99".to_owned()]).unwrap_err();
+        assert_eq!(err.file, "--set");
+    }
+
+    #[test]
+    fn oracle_preset_with_override() {
+        let loaded = load(None, &["detector.oracle.preset=clean".to_owned()]).unwrap();
+        assert_eq!(loaded.profile.detector.oracle, OracleConfig::clean());
+        let loaded =
+            load(None, &["detector.oracle.preset=clean".to_owned(), "detector.oracle.part_miss_rate=0.5".to_owned()])
+                .unwrap();
+        assert_eq!(loaded.profile.detector.oracle.part_miss_rate, 0.5);
+        let err = load(None, &["detector.oracle.preset=noisy".to_owned()]).unwrap_err();
+        assert!(err.message.starts_with("detector.oracle.preset: unknown preset"), "{err}");
+    }
+
+    #[test]
+    fn toml_syntax_error_names_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = write(&dir, "bad.toml", "[fusion\n");
+        let err = load(Some(&path), &[]).unwrap_err();
+        assert_eq!(err.file, path.display().to_string());
+    }
+}

@@ -1,0 +1,746 @@
+//! The daemon's pipeline: named threads connected by bounded queues.
+//!
+//! ```text
+//! capture ──[frames]──► keyframe gate ──[keyframes]──► detect/0..N-1 ──[detections]──► fusion ──[graph]──► publisher
+//!  source,                pose lookup,                  one Detector                    sole owner     iceoryx2: graph,
+//!  frame pool             motion gate                   per worker                      of the map     event, health;
+//!                           ▲                                                                          pose input
+//!                           └──────────────────────────── poses (from <prefix>/pose) ◄──────────────────┘
+//! ```
+//!
+//! Workers take keyframes under a ticket lock, so every keyframe they take gets a gapless ticket;
+//! fusion applies results strictly in ticket order (a small reorder buffer), which keeps the map
+//! deterministic whatever the number of workers.
+//!
+//! ## Shutdown ladder (SIGINT / SIGTERM, `run.max_frames`, or the end of a finite source)
+//! 1. The stop flag is set (or the source ends): capture stops reading, returns its frames to the
+//!    pool and closes the `frames` queue.
+//! 2. The keyframe gate drains `frames`, then closes `keyframes`.
+//! 3. Each worker finishes the keyframe it holds and exits; the last one closes `detections`.
+//! 4. Fusion applies every result it received, publishes the final graph into `graph` and exits.
+//! 5. The publisher sends that final graph and a last health record, then releases its iceoryx2
+//!    services. At the end of a finite source without `run.exit_at_end` it keeps serving instead
+//!    until a signal arrives.
+//!
+//! A stage that has not finished `run.shutdown_timeout_s` after the stop is named in the log and
+//! the daemon exits with an error; a second signal exits at once (see the `op3dsgd` binary).
+
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::{Receiver, Sender};
+use op3dsg_drivers::frame::{FramePool, PooledFrame};
+use op3dsg_drivers::pose::{Isometry, PoseBuffer, StampedPose};
+use op3dsg_drivers::source::{FrameSource, SourceError, SourceStatus};
+use op3dsg_drivers::synthetic::SyntheticSource;
+use op3dsg_ipc_types::{Health, PoseKind, PoseStamped, write_fixed_str};
+use tracing::{debug, error, info, warn};
+
+use crate::config::{DetectorKind, PoseSourceKind, Profile, SourceKind};
+use crate::fusion::Fusion;
+use crate::fusion::simple::SimpleFusion;
+use crate::graph::SceneGraph;
+use crate::ipc::GraphServer;
+use crate::perception::oracle::OracleDetector;
+use crate::perception::{Detection, Detector};
+use crate::queue::{Popped, QueueReceiver, QueueSender, QueueStats, queue};
+use crate::stats::StageStats;
+
+/// How long a stage waits on an empty queue before it checks the stop flag again.
+const POLL: Duration = Duration::from_millis(20);
+
+/// Errors that stop the pipeline from starting.
+#[derive(Debug, thiserror::Error)]
+pub enum StartError {
+    /// The frame source could not be opened.
+    #[error("source: {0}")]
+    Source(#[from] SourceError),
+    /// The profile combines things that cannot work together.
+    #[error("{field}: {reason}")]
+    Incompatible {
+        /// Profile field.
+        field: &'static str,
+        /// Why.
+        reason: String,
+    },
+    /// The iceoryx2 services could not be created.
+    #[error("iceoryx2: {0}")]
+    Ipc(String),
+    /// A thread could not be started.
+    #[error("thread {name}: {reason}")]
+    Thread {
+        /// Thread name.
+        name: String,
+        /// OS error.
+        reason: String,
+    },
+}
+
+/// Counters shared by every stage and read by the health reporter.
+#[derive(Debug)]
+pub struct PipelineStats {
+    started: Instant,
+    /// Frames the source delivered.
+    pub frames_captured: AtomicU64,
+    /// Frames dropped at capture because every pooled frame was in flight.
+    pub frames_pool_exhausted: AtomicU64,
+    /// Frames accepted as keyframes.
+    pub keyframes: AtomicU64,
+    /// Frames dropped for lack of a pose within tolerance.
+    pub frames_without_pose: AtomicU64,
+    /// Poses received on the pose service that were rejected (bad kind or quaternion).
+    pub poses_rejected: AtomicU64,
+    /// Detections given to fusion.
+    pub detections_fused: AtomicU64,
+    /// Latest graph version.
+    pub graph_version: AtomicU64,
+    /// Nodes in the map.
+    pub map_node_count: AtomicU64,
+    /// Whether the source is delivering.
+    pub source_connected: AtomicBool,
+    /// Set once a finite source has ended (or `max_frames` was reached).
+    pub source_finished: AtomicBool,
+    /// Per-stage figures, in pipeline order.
+    pub stages: Vec<Arc<StageStats>>,
+    /// Per-queue figures, in pipeline order.
+    pub queues: Vec<Arc<QueueStats>>,
+}
+
+impl PipelineStats {
+    /// The health record of this moment (starts a new latency period for every stage).
+    pub fn health(&self) -> Health {
+        let mut h = Health::default();
+        let wall_ns = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_nanos() as u64)
+            .unwrap_or(0);
+        h.stamp_ns = wall_ns;
+        h.uptime_ns = self.started.elapsed().as_nanos() as u64;
+        h.frames_captured = self.frames_captured.load(Ordering::Relaxed);
+        h.keyframes = self.keyframes.load(Ordering::Relaxed);
+        h.frames_without_pose = self.frames_without_pose.load(Ordering::Relaxed);
+        h.detections_fused = self.detections_fused.load(Ordering::Relaxed);
+        h.graph_version = self.graph_version.load(Ordering::Relaxed);
+        h.map_node_count = self.map_node_count.load(Ordering::Relaxed) as u32;
+        h.source_connected = u8::from(self.source_connected.load(Ordering::Relaxed));
+        for (slot, stage) in h.stages.iter_mut().zip(&self.stages) {
+            let f = stage.take_figures();
+            write_fixed_str(&mut slot.name, &stage.name);
+            slot.processed = f.processed;
+            slot.rate_hz = f.rate_hz;
+            slot.latency_p50_us = f.p50_us;
+            slot.latency_p99_us = f.p99_us;
+            slot.errors = f.errors.min(u32::MAX as u64) as u32;
+        }
+        h.stage_count = self.stages.len().min(h.stages.len()) as u32;
+        for (slot, q) in h.queues.iter_mut().zip(&self.queues) {
+            write_fixed_str(&mut slot.name, q.name);
+            slot.depth = q.depth() as u32;
+            slot.capacity = q.capacity as u32;
+            slot.dropped = q.dropped.load(Ordering::Relaxed);
+            slot.pushed = q.pushed.load(Ordering::Relaxed);
+        }
+        h.queue_count = self.queues.len().min(h.queues.len()) as u32;
+        h
+    }
+
+    fn stage(&self, name: &str) -> Arc<StageStats> {
+        // Stages are created in `start`; a missing name is a programming error caught by tests.
+        self.stages.iter().find(|s| s.name == name).cloned().unwrap_or_else(|| Arc::new(StageStats::new(name)))
+    }
+}
+
+/// What a finished run did (printed by `op3dsgd` at exit).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RunSummary {
+    /// Frames delivered by the source.
+    pub frames: u64,
+    /// Keyframes fused.
+    pub keyframes: u64,
+    /// Final graph version.
+    pub graph_version: u64,
+    /// Nodes in the map at the end.
+    pub map_nodes: u64,
+    /// Seconds from start to the end of the last stage.
+    pub elapsed_s: f64,
+}
+
+impl RunSummary {
+    /// Keyframes per second over the run.
+    pub fn keyframes_per_s(&self) -> f64 {
+        self.keyframes as f64 / self.elapsed_s.max(1e-9)
+    }
+}
+
+struct KeyframeItem {
+    frame: PooledFrame,
+    world_from_camera: Isometry,
+}
+
+struct DetectionBatch {
+    ticket: u64,
+    frame: PooledFrame,
+    world_from_camera: Isometry,
+    detections: Vec<Detection>,
+}
+
+/// A running pipeline.
+pub struct Pipeline {
+    stop: Arc<AtomicBool>,
+    stats: Arc<PipelineStats>,
+    finished_rx: Receiver<&'static str>,
+    running: Vec<&'static str>,
+    handles: Vec<std::thread::JoinHandle<()>>,
+    shutdown_timeout: Duration,
+}
+
+impl std::fmt::Debug for Pipeline {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Pipeline").field("running", &self.running).finish_non_exhaustive()
+    }
+}
+
+fn spawn_stage(
+    name: &'static str,
+    finished: &Sender<&'static str>,
+    body: impl FnOnce() + Send + 'static,
+) -> Result<std::thread::JoinHandle<()>, StartError> {
+    let finished = finished.clone();
+    std::thread::Builder::new()
+        .name(format!("op3dsg-{name}"))
+        .spawn(move || {
+            body();
+            let _ = finished.send(name);
+        })
+        .map_err(|e| StartError::Thread { name: name.to_owned(), reason: e.to_string() })
+}
+
+type DetectorFactory = Arc<dyn Fn(u32) -> Box<dyn Detector> + Send + Sync>;
+
+fn build_source(profile: &Profile) -> Result<(Box<dyn FrameSource>, DetectorFactory), StartError> {
+    match profile.source.kind {
+        SourceKind::Synthetic => {
+            let source = SyntheticSource::new(&profile.source.synthetic)?;
+            let instances = source.scene().instances().to_vec();
+            let oracle = profile.detector.oracle.clone();
+            let factory: DetectorFactory = match profile.detector.kind {
+                DetectorKind::Oracle => Arc::new(move |worker| {
+                    Box::new(OracleDetector::new(oracle.clone(), instances.clone(), worker)) as Box<dyn Detector>
+                }),
+            };
+            Ok((Box::new(source), factory))
+        }
+    }
+}
+
+impl Pipeline {
+    /// Opens the source and the iceoryx2 services and starts every stage. Returns once the
+    /// services exist (the daemon may then report ready).
+    pub fn start(profile: &Profile, stop: Arc<AtomicBool>) -> Result<Self, StartError> {
+        if profile.pose.source == PoseSourceKind::Frame && profile.source.kind != SourceKind::Synthetic {
+            return Err(StartError::Incompatible {
+                field: "pose.source",
+                reason: "\"frame\" needs a source that carries poses".to_owned(),
+            });
+        }
+        let (mut source, detector_factory) = build_source(profile)?;
+        if profile.pose.source == PoseSourceKind::Frame && !source.has_poses() {
+            return Err(StartError::Incompatible {
+                field: "pose.source",
+                reason: format!("{} carries no poses; use pose.source = \"ipc\"", source.describe()),
+            });
+        }
+        info!(source = %source.describe(), workers = profile.detector.workers, "starting pipeline");
+
+        let q = &profile.queues;
+        let (frames_tx, frames_rx, frames_stats) = queue::<PooledFrame>("frames", q.frames, stop.clone());
+        let (kf_tx, kf_rx, kf_stats) = queue::<KeyframeItem>("keyframes", q.keyframes, stop.clone());
+        let (det_tx, det_rx, det_stats) = queue::<DetectionBatch>("detections", q.detections, stop.clone());
+        let (graph_tx, graph_rx, graph_stats) = queue::<SceneGraph>("graph", q.graph, stop.clone());
+        let (pose_tx, pose_rx) = crossbeam_channel::bounded::<PoseStamped>(profile.pose.buffer_len);
+
+        let mut stages = vec![Arc::new(StageStats::new("capture")), Arc::new(StageStats::new("keyframe"))];
+        for i in 0..profile.detector.workers {
+            stages.push(Arc::new(StageStats::new(format!("detect/{i}"))));
+        }
+        stages.push(Arc::new(StageStats::new("fusion")));
+        stages.push(Arc::new(StageStats::new("publish")));
+        let stats = Arc::new(PipelineStats {
+            started: Instant::now(),
+            frames_captured: AtomicU64::new(0),
+            frames_pool_exhausted: AtomicU64::new(0),
+            keyframes: AtomicU64::new(0),
+            frames_without_pose: AtomicU64::new(0),
+            poses_rejected: AtomicU64::new(0),
+            detections_fused: AtomicU64::new(0),
+            graph_version: AtomicU64::new(0),
+            map_node_count: AtomicU64::new(0),
+            source_connected: AtomicBool::new(true),
+            source_finished: AtomicBool::new(false),
+            stages,
+            queues: vec![frames_stats, kf_stats, det_stats, graph_stats],
+        });
+
+        let (finished_tx, finished_rx) = crossbeam_channel::unbounded::<&'static str>();
+        let mut handles = Vec::new();
+        let mut running = Vec::new();
+
+        // Publisher first: it owns the iceoryx2 services and must be up before anything runs.
+        let (ready_tx, ready_rx) = crossbeam_channel::bounded::<Result<(), String>>(1);
+        {
+            let ipc = profile.ipc.clone();
+            let stats = stats.clone();
+            let stop = stop.clone();
+            let health_period = Duration::from_millis(profile.health.period_ms);
+            let log_every = profile.health.log_every_periods;
+            // Stopping after `run.max_frames` is a request to exit once the graph is published.
+            let exit_at_end = profile.run.exit_at_end || profile.run.max_frames > 0;
+            let pose_source = profile.pose.source;
+            handles.push(spawn_stage("publish", &finished_tx, move || {
+                let server = match GraphServer::open(&ipc, "op3dsgd") {
+                    Ok(server) => {
+                        let _ = ready_tx.send(Ok(()));
+                        server
+                    }
+                    Err(e) => {
+                        let _ = ready_tx.send(Err(e.to_string()));
+                        return;
+                    }
+                };
+                publisher_loop(
+                    server,
+                    graph_rx,
+                    pose_tx,
+                    pose_source,
+                    &stats,
+                    &stop,
+                    health_period,
+                    log_every,
+                    exit_at_end,
+                );
+            })?);
+            running.push("publish");
+        }
+        match ready_rx.recv() {
+            Ok(Ok(())) => {}
+            Ok(Err(reason)) => return Err(StartError::Ipc(reason)),
+            Err(_) => return Err(StartError::Ipc("publisher thread ended during start-up".to_owned())),
+        }
+
+        // Fusion.
+        {
+            let stats = stats.clone();
+            let fusion: Box<dyn Fusion> = Box::new(SimpleFusion::new(profile.fusion.clone()));
+            let min_interval = Duration::from_millis(profile.run.min_publish_interval_ms);
+            handles.push(spawn_stage("fusion", &finished_tx, move || {
+                fusion_loop(fusion, det_rx, graph_tx, &stats, min_interval);
+            })?);
+            running.push("fusion");
+        }
+
+        // Detection workers share one ticketed receiver.
+        let tickets = Arc::new(Mutex::new((kf_rx, 0u64)));
+        for worker in 0..profile.detector.workers {
+            let detector = detector_factory(worker as u32);
+            let tickets = tickets.clone();
+            let det_tx = det_tx.clone();
+            let stats = stats.clone();
+            let name: &'static str = Box::leak(format!("detect-{worker}").into_boxed_str());
+            handles.push(spawn_stage(name, &finished_tx, move || {
+                detect_loop(worker, detector, &tickets, &det_tx, &stats);
+            })?);
+            running.push(name);
+        }
+        drop(det_tx);
+
+        // Keyframe gate.
+        {
+            let stats = stats.clone();
+            let stop = stop.clone();
+            let config = profile.keyframe.clone();
+            let pose_config = profile.pose.clone();
+            handles.push(spawn_stage("keyframe", &finished_tx, move || {
+                keyframe_loop(&config, &pose_config, frames_rx, kf_tx, pose_rx, &stats, &stop);
+            })?);
+            running.push("keyframe");
+        }
+
+        // Capture last, so every consumer is ready.
+        {
+            let stats = stats.clone();
+            let stop = stop.clone();
+            let pool =
+                FramePool::new(profile.frame_pool_capacity(), source.intrinsics(), source.has_instance_ids());
+            let rate_hz = profile.source.rate_hz;
+            let max_frames = profile.run.max_frames;
+            handles.push(spawn_stage("capture", &finished_tx, move || {
+                capture_loop(source.as_mut(), &pool, frames_tx, rate_hz, max_frames, &stats, &stop);
+            })?);
+            running.push("capture");
+        }
+
+        Ok(Self {
+            stop,
+            stats,
+            finished_rx,
+            running,
+            handles,
+            shutdown_timeout: Duration::from_secs_f64(profile.run.shutdown_timeout_s),
+        })
+    }
+
+    /// Shared counters (for tests and the binary's summary).
+    pub fn stats(&self) -> &Arc<PipelineStats> {
+        &self.stats
+    }
+
+    /// Waits until every stage has ended: after the stop flag is set (signal), or by itself
+    /// when the source ended with `run.exit_at_end` / `run.max_frames`. Fails naming the stuck
+    /// stages when they do not end within the shutdown timeout after a stop.
+    pub fn wait(mut self) -> Result<RunSummary, Vec<&'static str>> {
+        let mut stop_seen_at: Option<Instant> = None;
+        while !self.running.is_empty() {
+            if let Ok(name) = self.finished_rx.recv_timeout(Duration::from_millis(50)) {
+                self.running.retain(|n| *n != name);
+                debug!(stage = name, "stage ended");
+                continue;
+            }
+            if self.stop.load(Ordering::Relaxed) {
+                let since = *stop_seen_at.get_or_insert_with(Instant::now);
+                if since.elapsed() > self.shutdown_timeout {
+                    error!(stages = ?self.running, "stages did not end within the shutdown timeout");
+                    return Err(self.running.clone());
+                }
+            }
+        }
+        for handle in self.handles.drain(..) {
+            let _ = handle.join();
+        }
+        let s = &self.stats;
+        Ok(RunSummary {
+            frames: s.frames_captured.load(Ordering::Relaxed),
+            keyframes: s.keyframes.load(Ordering::Relaxed),
+            graph_version: s.graph_version.load(Ordering::Relaxed),
+            map_nodes: s.map_node_count.load(Ordering::Relaxed),
+            elapsed_s: s.started.elapsed().as_secs_f64(),
+        })
+    }
+}
+
+fn capture_loop(
+    source: &mut dyn FrameSource,
+    pool: &FramePool,
+    frames_tx: QueueSender<PooledFrame>,
+    rate_hz: f64,
+    max_frames: u64,
+    stats: &PipelineStats,
+    stop: &AtomicBool,
+) {
+    let stage = stats.stage("capture");
+    let period = (rate_hz > 0.0).then(|| Duration::from_secs_f64(1.0 / rate_hz));
+    let mut next_due = Instant::now();
+    let mut delivered = 0u64;
+    let mut consecutive_errors = 0u32;
+    while !stop.load(Ordering::Relaxed) {
+        if max_frames > 0 && delivered >= max_frames {
+            info!(frames = delivered, "run.max_frames reached");
+            stats.source_finished.store(true, Ordering::Relaxed);
+            break;
+        }
+        if let Some(period) = period {
+            let now = Instant::now();
+            if next_due > now {
+                std::thread::sleep(next_due - now);
+            }
+            next_due = next_due.max(now - period) + period;
+        }
+        let Some(mut frame) = pool.take_timeout(Duration::from_millis(100)) else {
+            stats.frames_pool_exhausted.fetch_add(1, Ordering::Relaxed);
+            continue;
+        };
+        let started = Instant::now();
+        match source.next_frame(&mut frame) {
+            Ok(SourceStatus::Frame) => {
+                consecutive_errors = 0;
+                delivered += 1;
+                stats.frames_captured.fetch_add(1, Ordering::Relaxed);
+                stage.record(started);
+                tracing::trace!(frame_seq = frame.seq, "captured");
+                frames_tx.push(frame);
+            }
+            Ok(SourceStatus::Pending) => {}
+            Ok(SourceStatus::EndOfStream) => {
+                info!(frames = delivered, source = %source.describe(), "source ended");
+                stats.source_finished.store(true, Ordering::Relaxed);
+                break;
+            }
+            Err(e) => {
+                stage.record_error();
+                consecutive_errors += 1;
+                if consecutive_errors == 1 || consecutive_errors.is_power_of_two() {
+                    warn!(error = %e, consecutive_errors, "frame source error");
+                }
+                std::thread::sleep(Duration::from_millis(10 * u64::from(consecutive_errors.min(100))));
+            }
+        }
+    }
+    stats.source_connected.store(false, Ordering::Relaxed);
+}
+
+fn keyframe_loop(
+    config: &crate::config::KeyframeConfig,
+    pose_config: &crate::config::PoseConfig,
+    frames_rx: QueueReceiver<PooledFrame>,
+    kf_tx: QueueSender<KeyframeItem>,
+    pose_rx: Receiver<PoseStamped>,
+    stats: &PipelineStats,
+    stop: &AtomicBool,
+) {
+    let stage = stats.stage("keyframe");
+    let tolerance_ns = (pose_config.tolerance_ms * 1e6) as u64;
+    let mut poses = PoseBuffer::new(pose_config.buffer_len, tolerance_ns);
+    let base_from_camera = pose_config.base_from_camera.map(|t| t.to_isometry());
+    let mut last: Option<(u64, Isometry)> = None;
+    let min_rotation_rad = config.min_rotation_deg.to_radians();
+    let max_interval_ns = (config.max_interval_s * 1e9) as u64;
+    loop {
+        let frame = match frames_rx.pop_timeout(POLL) {
+            Popped::Item(frame) => frame,
+            Popped::Empty if stop.load(Ordering::Relaxed) => break,
+            Popped::Empty => continue,
+            Popped::Finished => break,
+        };
+        let started = Instant::now();
+        for pose in pose_rx.try_iter() {
+            let world_from_x = Isometry::new(
+                glam::DQuat::from_array(pose.rotation_xyzw),
+                glam::DVec3::from_array(pose.translation_m),
+            );
+            let world_from_camera = match (PoseKind::from_u8(pose.kind), base_from_camera) {
+                (Some(PoseKind::WorldFromCamera), _) => world_from_x,
+                (Some(PoseKind::WorldFromBase), Some(base_from_camera)) => world_from_x * base_from_camera,
+                _ => {
+                    stats.poses_rejected.fetch_add(1, Ordering::Relaxed);
+                    continue;
+                }
+            };
+            poses.push(StampedPose { stamp_ns: pose.stamp_ns, world_from_camera });
+        }
+        let pose = match pose_config.source {
+            PoseSourceKind::Frame => frame.world_from_camera,
+            PoseSourceKind::Ipc => poses.lookup(frame.stamp_ns),
+        };
+        let Some(world_from_camera) = pose else {
+            stats.frames_without_pose.fetch_add(1, Ordering::Relaxed);
+            tracing::trace!(frame_seq = frame.seq, "no pose within tolerance; frame dropped");
+            continue;
+        };
+        let is_keyframe = match last {
+            None => true,
+            Some((stamp_ns, previous)) => {
+                let moved = previous.translation.distance(world_from_camera.translation);
+                let turned = previous.rotation.angle_between(world_from_camera.rotation);
+                moved >= config.min_translation_m
+                    || turned >= min_rotation_rad
+                    || frame.stamp_ns.saturating_sub(stamp_ns) >= max_interval_ns
+            }
+        };
+        stage.record(started);
+        if is_keyframe {
+            last = Some((frame.stamp_ns, world_from_camera));
+            stats.keyframes.fetch_add(1, Ordering::Relaxed);
+            kf_tx.push(KeyframeItem { frame, world_from_camera });
+        }
+    }
+}
+
+fn detect_loop(
+    worker: usize,
+    mut detector: Box<dyn Detector>,
+    tickets: &Mutex<(QueueReceiver<KeyframeItem>, u64)>,
+    det_tx: &QueueSender<DetectionBatch>,
+    stats: &PipelineStats,
+) {
+    let stage = stats.stage(&format!("detect/{worker}"));
+    loop {
+        let taken = {
+            let Ok(mut guard) = tickets.lock() else { break };
+            match guard.0.pop_timeout(POLL) {
+                Popped::Item(item) => {
+                    let ticket = guard.1;
+                    guard.1 += 1;
+                    Some((ticket, item))
+                }
+                Popped::Empty => None,
+                Popped::Finished => break,
+            }
+        };
+        // On stop, keep draining until the gate closes the queue: the ladder is ordered.
+        let Some((ticket, item)) = taken else { continue };
+        let started = Instant::now();
+        let mut detections = Vec::new();
+        if let Err(e) = detector.detect(&item.frame, &mut detections) {
+            stage.record_error();
+            warn!(worker, frame_seq = item.frame.seq, error = %e, "detection failed; keyframe fused empty");
+            detections.clear();
+        } else {
+            stage.record(started);
+        }
+        // Always send, even empty, so fusion's ticket sequence has no gaps.
+        det_tx.push(DetectionBatch { ticket, frame: item.frame, world_from_camera: item.world_from_camera, detections });
+    }
+}
+
+fn fusion_loop(
+    mut fusion: Box<dyn Fusion>,
+    det_rx: QueueReceiver<DetectionBatch>,
+    graph_tx: QueueSender<SceneGraph>,
+    stats: &PipelineStats,
+    min_interval: Duration,
+) {
+    let stage = stats.stage("fusion");
+    let mut pending: BTreeMap<u64, DetectionBatch> = BTreeMap::new();
+    let mut next_ticket = 0u64;
+    let mut version = 0u64;
+    let mut stamp_ns = 0u64;
+    let mut dirty = false;
+    let mut last_publish: Option<Instant> = None;
+    let mut publish = |fusion: &dyn Fusion, version: &mut u64, stamp_ns: u64| {
+        let mut graph = SceneGraph::default();
+        fusion.build_graph(&mut graph);
+        *version += 1;
+        graph.version = *version;
+        graph.stamp_ns = stamp_ns;
+        stats.graph_version.store(*version, Ordering::Relaxed);
+        stats.map_node_count.store(fusion.node_count() as u64, Ordering::Relaxed);
+        graph_tx.push(graph);
+    };
+    loop {
+        let finished = match det_rx.pop_timeout(POLL) {
+            Popped::Item(batch) => {
+                pending.insert(batch.ticket, batch);
+                false
+            }
+            Popped::Empty => false,
+            Popped::Finished => true,
+        };
+        // Apply results in ticket order; at the end, apply what is left in order (a gap can only
+        // come from a worker that gave up during shutdown).
+        while let Some(batch) = pending
+            .remove(&next_ticket)
+            .or_else(|| if finished { pending.pop_first().map(|(_, b)| b) } else { None })
+        {
+            next_ticket = batch.ticket + 1;
+            let started = Instant::now();
+            let report = fusion.integrate(&batch.frame, &batch.world_from_camera, &batch.detections);
+            stats.detections_fused.fetch_add(batch.detections.len() as u64, Ordering::Relaxed);
+            stamp_ns = stamp_ns.max(batch.frame.stamp_ns);
+            stage.record(started);
+            tracing::trace!(
+                frame_seq = batch.frame.seq,
+                merged = report.merged,
+                created = report.created,
+                ignored = report.ignored,
+                "fused"
+            );
+            dirty |= report.merged + report.created > 0;
+        }
+        let due = last_publish.is_none_or(|t| t.elapsed() >= min_interval);
+        if dirty && (due || finished) {
+            publish(fusion.as_ref(), &mut version, stamp_ns);
+            last_publish = Some(Instant::now());
+            dirty = false;
+        }
+        if finished {
+            if version == 0 {
+                // Publish an empty graph so clients see the daemon served.
+                publish(fusion.as_ref(), &mut version, stamp_ns);
+            }
+            break;
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn publisher_loop(
+    mut server: GraphServer,
+    graph_rx: QueueReceiver<SceneGraph>,
+    pose_tx: Sender<PoseStamped>,
+    pose_source: PoseSourceKind,
+    stats: &PipelineStats,
+    stop: &AtomicBool,
+    health_period: Duration,
+    log_every: u32,
+    exit_at_end: bool,
+) {
+    let stage = stats.stage("publish");
+    let mut next_health = Instant::now();
+    let mut periods = 0u32;
+    let mut upstream_done = false;
+    let mut poses = Vec::new();
+    let mut publish_errors = 0u64;
+    loop {
+        match graph_rx.pop_timeout(if upstream_done { Duration::from_millis(100) } else { POLL }) {
+            Popped::Item(graph) => {
+                let started = Instant::now();
+                match server.publish_graph(&graph) {
+                    Ok(report) => {
+                        stage.record(started);
+                        if report.truncated {
+                            warn!(version = graph.version, "graph exceeds the snapshot capacity; truncated");
+                        }
+                    }
+                    Err(e) => {
+                        stage.record_error();
+                        publish_errors += 1;
+                        if publish_errors.is_power_of_two() {
+                            warn!(error = %e, publish_errors, "graph publish failed");
+                        }
+                    }
+                }
+            }
+            Popped::Empty => {}
+            Popped::Finished => {
+                if !upstream_done {
+                    info!("pipeline drained; final graph published");
+                }
+                upstream_done = true;
+            }
+        }
+        poses.clear();
+        server.poll_poses(&mut poses);
+        if pose_source == PoseSourceKind::Ipc {
+            for pose in poses.drain(..) {
+                // The gate drains this channel every frame; if it is full the oldest poses are
+                // the least useful, but losing the newest is acceptable too: count and go on.
+                if pose_tx.try_send(pose).is_err() {
+                    stats.poses_rejected.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+        }
+        if Instant::now() >= next_health || upstream_done && stop.load(Ordering::Relaxed) {
+            let health = stats.health();
+            if let Err(e) = server.publish_health(&health) {
+                warn!(error = %e, "health publish failed");
+            }
+            periods += 1;
+            if log_every > 0 && periods % log_every == 0 {
+                info!(
+                    frames = health.frames_captured,
+                    keyframes = health.keyframes,
+                    graph_version = health.graph_version,
+                    map_nodes = health.map_node_count,
+                    "running"
+                );
+            }
+            next_health = Instant::now() + health_period;
+        }
+        if upstream_done && (stop.load(Ordering::Relaxed) || exit_at_end) {
+            // One last health record so watchers see the final counters.
+            let _ = server.publish_health(&stats.health());
+            break;
+        }
+    }
+}
