@@ -41,7 +41,7 @@ impl Mask {
         (0..self.height).flat_map(move |row| {
             (0..self.width).filter_map(move |col| {
                 (self.data[(row * self.width + col) as usize] != 0)
-                    .then(|| ((self.y0 + row) * image_width + self.x0 + col) as usize)
+                    .then_some(((self.y0 + row) * image_width + self.x0 + col) as usize)
             })
         })
     }

@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# Runs the whole test suite on a fresh machine: one debug build reused by every test.
+# Usage: bash scripts/test.sh            (CI: .ci/run calls exactly this)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+if ! command -v cargo >/dev/null 2>&1; then
+  echo "scripts/test.sh: cargo not found; install Rust (rustup) first" >&2
+  exit 2
+fi
+
+# iceoryx2 keeps its state in /tmp/iceoryx2 and /dev/shm; every test uses its own service
+# prefix, so parallel tests and a daemon running on this machine do not interfere.
+export RUST_BACKTRACE=1
+export OP3DSG_LOG="${OP3DSG_LOG:-warn}"
+
+echo "== build (debug, all targets) =="
+cargo build --workspace --all-targets --locked
+
+echo "== tests =="
+cargo test --workspace --locked --no-fail-fast 2>&1 | tee target/test-output.log
