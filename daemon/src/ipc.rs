@@ -73,7 +73,7 @@
 use std::mem::MaybeUninit;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use iceoryx2::port::listener::Listener;
+use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
@@ -878,10 +878,14 @@ impl GraphClient {
     }
 
     /// Waits up to `timeout` for a `graph_updated` notification; `true` if one (or more) came.
+    /// A signal that interrupts the wait (Ctrl-C) returns `Ok(false)` early, so the caller can
+    /// check its own stop flag.
     pub fn wait_for_update(&self, timeout: Duration) -> Result<bool, IpcError> {
-        let count =
-            self.listener.timed_wait(|_| {}, timeout).map_err(|e| service_err(&self.names.graph_updated, "wait", e))?;
-        Ok(count > 0)
+        match self.listener.timed_wait(|_| {}, timeout) {
+            Ok(count) => Ok(count > 0),
+            Err(ListenerWaitError::InterruptSignal) => Ok(false),
+            Err(e) => Err(service_err(&self.names.graph_updated, "wait", e)),
+        }
     }
 
     /// Drains the received health records and returns the newest; `None` when nothing arrived

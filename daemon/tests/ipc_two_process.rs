@@ -263,3 +263,65 @@ fn client_started_before_the_daemon_waits_for_it() {
     let _server = server(&prefix);
     waiter.join().expect("join").expect("client connected once the daemon came up");
 }
+
+#[test]
+fn watch_prints_updates_and_exits_cleanly_on_ctrl_c() {
+    use std::io::{BufRead, BufReader};
+    let prefix = unique_prefix();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_op3dsg"))
+        .args(["--prefix", &prefix, "watch", "--interval-ms", "50"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn op3dsg watch");
+    // The daemon starts after the client: watch must wait for it.
+    std::thread::sleep(Duration::from_millis(300));
+    let mut server = server(&prefix);
+    let stdout = child.stdout.take().expect("piped stdout");
+    let (tx, rx) = std::sync::mpsc::channel();
+    let reader = std::thread::Builder::new()
+        .name("watch-reader".into())
+        .spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        })
+        .expect("spawn reader");
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let mut seen = None;
+    let mut version = 0;
+    while seen.is_none() && Instant::now() < deadline {
+        version += 1;
+        server.publish_graph(&cabinet_graph(version)).expect("publish");
+        server.update_connections().expect("update connections");
+        while let Ok(line) = rx.recv_timeout(Duration::from_millis(50)) {
+            if line.contains("objects 1 parts 1 edges 2") {
+                seen = Some(line);
+                break;
+            }
+        }
+    }
+    let status = Command::new("kill").args(["-INT", &child.id().to_string()]).status().expect("run kill");
+    assert!(status.success());
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let exit = loop {
+        if let Some(exit) = child.try_wait().expect("poll child") {
+            break exit;
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            panic!("op3dsg watch ignored Ctrl-C");
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    let _ = reader.join();
+    let mut stderr = String::new();
+    if let Some(mut e) = child.stderr.take() {
+        let _ = std::io::Read::read_to_string(&mut e, &mut stderr);
+    }
+    assert!(seen.is_some(), "watch never printed the graph; stderr: {stderr}");
+    assert!(stderr.contains(&format!("waiting for op3dsgd under prefix {prefix}")), "{stderr}");
+    assert!(exit.success(), "watch exit {exit:?}; stderr: {stderr}");
+}

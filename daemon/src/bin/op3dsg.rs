@@ -353,20 +353,22 @@ fn watch(prefix: &str, interval: Duration) -> Result<()> {
         ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst)).context("installing the Ctrl-C handler")?;
     }
     let mut announced = false;
+    // Try once at once, so the "waiting" line appears immediately when the daemon is not up.
+    let mut attempt = GraphClient::open(prefix, &node_name());
     let mut client = loop {
+        match attempt {
+            Ok(client) => break client,
+            Err(IpcError::NotServing { .. }) => {}
+            Err(e) => return Err(e).with_context(|| format!("connecting to op3dsgd under prefix '{prefix}'")),
+        }
         if stop.load(Ordering::SeqCst) {
             return Ok(());
         }
-        match GraphClient::open_wait(prefix, &node_name(), Duration::from_millis(500)) {
-            Ok(client) => break client,
-            Err(IpcError::NotServing { .. }) => {
-                if !announced {
-                    eprintln!("waiting for op3dsgd under prefix {prefix}...");
-                    announced = true;
-                }
-            }
-            Err(e) => return Err(e).with_context(|| format!("connecting to op3dsgd under prefix '{prefix}'")),
+        if !announced {
+            eprintln!("waiting for op3dsgd under prefix {prefix}...");
+            announced = true;
         }
+        attempt = GraphClient::open_wait(prefix, &node_name(), Duration::from_millis(500));
     };
     eprintln!("connected to op3dsgd under prefix {prefix} (Ctrl-C to quit)");
     let mut graph: Option<SceneGraph> = None;
@@ -374,11 +376,7 @@ fn watch(prefix: &str, interval: Duration) -> Result<()> {
     let mut health: Option<Health> = None;
     let mut last_print = Instant::now() - interval;
     while !stop.load(Ordering::SeqCst) {
-        let woken = match client.wait_for_update(Duration::from_millis(100)) {
-            Ok(w) => w,
-            Err(_) if stop.load(Ordering::SeqCst) => break,
-            Err(e) => return Err(e).context("waiting for graph updates"),
-        };
+        let woken = client.wait_for_update(Duration::from_millis(100)).context("waiting for graph updates")?;
         let mut changed = false;
         if let Some(g) = client.latest_graph().with_context(|| format!("reading service {prefix}/graph"))? {
             capacity_exceeded = client.last_header().is_some_and(|h| h.capacity_exceeded != 0);
