@@ -1,1 +1,413 @@
-fn main() {}
+//! `op3dsg`: the client CLI of the op3dsg scene-graph daemon.
+//!
+//! Reads what a running `op3dsgd` publishes over iceoryx2 shared memory (graph, health) and
+//! writes the synthetic benchmark's ground truth.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use clap::{Parser, Subcommand};
+use iceoryx2::prelude::LogLevel;
+use op3dsg_daemon::graph::SceneGraph;
+use op3dsg_daemon::ipc::{GraphClient, HealthReport, IpcError};
+use op3dsg_drivers::synthetic::RoomKind;
+use op3dsg_ipc_types::Health;
+
+/// Client of the op3dsg scene-graph daemon (op3dsgd).
+///
+/// op3dsgd serves a live, part-aware 3D scene graph over iceoryx2 shared memory under a service
+/// prefix (services <prefix>/graph, <prefix>/graph_updated, <prefix>/health, <prefix>/pose).
+/// This tool watches it, dumps it, shows its health, and writes synthetic ground truth.
+#[derive(Debug, Parser)]
+#[command(name = "op3dsg", version, propagate_version = true)]
+struct Cli {
+    /// Service name prefix the daemon serves under (its profile's `ipc.prefix`)
+    /// [env: OP3DSG_PREFIX] [default: op3dsg].
+    #[arg(long, global = true, value_name = "PREFIX")]
+    prefix: Option<String>,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Live view: one text line per graph update or per interval (graph version, counts,
+    /// capacity flag, frames, keyframes, per-stage rates and latencies, queue depths).
+    ///
+    /// Waits for the daemon if it is not up yet. Ctrl-C exits.
+    Watch {
+        /// Print at least this often even without a graph update, milliseconds.
+        #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(10..=60_000))]
+        interval_ms: u64,
+    },
+    /// Print the current graph once: a table (nodes, then edges) or, with --json, the graph JSON
+    /// form (schema op3dsg.graph/1, the same as `op3dsg gt` writes).
+    Dump {
+        /// Print the JSON form instead of a table.
+        #[arg(long)]
+        json: bool,
+        /// Give up (exit code 1) if no graph arrives within this many seconds.
+        #[arg(long, default_value_t = 5.0)]
+        timeout_s: f64,
+        /// Write to this file instead of standard output.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// Print the daemon's latest health record (frames, keyframes, stage rates and latencies,
+    /// queue depths and drops).
+    Health {
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+        /// Give up (exit code 1) if no record arrives within this many seconds.
+        #[arg(long, default_value_t = 5.0)]
+        timeout_s: f64,
+    },
+    /// Write the ground-truth scene graph (JSON, schema op3dsg.graph/1) of a synthetic room.
+    Gt {
+        /// Room type.
+        #[arg(long, value_parser = parse_room)]
+        room: RoomKind,
+        /// Scene seed (the same seed gives the same scene).
+        #[arg(long)]
+        seed: u64,
+        /// Write to this file instead of standard output.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+}
+
+/// Environment variable giving the prefix when `--prefix` is absent.
+const PREFIX_ENV: &str = "OP3DSG_PREFIX";
+/// Prefix when neither `--prefix` nor the environment give one.
+const DEFAULT_PREFIX: &str = "op3dsg";
+
+fn parse_room(name: &str) -> Result<RoomKind, String> {
+    RoomKind::parse(name).ok_or_else(|| {
+        let all: Vec<&str> = RoomKind::ALL.iter().map(|r| r.as_str()).collect();
+        format!("unknown room \"{name}\" (expected one of: {})", all.join(", "))
+    })
+}
+
+fn main() -> std::process::ExitCode {
+    iceoryx2::prelude::set_log_level_from_env_or(LogLevel::Error);
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .init();
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("op3dsg: error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    let prefix = match cli.prefix {
+        Some(prefix) => prefix,
+        None => std::env::var(PREFIX_ENV).unwrap_or_else(|_| DEFAULT_PREFIX.to_owned()),
+    };
+    op3dsg_daemon::ipc::validate_prefix(&prefix).map_err(|e| anyhow::anyhow!("--prefix / {PREFIX_ENV}: {e}"))?;
+    match cli.command {
+        Command::Watch { interval_ms } => watch(&prefix, Duration::from_millis(interval_ms)),
+        Command::Dump { json, timeout_s, out } => dump(&prefix, json, seconds(timeout_s)?, out.as_deref()),
+        Command::Health { json, timeout_s } => health(&prefix, json, seconds(timeout_s)?),
+        Command::Gt { room, seed, out } => write_ground_truth(room, seed, out.as_deref()),
+    }
+}
+
+fn seconds(value: f64) -> Result<Duration> {
+    Duration::try_from_secs_f64(value).with_context(|| format!("--timeout-s {value}: not a valid duration"))
+}
+
+fn node_name() -> String {
+    format!("op3dsg-cli-{}", std::process::id())
+}
+
+/// Opens the client, waiting up to `timeout` for the daemon.
+fn open_client(prefix: &str, timeout: Duration) -> Result<GraphClient> {
+    GraphClient::open_wait(prefix, &node_name(), timeout).with_context(|| {
+        format!("connecting to op3dsgd under prefix '{prefix}' (waited {:.1} s)", timeout.as_secs_f64())
+    })
+}
+
+/// Polls `read` until it yields a value or `timeout` passes.
+fn poll_until<T>(timeout: Duration, mut read: impl FnMut() -> Result<Option<T>, IpcError>) -> Result<Option<T>> {
+    let deadline = Instant::now() + timeout;
+    loop {
+        if let Some(value) = read()? {
+            return Ok(Some(value));
+        }
+        let now = Instant::now();
+        if now >= deadline {
+            return Ok(None);
+        }
+        std::thread::sleep(Duration::from_millis(10).min(deadline - now));
+    }
+}
+
+fn write_output(out: Option<&Path>, text: &str) -> Result<()> {
+    match out {
+        Some(path) => std::fs::write(path, text).with_context(|| format!("writing {}", path.display())),
+        None => {
+            let mut stdout = std::io::stdout().lock();
+            stdout.write_all(text.as_bytes()).and_then(|()| stdout.flush()).context("writing to standard output")
+        }
+    }
+}
+
+fn dump(prefix: &str, json: bool, timeout: Duration, out: Option<&Path>) -> Result<()> {
+    let deadline = Instant::now() + timeout;
+    let mut client = open_client(prefix, timeout)?;
+    let remaining = deadline.saturating_duration_since(Instant::now());
+    let Some(graph) =
+        poll_until(remaining, || client.latest_graph()).with_context(|| format!("reading service {prefix}/graph"))?
+    else {
+        bail!(
+            "no graph received on service {prefix}/graph within {:.1} s (op3dsgd is up but has not published yet?)",
+            timeout.as_secs_f64()
+        );
+    };
+    let text = if json {
+        let mut text = serde_json::to_string_pretty(&graph.to_json("op3dsgd")).context("serialising the graph JSON")?;
+        text.push('\n');
+        text
+    } else {
+        graph_table(&graph)
+    };
+    write_output(out, &text)
+}
+
+fn fmt3(v: [f32; 3]) -> String {
+    format!("{:.2},{:.2},{:.2}", v[0], v[1], v[2])
+}
+
+fn graph_table(graph: &SceneGraph) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "graph version {}  stamp {} ns  {} objects  {} parts  {} edges",
+        graph.version,
+        graph.stamp_ns,
+        graph.object_count(),
+        graph.part_count(),
+        graph.edges.len()
+    );
+    let _ = writeln!(
+        s,
+        "{:>6}  {:<6}  {:<24}  {:>6}  {:<20}  {:<16}  {:>5}  affordances",
+        "id", "kind", "label", "parent", "centre_m", "size_m", "obs"
+    );
+    for n in &graph.nodes {
+        let size = [n.box_max_m[0] - n.box_min_m[0], n.box_max_m[1] - n.box_min_m[1], n.box_max_m[2] - n.box_min_m[2]];
+        let parent = n.parent_id.map_or_else(|| "-".to_owned(), |p| p.to_string());
+        let affordances: Vec<&str> = op3dsg_ipc_types::affordance_names(n.affordance_bits).collect();
+        let _ = writeln!(
+            s,
+            "{:>6}  {:<6}  {:<24}  {:>6}  {:<20}  {:<16}  {:>5}  {}",
+            n.id,
+            n.kind.as_str(),
+            n.label,
+            parent,
+            fmt3(n.centre_m),
+            fmt3(size),
+            n.observation_count,
+            affordances.join(",")
+        );
+    }
+    if !graph.edges.is_empty() {
+        let _ = writeln!(s, "\nedges:");
+        let label = |id: u32| graph.nodes.iter().find(|n| n.id == id).map_or("?", |n| n.label.as_str());
+        for e in &graph.edges {
+            let _ = writeln!(
+                s,
+                "  {} ({}) --[{}]--> {} ({})  {} {} conf {:.2}",
+                e.source_id,
+                label(e.source_id),
+                op3dsg_ipc_types::relation_phrase(e.relation_id).unwrap_or("unknown"),
+                e.target_id,
+                label(e.target_id),
+                e.kind.as_str(),
+                e.origin.as_str(),
+                e.confidence
+            );
+        }
+    }
+    s
+}
+
+fn health(prefix: &str, json: bool, timeout: Duration) -> Result<()> {
+    let deadline = Instant::now() + timeout;
+    let mut client = open_client(prefix, timeout)?;
+    let remaining = deadline.saturating_duration_since(Instant::now());
+    let Some(record) =
+        poll_until(remaining, || client.latest_health()).with_context(|| format!("reading service {prefix}/health"))?
+    else {
+        bail!("no health record received on service {prefix}/health within {:.1} s", timeout.as_secs_f64());
+    };
+    let report = HealthReport::from(&record);
+    let text = if json {
+        let mut text = serde_json::to_string_pretty(&report).context("serialising the health JSON")?;
+        text.push('\n');
+        text
+    } else {
+        health_text(&report)
+    };
+    write_output(None, &text)
+}
+
+fn health_text(h: &HealthReport) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "uptime {:.1} s  source {}  graph version {}  map nodes {}",
+        h.uptime_s,
+        if h.source_connected { "connected" } else { "disconnected" },
+        h.graph_version,
+        h.map_node_count
+    );
+    let _ = writeln!(
+        s,
+        "frames {}  keyframes {}  without pose {}  detections fused {}",
+        h.frames_captured, h.keyframes, h.frames_without_pose, h.detections_fused
+    );
+    let _ = writeln!(
+        s,
+        "{:<16} {:>10} {:>9} {:>10} {:>10} {:>7}",
+        "stage", "processed", "rate_hz", "p50_us", "p99_us", "errors"
+    );
+    for st in &h.stages {
+        let _ = writeln!(
+            s,
+            "{:<16} {:>10} {:>9.2} {:>10.0} {:>10.0} {:>7}",
+            st.name, st.processed, st.rate_hz, st.latency_p50_us, st.latency_p99_us, st.errors
+        );
+    }
+    let _ = writeln!(s, "{:<16} {:>7} {:>9} {:>10} {:>10}", "queue", "depth", "capacity", "dropped", "pushed");
+    for q in &h.queues {
+        let _ = writeln!(s, "{:<16} {:>7} {:>9} {:>10} {:>10}", q.name, q.depth, q.capacity, q.dropped, q.pushed);
+    }
+    s
+}
+
+/// One line for `watch`.
+fn watch_line(graph: Option<&SceneGraph>, capacity_exceeded: bool, health: Option<&Health>) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    match graph {
+        Some(g) => {
+            let _ = write!(
+                s,
+                "v{} objects {} parts {} edges {}{}",
+                g.version,
+                g.object_count(),
+                g.part_count(),
+                g.edges.len(),
+                if capacity_exceeded { " CAPACITY EXCEEDED" } else { "" }
+            );
+        }
+        None => s.push_str("no graph yet"),
+    }
+    if let Some(h) = health {
+        let _ = write!(s, " | frames {} keyframes {}", h.frames_captured, h.keyframes);
+        for st in h.valid_stages() {
+            let _ = write!(
+                s,
+                " | {} {:.1}Hz p50 {:.1}ms p99 {:.1}ms",
+                op3dsg_ipc_types::fixed_str(&st.name),
+                st.rate_hz,
+                st.latency_p50_us / 1000.0,
+                st.latency_p99_us / 1000.0
+            );
+        }
+        for q in h.valid_queues() {
+            let _ = write!(
+                s,
+                " | q {} {}/{} drop {}",
+                op3dsg_ipc_types::fixed_str(&q.name),
+                q.depth,
+                q.capacity,
+                q.dropped
+            );
+        }
+    }
+    s
+}
+
+fn watch(prefix: &str, interval: Duration) -> Result<()> {
+    let stop = Arc::new(AtomicBool::new(false));
+    {
+        let stop = Arc::clone(&stop);
+        ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst)).context("installing the Ctrl-C handler")?;
+    }
+    let mut announced = false;
+    // Try once at once, so the "waiting" line appears immediately when the daemon is not up.
+    let mut attempt = GraphClient::open(prefix, &node_name());
+    let mut client = loop {
+        match attempt {
+            Ok(client) => break client,
+            Err(IpcError::NotServing { .. }) => {}
+            Err(e) => return Err(e).with_context(|| format!("connecting to op3dsgd under prefix '{prefix}'")),
+        }
+        if stop.load(Ordering::SeqCst) {
+            return Ok(());
+        }
+        if !announced {
+            eprintln!("waiting for op3dsgd under prefix {prefix}...");
+            announced = true;
+        }
+        attempt = GraphClient::open_wait(prefix, &node_name(), Duration::from_millis(500));
+    };
+    eprintln!("connected to op3dsgd under prefix {prefix} (Ctrl-C to quit)");
+    let mut graph: Option<SceneGraph> = None;
+    let mut capacity_exceeded = false;
+    let mut health: Option<Health> = None;
+    let mut last_print = Instant::now() - interval;
+    while !stop.load(Ordering::SeqCst) {
+        let woken = client.wait_for_update(Duration::from_millis(100)).context("waiting for graph updates")?;
+        let mut changed = false;
+        if let Some(g) = client.latest_graph().with_context(|| format!("reading service {prefix}/graph"))? {
+            capacity_exceeded = client.last_header().is_some_and(|h| h.capacity_exceeded != 0);
+            graph = Some(g);
+            changed = true;
+        }
+        if let Some(h) = client.latest_health().with_context(|| format!("reading service {prefix}/health"))? {
+            health = Some(h);
+        }
+        if changed || woken || last_print.elapsed() >= interval {
+            println!("{}", watch_line(graph.as_ref(), capacity_exceeded, health.as_ref()));
+            last_print = Instant::now();
+        }
+    }
+    Ok(())
+}
+
+/// Writes the ground truth of synthetic `room` with `seed` as graph JSON to `out` (or stdout).
+fn write_ground_truth(room: RoomKind, seed: u64, out: Option<&Path>) -> Result<()> {
+    // INTEGRATION: the synthetic world is built on another branch. Once
+    // `op3dsg_drivers::synthetic::Scene::generate(room, seed)` and `Scene::ground_truth() -> GraphJson`
+    // exist, replace the `bail!` below with:
+    //
+    //     let scene = op3dsg_drivers::synthetic::Scene::generate(room, seed);
+    //     let gt = scene.ground_truth();
+    //     let mut text = serde_json::to_string_pretty(&gt).context("serialising the ground truth JSON")?;
+    //     text.push('\n');
+    //     write_output(out, &text)
+    let _ = out;
+    bail!(
+        "op3dsg gt --room {} --seed {seed}: not available in this build (synthetic scenes not integrated yet)",
+        room.as_str()
+    )
+}
