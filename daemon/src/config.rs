@@ -184,9 +184,11 @@ pub struct HealthConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RunConfig {
-    /// Stop after this many source frames (0 = no limit).
+    /// Stop the source after this many frames (0 = no limit); whether the daemon then exits is
+    /// `exit_at_end`.
     pub max_frames: u64,
-    /// Exit once a finite source ended and its last graph is published; otherwise keep serving.
+    /// Exit once the source ended (finite source or `max_frames`) and the last graph is
+    /// published; otherwise keep serving it.
     pub exit_at_end: bool,
     /// Longest orderly shutdown before the daemon gives up on a stuck stage, seconds.
     pub shutdown_timeout_s: f64,

@@ -295,8 +295,7 @@ impl Pipeline {
             let stop = stop.clone();
             let health_period = Duration::from_millis(profile.health.period_ms);
             let log_every = profile.health.log_every_periods;
-            // Stopping after `run.max_frames` is a request to exit once the graph is published.
-            let exit_at_end = profile.run.exit_at_end || profile.run.max_frames > 0;
+            let exit_at_end = profile.run.exit_at_end;
             let pose_source = profile.pose.source;
             handles.push(spawn_stage("publish", &finished_tx, move || {
                 let server = match GraphServer::open(&ipc, "op3dsgd") {
@@ -607,7 +606,7 @@ fn fusion_loop(
     let mut stamp_ns = 0u64;
     let mut dirty = false;
     let mut last_publish: Option<Instant> = None;
-    let mut publish = |fusion: &dyn Fusion, version: &mut u64, stamp_ns: u64| {
+    let publish = |fusion: &dyn Fusion, version: &mut u64, stamp_ns: u64| {
         let mut graph = SceneGraph::default();
         fusion.build_graph(&mut graph);
         *version += 1;
@@ -709,8 +708,15 @@ fn publisher_loop(
                 upstream_done = true;
             }
         }
+        // Late joiners get the history sample when the publisher updates its connections, so
+        // do it on every tick, not only when the graph changes.
+        if let Err(e) = server.update_connections() {
+            debug!(error = %e, "update connections failed");
+        }
         poses.clear();
-        server.poll_poses(&mut poses);
+        if let Err(e) = server.poll_poses(&mut poses) {
+            debug!(error = %e, "pose receive failed");
+        }
         if pose_source == PoseSourceKind::Ipc {
             for pose in poses.drain(..) {
                 // The gate drains this channel every frame; if it is full the oldest poses are

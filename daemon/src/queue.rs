@@ -79,7 +79,7 @@ pub enum Pushed {
 }
 
 /// Sending half of a bounded queue.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct QueueSender<T> {
     tx: Sender<T>,
     // Held so the sender can evict the oldest item under latest-wins.
@@ -89,10 +89,29 @@ pub struct QueueSender<T> {
     stop: Arc<AtomicBool>,
 }
 
+// Manual impls: cloning a handle must not require `T: Clone`.
+impl<T> Clone for QueueSender<T> {
+    fn clone(&self) -> Self {
+        Self {
+            tx: self.tx.clone(),
+            evict: self.evict.clone(),
+            policy: self.policy,
+            stats: self.stats.clone(),
+            stop: self.stop.clone(),
+        }
+    }
+}
+
 /// Receiving half of a bounded queue.
-#[derive(Debug, Clone)]
+#[derive(Debug)]
 pub struct QueueReceiver<T> {
     rx: Receiver<T>,
+}
+
+impl<T> Clone for QueueReceiver<T> {
+    fn clone(&self) -> Self {
+        Self { rx: self.rx.clone() }
+    }
 }
 
 /// Creates a queue. `stop` interrupts a blocked producer (the shutdown flag).

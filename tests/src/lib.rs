@@ -1,1 +1,97 @@
-//! placeholder
+//! # op3dsg cross-process test support
+//!
+//! Starts the real `op3dsgd` binary as a child process under an isolated iceoryx2 prefix and
+//! kills it when the handle drops, so a failing test never leaves a daemon behind.
+//!
+//! ```no_run
+//! let daemon = op3dsg_tests::Daemon::start("op3dsg-doc", &["--set", "source.rate_hz=60"]);
+//! let mut client = daemon.client("doc-client");
+//! ```
+
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::{Duration, Instant};
+
+use op3dsg_daemon::ipc::GraphClient;
+use op3dsg_ipc_types::Health;
+
+static NEXT: AtomicUsize = AtomicUsize::new(0);
+
+/// A prefix no other test or test run uses.
+pub fn unique_prefix(name: &str) -> String {
+    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
+    format!("op3dsg-x-{name}-{}-{}", std::process::id(), NEXT.fetch_add(1, Ordering::SeqCst))
+}
+
+/// Path of a workspace binary built next to this test executable (`target/<profile>/<name>`).
+pub fn binary(name: &str) -> PathBuf {
+    let exe = std::env::current_exe().expect("test executable path");
+    // target/<profile>/deps/<test> → target/<profile>/<name>
+    let dir = exe.parent().and_then(|d| d.parent()).expect("target directory");
+    let path = dir.join(name);
+    assert!(path.exists(), "{} not built; run `cargo build --workspace` first", path.display());
+    path
+}
+
+/// A running `op3dsgd`, killed on drop.
+#[derive(Debug)]
+pub struct Daemon {
+    /// The child process.
+    pub child: Child,
+    /// Its iceoryx2 prefix.
+    pub prefix: String,
+}
+
+impl Daemon {
+    /// Starts `op3dsgd --prefix <prefix> <args>` with logs at warn.
+    pub fn start(prefix: &str, args: &[&str]) -> Self {
+        let child = Command::new(binary("op3dsgd"))
+            .arg("--prefix")
+            .arg(prefix)
+            .args(args)
+            .env("OP3DSG_LOG", std::env::var("OP3DSG_LOG").unwrap_or_else(|_| "warn".into()))
+            .stdin(Stdio::null())
+            .spawn()
+            .expect("spawn op3dsgd");
+        Self { child, prefix: prefix.to_owned() }
+    }
+
+    /// A graph client on this daemon's services, waiting up to 30 s for them.
+    pub fn client(&self, node: &str) -> GraphClient {
+        GraphClient::open_wait(&self.prefix, node, Duration::from_secs(30)).expect("daemon services appear")
+    }
+
+    /// Sends SIGKILL and reaps the process.
+    pub fn kill_9(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            self.kill_9();
+        }
+    }
+}
+
+/// Polls `f` every 20 ms until it returns `Some`, or panics with `what` after `timeout`.
+pub fn wait_for<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<T>) -> T {
+    let deadline = Instant::now() + timeout;
+    loop {
+        if let Some(v) = f() {
+            return v;
+        }
+        assert!(Instant::now() < deadline, "timed out after {timeout:?} waiting for {what}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// The next health record with `frames_captured` above `above`.
+pub fn health_with_frames_above(client: &mut GraphClient, above: u64, timeout: Duration) -> Health {
+    wait_for(&format!("health with frames_captured > {above}"), timeout, || {
+        client.latest_health().ok().flatten().filter(|h| h.frames_captured > above)
+    })
+}

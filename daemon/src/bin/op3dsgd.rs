@@ -57,6 +57,7 @@ fn main() -> ExitCode {
     let mut overrides = args.set.clone();
     if let Some(n) = args.max_frames {
         overrides.push(format!("run.max_frames={n}"));
+        overrides.push("run.exit_at_end=true".to_owned());
     }
     if args.exit_at_end {
         overrides.push("run.exit_at_end=true".to_owned());
