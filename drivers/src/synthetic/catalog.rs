@@ -534,7 +534,7 @@ fn kitchen(b: &mut Builder, base: usize) {
     }
 
     // Run 1: sink, stove and drawers, then cabinets; wall cabinets above most.
-    let mut modules = vec![Module::Sink, Module::Stove, Module::Drawers];
+    let mut modules = [Module::Sink, Module::Stove, Module::Drawers];
     modules.shuffle(&mut b.rng);
     let mut plain = Vec::new();
     let mut s = 0.8;
@@ -552,7 +552,8 @@ fn kitchen(b: &mut Builder, base: usize) {
         let grip = if b.rng.random_bool(0.8) { Grip::Handle } else { Grip::Knob };
         match module {
             Module::Sink => {
-                if let Some(cab) = cabinet(b, run1, s, width, DEPTH, [0.0, TOP], front, grip, metals, &mut metal_counter)
+                if let Some(cab) =
+                    cabinet(b, run1, s, width, DEPTH, [0.0, TOP], front, grip, metals, &mut metal_counter)
                 {
                     sink_with_faucet(b, run1, s, width, DEPTH, TOP, cab);
                     upper_cabinet(b, run1, s, width, front, metals, &mut metal_counter, cab);
@@ -564,7 +565,8 @@ fn kitchen(b: &mut Builder, base: usize) {
                 drawer_stack(b, run1, s, width, DEPTH, TOP, 3, front, grip, metals, &mut metal_counter);
             }
             Module::Cabinet | Module::Trash => {
-                if let Some(cab) = cabinet(b, run1, s, width, DEPTH, [0.0, TOP], front, grip, metals, &mut metal_counter)
+                if let Some(cab) =
+                    cabinet(b, run1, s, width, DEPTH, [0.0, TOP], front, grip, metals, &mut metal_counter)
                 {
                     plain.push((run1, s, width, cab));
                     if b.rng.random_bool(0.7) {
@@ -588,7 +590,8 @@ fn kitchen(b: &mut Builder, base: usize) {
             Module::Trash => trash_can(b, run2, s),
             _ => {
                 let grip = if b.rng.random_bool(0.8) { Grip::Handle } else { Grip::Knob };
-                if let Some(cab) = cabinet(b, run2, s, width, DEPTH, [0.0, TOP], front, grip, metals, &mut metal_counter)
+                if let Some(cab) =
+                    cabinet(b, run2, s, width, DEPTH, [0.0, TOP], front, grip, metals, &mut metal_counter)
                 {
                     plain2.push((run2, s, width, cab));
                 }
@@ -889,9 +892,9 @@ fn living_room(b: &mut Builder, base: usize) {
     b.add(tv, tv_wall.cuboid([sc - 0.55, sc + 0.55], [0.17, 0.23], [0.62, 1.27]), DARK_GLASS);
     b.spatial(tv, stand, "on");
     let console = b.object("game console", &["console"], WHITE_PLASTIC);
-    b.add(console, tv_wall.cuboid([sc + 0.3, sc + 0.6], [0.26, 0.41], [0.5, 0.56]), WHITE_PLASTIC);
+    b.add(console, tv_wall.cuboid([sc + 0.3, sc + 0.6], [0.31, 0.44], [0.5, 0.56]), WHITE_PLASTIC);
     b.spatial(console, stand, "on");
-    let button = tv_wall.cuboid([sc + 0.33, sc + 0.36], [0.41, 0.416], [0.52, 0.54]);
+    let button = tv_wall.cuboid([sc + 0.33, sc + 0.36], [0.44, 0.446], [0.52, 0.54]);
     b.part(Some(console), "power button", BLACK_PLASTIC, &["tip_push"], console, PRESS_START, &[button]);
 
     let strip = b.object("power strip", &["extension cord", "multi plug"], WHITE_PLASTIC);

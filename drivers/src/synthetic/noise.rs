@@ -94,8 +94,8 @@ mod tests {
             let clean = flat(z, w * h);
             let mut out = vec![0u16; w * h];
             // Use a finer unit than mm so quantisation does not swamp the 2 mm spread at 1 m.
-            apply(&config, &mut rng, &clean, w, h, 100_000.0, &mut out);
-            let errs: Vec<f64> = out.iter().map(|&d| d as f64 / 100_000.0 - z as f64).collect();
+            apply(&config, &mut rng, &clean, w, h, 10_000.0, &mut out);
+            let errs: Vec<f64> = out.iter().map(|&d| d as f64 / 10_000.0 - z as f64).collect();
             let mean = errs.iter().sum::<f64>() / errs.len() as f64;
             let var = errs.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / errs.len() as f64;
             let std = var.sqrt();

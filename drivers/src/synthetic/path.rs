@@ -16,7 +16,7 @@ const CELL_M: f32 = 0.05;
 const CLEARANCE_M: f32 = 0.3;
 const DRIVE_SPEED_MPS: f64 = 0.3;
 const TURN_RATE_RADPS: f64 = 0.7;
-const SWEEP_S: f64 = 4.5;
+const SWEEP_S: f64 = 5.0;
 const PAN_RAD: f64 = 40.0 * std::f64::consts::PI / 180.0;
 const TILT_MID_RAD: f64 = -17.5 * std::f64::consts::PI / 180.0;
 const TILT_AMP_RAD: f64 = 27.5 * std::f64::consts::PI / 180.0;
@@ -218,7 +218,7 @@ impl CameraPath {
         }
         let main = best.1 as u32;
 
-        // Viewpoints: facing each wall, one per ≤3 m of wall, standing well back from it.
+        // Viewpoints: one facing each wall (the pan sweep covers the whole wall), standing well back from it.
         let walls = [
             (Vec2::new(0.0, 0.0), Vec2::X, Vec2::Y, room.x),
             (Vec2::new(room.x, 0.0), Vec2::Y, Vec2::NEG_X, room.y),
@@ -228,18 +228,15 @@ impl CameraPath {
         let mut views: Vec<(Vec2, f64)> = Vec::new();
         for (origin, along, inward, len) in walls {
             let across = if inward.x.abs() > 0.5 { room.x } else { room.y };
-            let count = (len / 3.0).ceil().max(1.0) as usize;
-            for k in 0..count {
-                let s = len * (k as f32 + 0.5) / count as f32 + rng.random_range(-0.15..0.15);
+            {
+                // Off-centre along the wall so that viewpoints spread around the room.
+                let s = len * 0.35 + rng.random_range(-0.15..0.15);
                 let target = origin + along * s;
-                let back = (across * 0.6).clamp(1.5, 2.6) + rng.random_range(-0.1..0.1);
+                let back = (across * 0.45).clamp(1.4, 2.4) + rng.random_range(-0.1..0.1);
                 let desired = target + inward * back;
                 // Nearest free cell of the main component.
                 let mut chosen: Option<(f32, Vec2)> = None;
-                for c in 0..grid.free.len() {
-                    if component[c] != main {
-                        continue;
-                    }
+                for (c, _) in component.iter().enumerate().filter(|(_, label)| **label == main) {
                     let p = Grid::centre_of(c % grid.nx, c / grid.nx);
                     let d = (p - desired).length_squared();
                     if chosen.is_none_or(|(bd, _)| d < bd) {
@@ -351,9 +348,11 @@ pub fn look_rotation(yaw: f64, tilt: f64) -> DQuat {
 
 /// Whether a world point is inside (or within `margin` of) any object's box.
 pub fn inside_furniture(scene: &Scene, p: glam::Vec3, margin: f32) -> bool {
-    scene.instances().iter().filter(|i| i.kind == InstanceKind::Object).any(|i| {
-        (i.box_min_m - margin).cmple(p).all() && p.cmple(i.box_max_m + margin).all()
-    })
+    scene
+        .instances()
+        .iter()
+        .filter(|i| i.kind == InstanceKind::Object)
+        .any(|i| (i.box_min_m - margin).cmple(p).all() && p.cmple(i.box_max_m + margin).all())
 }
 
 #[cfg(test)]

@@ -256,8 +256,8 @@ fn shade(m: &Material, point: Vec3, normal: Vec3, to_eye: Vec3, light: Vec3) -> 
     }
     let lit = diffuse * (1.0 - m.emission) + m.emission;
     let mut out = [0u8; 3];
-    for k in 0..3 {
-        out[k] = ((m.albedo[k] * lit + spec) * 255.0).clamp(0.0, 255.0) as u8;
+    for (o, a) in out.iter_mut().zip(m.albedo) {
+        *o = ((a * lit + spec) * 255.0).clamp(0.0, 255.0) as u8;
     }
     out
 }

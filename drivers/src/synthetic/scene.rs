@@ -149,11 +149,7 @@ impl Shape {
         match *self {
             Shape::Cuboid { min, max } => {
                 let outside = (min - p).max(p - max).max(Vec3::ZERO);
-                if outside.length_squared() > 0.0 {
-                    outside.length()
-                } else {
-                    (p - min).min(max - p).min_element()
-                }
+                if outside.length_squared() > 0.0 { outside.length() } else { (p - min).min(max - p).min_element() }
             }
             Shape::Cylinder { axis, centre, radius, half_length } => {
                 let a = axis.index();
@@ -162,11 +158,7 @@ impl Shape {
                 radial[a] = 0.0;
                 let r = radial.length() - radius;
                 let h = along.abs() - half_length;
-                if r > 0.0 || h > 0.0 {
-                    (r.max(0.0).powi(2) + h.max(0.0).powi(2)).sqrt()
-                } else {
-                    (-r).min(-h)
-                }
+                if r > 0.0 || h > 0.0 { (r.max(0.0).powi(2) + h.max(0.0).powi(2)).sqrt() } else { (-r).min(-h) }
             }
         }
     }

@@ -135,7 +135,7 @@ impl FrameSource for SyntheticSource {
         let noise = self.config.depth_noise.as_ref().map(|n| (n, &mut rng));
         self.renderer.render(&self.scene, &pose, &self.config.intrinsics, noise, frame);
         frame.seq = k;
-        frame.stamp_ns = (k as f64 * 1e9 / self.config.frame_rate_hz).round() as u64;
+        frame.stamp_ns = (k as f64 * 1e9 / self.config.frame_rate_hz) as u64;
         self.next += 1;
         Ok(SourceStatus::Frame)
     }
