@@ -1,16 +1,29 @@
 //! Seeded procedural rooms with exact ground truth, rendered by a CPU ray caster.
 //!
 //! API contract (used by the daemon's oracle detector and the CLI):
-//! - [`SyntheticConfig`] → [`SyntheticSource::new`] → a [`FrameSource`] whose frames carry
+//! - [`SyntheticConfig`] → [`SyntheticSource::new`] → a [`FrameSource`](crate::source::FrameSource) whose frames carry
 //!   RGB, noisy depth, per-pixel instance ids and `world_from_camera`.
 //! - [`Scene`]: the room's instances; instance id `k` in the id image is ground-truth node id
 //!   `k` ([`Scene::instance`]); [`Scene::ground_truth`] gives the graph JSON.
 
 use serde::{Deserialize, Serialize};
 
-use crate::frame::{Frame, Intrinsics};
-use crate::graph_json::GraphJson;
-use crate::source::{FrameSource, SourceError, SourceStatus};
+use crate::frame::Intrinsics;
+
+mod catalog;
+pub mod noise;
+mod path;
+mod render;
+mod scene;
+mod source;
+#[cfg(test)]
+mod tests;
+
+pub use catalog::{FUNCTIONAL_RELATIONS, SPATIAL_RELATIONS};
+pub use path::{CameraPath, inside_furniture, look_rotation};
+pub use render::{Renderer, render};
+pub use scene::{Axis, CEILING_HEIGHT_M, GtEdge, Material, Primitive, Scene, Shape};
+pub use source::SyntheticSource;
 
 /// Room types of the synthetic benchmark.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, Default)]
