@@ -104,7 +104,10 @@ impl TransformConfig {
     /// As an isometry.
     pub fn to_isometry(&self) -> op3dsg_drivers::pose::Isometry {
         let [x, y, z, w] = self.rotation_xyzw;
-        op3dsg_drivers::pose::Isometry::new(glam::DQuat::from_xyzw(x, y, z, w), glam::DVec3::from_array(self.translation_m))
+        op3dsg_drivers::pose::Isometry::new(
+            glam::DQuat::from_xyzw(x, y, z, w),
+            glam::DVec3::from_array(self.translation_m),
+        )
     }
 }
 
@@ -260,8 +263,8 @@ pub fn load(profile_path: Option<&Path>, overrides: &[String]) -> Result<LoadedP
             let (key, value) = set
                 .split_once('=')
                 .ok_or_else(|| ProfileError::new("--set", format!("'{set}': expected section.key=value")))?;
-            let value = parse_value(value.trim())
-                .map_err(|e| ProfileError::new("--set", format!("{}: {e}", key.trim())))?;
+            let value =
+                parse_value(value.trim()).map_err(|e| ProfileError::new("--set", format!("{}: {e}", key.trim())))?;
             insert_dotted(&mut table, key.trim(), value)
                 .map_err(|e| ProfileError::new("--set", format!("{}: {e}", key.trim())))?;
         }
@@ -288,7 +291,8 @@ pub fn load(profile_path: Option<&Path>, overrides: &[String]) -> Result<LoadedP
         }
     };
 
-    apply_oracle_preset(&mut merged).map_err(|(path, msg)| ProfileError::new(origin_of(&path), format!("{path}: {msg}")))?;
+    apply_oracle_preset(&mut merged)
+        .map_err(|(path, msg)| ProfileError::new(origin_of(&path), format!("{path}: {msg}")))?;
 
     let profile: Profile = serde_path_to_error::deserialize(toml::Value::Table(merged.clone())).map_err(|e| {
         let path = e.path().to_string();
@@ -308,13 +312,17 @@ fn collect_chain(path: &Path, chain: &mut Vec<(String, toml::Table)>, depth: usi
     if depth > 8 {
         return Err(ProfileError::new(name, "extends: chain deeper than 8 files (a cycle?)"));
     }
-    let text = std::fs::read_to_string(path).map_err(|e| ProfileError::new(&name, format!("cannot read profile: {e}")))?;
+    let text =
+        std::fs::read_to_string(path).map_err(|e| ProfileError::new(&name, format!("cannot read profile: {e}")))?;
     let table = parse_toml(&text, &name)?;
     let parent = match table.get("extends") {
         None => None,
         Some(toml::Value::String(s)) => Some(s.clone()),
         Some(other) => {
-            return Err(ProfileError::new(&name, format!("extends: expected a file path string, found {}", other.type_str())));
+            return Err(ProfileError::new(
+                &name,
+                format!("extends: expected a file path string, found {}", other.type_str()),
+            ));
         }
     };
     chain.push((name, table));
@@ -389,7 +397,8 @@ fn apply_oracle_preset(merged: &mut toml::Table) -> Result<(), (String, String)>
         return Ok(());
     };
     let path = "detector.oracle.preset".to_owned();
-    let name = preset.as_str().ok_or_else(|| (path.clone(), format!("expected a string, found {}", preset.type_str())))?;
+    let name =
+        preset.as_str().ok_or_else(|| (path.clone(), format!("expected a string, found {}", preset.type_str())))?;
     let config = OracleConfig::preset(name)
         .ok_or_else(|| (path.clone(), format!("unknown preset \"{name}\", expected \"clean\" or \"realistic\"")))?;
     let mut base = toml::Table::try_from(&config).map_err(|e| (path.clone(), e.to_string()))?;
@@ -459,11 +468,15 @@ impl Profile {
             })?;
         }
         let k = &self.keyframe;
-        check(k.min_translation_m >= 0.0, "keyframe.min_translation_m", || format!("must be >= 0, got {}", k.min_translation_m))?;
+        check(k.min_translation_m >= 0.0, "keyframe.min_translation_m", || {
+            format!("must be >= 0, got {}", k.min_translation_m)
+        })?;
         check((0.0..=180.0).contains(&k.min_rotation_deg), "keyframe.min_rotation_deg", || {
             format!("must be within [0, 180], got {}", k.min_rotation_deg)
         })?;
-        check(k.max_interval_s >= 0.0, "keyframe.max_interval_s", || format!("must be >= 0, got {}", k.max_interval_s))?;
+        check(k.max_interval_s >= 0.0, "keyframe.max_interval_s", || {
+            format!("must be >= 0, got {}", k.max_interval_s)
+        })?;
         check((1..=64).contains(&self.detector.workers), "detector.workers", || {
             format!("must be within [1, 64], got {}", self.detector.workers)
         })?;
@@ -477,9 +490,11 @@ impl Profile {
         check((10..=60_000).contains(&self.health.period_ms), "health.period_ms", || {
             format!("must be within [10, 60000], got {}", self.health.period_ms)
         })?;
-        check(self.run.shutdown_timeout_s > 0.0 && self.run.shutdown_timeout_s <= 600.0, "run.shutdown_timeout_s", || {
-            format!("must be within (0, 600], got {}", self.run.shutdown_timeout_s)
-        })?;
+        check(
+            self.run.shutdown_timeout_s > 0.0 && self.run.shutdown_timeout_s <= 600.0,
+            "run.shutdown_timeout_s",
+            || format!("must be within (0, 600], got {}", self.run.shutdown_timeout_s),
+        )?;
         check(
             self.pose.source == PoseSourceKind::Ipc || self.source.kind == SourceKind::Synthetic,
             "pose.source",

@@ -370,8 +370,7 @@ impl Pipeline {
         {
             let stats = stats.clone();
             let stop = stop.clone();
-            let pool =
-                FramePool::new(profile.frame_pool_capacity(), source.intrinsics(), source.has_instance_ids());
+            let pool = FramePool::new(profile.frame_pool_capacity(), source.intrinsics(), source.has_instance_ids());
             let rate_hz = profile.source.rate_hz;
             let max_frames = profile.run.max_frames;
             handles.push(spawn_stage("capture", &finished_tx, move || {
@@ -513,10 +512,8 @@ fn keyframe_loop(
         };
         let started = Instant::now();
         for pose in pose_rx.try_iter() {
-            let world_from_x = Isometry::new(
-                glam::DQuat::from_array(pose.rotation_xyzw),
-                glam::DVec3::from_array(pose.translation_m),
-            );
+            let world_from_x =
+                Isometry::new(glam::DQuat::from_array(pose.rotation_xyzw), glam::DVec3::from_array(pose.translation_m));
             let world_from_camera = match (PoseKind::from_u8(pose.kind), base_from_camera) {
                 (Some(PoseKind::WorldFromCamera), _) => world_from_x,
                 (Some(PoseKind::WorldFromBase), Some(base_from_camera)) => world_from_x * base_from_camera,
@@ -588,7 +585,12 @@ fn detect_loop(
             stage.record(started);
         }
         // Always send, even empty, so fusion's ticket sequence has no gaps.
-        det_tx.push(DetectionBatch { ticket, frame: item.frame, world_from_camera: item.world_from_camera, detections });
+        det_tx.push(DetectionBatch {
+            ticket,
+            frame: item.frame,
+            world_from_camera: item.world_from_camera,
+            detections,
+        });
     }
 }
 
@@ -627,9 +629,8 @@ fn fusion_loop(
         };
         // Apply results in ticket order; at the end, apply what is left in order (a gap can only
         // come from a worker that gave up during shutdown).
-        while let Some(batch) = pending
-            .remove(&next_ticket)
-            .or_else(|| if finished { pending.pop_first().map(|(_, b)| b) } else { None })
+        while let Some(batch) =
+            pending.remove(&next_ticket).or_else(|| if finished { pending.pop_first().map(|(_, b)| b) } else { None })
         {
             next_ticket = batch.ticket + 1;
             let started = Instant::now();
@@ -732,7 +733,7 @@ fn publisher_loop(
                 warn!(error = %e, "health publish failed");
             }
             periods += 1;
-            if log_every > 0 && periods % log_every == 0 {
+            if log_every > 0 && periods.is_multiple_of(log_every) {
                 info!(
                     frames = health.frames_captured,
                     keyframes = health.keyframes,

@@ -156,25 +156,23 @@ impl<T> QueueSender<T> {
                         }
                         item = back;
                     }
-                    OverflowPolicy::Block => {
-                        match self.tx.send_timeout(back, Duration::from_millis(20)) {
-                            Ok(()) => {
-                                self.stats.pushed.fetch_add(1, Ordering::Relaxed);
-                                return outcome;
-                            }
-                            Err(crossbeam_channel::SendTimeoutError::Timeout(back)) => {
-                                if self.stop.load(Ordering::Relaxed) {
-                                    self.stats.dropped.fetch_add(1, Ordering::Relaxed);
-                                    return Pushed::Closed;
-                                }
-                                item = back;
-                            }
-                            Err(crossbeam_channel::SendTimeoutError::Disconnected(_)) => {
+                    OverflowPolicy::Block => match self.tx.send_timeout(back, Duration::from_millis(20)) {
+                        Ok(()) => {
+                            self.stats.pushed.fetch_add(1, Ordering::Relaxed);
+                            return outcome;
+                        }
+                        Err(crossbeam_channel::SendTimeoutError::Timeout(back)) => {
+                            if self.stop.load(Ordering::Relaxed) {
                                 self.stats.dropped.fetch_add(1, Ordering::Relaxed);
                                 return Pushed::Closed;
                             }
+                            item = back;
                         }
-                    }
+                        Err(crossbeam_channel::SendTimeoutError::Disconnected(_)) => {
+                            self.stats.dropped.fetch_add(1, Ordering::Relaxed);
+                            return Pushed::Closed;
+                        }
+                    },
                 },
             }
         }
@@ -223,7 +221,8 @@ mod tests {
 
     #[test]
     fn latest_wins_drops_the_oldest_and_counts_it() {
-        let (tx, rx, stats) = queue::<u32>("t", QueueConfig { capacity: 2, policy: OverflowPolicy::LatestWins }, stop());
+        let (tx, rx, stats) =
+            queue::<u32>("t", QueueConfig { capacity: 2, policy: OverflowPolicy::LatestWins }, stop());
         assert_eq!(tx.push(1), Pushed::Queued);
         assert_eq!(tx.push(2), Pushed::Queued);
         assert_eq!(tx.push(3), Pushed::QueuedDroppingOldest);
@@ -237,7 +236,8 @@ mod tests {
     #[test]
     fn block_waits_for_room_and_gives_up_on_stop() {
         let stop_flag = stop();
-        let (tx, rx, stats) = queue::<u32>("t", QueueConfig { capacity: 1, policy: OverflowPolicy::Block }, stop_flag.clone());
+        let (tx, rx, stats) =
+            queue::<u32>("t", QueueConfig { capacity: 1, policy: OverflowPolicy::Block }, stop_flag.clone());
         assert_eq!(tx.push(1), Pushed::Queued);
         let consumer = std::thread::Builder::new()
             .name("consumer".into())

@@ -110,10 +110,8 @@ impl PoseBuffer {
 
     /// Adds a pose; out-of-order poses older than the newest are ignored (returns `false`).
     pub fn push(&mut self, pose: StampedPose) -> bool {
-        if let Some(last) = self.poses.back() {
-            if pose.stamp_ns < last.stamp_ns {
-                return false;
-            }
+        if self.poses.back().is_some_and(|last| pose.stamp_ns < last.stamp_ns) {
+            return false;
         }
         if self.poses.len() == self.capacity {
             self.poses.pop_front();

@@ -396,18 +396,9 @@ fn watch(prefix: &str, interval: Duration) -> Result<()> {
 
 /// Writes the ground truth of synthetic `room` with `seed` as graph JSON to `out` (or stdout).
 fn write_ground_truth(room: RoomKind, seed: u64, out: Option<&Path>) -> Result<()> {
-    // INTEGRATION: the synthetic world is built on another branch. Once
-    // `op3dsg_drivers::synthetic::Scene::generate(room, seed)` and `Scene::ground_truth() -> GraphJson`
-    // exist, replace the `bail!` below with:
-    //
-    //     let scene = op3dsg_drivers::synthetic::Scene::generate(room, seed);
-    //     let gt = scene.ground_truth();
-    //     let mut text = serde_json::to_string_pretty(&gt).context("serialising the ground truth JSON")?;
-    //     text.push('\n');
-    //     write_output(out, &text)
-    let _ = out;
-    bail!(
-        "op3dsg gt --room {} --seed {seed}: not available in this build (synthetic scenes not integrated yet)",
-        room.as_str()
-    )
+    let scene = op3dsg_drivers::synthetic::Scene::generate(room, seed);
+    let gt = scene.ground_truth();
+    let mut text = serde_json::to_string_pretty(&gt).context("serialising the ground truth JSON")?;
+    text.push('\n');
+    write_output(out, &text)
 }

@@ -67,13 +67,19 @@ impl FusionConfig {
             return Err(format!("{path}.pixel_stride: must be within [1, 16], got {}", self.pixel_stride));
         }
         if !(16..=1_000_000).contains(&self.max_points_per_node) {
-            return Err(format!("{path}.max_points_per_node: must be within [16, 1000000], got {}", self.max_points_per_node));
+            return Err(format!(
+                "{path}.max_points_per_node: must be within [16, 1000000], got {}",
+                self.max_points_per_node
+            ));
         }
         if !(0.0..=1.0).contains(&self.min_overlap) {
             return Err(format!("{path}.min_overlap: must be within [0, 1], got {}", self.min_overlap));
         }
         if !(0.0..1.0).contains(&self.part_attach_margin_m) {
-            return Err(format!("{path}.part_attach_margin_m: must be within [0, 1) metres, got {}", self.part_attach_margin_m));
+            return Err(format!(
+                "{path}.part_attach_margin_m: must be within [0, 1) metres, got {}",
+                self.part_attach_margin_m
+            ));
         }
         Ok(())
     }

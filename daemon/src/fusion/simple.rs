@@ -45,10 +45,12 @@ impl MapNode {
     }
 
     fn refresh_geometry(&mut self) {
-        let (min, max, sum) = self.points.iter().fold(
-            (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY), Vec3::ZERO),
-            |(lo, hi, s), p| (lo.min(*p), hi.max(*p), s + *p),
-        );
+        let (min, max, sum) = self
+            .points
+            .iter()
+            .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY), Vec3::ZERO), |(lo, hi, s), p| {
+                (lo.min(*p), hi.max(*p), s + *p)
+            });
         if !self.points.is_empty() {
             self.box_min = min;
             self.box_max = max;
@@ -144,7 +146,8 @@ impl Fusion for SimpleFusion {
         let pose = world_from_camera.to_mat4();
         for det in detections {
             self.back_project(frame, &pose, det);
-            let voxel_m = if det.kind == NodeKind::Part { self.config.part_voxel_m } else { self.config.object_voxel_m };
+            let voxel_m =
+                if det.kind == NodeKind::Part { self.config.part_voxel_m } else { self.config.object_voxel_m };
             // Voxel-downsample the detection.
             let mut seen = HashSet::with_capacity(self.scratch_points.len());
             let points: Vec<Vec3> =
@@ -276,7 +279,7 @@ mod tests {
     use op3dsg_drivers::frame::Intrinsics;
 
     fn config() -> FusionConfig {
-        toml::from_str::<crate::config::Profile>(crate::config::BASE_PROFILE).unwrap().fusion
+        crate::config::load(None, &[]).unwrap().profile.fusion
     }
 
     /// A frame looking at a flat wall 2 m away, and a detection covering a square of it.
