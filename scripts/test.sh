@@ -18,4 +18,4 @@ echo "== build (debug, all targets) =="
 cargo build --workspace --all-targets --locked
 
 echo "== tests =="
-cargo test --workspace --locked --no-fail-fast 2>&1 | tee target/test-output.log
+cargo test --workspace --locked --no-fail-fast

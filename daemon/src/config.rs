@@ -297,7 +297,9 @@ pub fn load(profile_path: Option<&Path>, overrides: &[String]) -> Result<LoadedP
     let profile: Profile = serde_path_to_error::deserialize(toml::Value::Table(merged.clone())).map_err(|e| {
         let path = e.path().to_string();
         let inner = e.into_inner().to_string();
-        ProfileError::new(origin_of(&path), format!("{path}: {}", inner.trim()))
+        // The TOML deserialiser appends "in `path`" on its own line; the path is already named.
+        let message = inner.lines().next().unwrap_or("").trim().to_owned();
+        ProfileError::new(origin_of(&path), format!("{path}: {message}"))
     })?;
     profile.validate().map_err(|(path, msg)| ProfileError::new(origin_of(&path), format!("{path}: {msg}")))?;
     Ok(LoadedProfile { profile, effective: merged, layers: layers.into_iter().map(|(n, _)| n).collect() })
