@@ -10,6 +10,7 @@ use serde::{Deserialize, Serialize};
 use crate::graph::SceneGraph;
 use crate::perception::Detection;
 
+pub mod colour;
 pub mod simple;
 
 /// `[fusion]`.
