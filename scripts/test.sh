@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Runs the whole test suite on a fresh machine: one debug build reused by every test.
-# Usage: bash scripts/test.sh            (CI: .ci/run calls exactly this)
+# Usage: ./scripts/test.sh              (CI: .ci/run calls exactly this)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
