@@ -67,12 +67,20 @@ pub struct SimpleFusion {
     next_id: u32,
     scratch_points: Vec<Vec3>,
     scratch_depths: Vec<f32>,
+    scratch_sorted: Vec<f32>,
 }
 
 impl SimpleFusion {
     /// An empty map.
     pub fn new(config: FusionConfig) -> Self {
-        Self { config, nodes: Vec::new(), next_id: 1, scratch_points: Vec::new(), scratch_depths: Vec::new() }
+        Self {
+            config,
+            nodes: Vec::new(),
+            next_id: 1,
+            scratch_points: Vec::new(),
+            scratch_depths: Vec::new(),
+            scratch_sorted: Vec::new(),
+        }
     }
 
     fn voxel_of(p: Vec3, voxel_m: f32) -> (i32, i32, i32) {
@@ -106,9 +114,10 @@ impl SimpleFusion {
         if self.scratch_depths.is_empty() {
             return;
         }
-        let mut sorted = self.scratch_depths.clone();
-        let mid = sorted.len() / 2;
-        let median = *sorted.select_nth_unstable_by(mid, f32::total_cmp).1;
+        self.scratch_sorted.clear();
+        self.scratch_sorted.extend_from_slice(&self.scratch_depths);
+        let mid = self.scratch_sorted.len() / 2;
+        let median = *self.scratch_sorted.select_nth_unstable_by(mid, f32::total_cmp).1;
         let band = if det.kind == NodeKind::Part { c.part_depth_band_m } else { c.object_depth_band_m };
         let mut keep = 0;
         for i in 0..self.scratch_points.len() {
