@@ -111,12 +111,7 @@ pub struct PipelineStats {
 impl PipelineStats {
     /// The health record of this moment (starts a new latency period for every stage).
     pub fn health(&self) -> Health {
-        let mut h = Health::default();
-        let wall_ns = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_nanos() as u64)
-            .unwrap_or(0);
-        h.stamp_ns = wall_ns;
+        let mut h = Health { stamp_ns: crate::ipc::wall_clock_ns(), ..Health::default() };
         h.uptime_ns = self.started.elapsed().as_nanos() as u64;
         h.frames_captured = self.frames_captured.load(Ordering::Relaxed);
         h.keyframes = self.keyframes.load(Ordering::Relaxed);
@@ -239,12 +234,6 @@ impl Pipeline {
     /// Opens the source and the iceoryx2 services and starts every stage. Returns once the
     /// services exist (the daemon may then report ready).
     pub fn start(profile: &Profile, stop: Arc<AtomicBool>) -> Result<Self, StartError> {
-        if profile.pose.source == PoseSourceKind::Frame && profile.source.kind != SourceKind::Synthetic {
-            return Err(StartError::Incompatible {
-                field: "pose.source",
-                reason: "\"frame\" needs a source that carries poses".to_owned(),
-            });
-        }
         let (mut source, detector_factory) = build_source(profile)?;
         if profile.pose.source == PoseSourceKind::Frame && !source.has_poses() {
             return Err(StartError::Incompatible {

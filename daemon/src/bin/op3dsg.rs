@@ -25,10 +25,9 @@ use op3dsg_ipc_types::Health;
 #[derive(Debug, Parser)]
 #[command(name = "op3dsg", version, propagate_version = true)]
 struct Cli {
-    /// Service name prefix the daemon serves under (its profile's `ipc.prefix`)
-    /// [env: OP3DSG_PREFIX] [default: op3dsg].
-    #[arg(long, global = true, value_name = "PREFIX")]
-    prefix: Option<String>,
+    /// Service name prefix the daemon serves under (its profile's `ipc.prefix`).
+    #[arg(long, global = true, value_name = "PREFIX", env = PREFIX_ENV, default_value = "op3dsg")]
+    prefix: String,
     #[command(subcommand)]
     command: Command,
 }
@@ -83,8 +82,6 @@ enum Command {
 
 /// Environment variable giving the prefix when `--prefix` is absent.
 const PREFIX_ENV: &str = "OP3DSG_PREFIX";
-/// Prefix when neither `--prefix` nor the environment give one.
-const DEFAULT_PREFIX: &str = "op3dsg";
 
 fn parse_room(name: &str) -> Result<RoomKind, String> {
     RoomKind::parse(name).ok_or_else(|| {
@@ -113,10 +110,7 @@ fn main() -> std::process::ExitCode {
 }
 
 fn run(cli: Cli) -> Result<()> {
-    let prefix = match cli.prefix {
-        Some(prefix) => prefix,
-        None => std::env::var(PREFIX_ENV).unwrap_or_else(|_| DEFAULT_PREFIX.to_owned()),
-    };
+    let prefix = cli.prefix;
     op3dsg_daemon::ipc::validate_prefix(&prefix).map_err(|e| anyhow::anyhow!("--prefix / {PREFIX_ENV}: {e}"))?;
     match cli.command {
         Command::Watch { interval_ms } => watch(&prefix, Duration::from_millis(interval_ms)),

@@ -68,6 +68,8 @@ pub struct SimpleFusion {
     scratch_points: Vec<Vec3>,
     scratch_depths: Vec<f32>,
     scratch_sorted: Vec<f32>,
+    scratch_voxels: HashSet<(i32, i32, i32)>,
+    scratch_kept: Vec<Vec3>,
 }
 
 impl SimpleFusion {
@@ -80,6 +82,8 @@ impl SimpleFusion {
             scratch_points: Vec::new(),
             scratch_depths: Vec::new(),
             scratch_sorted: Vec::new(),
+            scratch_voxels: HashSet::new(),
+            scratch_kept: Vec::new(),
         }
     }
 
@@ -157,12 +161,15 @@ impl Fusion for SimpleFusion {
             self.back_project(frame, &pose, det);
             let voxel_m =
                 if det.kind == NodeKind::Part { self.config.part_voxel_m } else { self.config.object_voxel_m };
-            // Voxel-downsample the detection.
-            let mut seen = HashSet::with_capacity(self.scratch_points.len());
-            let points: Vec<Vec3> =
-                self.scratch_points.iter().copied().filter(|p| seen.insert(Self::voxel_of(*p, voxel_m))).collect();
+            // Voxel-downsample the detection into reused scratch buffers.
+            let mut points = std::mem::take(&mut self.scratch_kept);
+            points.clear();
+            self.scratch_voxels.clear();
+            let seen = &mut self.scratch_voxels;
+            points.extend(self.scratch_points.iter().copied().filter(|p| seen.insert(Self::voxel_of(*p, voxel_m))));
             if points.len() < self.config.min_points {
                 report.ignored += 1;
+                self.scratch_kept = points;
                 continue;
             }
             let (lo, hi) = points
@@ -194,7 +201,7 @@ impl Fusion for SimpleFusion {
             };
             let cap = self.config.max_points_per_node;
             let node = &mut self.nodes[target];
-            for p in points {
+            for &p in &points {
                 if node.points.len() >= cap {
                     break;
                 }
@@ -202,6 +209,7 @@ impl Fusion for SimpleFusion {
                     node.points.push(p);
                 }
             }
+            self.scratch_kept = points;
             *node.votes.entry(det.label.clone()).or_insert(0) += 1;
             node.score_sum += det.score;
             node.observation_count += 1;
