@@ -40,7 +40,6 @@ use tracing::{debug, error, info, warn};
 
 use crate::config::{DetectorKind, PoseSourceKind, Profile, SourceKind};
 use crate::fusion::Fusion;
-use crate::fusion::simple::SimpleFusion;
 use crate::graph::SceneGraph;
 use crate::ipc::GraphServer;
 use crate::perception::oracle::OracleDetector;
@@ -320,7 +319,7 @@ impl Pipeline {
         // Fusion.
         {
             let stats = stats.clone();
-            let fusion: Box<dyn Fusion> = Box::new(SimpleFusion::new(profile.fusion.clone()));
+            let fusion: Box<dyn Fusion> = crate::fusion::build(&profile.fusion);
             let min_interval = Duration::from_millis(profile.run.min_publish_interval_ms);
             handles.push(spawn_stage("fusion", &finished_tx, move || {
                 fusion_loop(fusion, det_rx, graph_tx, &stats, min_interval);

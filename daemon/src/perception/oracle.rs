@@ -12,6 +12,7 @@ use op3dsg_drivers::synthetic::{InstanceInfo, InstanceKind};
 use op3dsg_ipc_types::NodeKind;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
 use super::{Detection, Detector, DetectorError, Mask};
@@ -22,6 +23,10 @@ const MAX_MORPH_RADIUS_PX: u32 = 32;
 const MAX_FALSE_POSITIVES_PER_FRAME: f64 = 100.0;
 /// Hard cap on false positives in one frame (guards the Poisson sampler's tail).
 const MAX_FALSE_POSITIVES_DRAWN: u32 = 1000;
+/// Length of the oracle's semantic features in both presets.
+const SEMANTIC_DIM: usize = 64;
+/// Largest semantic feature length `validate` accepts.
+const MAX_SEMANTIC_DIM: usize = 4096;
 /// Scores are clamped to `[MIN_SCORE, 1]`.
 const MIN_SCORE: f64 = 0.05;
 
@@ -75,6 +80,16 @@ pub struct OracleConfig {
     /// Mean score of false positives (same spread and clamp as true detections).
     /// Unitless, [0, 1].
     pub false_positive_score_mean: f64,
+    /// Length of the semantic feature given with every detection (0 = none). The oracle's
+    /// stand-in for a detector's region embedding: a fixed pseudo-random unit vector per
+    /// canonical label (seeded by the label's text, so every run and every scene agree),
+    /// perturbed per detection by `semantic_noise` and re-normalised. Synonym labels keep the
+    /// canonical label's vector: the region looks the same whatever the detector calls it.
+    pub semantic_dim: usize,
+    /// Norm of the Gaussian perturbation of a detection's semantic feature relative to the unit
+    /// label vector (the expected cosine to the label vector is about `1 / sqrt(1 + noise²)`).
+    /// Unitless, [0, 2].
+    pub semantic_noise: f64,
     /// Seed of the noise; the stream of a frame is seeded from `(seed, frame.seq)`.
     pub seed: u64,
 }
@@ -104,6 +119,8 @@ impl OracleConfig {
             score_mean: 1.0,
             score_std: 0.0,
             false_positive_score_mean: 0.35,
+            semantic_dim: SEMANTIC_DIM,
+            semantic_noise: 0.0,
             seed: 0,
         }
     }
@@ -125,6 +142,8 @@ impl OracleConfig {
             score_mean: 0.8,
             score_std: 0.1,
             false_positive_score_mean: 0.35,
+            semantic_dim: SEMANTIC_DIM,
+            semantic_noise: 0.3,
             seed: 0,
         }
     }
@@ -163,6 +182,16 @@ impl OracleConfig {
                 field("far_distance_m"),
                 self.far_distance_m
             ));
+        }
+        if self.semantic_dim > MAX_SEMANTIC_DIM {
+            return Err(format!(
+                "{}: must be at most {MAX_SEMANTIC_DIM}, got {}",
+                field("semantic_dim"),
+                self.semantic_dim
+            ));
+        }
+        if !(0.0..=2.0).contains(&self.semantic_noise) {
+            return Err(format!("{}: must be within [0, 2], got {}", field("semantic_noise"), self.semantic_noise));
         }
         if self.min_visible_px == 0 {
             return Err(format!("{}: must be at least 1 pixel, got 0", field("min_visible_px")));
@@ -229,6 +258,10 @@ pub struct OracleDetector {
     index_of_id: Vec<u32>,
     /// Distinct labels of the scene with their kind (false-positive labels).
     scene_labels: Vec<(String, NodeKind)>,
+    /// Per instance, the semantic vector of its canonical label (empty when `semantic_dim = 0`).
+    instance_vectors: Vec<Vec<f32>>,
+    /// Per scene label, its semantic vector.
+    scene_label_vectors: Vec<Vec<f32>>,
     worker_index: u32,
     /// Per-instance pixel statistics of the current frame (sized once).
     stats: Vec<Stats>,
@@ -269,12 +302,17 @@ impl OracleDetector {
             }
         }
         let stats = vec![Stats::EMPTY; instances.len()];
+        let dim = config.semantic_dim;
+        let instance_vectors = instances.iter().map(|info| label_vector(&info.label, dim)).collect();
+        let scene_label_vectors = scene_labels.iter().map(|(label, _)| label_vector(label, dim)).collect();
         Self {
             config,
             instances,
             prepared,
             index_of_id,
             scene_labels,
+            instance_vectors,
+            scene_label_vectors,
             worker_index,
             stats,
             depth_scratch: Vec::new(),
@@ -414,12 +452,27 @@ impl OracleDetector {
         Some(morph)
     }
 
+    /// A detection's semantic feature: the label vector plus noise, re-normalised.
+    fn semantic_feature(&self, base: &[f32], rng: &mut ChaCha8Rng) -> Option<Vec<f32>> {
+        if base.is_empty() {
+            return None;
+        }
+        let scale = (self.config.semantic_noise / (base.len() as f64).sqrt()) as f32;
+        if scale <= 0.0 {
+            return Some(base.to_vec());
+        }
+        let mut v: Vec<f32> = base.iter().map(|b| b + scale * rng.sample::<f32, _>(StandardNormal)).collect();
+        normalise(&mut v);
+        Some(v)
+    }
+
     /// A false-positive blob: an ellipse at a random place, clipped to the image.
     fn false_positive(&self, width: u32, height: u32, rng: &mut ChaCha8Rng) -> Option<Detection> {
         if self.scene_labels.is_empty() || width == 0 || height == 0 {
             return None;
         }
-        let (label, kind) = &self.scene_labels[rng.random_range(0..self.scene_labels.len())];
+        let pick = rng.random_range(0..self.scene_labels.len());
+        let (label, kind) = &self.scene_labels[pick];
         let short = width.min(height) as f64;
         let r_min = (short / 40.0).max(2.0);
         let r_max = (short / 8.0).max(r_min + 1.0);
@@ -444,12 +497,13 @@ impl OracleDetector {
         }
         let mask = tighten(Mask { x0, y0, width: w, height: h, data })?;
         let score = draw_score(self.config.false_positive_score_mean, self.config.score_std, rng);
+        let semantic_feature = self.semantic_feature(&self.scene_label_vectors[pick], rng);
         Some(Detection {
             label: label.clone(),
             kind: *kind,
             score,
             mask,
-            semantic_feature: None,
+            semantic_feature,
             ground_truth_instance: None,
         })
     }
@@ -498,12 +552,13 @@ impl Detector for OracleDetector {
             let id = self.instances[index].id;
             // Erosion may swallow a thin instance whole: then the detector saw nothing.
             let Some(mask) = instance_mask(ids, width, height, id, s, morph) else { continue };
+            let semantic_feature = self.semantic_feature(&self.instance_vectors[index], &mut rng);
             out.push(Detection {
                 label,
                 kind: self.prepared[index].kind,
                 score,
                 mask,
-                semantic_feature: None,
+                semantic_feature,
                 ground_truth_instance: Some(id),
             });
         }
@@ -560,9 +615,27 @@ fn frame_seed(seed: u64, seq: u64) -> u64 {
 
 /// A standard normal draw (Box-Muller).
 fn standard_normal(rng: &mut ChaCha8Rng) -> f64 {
-    let u1 = 1.0 - rng.random::<f64>(); // (0, 1]
-    let u2 = rng.random::<f64>();
-    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    rng.sample(StandardNormal)
+}
+
+/// The unit semantic vector of `label` (`dim` entries; empty for 0): Gaussian entries from a
+/// stream seeded by the FNV-1a hash of the label's text.
+pub fn label_vector(label: &str, dim: usize) -> Vec<f32> {
+    if dim == 0 {
+        return Vec::new();
+    }
+    let hash = label.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3));
+    let mut rng = ChaCha8Rng::seed_from_u64(hash);
+    let mut v: Vec<f32> = (0..dim).map(|_| rng.sample::<f32, _>(StandardNormal)).collect();
+    normalise(&mut v);
+    v
+}
+
+fn normalise(v: &mut [f32]) {
+    let norm = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    if norm > 0.0 {
+        v.iter_mut().for_each(|x| *x /= norm);
+    }
 }
 
 /// `clamp(N(mean, std), 0.05, 1)`.
@@ -755,6 +828,43 @@ mod tests {
         (frame, instances)
     }
 
+    fn cosine(a: &[f32], b: &[f32]) -> f32 {
+        a.iter().zip(b).map(|(x, y)| x * y).sum()
+    }
+
+    #[test]
+    fn semantic_features_are_noisy_label_vectors() {
+        let v = label_vector("cabinet", 64);
+        assert_eq!(v, label_vector("cabinet", 64), "deterministic");
+        assert!((cosine(&v, &v) - 1.0).abs() < 1e-5, "unit length");
+        assert!(cosine(&v, &label_vector("stove", 64)).abs() < 0.5, "different labels are far apart");
+        assert!(label_vector("cabinet", 0).is_empty());
+
+        let (frame, instances) = kitchen();
+        let mut detector =
+            OracleDetector::new(OracleConfig { semantic_noise: 0.3, ..OracleConfig::clean() }, instances, 0);
+        let mut cosines = Vec::new();
+        for seq in 0..50 {
+            let mut f = frame.clone();
+            f.seq = seq;
+            let mut out = Vec::new();
+            detector.detect(&f, &mut out).unwrap();
+            for d in &out {
+                let feature = d.semantic_feature.as_deref().unwrap();
+                assert!((cosine(feature, feature) - 1.0).abs() < 1e-4);
+                let label = detector.instances.iter().find(|i| Some(i.id) == d.ground_truth_instance).unwrap();
+                cosines.push(cosine(feature, &label_vector(&label.label, SEMANTIC_DIM)));
+            }
+        }
+        let mean = cosines.iter().sum::<f32>() / cosines.len() as f32;
+        // E[cos] ≈ 1 / sqrt(1 + 0.3²) = 0.958.
+        assert!((mean - 0.958).abs() < 0.02, "mean cosine {mean}");
+        let off = OracleConfig { semantic_dim: 0, ..OracleConfig::clean() };
+        let mut out = Vec::new();
+        OracleDetector::new(off, detector.instances.clone(), 0).detect(&frame, &mut out).unwrap();
+        assert!(out.iter().all(|d| d.semantic_feature.is_none()));
+    }
+
     #[test]
     fn clean_preset_detects_every_visible_instance_exactly() {
         let (mut frame, instances) = kitchen();
@@ -771,7 +881,8 @@ mod tests {
             assert_eq!(d.label, inst.label);
             assert_eq!(d.kind, node_kind(inst.kind));
             assert_eq!(d.score, 1.0);
-            assert!(d.semantic_feature.is_none());
+            // Clean: the feature is exactly the canonical label's vector.
+            assert_eq!(d.semantic_feature.as_deref(), Some(label_vector(&inst.label, SEMANTIC_DIM).as_slice()));
             for y in 0..480 {
                 for x in 0..640 {
                     assert_eq!(d.mask.contains(x, y), ids[(y * 640 + x) as usize] == id, "id {id} at ({x}, {y})");
