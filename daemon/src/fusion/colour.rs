@@ -246,7 +246,9 @@ pub fn apply_gains(rgb: [u8; 3], gains: [f32; 3]) -> [u8; 3] {
     let mut out = [0u8; 3];
     for c in 0..3 {
         // Clamped to [0, 255] first, so the cast cannot truncate.
-        out[c] = (f32::from(rgb[c]) * gains[c]).round().clamp(0.0, 255.0) as u8;
+        // `+ 0.5` then truncation rounds half up for these non-negative values (and avoids the
+        // libm call `round` becomes on baseline x86-64).
+        out[c] = (f32::from(rgb[c]) * gains[c] + 0.5).clamp(0.0, 255.0) as u8;
     }
     out
 }

@@ -14,6 +14,7 @@ use crate::perception::Detection;
 
 pub mod colour;
 pub mod paper;
+pub mod workload;
 
 use colour::ColourParams;
 
@@ -23,8 +24,12 @@ use colour::ColourParams;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FusionConfig {
-    /// Back-project every n-th pixel of a mask in x and y (1 = every pixel).
+    /// Back-project at least every n-th pixel of a mask in x and y (1 = every pixel); the
+    /// smallest stride of the adaptive sampling.
     pub pixel_stride: u32,
+    /// Adaptive sampling: about this many samples per voxel edge at the mask's median depth (the
+    /// stride grows with nearness, up to 16); 0 = always `pixel_stride`.
+    pub samples_per_voxel: u32,
     /// Depth outside [min_depth_m, max_depth_m] is ignored, metres.
     pub min_depth_m: f32,
     /// See `min_depth_m`.
@@ -117,6 +122,7 @@ impl FusionConfig {
         }
         let small_ints = [
             ("pixel_stride", self.pixel_stride, 1, 16),
+            ("samples_per_voxel", self.samples_per_voxel, 0, 16),
             ("object_mask_erode_px", self.object_mask_erode_px, 0, 16),
             ("part_mask_erode_px", self.part_mask_erode_px, 0, 16),
         ];

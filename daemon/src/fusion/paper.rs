@@ -3,11 +3,14 @@
 //!
 //! # Per keyframe ([`PaperFusion::integrate`])
 //!
-//! 1. **Back-projection.** Every `pixel_stride`-th pixel of a mask whose `erode_px`-neighbourhood
-//!    (probed at the 8 pixels `r` away in x, y and the diagonals) lies inside the mask is lifted
-//!    through its depth, the intrinsics and the keyframe pose into the world. Depth of 0 or
-//!    outside `[min_depth_m, max_depth_m]` is dropped, and so is every point further than the
-//!    kind's depth band from the mask's median depth (mask bleed onto the background). The points
+//! 1. **Back-projection.** Pixels of a mask whose `erode_px`-neighbourhood (probed at the 8 pixels
+//!    `r` away in x, y and the diagonals) lies inside the mask are lifted through their depth, the
+//!    intrinsics and the keyframe pose into the world. The median depth `z̃` of a coarse grid
+//!    (about 8 x 8) over the eroded mask sets the sampling stride: about `samples_per_voxel`
+//!    samples per voxel edge at `z̃`, i.e. `floor(voxel · f_x / (z̃ · samples_per_voxel))`, at
+//!    least `pixel_stride` and at most 16 (a far object needs every pixel, a near wall every 8th).
+//!    Depth of 0 or outside `[min_depth_m, max_depth_m]` is dropped, and so is every point further
+//!    than the kind's depth band from `z̃` (mask bleed onto the background). The points
 //!    are voxel-downsampled (one point per voxel: `object_voxel_m`, `part_voxel_m`). Fewer than
 //!    `min_points` points: the detection is ignored.
 //! 2. **Candidates.** A uniform grid over node boxes (`index_cell_m`) returns the nodes of the
@@ -37,12 +40,13 @@
 //!
 //! # Maintenance, every `maintenance_every_keyframes` keyframes
 //!
-//! * **Duplicate merge**: two nodes of one kind with overlapping boxes whose larger
+//! * **Duplicate merge** (nodes changed since the last run against their neighbours): two nodes
+//!   of one kind with overlapping boxes whose larger
 //!   nearest-neighbour ratio (either direction) reaches `merge_min_overlap`, with `s^s ≥
 //!   merge_min_semantic` and, for parts with valid colour on both sides, `s^c ≥
 //!   merge_min_colour`. The node with more observations survives (ties: the older id); features
 //!   are averaged by observation count, votes summed.
-//! * **Outlier removal** on nodes changed since the last run: points with fewer than
+//! * **Outlier removal** of the points added since the last run: points with fewer than
 //!   `outlier_min_neighbours` other points within `outlier_radius_voxels` voxels go (nodes under
 //!   32 points are left alone).
 //! * **Pruning**: unconfirmed nodes (fewer than `min_observations`) not seen for
@@ -83,7 +87,15 @@ fn key(c: IVec3) -> u64 {
 
 #[inline]
 fn cell_of(p: Vec3, size: f32) -> IVec3 {
-    (p / size).floor().as_ivec3()
+    let q = p / size;
+    IVec3::new(floor_i32(q.x), floor_i32(q.y), floor_i32(q.z))
+}
+
+/// `floor` to `i32` without the libm call `f32::floor` becomes on baseline x86-64.
+#[inline]
+fn floor_i32(x: f32) -> i32 {
+    let i = x as i32;
+    i - i32::from(x < i as f32)
 }
 
 /// Geometry parameters of one node kind.
@@ -107,7 +119,11 @@ impl KindGeometry {
 #[derive(Debug, Default, Clone)]
 struct PointCloud {
     points: Vec<Vec3>,
+    /// Occupied voxels (one point per voxel).
+    voxels: FxHashSet<u64>,
     next: Vec<u32>,
+    /// Points before this index passed the last outlier test.
+    checked: usize,
     heads: FxHashMap<u64, u32>,
     min: Vec3,
     max: Vec3,
@@ -117,8 +133,10 @@ struct PointCloud {
 impl PointCloud {
     fn clear(&mut self) {
         self.points.clear();
+        self.voxels.clear();
         self.next.clear();
         self.heads.clear();
+        self.checked = 0;
         self.min = Vec3::splat(f32::INFINITY);
         self.max = Vec3::splat(f32::NEG_INFINITY);
         self.sum = Vec3::ZERO;
@@ -137,20 +155,14 @@ impl PointCloud {
         if self.points.len() >= cap {
             return false;
         }
-        let voxel = cell_of(p, g.voxel_m);
-        let cell = key(cell_of(p, g.cell_m));
-        let head = self.heads.get(&cell).copied().unwrap_or(NONE);
-        let mut i = head;
-        while i != NONE {
-            if cell_of(self.points[i as usize], g.voxel_m) == voxel {
-                return false;
-            }
-            i = self.next[i as usize];
+        if !self.voxels.insert(key(cell_of(p, g.voxel_m))) {
+            return false;
         }
         let index = self.points.len() as u32;
+        let head = self.heads.entry(key(cell_of(p, g.cell_m))).or_insert(NONE);
+        self.next.push(*head);
+        *head = index;
         self.points.push(p);
-        self.next.push(head);
-        self.heads.insert(cell, index);
         self.min = self.min.min(p);
         self.max = self.max.max(p);
         self.sum += p;
@@ -236,10 +248,12 @@ impl PointCloud {
         for &p in scratch.iter() {
             self.insert(p, g, usize::MAX);
         }
+        self.checked = self.points.len();
     }
 
     fn heap_bytes(&self) -> usize {
         self.points.capacity() * size_of::<Vec3>()
+            + self.voxels.capacity() * (size_of::<u64>() + 1)
             + self.next.capacity() * size_of::<u32>()
             + self.heads.capacity() * (size_of::<(u64, u32)>() + 1)
     }
@@ -392,7 +406,6 @@ struct Observation {
 #[derive(Debug, Default)]
 struct Scratch {
     raw: Vec<Vec3>,
-    depths: Vec<f32>,
     sorted: Vec<f32>,
     voxels: FxHashSet<u64>,
     points: Vec<Vec3>,
@@ -477,9 +490,33 @@ impl PaperFusion {
         if m.x0 + m.width > k.width || m.y0 + m.height > k.height || m.data.len() != (m.width * m.height) as usize {
             return None;
         }
+        let voxel_m = if det.kind == NodeKind::Part { c.part_voxel_m } else { c.object_voxel_m };
+        // Median depth of a coarse grid over the eroded mask (about 8 x 8 samples).
+        let coarse = (m.width.min(m.height) / 8).max(1) as usize;
+        s.sorted.clear();
+        for row in (0..m.height).step_by(coarse) {
+            for col in (0..m.width).step_by(coarse) {
+                if inside_eroded(m, col, row, erode) {
+                    let depth_m = frame.depth_m(((m.y0 + row) * k.width + m.x0 + col) as usize);
+                    if depth_m >= c.min_depth_m && depth_m <= c.max_depth_m {
+                        s.sorted.push(depth_m);
+                    }
+                }
+            }
+        }
+        if s.sorted.is_empty() {
+            return None;
+        }
+        let mid = s.sorted.len() / 2;
+        let median = *s.sorted.select_nth_unstable_by(mid, f32::total_cmp).1;
+        // Pixel stride: about `samples_per_voxel` samples per voxel edge at the median depth.
+        let stride = if c.samples_per_voxel > 0 {
+            let per_voxel_px = voxel_m * k.fx / median;
+            ((per_voxel_px / c.samples_per_voxel as f32) as u32).clamp(c.pixel_stride.max(1), 16)
+        } else {
+            c.pixel_stride.max(1)
+        } as usize;
         s.raw.clear();
-        s.depths.clear();
-        let stride = c.pixel_stride.max(1) as usize;
         for row in (0..m.height).step_by(stride) {
             for col in (0..m.width).step_by(stride) {
                 if !inside_eroded(m, col, row, erode) {
@@ -487,26 +524,24 @@ impl PaperFusion {
                 }
                 let (x, y) = (m.x0 + col, m.y0 + row);
                 let depth_m = frame.depth_m((y * k.width + x) as usize);
-                if !(depth_m >= c.min_depth_m && depth_m <= c.max_depth_m) {
+                if !(depth_m >= c.min_depth_m && depth_m <= c.max_depth_m) || (depth_m - median).abs() > band {
                     continue;
                 }
-                s.depths.push(depth_m);
                 s.raw.push(pose.transform_point3(k.point_in_camera(x as f32, y as f32, depth_m)));
             }
         }
-        if s.raw.is_empty() {
-            return None;
-        }
-        s.sorted.clear();
-        s.sorted.extend_from_slice(&s.depths);
-        let mid = s.sorted.len() / 2;
-        let median = *s.sorted.select_nth_unstable_by(mid, f32::total_cmp).1;
-        let voxel_m = if det.kind == NodeKind::Part { c.part_voxel_m } else { c.object_voxel_m };
         s.voxels.clear();
         let start = s.points.len();
         let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-        for (p, d) in s.raw.iter().zip(&s.depths) {
-            if (d - median).abs() <= band && s.voxels.insert(key(cell_of(*p, voxel_m))) {
+        let mut last = u64::MAX;
+        for p in &s.raw {
+            // Neighbouring pixels mostly fall in the voxel of the previous one.
+            let k = key(cell_of(*p, voxel_m));
+            if k == last {
+                continue;
+            }
+            last = k;
+            if s.voxels.insert(k) {
                 s.points.push(*p);
                 lo = lo.min(*p);
                 hi = hi.max(*p);
@@ -674,31 +709,45 @@ impl PaperFusion {
         if self.config.outlier_min_neighbours > 0 {
             let need = self.config.outlier_min_neighbours;
             for slot in 0..self.nodes.len() {
-                if !(self.nodes[slot].alive && self.nodes[slot].dirty) || self.nodes[slot].cloud.len() < 32 {
+                let n = &self.nodes[slot];
+                if !n.alive || n.cloud.len() < 32 || n.cloud.checked == n.cloud.len() {
                     continue;
                 }
-                let g = self.geometry(self.nodes[slot].kind);
+                let g = self.geometry(n.kind);
                 let radius = g.voxel_m * self.config.outlier_radius_voxels;
                 let node = &mut self.nodes[slot];
                 let keep = &mut self.scratch.rebuild;
                 keep.clear();
-                for (i, p) in node.cloud.points.iter().enumerate() {
+                // Only points added since the last test: older points only gain neighbours.
+                let from = node.cloud.checked;
+                let mut removed = false;
+                keep.extend_from_slice(&node.cloud.points[..from]);
+                for (i, p) in node.cloud.points.iter().enumerate().skip(from) {
                     if node.cloud.count_within(*p, radius, g.cell_m, i as u32, need) >= need {
                         keep.push(*p);
+                    } else {
+                        removed = true;
                     }
                 }
-                if keep.len() < node.cloud.len() && !keep.is_empty() {
+                if removed && !keep.is_empty() {
                     std::mem::swap(&mut node.cloud.points, keep);
                     node.cloud.rebuild(&g, keep);
                     self.reindex(slot as u32);
+                } else {
+                    node.cloud.checked = node.cloud.len();
                 }
             }
         }
-        // Duplicate merge: visit nodes by observation count, most first, so small fragments fold
-        // into established nodes.
+        // Duplicate merge. A pair neither of whose nodes changed since the last run was already
+        // checked, so only changed nodes are visited: the cost follows what the robot sees, not
+        // the map's size. Most observations first, so small fragments fold into established
+        // nodes.
         let mut order = std::mem::take(&mut self.scratch.order);
         order.clear();
-        order.extend((0..self.nodes.len() as u32).filter(|&s| self.nodes[s as usize].alive));
+        order.extend((0..self.nodes.len() as u32).filter(|&s| {
+            let n = &self.nodes[s as usize];
+            n.alive && n.dirty
+        }));
         order.sort_unstable_by(|&a, &b| {
             let (na, nb) = (&self.nodes[a as usize], &self.nodes[b as usize]);
             nb.observation_count.cmp(&na.observation_count).then(na.id.cmp(&nb.id))
@@ -738,21 +787,15 @@ impl PaperFusion {
             }
         }
         self.scratch.candidates = candidates;
-        self.scratch.order = order;
-        for node in &mut self.nodes {
-            node.dirty = false;
+        for &slot in &order {
+            self.nodes[slot as usize].dirty = false;
         }
+        self.scratch.order = order;
     }
 
+    /// The cheap tests (semantics, colour) first; the nearest-neighbour ratios last.
     fn should_merge(&self, a: u32, b: u32) -> bool {
         let (na, nb) = (&self.nodes[a as usize], &self.nodes[b as usize]);
-        let g = self.geometry(na.kind);
-        let max_points = self.config.nnr_max_points;
-        let overlap =
-            nb.cloud.nnr(&na.cloud.points, &g, max_points).max(na.cloud.nnr(&nb.cloud.points, &g, max_points));
-        if overlap < self.config.merge_min_overlap {
-            return false;
-        }
         let semantic = if !na.semantic.is_empty() && na.semantic.len() == nb.semantic.len() {
             (dot(&na.semantic, &nb.semantic) + 1.0) * 0.5
         } else {
@@ -765,10 +808,15 @@ impl PaperFusion {
         if na.kind == NodeKind::Part
             && self.config.colour_features
             && let Some(s_c) = colour::colour_similarity(&na.colour, &nb.colour, &self.config.colour)
+            && s_c < self.config.merge_min_colour
         {
-            return s_c >= self.config.merge_min_colour;
+            return false;
         }
-        true
+        let g = self.geometry(na.kind);
+        let max_points = self.config.nnr_max_points;
+        let overlap = nb.cloud.nnr(&na.cloud.points, &g, max_points);
+        overlap >= self.config.merge_min_overlap
+            || na.cloud.nnr(&nb.cloud.points, &g, max_points) >= self.config.merge_min_overlap
     }
 
     /// Folds node `gone` into node `keep`.
@@ -848,8 +896,12 @@ impl Fusion for PaperFusion {
         // 1. Back-projection (and colour features of parts).
         let any_part = detections.iter().any(|d| d.kind == NodeKind::Part);
         let gains = if colour_on && any_part {
-            let n = frame.intrinsics.pixel_count();
-            colour::white_balance_gains(&frame.rgb, (0..n).step_by(4))
+            let (w, h) = (frame.intrinsics.width as usize, frame.intrinsics.height as usize);
+            // Gray-world means from every 4th pixel of every 4th row.
+            colour::white_balance_gains(
+                &frame.rgb,
+                (0..h).step_by(4).flat_map(|y| (0..w).step_by(4).map(move |x| y * w + x)),
+            )
         } else {
             [1.0; 3]
         };
@@ -1005,6 +1057,21 @@ fn inside_eroded(m: &Mask, col: u32, row: u32, r: u32) -> bool {
             && r_ < i64::from(m.height)
             && m.data[(r_ as u32 * m.width + c as u32) as usize] != 0
     };
+    if r > 0 && col >= r && row >= r && col + r < m.width && row + r < m.height {
+        // Fully inside the box: no bounds checks needed beyond the slice's own.
+        let w = m.width as usize;
+        let (c, rw, r) = (col as usize, row as usize, r as usize);
+        let d = &m.data;
+        return d[rw * w + c] != 0
+            && d[rw * w + c - r] != 0
+            && d[rw * w + c + r] != 0
+            && d[(rw - r) * w + c] != 0
+            && d[(rw + r) * w + c] != 0
+            && d[(rw - r) * w + c - r] != 0
+            && d[(rw - r) * w + c + r] != 0
+            && d[(rw + r) * w + c - r] != 0
+            && d[(rw + r) * w + c + r] != 0;
+    }
     let (c, rw, r) = (i64::from(col), i64::from(row), i64::from(r));
     if !at(c, rw) {
         return false;

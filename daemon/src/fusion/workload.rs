@@ -1,0 +1,148 @@
+//! Reproducible fusion workloads for benchmarks and allocation tests: real keyframes of the
+//! synthetic kitchen (renderer with depth noise, oracle detector) and maps of a chosen size.
+//!
+//! Large maps are built from copies of the kitchen placed side by side on a grid 20 m apart (the
+//! same keyframes integrated with the pose shifted), so a 20,000-node map has the density of a
+//! real building and the measured step still looks at the original kitchen.
+
+use glam::DVec3;
+use op3dsg_drivers::frame::{Frame, Intrinsics};
+use op3dsg_drivers::pose::Isometry;
+use op3dsg_drivers::synthetic::{CameraPath, DepthNoiseConfig, Renderer, RoomKind, Scene, look_rotation};
+use op3dsg_ipc_types::NodeKind;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use super::Fusion;
+use crate::perception::oracle::{OracleConfig, OracleDetector};
+use crate::perception::{Detection, Detector};
+
+/// One keyframe with its detections.
+#[derive(Debug, Clone)]
+pub struct Keyframe {
+    /// The rendered frame.
+    pub frame: Frame,
+    /// Its `world_from_camera`.
+    pub pose: Isometry,
+    /// What the oracle detected in it.
+    pub detections: Vec<Detection>,
+}
+
+/// Keyframes along the kitchen's camera path.
+#[derive(Debug, Clone)]
+pub struct Workload {
+    /// The keyframes, in path order.
+    pub keyframes: Vec<Keyframe>,
+}
+
+impl Workload {
+    /// `count` keyframes of kitchen `seed`, every `spacing` frames of the 30 Hz path, detected
+    /// with `oracle`.
+    pub fn kitchen(seed: u64, count: usize, spacing: u64, oracle: OracleConfig) -> Self {
+        let scene = Scene::generate(RoomKind::Kitchen, seed);
+        let path = CameraPath::new(&scene, seed, 30.0);
+        let intrinsics = Intrinsics::d435i_640x480();
+        let noise = DepthNoiseConfig::default();
+        let mut renderer = Renderer::new();
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut detector = OracleDetector::new(oracle, scene.instances().to_vec(), 0);
+        let keyframes = (0..count as u64)
+            .map(|i| {
+                let mut frame = Frame::new(intrinsics, true);
+                let k = i * spacing;
+                let pose = path.pose_at(k);
+                renderer.render(&scene, &pose, &intrinsics, Some((&noise, &mut rng)), &mut frame);
+                frame.seq = k;
+                frame.stamp_ns = k * 33_333_333;
+                let mut detections = Vec::new();
+                // The oracle only fails on frames without instance ids; these have them.
+                let _ = detector.detect(&frame, &mut detections);
+                Keyframe { frame, pose, detections }
+            })
+            .collect();
+        Self { keyframes }
+    }
+
+    /// A wide view of kitchen `seed`: from whichever upper corner of the room (1.8 m high, looking
+    /// at the room's centre, 25° down) the `oracle` detects most instances. A busy keyframe for
+    /// the benchmark's step.
+    pub fn overview(seed: u64, oracle: OracleConfig) -> Keyframe {
+        let scene = Scene::generate(RoomKind::Kitchen, seed);
+        let (lo, hi) = scene
+            .instances()
+            .iter()
+            .fold((glam::Vec3::splat(f32::INFINITY), glam::Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), i| {
+                (lo.min(i.box_min_m), hi.max(i.box_max_m))
+            });
+        let (lo, hi) = (lo.as_dvec3(), hi.as_dvec3());
+        let centre = (lo + hi) * 0.5;
+        let intrinsics = Intrinsics::d435i_640x480();
+        let noise = DepthNoiseConfig::default();
+        let mut renderer = Renderer::new();
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut detector = OracleDetector::new(oracle, scene.instances().to_vec(), 0);
+        let corners = [(lo.x, lo.y), (lo.x, hi.y), (hi.x, lo.y), (hi.x, hi.y)];
+        let views = corners.iter().flat_map(|&c| [(c, 1.8, -25.0), (c, 2.3, -35.0), (c, 1.5, -15.0)]);
+        views
+            .map(|((x, y), height, tilt_deg): ((f64, f64), f64, f64)| {
+                let inset = (centre - DVec3::new(x, y, centre.z)).normalize() * 0.3;
+                let position = DVec3::new(x, y, height) + DVec3::new(inset.x, inset.y, 0.0);
+                let yaw = (centre.y - position.y).atan2(centre.x - position.x);
+                let pose = Isometry::new(look_rotation(yaw, tilt_deg.to_radians()), position);
+                let mut frame = Frame::new(intrinsics, true);
+                renderer.render(&scene, &pose, &intrinsics, Some((&noise, &mut rng)), &mut frame);
+                let mut detections = Vec::new();
+                let _ = detector.detect(&frame, &mut detections);
+                Keyframe { frame, pose, detections }
+            })
+            .max_by_key(|k| k.detections.len())
+            .expect("four corners")
+    }
+
+    /// The keyframe with the most detections, cut to at most `n` of them (objects and parts
+    /// interleaved so both kinds stay when cutting): the benchmark's step.
+    pub fn step(&self, n: usize) -> Keyframe {
+        let best = self.keyframes.iter().max_by_key(|k| k.detections.len()).expect("at least one keyframe");
+        let (objects, parts): (Vec<_>, Vec<_>) =
+            best.detections.iter().cloned().partition(|d| d.kind == NodeKind::Object);
+        let mut detections = Vec::with_capacity(n);
+        let (mut o, mut p) = (objects.into_iter(), parts.into_iter());
+        while detections.len() < n {
+            match (o.next(), p.next()) {
+                (None, None) => break,
+                (a, b) => detections.extend(a.into_iter().chain(b)),
+            }
+        }
+        detections.truncate(n);
+        Keyframe { frame: best.frame.clone(), pose: best.pose, detections }
+    }
+
+    /// Integrates every keyframe at the original place, then copies of the kitchen 20 m apart
+    /// until `fusion` holds at least `target_nodes` nodes (or `max_copies` copies exist).
+    pub fn fill_map(&self, fusion: &mut dyn Fusion, target_nodes: usize, max_copies: usize) -> usize {
+        let mut copy = 0usize;
+        loop {
+            let offset = copy_offset(copy);
+            for kf in &self.keyframes {
+                let pose = Isometry::new(glam::DQuat::IDENTITY, offset).compose(&kf.pose);
+                fusion.integrate(&kf.frame, &pose, &kf.detections);
+                if copy > 0 && fusion.node_count() >= target_nodes {
+                    return copy + 1;
+                }
+            }
+            copy += 1;
+            if fusion.node_count() >= target_nodes || copy >= max_copies {
+                return copy;
+            }
+        }
+    }
+}
+
+/// Offset of kitchen copy `i`: 0 for the original, then a spiral-free 64-wide grid at 20 m.
+fn copy_offset(i: usize) -> DVec3 {
+    if i == 0 {
+        return DVec3::ZERO;
+    }
+    let (x, y) = (i % 64, i / 64 + 1);
+    DVec3::new(20.0 * x as f64, 20.0 * y as f64, 0.0)
+}
