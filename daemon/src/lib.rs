@@ -6,6 +6,7 @@
 //! |---|---|
 //! | [`config`] | the layered, strictly validated TOML profile |
 //! | [`pipeline`] | named stage threads, bounded queues, health, the shutdown ladder |
+//! | [`keyframe`] | the keyframe gate (pose lookup, motion test), shared by pipeline and batch |
 //! | [`queue`] | bounded queues with latest-wins / block policies and drop counters |
 //! | [`perception`] | the `Detector` trait, detections and masks; the synthetic oracle |
 //! | [`fusion`] | the map: multi-view association of detections into 3D nodes |
@@ -25,6 +26,7 @@ pub mod config;
 pub mod fusion;
 pub mod graph;
 pub mod ipc;
+pub mod keyframe;
 pub mod perception;
 pub mod pipeline;
 pub mod queue;
