@@ -986,10 +986,10 @@ fn living_room(b: &mut Builder, base: usize) {
 // ---------------------------------------------------------------------------------------------
 // Colour panel (test scene).
 
-/// Centre spacing of the knobs in a row, metres (3 cm knobs: 1.5 cm gaps).
-pub(crate) const PANEL_KNOB_SPACING_M: f32 = 0.045;
-/// Centre spacing of the push buttons in a row, metres (2.5 cm buttons: 1 cm gaps).
-pub(crate) const PANEL_BUTTON_SPACING_M: f32 = 0.035;
+/// Centre spacing of the knobs in a row, metres (3 cm knobs: 1 cm gaps).
+pub(crate) const PANEL_KNOB_SPACING_M: f32 = 0.04;
+/// Centre spacing of the push buttons in a row, metres (2.5 cm buttons: 5 mm gaps).
+pub(crate) const PANEL_BUTTON_SPACING_M: f32 = 0.03;
 
 /// A floor-standing control panel in the middle of a wall: a row of six knobs, a row of six
 /// push buttons and another row of six knobs, each row in six different colours (shuffled per

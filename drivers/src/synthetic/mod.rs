@@ -42,7 +42,7 @@ pub enum RoomKind {
     LivingRoom,
     /// A test scene, not a benchmark room: one control panel whose rows of knobs and push
     /// buttons share a label within the row but differ in colour (saturated red, blue, green,
-    /// yellow, orange, purple), 1–1.5 cm apart, so that telling neighbours apart needs colour
+    /// yellow, orange, purple), 0.5–1 cm apart, so that telling neighbours apart needs colour
     /// features. Its camera path looks at the panel from 0.55–2.1 m and ±45°.
     ColourPanel,
 }
