@@ -54,7 +54,8 @@ impl Default for VisibilityThresholds {
     }
 }
 
-/// Where the time of a batch run went (wall clock on the calling thread).
+/// Where the time of a batch run went (wall clock on the calling thread). With several fusions
+/// ([`run_with_fusions`]) `fusion` and `build_graph` are each run's own, the rest is shared.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct BatchTiming {
     /// Reading frames from the source (rendering, for the synthetic source).
@@ -138,8 +139,21 @@ pub fn run(profile: &Profile, visibility: &VisibilityThresholds) -> Result<Batch
 pub fn run_with_fusion(
     profile: &Profile,
     visibility: &VisibilityThresholds,
-    mut fusion: Box<dyn Fusion>,
+    fusion: Box<dyn Fusion>,
 ) -> Result<BatchRun, BatchError> {
+    let [run] = run_with_fusions(profile, visibility, [fusion])?;
+    Ok(run)
+}
+
+/// Runs `profile` once and feeds every keyframe with its detections to each of `fusions` in
+/// turn: one run per fusion, in order, identical but for `graph` and the fusion timings. An
+/// ablation costs one rendering and detection pass instead of one per variant, and every
+/// variant sees exactly the same input.
+pub fn run_with_fusions<const N: usize>(
+    profile: &Profile,
+    visibility: &VisibilityThresholds,
+    mut fusions: [Box<dyn Fusion>; N],
+) -> Result<[BatchRun; N], BatchError> {
     let started = Instant::now();
     let max_frames = profile.run.max_frames;
     if max_frames == 0 && profile.source.synthetic.frame_count.is_none_or(|n| n == 0) {
@@ -183,7 +197,8 @@ pub fn run_with_fusion(
     let mut timing = BatchTiming::default();
     let (mut frames, mut keyframes, mut frames_without_pose, mut detections_total, mut detector_errors) =
         (0u64, 0u64, 0u64, 0u64, 0u64);
-    let mut changed_keyframes = 0u64;
+    let mut changed_keyframes = [0u64; N];
+    let mut fusion_time = [Duration::ZERO; N];
     let mut stamp_ns = 0u64;
     let mut detections = Vec::new();
     loop {
@@ -224,11 +239,13 @@ pub fn run_with_fusion(
         }
         timing.detect += t.elapsed();
 
-        let t = Instant::now();
-        let report = fusion.integrate(&frame, &world_from_camera, &detections);
-        timing.fusion += t.elapsed();
+        for ((fusion, changed), time) in fusions.iter_mut().zip(&mut changed_keyframes).zip(&mut fusion_time) {
+            let t = Instant::now();
+            let report = fusion.integrate(&frame, &world_from_camera, &detections);
+            *time += t.elapsed();
+            *changed += u64::from(report.merged + report.created > 0);
+        }
         detections_total += detections.len() as u64;
-        changed_keyframes += u64::from(report.merged + report.created > 0);
         stamp_ns = stamp_ns.max(frame.stamp_ns);
 
         if id_count > 0 {
@@ -257,25 +274,27 @@ pub fn run_with_fusion(
         }
     }
 
-    let t = Instant::now();
-    let mut graph = SceneGraph::default();
-    fusion.build_graph(&mut graph);
-    graph.version = changed_keyframes.max(1);
-    graph.stamp_ns = stamp_ns;
-    timing.build_graph = t.elapsed();
-    timing.total = started.elapsed();
-    Ok(BatchRun {
-        graph,
-        scene,
-        frames,
-        keyframes,
-        frames_without_pose,
-        detections: detections_total,
-        detector_errors,
-        visible_keyframes,
-        detected_keyframes,
-        timing,
-    })
+    Ok(std::array::from_fn(|i| {
+        let t = Instant::now();
+        let mut graph = SceneGraph::default();
+        fusions[i].build_graph(&mut graph);
+        graph.version = changed_keyframes[i].max(1);
+        graph.stamp_ns = stamp_ns;
+        let timing =
+            BatchTiming { fusion: fusion_time[i], build_graph: t.elapsed(), total: started.elapsed(), ..timing };
+        BatchRun {
+            graph,
+            scene: scene.clone(),
+            frames,
+            keyframes,
+            frames_without_pose,
+            detections: detections_total,
+            detector_errors,
+            visible_keyframes: visible_keyframes.clone(),
+            detected_keyframes: detected_keyframes.clone(),
+            timing,
+        }
+    }))
 }
 
 #[cfg(test)]
@@ -317,6 +336,22 @@ mod tests {
         let mut limited = profile.clone();
         limited.run.max_frames = 10;
         assert_eq!(run(&limited, &VisibilityThresholds::default()).unwrap().frames, 10);
+    }
+
+    #[test]
+    fn several_fusions_see_the_same_keyframes() {
+        let profile = small_profile(30);
+        let single = run(&profile, &VisibilityThresholds::default()).unwrap();
+        let both = run_with_fusions(
+            &profile,
+            &VisibilityThresholds::default(),
+            [make_fusion(&profile), make_fusion(&profile)],
+        )
+        .unwrap();
+        for r in &both {
+            assert_eq!(r.graph, single.graph);
+            assert_eq!((r.keyframes, r.detections), (single.keyframes, single.detections));
+        }
     }
 
     #[test]
