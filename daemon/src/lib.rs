@@ -6,6 +6,9 @@
 //! |---|---|
 //! | [`config`] | the layered, strictly validated TOML profile |
 //! | [`pipeline`] | named stage threads, bounded queues, health, the shutdown ladder |
+//! | [`keyframe`] | the keyframe gate (pose lookup, motion test), shared by pipeline and batch |
+//! | [`batch`] | the deterministic single-thread runner for evaluation and tuning |
+//! | [`eval`] | scoring fused graphs against synthetic ground truth |
 //! | [`queue`] | bounded queues with latest-wins / block policies and drop counters |
 //! | [`perception`] | the `Detector` trait, detections and masks; the synthetic oracle |
 //! | [`fusion`] | the map: multi-view association of detections into 3D nodes |
@@ -21,10 +24,13 @@
 //! println!("{} keyframes/s", summary.keyframes_per_s());
 //! ```
 
+pub mod batch;
 pub mod config;
+pub mod eval;
 pub mod fusion;
 pub mod graph;
 pub mod ipc;
+pub mod keyframe;
 pub mod perception;
 pub mod pipeline;
 pub mod queue;

@@ -32,16 +32,17 @@ use std::time::{Duration, Instant};
 
 use crossbeam_channel::{Receiver, Sender};
 use op3dsg_drivers::frame::{FramePool, PooledFrame};
-use op3dsg_drivers::pose::{Isometry, PoseBuffer, StampedPose};
+use op3dsg_drivers::pose::Isometry;
 use op3dsg_drivers::source::{FrameSource, SourceError, SourceStatus};
-use op3dsg_drivers::synthetic::SyntheticSource;
-use op3dsg_ipc_types::{Health, PoseKind, PoseStamped, write_fixed_str};
+use op3dsg_drivers::synthetic::{Scene, SyntheticSource};
+use op3dsg_ipc_types::{Health, PoseStamped, write_fixed_str};
 use tracing::{debug, error, info, warn};
 
 use crate::config::{DetectorKind, PoseSourceKind, Profile, SourceKind};
 use crate::fusion::Fusion;
 use crate::graph::SceneGraph;
 use crate::ipc::GraphServer;
+use crate::keyframe::{GateDecision, KeyframeGate};
 use crate::perception::oracle::OracleDetector;
 use crate::perception::{Detection, Detector};
 use crate::queue::{Popped, QueueReceiver, QueueSender, QueueStats, queue};
@@ -211,29 +212,48 @@ fn spawn_stage(
         .map_err(|e| StartError::Thread { name: name.to_owned(), reason: e.to_string() })
 }
 
-type DetectorFactory = Arc<dyn Fn(u32) -> Box<dyn Detector> + Send + Sync>;
+/// Makes one detector per worker (the argument is the worker index, for logs only).
+pub(crate) type DetectorFactory = Arc<dyn Fn(u32) -> Box<dyn Detector> + Send + Sync>;
 
-fn build_source(profile: &Profile) -> Result<(Box<dyn FrameSource>, DetectorFactory), StartError> {
+/// What the profile's source section opens: the source, a detector factory, and the ground
+/// truth when the source has one.
+pub(crate) struct BuiltSource {
+    pub(crate) source: Box<dyn FrameSource>,
+    pub(crate) detector_factory: DetectorFactory,
+    /// The synthetic scene (ground truth) when the source is synthetic.
+    pub(crate) scene: Option<Scene>,
+}
+
+/// Opens the source and prepares the detectors exactly as the pipeline does (the batch runner
+/// uses it too, so both see the same frames and detections).
+pub(crate) fn build_source(profile: &Profile) -> Result<BuiltSource, StartError> {
     match profile.source.kind {
         SourceKind::Synthetic => {
             let source = SyntheticSource::new(&profile.source.synthetic)?;
-            let instances = source.scene().instances().to_vec();
+            let scene = source.scene().clone();
+            let instances = scene.instances().to_vec();
             let oracle = profile.detector.oracle.clone();
-            let factory: DetectorFactory = match profile.detector.kind {
+            let detector_factory: DetectorFactory = match profile.detector.kind {
                 DetectorKind::Oracle => Arc::new(move |worker| {
                     Box::new(OracleDetector::new(oracle.clone(), instances.clone(), worker)) as Box<dyn Detector>
                 }),
             };
-            Ok((Box::new(source), factory))
+            Ok(BuiltSource { source: Box::new(source), detector_factory, scene: Some(scene) })
         }
     }
+}
+
+/// The map the profile asks for. The pipeline and the batch runner both construct their fusion
+/// here, so swapping the fusion implementation is this one line.
+pub fn make_fusion(profile: &Profile) -> Box<dyn Fusion> {
+    crate::fusion::build(&profile.fusion)
 }
 
 impl Pipeline {
     /// Opens the source and the iceoryx2 services and starts every stage. Returns once the
     /// services exist (the daemon may then report ready).
     pub fn start(profile: &Profile, stop: Arc<AtomicBool>) -> Result<Self, StartError> {
-        let (mut source, detector_factory) = build_source(profile)?;
+        let BuiltSource { mut source, detector_factory, scene: _ } = build_source(profile)?;
         if profile.pose.source == PoseSourceKind::Frame && !source.has_poses() {
             return Err(StartError::Incompatible {
                 field: "pose.source",
@@ -319,7 +339,7 @@ impl Pipeline {
         // Fusion.
         {
             let stats = stats.clone();
-            let fusion: Box<dyn Fusion> = crate::fusion::build(&profile.fusion);
+            let fusion = make_fusion(profile);
             let min_interval = Duration::from_millis(profile.run.min_publish_interval_ms);
             handles.push(spawn_stage("fusion", &finished_tx, move || {
                 fusion_loop(fusion, det_rx, graph_tx, &stats, min_interval);
@@ -485,12 +505,7 @@ fn keyframe_loop(
     stop: &AtomicBool,
 ) {
     let stage = stats.stage("keyframe");
-    let tolerance_ns = (pose_config.tolerance_ms * 1e6) as u64;
-    let mut poses = PoseBuffer::new(pose_config.buffer_len, tolerance_ns);
-    let base_from_camera = pose_config.base_from_camera.map(|t| t.to_isometry());
-    let mut last: Option<(u64, Isometry)> = None;
-    let min_rotation_rad = config.min_rotation_deg.to_radians();
-    let max_interval_ns = (config.max_interval_s * 1e9) as u64;
+    let mut gate = KeyframeGate::new(config, pose_config);
     loop {
         let frame = match frames_rx.pop_timeout(POLL) {
             Popped::Item(frame) => frame,
@@ -500,42 +515,21 @@ fn keyframe_loop(
         };
         let started = Instant::now();
         for pose in pose_rx.try_iter() {
-            let world_from_x =
-                Isometry::new(glam::DQuat::from_array(pose.rotation_xyzw), glam::DVec3::from_array(pose.translation_m));
-            let world_from_camera = match (PoseKind::from_u8(pose.kind), base_from_camera) {
-                (Some(PoseKind::WorldFromCamera), _) => world_from_x,
-                (Some(PoseKind::WorldFromBase), Some(base_from_camera)) => world_from_x * base_from_camera,
-                _ => {
-                    stats.poses_rejected.fetch_add(1, Ordering::Relaxed);
-                    continue;
-                }
-            };
-            poses.push(StampedPose { stamp_ns: pose.stamp_ns, world_from_camera });
-        }
-        let pose = match pose_config.source {
-            PoseSourceKind::Frame => frame.world_from_camera,
-            PoseSourceKind::Ipc => poses.lookup(frame.stamp_ns),
-        };
-        let Some(world_from_camera) = pose else {
-            stats.frames_without_pose.fetch_add(1, Ordering::Relaxed);
-            tracing::trace!(frame_seq = frame.seq, "no pose within tolerance; frame dropped");
-            continue;
-        };
-        let is_keyframe = match last {
-            None => true,
-            Some((stamp_ns, previous)) => {
-                let moved = previous.translation.distance(world_from_camera.translation);
-                let turned = previous.rotation.angle_between(world_from_camera.rotation);
-                moved >= config.min_translation_m
-                    || turned >= min_rotation_rad
-                    || frame.stamp_ns.saturating_sub(stamp_ns) >= max_interval_ns
+            if !gate.add_pose(&pose) {
+                stats.poses_rejected.fetch_add(1, Ordering::Relaxed);
             }
-        };
-        stage.record(started);
-        if is_keyframe {
-            last = Some((frame.stamp_ns, world_from_camera));
-            stats.keyframes.fetch_add(1, Ordering::Relaxed);
-            kf_tx.push(KeyframeItem { frame, world_from_camera });
+        }
+        match gate.decide(&frame) {
+            GateDecision::NoPose => {
+                stats.frames_without_pose.fetch_add(1, Ordering::Relaxed);
+                tracing::trace!(frame_seq = frame.seq, "no pose within tolerance; frame dropped");
+            }
+            GateDecision::Skip => stage.record(started),
+            GateDecision::Keyframe(world_from_camera) => {
+                stage.record(started);
+                stats.keyframes.fetch_add(1, Ordering::Relaxed);
+                kf_tx.push(KeyframeItem { frame, world_from_camera });
+            }
         }
     }
 }

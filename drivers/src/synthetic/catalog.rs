@@ -54,6 +54,19 @@ const WALLS: [Material; 3] = [
 ];
 const CEILING: Material = Material::new("white ceiling", [0.95, 0.95, 0.95], 0.0, 1.0);
 
+// Saturated, nearly matte plastics for the colour panel. Lit and shaded they keep HSV
+// S > 0.5 and a channel maximum well below 229 (V < 0.9), so the colour feature sees them; the
+// weak specular keeps the camera-light highlight small.
+const PANEL_COLOURS: [Material; 6] = [
+    Material::new("red plastic", [0.72, 0.08, 0.07], 0.15, 20.0),
+    Material::new("blue plastic", [0.1, 0.22, 0.72], 0.15, 20.0),
+    Material::new("green plastic", [0.1, 0.55, 0.16], 0.15, 20.0),
+    Material::new("yellow plastic", [0.75, 0.64, 0.06], 0.15, 20.0),
+    Material::new("orange plastic", [0.8, 0.38, 0.05], 0.15, 20.0),
+    Material::new("purple plastic", [0.45, 0.12, 0.58], 0.15, 20.0),
+];
+const PANEL_BODY: Material = Material::new("dark grey metal", [0.22, 0.22, 0.24], 0.2, 20.0);
+
 // Canonical functional relations.
 const PULL: &str = "pull to open or close";
 const WATER: &str = "control the water flow";
@@ -248,6 +261,7 @@ pub(crate) fn generate(room: RoomKind, seed: u64) -> Scene {
         RoomKind::Bathroom => (rng.random_range(3.5..4.5), rng.random_range(3.2..4.0)),
         RoomKind::Bedroom => (rng.random_range(3.8..5.5), rng.random_range(3.8..5.0)),
         RoomKind::LivingRoom => (rng.random_range(4.4..6.0), rng.random_range(4.2..5.0)),
+        RoomKind::ColourPanel => (rng.random_range(3.0..3.6), rng.random_range(3.0..3.4)),
     };
     let round = |x: f32| (x * 20.0).round() / 20.0;
     let size = Vec3::new(round(w), round(d), CEILING_HEIGHT_M);
@@ -268,6 +282,7 @@ pub(crate) fn generate(room: RoomKind, seed: u64) -> Scene {
         RoomKind::Bathroom => bathroom(&mut b, base),
         RoomKind::Bedroom => bedroom(&mut b, base),
         RoomKind::LivingRoom => living_room(&mut b, base),
+        RoomKind::ColourPanel => colour_panel(&mut b, base),
     }
     finish(b, room, seed, structure)
 }
@@ -966,4 +981,45 @@ fn living_room(b: &mut Builder, base: usize) {
 
     door_and_switches(b, door_wall, 0.8, &[light]);
     window(b, door_wall, door_wall.len - 1.9, 1.0);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Colour panel (test scene).
+
+/// Centre spacing of the knobs in a row, metres (3 cm knobs: 1 cm gaps).
+pub(crate) const PANEL_KNOB_SPACING_M: f32 = 0.04;
+/// Centre spacing of the push buttons in a row, metres (2.5 cm buttons: 5 mm gaps).
+pub(crate) const PANEL_BUTTON_SPACING_M: f32 = 0.03;
+
+/// A floor-standing control panel in the middle of a wall: a row of six knobs, a row of six
+/// push buttons and another row of six knobs, each row in six different colours (shuffled per
+/// seed), so every part's neighbours in its row share its label and differ in colour.
+fn colour_panel(b: &mut Builder, base: usize) {
+    let wall = b.wall(base);
+    ceiling_light(b, b.size.x * 0.5, b.size.y * 0.5);
+    const DEPTH: f32 = 0.35;
+    let sc = wall.len * 0.5;
+    let panel = b.object("control panel", &["panel", "control board"], PANEL_BODY);
+    let body = wall.cuboid([sc - 0.35, sc + 0.35], [0.0, DEPTH], [0.0, 1.35]);
+    b.add(panel, body, PANEL_BODY);
+    b.claim(&body);
+    let row = |b: &mut Builder| {
+        let mut colours = PANEL_COLOURS;
+        colours.shuffle(&mut b.rng);
+        colours
+    };
+    for (z, knobs) in [(1.22f32, true), (1.1, false), (0.98, true)] {
+        let colours = row(b);
+        for (k, colour) in colours.into_iter().enumerate() {
+            let offset = k as f32 - 2.5;
+            if knobs {
+                let knob = wall.knob(sc + offset * PANEL_KNOB_SPACING_M, DEPTH, z, 0.015, 0.025);
+                b.part(Some(panel), "knob", colour, &["rotate"], panel, ADJUST, &[knob]);
+            } else {
+                let s = sc + offset * PANEL_BUTTON_SPACING_M;
+                let button = wall.cuboid([s - 0.0125, s + 0.0125], [DEPTH, DEPTH + 0.012], [z - 0.0125, z + 0.0125]);
+                b.part(Some(panel), "push button", colour, &["tip_push"], panel, PRESS_START, &[button]);
+            }
+        }
+    }
 }

@@ -40,25 +40,34 @@ pub enum RoomKind {
     /// TV and remote, TV stand with drawers, sofa, coffee table, power strip and appliances,
     /// lamps and switches.
     LivingRoom,
+    /// A test scene, not a benchmark room: one control panel whose rows of knobs and push
+    /// buttons share a label within the row but differ in colour (saturated red, blue, green,
+    /// yellow, orange, purple), 0.5–1 cm apart, so that telling neighbours apart needs colour
+    /// features. Its camera path looks at the panel from 0.55–2.1 m and ±45°.
+    ColourPanel,
 }
 
 impl RoomKind {
-    /// All room kinds.
+    /// The benchmark rooms.
     pub const ALL: [RoomKind; 4] = [RoomKind::Kitchen, RoomKind::Bathroom, RoomKind::Bedroom, RoomKind::LivingRoom];
 
-    /// The snake_case name (`kitchen`, `bathroom`, `bedroom`, `living_room`).
+    /// Scenes built to test one ability (not part of the benchmark).
+    pub const TEST_SCENES: [RoomKind; 1] = [RoomKind::ColourPanel];
+
+    /// The snake_case name (`kitchen`, `bathroom`, `bedroom`, `living_room`, `colour_panel`).
     pub fn as_str(self) -> &'static str {
         match self {
             RoomKind::Kitchen => "kitchen",
             RoomKind::Bathroom => "bathroom",
             RoomKind::Bedroom => "bedroom",
             RoomKind::LivingRoom => "living_room",
+            RoomKind::ColourPanel => "colour_panel",
         }
     }
 
-    /// Parses a snake_case name.
+    /// Parses a snake_case name (benchmark rooms and test scenes).
     pub fn parse(name: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|r| r.as_str() == name)
+        Self::ALL.into_iter().chain(Self::TEST_SCENES).find(|r| r.as_str() == name)
     }
 }
 

@@ -7,8 +7,8 @@ use glam::{DMat3, DQuat, DVec3, Vec2};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::InstanceKind;
 use super::scene::Scene;
+use super::{InstanceKind, RoomKind};
 use crate::pose::Isometry;
 
 const CELL_M: f32 = 0.05;
@@ -24,11 +24,21 @@ const TILT_AMP_RAD: f64 = 27.5 * std::f64::consts::PI / 180.0;
 /// One leg of the loop.
 #[derive(Debug, Clone)]
 enum Segment {
-    /// Pan/tilt sweep standing at a viewpoint.
-    Sweep { at: Vec2, yaw: f64 },
-    /// Drive along a polyline while turning from `yaw0` to `yaw1`.
-    Drive { points: Vec<Vec2>, cumulative: Vec<f64>, yaw0: f64, yaw1: f64 },
+    /// Pan/tilt sweep standing at a viewpoint: pan `± pan_amp` around `yaw` once, tilt
+    /// `tilt_mid ± tilt_amp` twice.
+    Sweep { at: Vec2, yaw: f64, tilt_mid: f64, pan_amp: f64, tilt_amp: f64 },
+    /// Drive along a polyline while turning from `yaw0` to `yaw1` (tilt `TILT_MID_RAD`), or,
+    /// with `look_at`, while keeping that point in the image centre.
+    Drive { points: Vec<Vec2>, cumulative: Vec<f64>, yaw0: f64, yaw1: f64, look_at: Option<DVec3> },
 }
+
+/// Viewpoints of the colour panel's path: distance from the panel's parts (metres) and angle
+/// off the panel's normal (degrees), in visiting order.
+const PANEL_VIEWS: [(f64, f64); 6] = [(0.55, 0.0), (0.8, -35.0), (1.3, -15.0), (2.1, 10.0), (1.2, 30.0), (0.7, 45.0)];
+/// Pan and tilt amplitudes of the sweeps at the panel's viewpoints, degrees.
+const PANEL_SWEEP_DEG: (f64, f64) = (12.0, 6.0);
+/// Seconds of a sweep at one of the panel's viewpoints.
+const PANEL_SWEEP_S: f64 = 3.0;
 
 /// Poses along the robot-like loop.
 #[derive(Debug, Clone)]
@@ -191,6 +201,9 @@ impl CameraPath {
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5EED_CA4E_7A70_0001);
         let height_m = rng.random_range(1.1..1.3);
         let grid = Grid::new(scene);
+        if scene.room() == RoomKind::ColourPanel {
+            return Self::around_parts(scene, &grid, height_m, rate);
+        }
         let (_, max) = scene.bounds();
         let room = Vec2::new(max.x, max.y);
         let centre = room * 0.5;
@@ -263,7 +276,8 @@ impl CameraPath {
         for k in 0..views.len() {
             let (at, yaw) = views[k];
             let sweep_frames = frames(SWEEP_S + rng.random_range(-0.5..0.5));
-            segments.push((start, sweep_frames, Segment::Sweep { at, yaw }));
+            let sweep = Segment::Sweep { at, yaw, tilt_mid: TILT_MID_RAD, pan_amp: PAN_RAD, tilt_amp: TILT_AMP_RAD };
+            segments.push((start, sweep_frames, sweep));
             start += sweep_frames;
             let (next_at, next_yaw) = views[(k + 1) % views.len()];
             let points = grid.path(at, next_at);
@@ -279,8 +293,89 @@ impl CameraPath {
             segments.push((
                 start,
                 drive_frames,
-                Segment::Drive { points, cumulative, yaw0: yaw, yaw1: yaw + wrap_angle(next_yaw - yaw) },
+                Segment::Drive { points, cumulative, yaw0: yaw, yaw1: yaw + wrap_angle(next_yaw - yaw), look_at: None },
             ));
+            start += drive_frames;
+        }
+        Self { height_m, segments, frame_rate_hz: rate, period: start.max(1) }
+    }
+
+    /// The colour panel's loop: stops at [`PANEL_VIEWS`] in front of the parts (the centre of
+    /// their boxes; the panel faces the room centre), a small pan/tilt sweep aimed at the parts
+    /// at each, and drives between them that keep the parts in the image centre.
+    fn around_parts(scene: &Scene, grid: &Grid, height_m: f64, rate: f64) -> Self {
+        let parts: Vec<_> = scene.instances().iter().filter(|i| i.kind == InstanceKind::Part).collect();
+        let (lo, hi) = parts.iter().fold((glam::Vec3::INFINITY, glam::Vec3::NEG_INFINITY), |(lo, hi), p| {
+            (lo.min(p.box_min_m), hi.max(p.box_max_m))
+        });
+        let (_, max) = scene.bounds();
+        let target = if parts.is_empty() { max * 0.5 } else { (lo + hi) * 0.5 };
+        let target_m = target.as_dvec3();
+        // The panel's outward normal: towards the room centre, snapped to the nearest axis.
+        let to_centre = (max * 0.5 - target).truncate();
+        let normal = if to_centre.x.abs() > to_centre.y.abs() {
+            Vec2::new(to_centre.x.signum(), 0.0)
+        } else {
+            Vec2::new(0.0, to_centre.y.signum())
+        };
+        let look = |at: Vec2| -> (f64, f64) {
+            let d = target_m - DVec3::new(f64::from(at.x), f64::from(at.y), height_m);
+            (d.y.atan2(d.x), d.z.atan2(d.truncate().length()))
+        };
+        let frames = |seconds: f64| (seconds * rate).round().max(1.0) as u64;
+        let nearest_free = |desired: Vec2| -> Vec2 {
+            if grid.is_free(desired) {
+                return desired;
+            }
+            let mut best: Option<(f32, Vec2)> = None;
+            for c in (0..grid.free.len()).filter(|c| grid.free[*c]) {
+                let p = Grid::centre_of(c % grid.nx, c / grid.nx);
+                let d = (p - desired).length_squared();
+                if best.is_none_or(|(bd, _)| d < bd) {
+                    best = Some((d, p));
+                }
+            }
+            best.map_or(desired, |(_, p)| p)
+        };
+        let views: Vec<Vec2> = PANEL_VIEWS
+            .iter()
+            .map(|&(distance_m, angle_deg)| {
+                let direction = glam::Mat2::from_angle(angle_deg.to_radians() as f32) * normal;
+                nearest_free(target.truncate() + direction * distance_m as f32)
+            })
+            .collect();
+        let mut segments = Vec::new();
+        let mut start = 0u64;
+        for (k, &at) in views.iter().enumerate() {
+            let (yaw, tilt) = look(at);
+            let sweep = Segment::Sweep {
+                at,
+                yaw,
+                tilt_mid: tilt,
+                pan_amp: PANEL_SWEEP_DEG.0.to_radians(),
+                tilt_amp: PANEL_SWEEP_DEG.1.to_radians(),
+            };
+            let sweep_frames = frames(PANEL_SWEEP_S);
+            segments.push((start, sweep_frames, sweep));
+            start += sweep_frames;
+            let next = views[(k + 1) % views.len()];
+            let points = grid.path(at, next);
+            let mut cumulative = vec![0.0];
+            for pair in points.windows(2) {
+                let last = cumulative.last().copied().unwrap_or(0.0);
+                cumulative.push(last + f64::from((pair[1] - pair[0]).length()));
+            }
+            let length = cumulative.last().copied().unwrap_or(0.0);
+            let drive_frames = frames((length / DRIVE_SPEED_MPS).max(1.0));
+            let (next_yaw, _) = look(next);
+            let drive = Segment::Drive {
+                points,
+                cumulative,
+                yaw0: yaw,
+                yaw1: yaw + wrap_angle(next_yaw - yaw),
+                look_at: Some(target_m),
+            };
+            segments.push((start, drive_frames, drive));
             start += drive_frames;
         }
         Self { height_m, segments, frame_rate_hz: rate, period: start.max(1) }
@@ -306,13 +401,13 @@ impl CameraPath {
         };
         let t = (k - start) as f64 / *len as f64;
         let (xy, yaw, tilt) = match segment {
-            Segment::Sweep { at, yaw } => {
+            Segment::Sweep { at, yaw, tilt_mid, pan_amp, tilt_amp } => {
                 let phase = std::f64::consts::TAU * t;
-                let pan = PAN_RAD * phase.sin();
-                let tilt = TILT_MID_RAD - TILT_AMP_RAD * (2.0 * phase).sin();
+                let pan = pan_amp * phase.sin();
+                let tilt = tilt_mid - tilt_amp * (2.0 * phase).sin();
                 (*at, yaw + pan, tilt)
             }
-            Segment::Drive { points, cumulative, yaw0, yaw1 } => {
+            Segment::Drive { points, cumulative, yaw0, yaw1, look_at } => {
                 let e = ease(t);
                 let total = cumulative.last().copied().unwrap_or(0.0);
                 let s = e * total;
@@ -324,7 +419,13 @@ impl CameraPath {
                     let u = ((s - cumulative[j - 1]) / span).clamp(0.0, 1.0);
                     points[j - 1].lerp(points[j], u as f32)
                 };
-                (xy, yaw0 + (yaw1 - yaw0) * e, TILT_MID_RAD)
+                match look_at {
+                    Some(target) => {
+                        let d = *target - DVec3::new(f64::from(xy.x), f64::from(xy.y), self.height_m);
+                        (xy, d.y.atan2(d.x), d.z.atan2(d.truncate().length()))
+                    }
+                    None => (xy, yaw0 + (yaw1 - yaw0) * e, TILT_MID_RAD),
+                }
             }
         };
         let position = DVec3::new(f64::from(xy.x), f64::from(xy.y), self.height_m);
@@ -358,7 +459,6 @@ pub fn inside_furniture(scene: &Scene, p: glam::Vec3, margin: f32) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::synthetic::RoomKind;
 
     #[test]
     fn look_rotation_axes() {

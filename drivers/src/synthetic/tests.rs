@@ -353,3 +353,88 @@ fn looping_source_wraps_the_path() {
     assert_eq!(source.path().pose_at(period + 2), source.path().pose_at(2));
     assert_eq!(source.len_hint(), None);
 }
+
+/// The colour panel: rows of same-label parts a centimetre or so apart, neighbours in different
+/// saturated colours, seen from near and far by a smooth path that stays clear of the panel.
+#[test]
+fn colour_panel_needs_colour_and_is_seen_from_several_views() {
+    assert_eq!(RoomKind::parse("colour_panel"), Some(RoomKind::ColourPanel));
+    assert!(!RoomKind::ALL.contains(&RoomKind::ColourPanel), "a test scene, not a benchmark room");
+    for seed in [1u64, 2] {
+        let scene = Scene::generate(RoomKind::ColourPanel, seed);
+        let parts: Vec<_> = scene.instances().iter().filter(|i| i.kind == InstanceKind::Part).collect();
+        assert_eq!(parts.len(), 18);
+        let mut neighbour_pairs = 0;
+        for (a, pa) in parts.iter().enumerate() {
+            assert!(pa.parent.is_some());
+            let material = scene.materials().iter().find(|m| m.name == pa.material).unwrap();
+            let [r, g, b] = material.albedo;
+            let (max, min) = (r.max(g).max(b), r.min(g).min(b));
+            assert!((max - min) / max > 0.6 && max < 0.85, "{}: {:?} is not a saturated colour", pa.material, material);
+            for pb in &parts[a + 1..] {
+                if pa.label != pb.label {
+                    continue;
+                }
+                let gap = (pa.box_min_m.max(pb.box_min_m) - pa.box_max_m.min(pb.box_max_m)).max_element();
+                if gap < 0.02 {
+                    neighbour_pairs += 1;
+                    assert!(gap >= 0.004, "seed {seed}: {} {} and {} touch", pa.label, pa.id, pb.id);
+                    assert_ne!(
+                        pa.material, pb.material,
+                        "seed {seed}: neighbours {} and {} share a colour",
+                        pa.id, pb.id
+                    );
+                }
+            }
+        }
+        assert_eq!(neighbour_pairs, 15, "seed {seed}: three rows of six");
+        scene.ground_truth().check().unwrap();
+
+        let path = CameraPath::new(&scene, seed, 30.0);
+        let period = path.period_frames();
+        assert!((300..=1500).contains(&period), "period {period}");
+        let (lo, hi) = parts
+            .iter()
+            .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), p| (lo.min(p.box_min_m), hi.max(p.box_max_m)));
+        let target = (lo + hi) * 0.5;
+        let (mut nearest, mut farthest) = (f32::INFINITY, 0.0f32);
+        for k in 0..period {
+            let (a, b) = (path.pose_at(k), path.pose_at(k + 1));
+            assert!((a.translation - b.translation).length() < 0.03, "frame {k}: jump");
+            assert!(a.rotation.angle_between(b.rotation) < 0.06, "frame {k}: turn");
+            let at = a.translation.as_vec3();
+            assert!(!inside_furniture(&scene, at, 0.1), "seed {seed}: camera inside the panel at {k}");
+            // The parts stay in front of the camera, near the image centre.
+            let forward = a.rotation.as_quat() * Vec3::Z;
+            let to_target = (target - at).normalize();
+            assert!(forward.dot(to_target) > 0.95, "seed {seed}: frame {k} looks away from the panel");
+            let distance = (target - at).length();
+            nearest = nearest.min(distance);
+            farthest = farthest.max(distance);
+        }
+        assert!(nearest < 0.7 && farthest > 1.8, "seed {seed}: distances {nearest}..{farthest}");
+        // Every part is visible with at least 30 pixels in frames from several places.
+        let k = Intrinsics::d435i_640x480();
+        let mut renderer = Renderer::new();
+        let mut frame = Frame::new(k, true);
+        let mut seen_from: Vec<Vec<Vec3>> = vec![Vec::new(); scene.instances().len() + 1];
+        for f in (0..period).step_by(period as usize / 12) {
+            let pose = path.pose_at(f);
+            renderer.render(&scene, &pose, &k, None, &mut frame);
+            let mut counts = vec![0u32; scene.instances().len() + 1];
+            for &id in frame.instance_ids.as_ref().unwrap() {
+                counts[id as usize] += 1;
+            }
+            for part in &parts {
+                if counts[part.id as usize] >= 30 {
+                    seen_from[part.id as usize].push(pose.translation.as_vec3());
+                }
+            }
+        }
+        for part in &parts {
+            let places = &seen_from[part.id as usize];
+            let spread = places.iter().map(|p| (*p - places[0]).length()).fold(0.0f32, f32::max);
+            assert!(places.len() >= 6 && spread > 1.0, "seed {seed}: part {} seen from {places:?}", part.id);
+        }
+    }
+}

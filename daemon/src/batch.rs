@@ -1,0 +1,365 @@
+//! The deterministic batch runner: source → keyframe gate → detector → fusion, synchronously on
+//! the calling thread, with no queues, no threads and no iceoryx2. For evaluation and tuning
+//! (`op3dsg fusion-eval`, `daemon/tests/fusion_quality.rs`), not for serving.
+//!
+//! It opens the source and the detector with the pipeline's own [`build_source`], selects
+//! keyframes with the pipeline's [`KeyframeGate`] and makes its map with [`make_fusion`] (or a
+//! fusion the caller passes), and fuses every keyframe in order, so its final graph is the one
+//! the threaded pipeline publishes last when no frame is dropped (`block` queues, as in
+//! `profiles/sim-batch.toml`); `daemon/tests/batch_determinism.rs` checks this.
+//!
+//! Besides the graph it counts, per ground-truth instance (synthetic sources only):
+//! - **visibility**: in how many keyframes the instance covers at least
+//!   [`VisibilityThresholds`] pixels of `Frame::instance_ids` (what an ideal detector could see);
+//! - **detections**: in how many keyframes the detector reported it
+//!   (`Detection::ground_truth_instance`; several detections in one keyframe count once).
+//!
+//! ```no_run
+//! let mut profile = op3dsg_daemon::config::load(None, &[]).unwrap().profile;
+//! profile.source.synthetic.frame_count = Some(300);
+//! let run = op3dsg_daemon::batch::run(&profile, &Default::default()).unwrap();
+//! println!("{} keyframes, {} nodes", run.keyframes, run.graph.nodes.len());
+//! ```
+
+use std::time::{Duration, Instant};
+
+use op3dsg_drivers::frame::Frame;
+use op3dsg_drivers::source::{SourceError, SourceStatus};
+use op3dsg_drivers::synthetic::{InstanceKind, Scene};
+use tracing::warn;
+
+use crate::config::{PoseSourceKind, Profile};
+use crate::fusion::Fusion;
+use crate::graph::SceneGraph;
+use crate::keyframe::{GateDecision, KeyframeGate};
+use crate::pipeline::{BuiltSource, StartError, build_source, make_fusion};
+
+/// How many pixels of `Frame::instance_ids` make a ground-truth instance count as visible in a
+/// keyframe.
+///
+/// The defaults: 30 px for parts is the oracle detector's own floor (`min_visible_px`), about a
+/// 3 cm knob seen from 3 m; 200 px for objects (a 14 x 14 px patch) leaves out slivers at the
+/// image border and through gaps, which no detector would report.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct VisibilityThresholds {
+    /// Minimum pixels of an object, pixels.
+    pub object_min_px: u32,
+    /// Minimum pixels of a part, pixels.
+    pub part_min_px: u32,
+}
+
+impl Default for VisibilityThresholds {
+    fn default() -> Self {
+        Self { object_min_px: 200, part_min_px: 30 }
+    }
+}
+
+/// Where the time of a batch run went (wall clock on the calling thread). With several fusions
+/// ([`run_with_fusions`]) `fusion` and `build_graph` are each run's own, the rest is shared.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BatchTiming {
+    /// Reading frames from the source (rendering, for the synthetic source).
+    pub source: Duration,
+    /// The keyframe gate.
+    pub gate: Duration,
+    /// Detection on keyframes.
+    pub detect: Duration,
+    /// `Fusion::integrate` on keyframes.
+    pub fusion: Duration,
+    /// The final `Fusion::build_graph`.
+    pub build_graph: Duration,
+    /// Counting ground-truth pixels and detections.
+    pub ground_truth: Duration,
+    /// The whole run, opening the source included.
+    pub total: Duration,
+}
+
+/// What a batch run produced.
+#[derive(Debug, Clone)]
+pub struct BatchRun {
+    /// The final graph. `version` is the number of keyframes that changed the map (at least 1,
+    /// like the pipeline, which publishes an empty graph rather than none); `stamp_ns` is the
+    /// newest keyframe's stamp.
+    pub graph: SceneGraph,
+    /// The synthetic scene (ground truth), when the source has one.
+    pub scene: Option<Scene>,
+    /// Frames the source delivered.
+    pub frames: u64,
+    /// Keyframes fused.
+    pub keyframes: u64,
+    /// Frames dropped for lack of a pose.
+    pub frames_without_pose: u64,
+    /// Detections given to fusion (false positives included).
+    pub detections: u64,
+    /// Keyframes whose detection failed (fused empty, as the pipeline does).
+    pub detector_errors: u64,
+    /// Indexed by instance id (index 0 unused): keyframes in which the instance was visible
+    /// with at least the [`VisibilityThresholds`] pixels. Empty without ground truth.
+    pub visible_keyframes: Vec<u32>,
+    /// Indexed by instance id: keyframes in which the detector reported the instance. Empty
+    /// without ground truth.
+    pub detected_keyframes: Vec<u32>,
+    /// Where the time went.
+    pub timing: BatchTiming,
+}
+
+impl BatchRun {
+    /// Keyframes per second over the whole run.
+    pub fn keyframes_per_s(&self) -> f64 {
+        self.keyframes as f64 / self.timing.total.as_secs_f64().max(1e-9)
+    }
+}
+
+/// Errors of a batch run.
+#[derive(Debug, thiserror::Error)]
+pub enum BatchError {
+    /// The source or detector could not be opened, or the profile cannot run in batch.
+    #[error(transparent)]
+    Start(#[from] StartError),
+    /// The source never ends.
+    #[error("source.synthetic.frame_count: the batch runner needs a finite source; set it (or run.max_frames) above 0")]
+    Unbounded,
+    /// The source failed mid-run. The pipeline retries; a batch run stops, because skipping a
+    /// frame would make the result depend on the failure.
+    #[error("source failed after {frames} frames: {error}")]
+    Source {
+        /// Frames delivered before the failure.
+        frames: u64,
+        /// What failed.
+        error: SourceError,
+    },
+}
+
+/// Runs `profile` with the fusion the pipeline would make ([`make_fusion`]).
+pub fn run(profile: &Profile, visibility: &VisibilityThresholds) -> Result<BatchRun, BatchError> {
+    run_with_fusion(profile, visibility, make_fusion(profile))
+}
+
+/// Runs `profile` with `fusion` instead of the profile's (ablations, alternative fusions).
+pub fn run_with_fusion(
+    profile: &Profile,
+    visibility: &VisibilityThresholds,
+    fusion: Box<dyn Fusion>,
+) -> Result<BatchRun, BatchError> {
+    let [run] = run_with_fusions(profile, visibility, [fusion])?;
+    Ok(run)
+}
+
+/// Runs `profile` once and feeds every keyframe with its detections to each of `fusions` in
+/// turn: one run per fusion, in order, identical but for `graph` and the fusion timings. An
+/// ablation costs one rendering and detection pass instead of one per variant, and every
+/// variant sees exactly the same input.
+pub fn run_with_fusions<const N: usize>(
+    profile: &Profile,
+    visibility: &VisibilityThresholds,
+    mut fusions: [Box<dyn Fusion>; N],
+) -> Result<[BatchRun; N], BatchError> {
+    let started = Instant::now();
+    let max_frames = profile.run.max_frames;
+    if max_frames == 0 && profile.source.synthetic.frame_count.is_none_or(|n| n == 0) {
+        return Err(BatchError::Unbounded);
+    }
+    let BuiltSource { mut source, detector_factory, scene } = build_source(profile)?;
+    if profile.pose.source != PoseSourceKind::Frame {
+        return Err(StartError::Incompatible {
+            field: "pose.source",
+            reason: "the batch runner has no pose input; use \"frame\" with a source that carries poses".to_owned(),
+        }
+        .into());
+    }
+    if !source.has_poses() {
+        return Err(StartError::Incompatible {
+            field: "pose.source",
+            reason: format!("{} carries no poses", source.describe()),
+        }
+        .into());
+    }
+    let mut detector = detector_factory(0);
+    let mut gate = KeyframeGate::new(&profile.keyframe, &profile.pose);
+    let mut frame = Frame::new(source.intrinsics(), source.has_instance_ids());
+
+    // Ground-truth bookkeeping: per instance id, its kind's pixel threshold.
+    let id_count = scene.as_ref().map_or(0, |s| s.instances().iter().map(|i| usize::from(i.id)).max().unwrap_or(0) + 1);
+    let mut min_px = vec![u32::MAX; id_count];
+    if let Some(scene) = &scene {
+        for info in scene.instances() {
+            min_px[usize::from(info.id)] = match info.kind {
+                InstanceKind::Object => visibility.object_min_px,
+                InstanceKind::Part => visibility.part_min_px,
+            };
+        }
+    }
+    let mut pixels = vec![0u32; id_count];
+    let mut detected_now = vec![false; id_count];
+    let mut visible_keyframes = vec![0u32; id_count];
+    let mut detected_keyframes = vec![0u32; id_count];
+
+    let mut timing = BatchTiming::default();
+    let (mut frames, mut keyframes, mut frames_without_pose, mut detections_total, mut detector_errors) =
+        (0u64, 0u64, 0u64, 0u64, 0u64);
+    let mut changed_keyframes = [0u64; N];
+    let mut fusion_time = [Duration::ZERO; N];
+    let mut stamp_ns = 0u64;
+    let mut detections = Vec::new();
+    loop {
+        if max_frames > 0 && frames >= max_frames {
+            break;
+        }
+        let t = Instant::now();
+        let status = source.next_frame(&mut frame).map_err(|error| BatchError::Source { frames, error })?;
+        timing.source += t.elapsed();
+        match status {
+            SourceStatus::Frame => frames += 1,
+            SourceStatus::Pending => {
+                std::thread::sleep(Duration::from_millis(1));
+                continue;
+            }
+            SourceStatus::EndOfStream => break,
+        }
+
+        let t = Instant::now();
+        let decision = gate.decide(&frame);
+        timing.gate += t.elapsed();
+        let world_from_camera = match decision {
+            GateDecision::NoPose => {
+                frames_without_pose += 1;
+                continue;
+            }
+            GateDecision::Skip => continue,
+            GateDecision::Keyframe(world_from_camera) => world_from_camera,
+        };
+        keyframes += 1;
+
+        let t = Instant::now();
+        if let Err(e) = detector.detect(&frame, &mut detections) {
+            // As the pipeline does: the keyframe is fused empty.
+            warn!(frame_seq = frame.seq, error = %e, "detection failed; keyframe fused empty");
+            detector_errors += 1;
+            detections.clear();
+        }
+        timing.detect += t.elapsed();
+
+        for ((fusion, changed), time) in fusions.iter_mut().zip(&mut changed_keyframes).zip(&mut fusion_time) {
+            let t = Instant::now();
+            let report = fusion.integrate(&frame, &world_from_camera, &detections);
+            *time += t.elapsed();
+            *changed += u64::from(report.merged + report.created > 0);
+        }
+        detections_total += detections.len() as u64;
+        stamp_ns = stamp_ns.max(frame.stamp_ns);
+
+        if id_count > 0 {
+            let t = Instant::now();
+            if let Some(ids) = frame.instance_ids.as_deref() {
+                pixels.fill(0);
+                for &id in ids {
+                    if let Some(count) = pixels.get_mut(usize::from(id)) {
+                        *count += 1;
+                    }
+                }
+                for ((visible, count), min) in visible_keyframes.iter_mut().zip(&pixels).zip(&min_px) {
+                    *visible += u32::from(*count >= *min);
+                }
+            }
+            detected_now.fill(false);
+            for id in detections.iter().filter_map(|d| d.ground_truth_instance) {
+                if let Some(flag) = detected_now.get_mut(usize::from(id)) {
+                    *flag = true;
+                }
+            }
+            for (count, now) in detected_keyframes.iter_mut().zip(&detected_now) {
+                *count += u32::from(*now);
+            }
+            timing.ground_truth += t.elapsed();
+        }
+    }
+
+    Ok(std::array::from_fn(|i| {
+        let t = Instant::now();
+        let mut graph = SceneGraph::default();
+        fusions[i].build_graph(&mut graph);
+        graph.version = changed_keyframes[i].max(1);
+        graph.stamp_ns = stamp_ns;
+        let timing =
+            BatchTiming { fusion: fusion_time[i], build_graph: t.elapsed(), total: started.elapsed(), ..timing };
+        BatchRun {
+            graph,
+            scene: scene.clone(),
+            frames,
+            keyframes,
+            frames_without_pose,
+            detections: detections_total,
+            detector_errors,
+            visible_keyframes: visible_keyframes.clone(),
+            detected_keyframes: detected_keyframes.clone(),
+            timing,
+        }
+    }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn small_profile(frames: u64) -> Profile {
+        let mut profile = crate::config::load(None, &[]).unwrap().profile;
+        profile.source.synthetic.frame_count = Some(frames);
+        profile.source.synthetic.intrinsics =
+            op3dsg_drivers::frame::Intrinsics { width: 160, height: 120, fx: 153.75, fy: 153.75, cx: 80.0, cy: 60.0 };
+        profile
+    }
+
+    #[test]
+    fn an_unbounded_source_is_refused() {
+        let profile = crate::config::load(None, &[]).unwrap().profile;
+        let error = run(&profile, &VisibilityThresholds::default()).unwrap_err();
+        assert!(matches!(error, BatchError::Unbounded), "{error}");
+        assert!(error.to_string().starts_with("source.synthetic.frame_count:"), "{error}");
+    }
+
+    #[test]
+    fn counts_are_consistent_and_runs_repeat_exactly() {
+        let profile = small_profile(40);
+        let a = run(&profile, &VisibilityThresholds::default()).unwrap();
+        let b = run(&profile, &VisibilityThresholds::default()).unwrap();
+        assert_eq!(a.graph, b.graph);
+        assert_eq!((a.frames, a.keyframes, a.detections), (b.frames, b.keyframes, b.detections));
+        assert_eq!(a.visible_keyframes, b.visible_keyframes);
+        assert_eq!(a.detected_keyframes, b.detected_keyframes);
+        assert_eq!(a.frames, 40);
+        assert!(a.keyframes >= 2 && a.keyframes < 40, "{} keyframes", a.keyframes);
+        let scene = a.scene.as_ref().unwrap();
+        assert_eq!(a.visible_keyframes.len(), scene.instances().len() + 1);
+        assert!(a.visible_keyframes.iter().all(|v| u64::from(*v) <= a.keyframes));
+        assert!(a.detected_keyframes.iter().any(|d| *d > 0));
+        // run.max_frames stops the source early, as in the pipeline.
+        let mut limited = profile.clone();
+        limited.run.max_frames = 10;
+        assert_eq!(run(&limited, &VisibilityThresholds::default()).unwrap().frames, 10);
+    }
+
+    #[test]
+    fn several_fusions_see_the_same_keyframes() {
+        let profile = small_profile(30);
+        let single = run(&profile, &VisibilityThresholds::default()).unwrap();
+        let both = run_with_fusions(
+            &profile,
+            &VisibilityThresholds::default(),
+            [make_fusion(&profile), make_fusion(&profile)],
+        )
+        .unwrap();
+        for r in &both {
+            assert_eq!(r.graph, single.graph);
+            assert_eq!((r.keyframes, r.detections), (single.keyframes, single.detections));
+        }
+    }
+
+    #[test]
+    fn lower_thresholds_see_more() {
+        let profile = small_profile(20);
+        let strict = run(&profile, &VisibilityThresholds { object_min_px: 2000, part_min_px: 2000 }).unwrap();
+        let loose = run(&profile, &VisibilityThresholds { object_min_px: 1, part_min_px: 1 }).unwrap();
+        let (s, l): (u32, u32) = (strict.visible_keyframes.iter().sum(), loose.visible_keyframes.iter().sum());
+        assert!(s < l, "strict {s} loose {l}");
+    }
+}
