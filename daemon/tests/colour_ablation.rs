@@ -1,6 +1,7 @@
 //! The colour-feature ablation on the `colour_panel` scene: part association with fusion's
-//! colour features on and off (`op3dsg_daemon::eval::ablation`). Prints both; asserts nothing
-//! about which is better yet, only that the harness measures what it should.
+//! colour features on and off (`op3dsg_daemon::eval::ablation`). Prints both and asserts that
+//! colour helps there: no more wrong merges across materials and no fewer matched parts with it,
+//! and strictly better on at least one of the two.
 //!
 //! As in `fusion_quality.rs`, the camera runs at 10 Hz over one whole loop of its path (same
 //! views, a third of the frames to render).
@@ -34,6 +35,12 @@ fn colour_ablation_prints_part_association_with_colour_on_and_off() {
     }
     assert_eq!(result.with_colour.run.keyframes, result.without_colour.run.keyframes);
     assert_eq!(result.with_colour.run.detected_keyframes, result.without_colour.run.detected_keyframes);
+    let (on, off) = (result.with_colour.parts(), result.without_colour.parts());
+    assert!(on.wrongly_merged_gt <= off.wrongly_merged_gt && on.matched >= off.matched, "colour made parts worse");
+    assert!(
+        on.wrongly_merged_gt < off.wrongly_merged_gt || on.matched > off.matched,
+        "colour features made no difference on a scene built to need them"
+    );
 }
 
 /// The same fusion on both sides gives the same figures: the harness compares like with like.

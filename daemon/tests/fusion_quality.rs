@@ -56,8 +56,6 @@ fn evaluate(room: RoomKind) -> RoomResult {
 }
 
 #[test]
-#[ignore = "SimpleFusion misses the object targets (merges neighbouring furniture, splits large objects); \
-            the paper's fusion must pass it: cargo test -p op3dsg-daemon --test fusion_quality -- --ignored --nocapture"]
 fn fusion_meets_the_quality_targets_in_every_room() {
     let started = Instant::now();
     let next = AtomicUsize::new(0);

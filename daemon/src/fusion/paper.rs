@@ -34,7 +34,9 @@
 //!    taken in descending score order, one detection per node and one node per detection per
 //!    keyframe (two detections of one view are two things). Unassigned detections start nodes.
 //! 6. **Updates.** Semantic feature: running mean, re-normalised. Points: union, voxel
-//!    downsampled, at most `max_points_per_node` (once full, a node keeps the points it has).
+//!    downsampled, at most `max_points_per_node`: a node that reaches it doubles its voxel and
+//!    re-downsamples (a bed or a wardrobe keeps growing to its full extent at a coarser
+//!    resolution; freezing the first points would split it into fragments).
 //!    Colour: EMA with `α` then `L1` renormalised with `ε` (a node without valid colour takes the
 //!    first valid observation). Observation count, label vote table, score sum, last seen.
 //!
@@ -128,10 +130,23 @@ struct PointCloud {
     min: Vec3,
     max: Vec3,
     sum: Vec3,
+    /// Voxel multiplier (1, 2, 4, ...): doubles whenever the cloud reaches its point cap.
+    scale: u32,
 }
 
 impl PointCloud {
+    /// Empties the cloud (keeping capacity), back at the kind's own voxel size.
     fn clear(&mut self) {
+        self.scale = 1;
+        self.clear_points();
+    }
+
+    /// This cloud's geometry: the kind's, with the voxel scaled.
+    fn geometry(&self, g: &KindGeometry) -> KindGeometry {
+        if self.scale <= 1 { *g } else { KindGeometry::new(g.voxel_m * self.scale as f32, g.radius_m) }
+    }
+
+    fn clear_points(&mut self) {
         self.points.clear();
         self.voxels.clear();
         self.next.clear();
@@ -150,11 +165,17 @@ impl PointCloud {
         if self.points.is_empty() { Vec3::ZERO } else { self.sum / self.points.len() as f32 }
     }
 
-    /// Adds `p` unless its voxel is taken or the cloud is full; whether it was added.
+    /// Adds `p` unless its voxel is taken; whether it was added. A cloud that reaches `cap`
+    /// points doubles its voxel and re-downsamples (so a large object keeps growing in extent at
+    /// a coarser resolution instead of freezing what it has seen first).
     fn insert(&mut self, p: Vec3, g: &KindGeometry, cap: usize) -> bool {
+        while self.points.len() >= cap && self.scale < 1 << 12 {
+            self.coarsen(g);
+        }
         if self.points.len() >= cap {
             return false;
         }
+        let g = &self.geometry(g);
         if !self.voxels.insert(key(cell_of(p, g.voxel_m))) {
             return false;
         }
@@ -174,9 +195,21 @@ impl PointCloud {
         self.count_neighbours(p, g, NONE, 1) >= 1
     }
 
+    /// Doubles the voxel and keeps one point per new voxel.
+    fn coarsen(&mut self, g: &KindGeometry) {
+        let points = std::mem::take(&mut self.points);
+        self.scale *= 2;
+        self.clear_points();
+        for &p in &points {
+            self.insert(p, g, usize::MAX);
+        }
+        self.checked = self.points.len();
+    }
+
     /// Points within `g.radius_m` of `p`, other than index `skip`, counting up to `limit`.
     fn count_neighbours(&self, p: Vec3, g: &KindGeometry, skip: u32, limit: u32) -> u32 {
-        self.count_within(p, g.radius_m, g.cell_m, skip, limit)
+        let cell_m = if self.scale <= 1 { g.cell_m } else { self.geometry(g).cell_m };
+        self.count_within(p, g.radius_m, cell_m, skip, limit)
     }
 
     /// Points within `radius` of `p` (grid cells of `cell_m`), other than index `skip`,
@@ -244,7 +277,7 @@ impl PointCloud {
     fn rebuild(&mut self, g: &KindGeometry, scratch: &mut Vec<Vec3>) {
         scratch.clear();
         scratch.extend_from_slice(&self.points);
-        self.clear();
+        self.clear_points();
         for &p in scratch.iter() {
             self.insert(p, g, usize::MAX);
         }
@@ -714,8 +747,9 @@ impl PaperFusion {
                     continue;
                 }
                 let g = self.geometry(n.kind);
-                let radius = g.voxel_m * self.config.outlier_radius_voxels;
                 let node = &mut self.nodes[slot];
+                let own = node.cloud.geometry(&g);
+                let (radius, cell_m) = (own.voxel_m * self.config.outlier_radius_voxels, own.cell_m);
                 let keep = &mut self.scratch.rebuild;
                 keep.clear();
                 // Only points added since the last test: older points only gain neighbours.
@@ -723,7 +757,7 @@ impl PaperFusion {
                 let mut removed = false;
                 keep.extend_from_slice(&node.cloud.points[..from]);
                 for (i, p) in node.cloud.points.iter().enumerate().skip(from) {
-                    if node.cloud.count_within(*p, radius, g.cell_m, i as u32, need) >= need {
+                    if node.cloud.count_within(*p, radius, cell_m, i as u32, need) >= need {
                         keep.push(*p);
                     } else {
                         removed = true;
@@ -1294,7 +1328,14 @@ mod tests {
         for i in 0..100 {
             cloud.insert(Vec3::new(0.015 + 0.01 * i as f32, 0.0, 0.0), &g, 10);
         }
-        assert_eq!(cloud.len(), 10, "capped");
+        // A 1 m line of 1 cm voxels under a cap of 10: the voxel grows to 16 cm, the extent stays.
+        assert!(cloud.len() <= 10, "{}", cloud.len());
+        assert_eq!(cloud.scale, 16);
+        assert!(cloud.max.x > 0.9 && cloud.min.x < 0.01, "{} {}", cloud.min, cloud.max);
+        for i in 0..100 {
+            let p = Vec3::new(0.015 + 0.01 * i as f32, 0.0, 0.0);
+            assert!(cloud.points.iter().any(|q| q.distance(p) <= 0.16), "coverage at {p}");
+        }
     }
 
     #[test]
