@@ -11,10 +11,15 @@
 //! Every struct denies unknown fields; [`Profile::validate`] checks ranges. Errors name the file
 //! that set the offending key and the dotted field path, e.g.
 //! `profiles/robot.toml: fusion.voxel_size_m: must be > 0, got -0.01`.
+//!
+//! File paths in a profile (`extends`, and the keys in [`PATH_KEYS`]: `source.replay.path`) are
+//! relative to the folder of the file that sets them; a path given with `--set` is relative to
+//! the working directory. `--print-config` shows them resolved.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use op3dsg_drivers::replay::{PlaybackMode, ReplayConfig};
 use op3dsg_drivers::synthetic::SyntheticConfig;
 use serde::{Deserialize, Serialize};
 
@@ -27,6 +32,9 @@ use crate::queue::QueueConfig;
 pub const BASE_PROFILE: &str = include_str!("../../profiles/base.toml");
 /// Name used for the built-in base in messages.
 pub const BASE_PROFILE_NAME: &str = "<built-in profiles/base.toml>";
+/// Keys (besides `extends`) whose value is a file path, resolved against the folder of the file
+/// that sets them.
+pub const PATH_KEYS: &[&str] = &["source.replay.path"];
 
 /// The whole daemon configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -63,6 +71,8 @@ pub struct Profile {
 pub enum SourceKind {
     /// Seeded procedural room with ground truth (no camera needed).
     Synthetic,
+    /// A recording in the TUM RGB-D layout with its poses (`[source.replay]`).
+    Replay,
 }
 
 /// `[source]`.
@@ -78,6 +88,9 @@ pub struct SourceConfig {
     pub pool_headroom: usize,
     /// `[source.synthetic]`.
     pub synthetic: SyntheticConfig,
+    /// `[source.replay]`: required with `kind = "replay"`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub replay: Option<ReplayConfig>,
 }
 
 /// Pose source kinds.
@@ -291,6 +304,7 @@ pub fn load(profile_path: Option<&Path>, overrides: &[String]) -> Result<LoadedP
         }
     };
 
+    resolve_paths(&mut merged, &origin_of);
     apply_oracle_preset(&mut merged)
         .map_err(|(path, msg)| ProfileError::new(origin_of(&path), format!("{path}: {msg}")))?;
 
@@ -380,6 +394,31 @@ fn record_origins(table: &toml::Table, prefix: &str, file: &str, origins: &mut B
         origins.insert(path.clone(), file.to_owned());
         if let toml::Value::Table(inner) = value {
             record_origins(inner, &path, file, origins);
+        }
+    }
+}
+
+/// Joins each relative path of [`PATH_KEYS`] to the folder of the profile file that set it.
+fn resolve_paths(merged: &mut toml::Table, origin_of: &dyn Fn(&str) -> String) {
+    for key in PATH_KEYS {
+        let origin = origin_of(key);
+        if origin == BASE_PROFILE_NAME || origin == "--set" {
+            continue;
+        }
+        let mut value = Some(&mut *merged);
+        let mut parts = key.split('.').peekable();
+        while let (Some(part), Some(table)) = (parts.next(), value.take()) {
+            let entry = table.get_mut(part);
+            if parts.peek().is_none() {
+                if let Some(toml::Value::String(path)) = entry
+                    && Path::new(path.as_str()).is_relative()
+                {
+                    let dir = Path::new(&origin).parent().unwrap_or(Path::new(""));
+                    *path = dir.join(path.as_str()).display().to_string();
+                }
+                break;
+            }
+            value = entry.and_then(toml::Value::as_table_mut);
         }
     }
 }
@@ -497,8 +536,22 @@ impl Profile {
             "run.shutdown_timeout_s",
             || format!("must be within (0, 600], got {}", self.run.shutdown_timeout_s),
         )?;
+        if self.source.kind == SourceKind::Replay {
+            let Some(replay) = &self.source.replay else {
+                return Err((
+                    "source.replay".to_owned(),
+                    "required with source.kind = \"replay\" (at least `path`, the recording's folder)".to_owned(),
+                ));
+            };
+            replay.validate("source.replay").map_err(split_message)?;
+            check(replay.mode == PlaybackMode::Fast || self.source.rate_hz == 0.0, "source.replay.mode", || {
+                let mode = if replay.mode == PlaybackMode::Stepped { "stepped" } else { "recorded" };
+                format!("\"{mode}\" paces frames itself; set source.rate_hz = 0 (it is {})", self.source.rate_hz)
+            })?;
+        }
         check(
-            self.pose.source == PoseSourceKind::Ipc || self.source.kind == SourceKind::Synthetic,
+            self.pose.source == PoseSourceKind::Ipc
+                || matches!(self.source.kind, SourceKind::Synthetic | SourceKind::Replay),
             "pose.source",
             || "\"frame\" needs a source that carries poses".to_owned(),
         )?;
@@ -588,6 +641,63 @@ mod tests {
         assert_eq!(loaded.profile.detector.oracle.part_miss_rate, 0.5);
         let err = load(None, &["detector.oracle.preset=noisy".to_owned()]).unwrap_err();
         assert!(err.message.starts_with("detector.oracle.preset: unknown preset"), "{err}");
+    }
+
+    const REPLAY: &str = "[source]\nkind = \"replay\"\nrate_hz = 0.0\n[source.replay]\npath = \"rec/icl\"\n";
+
+    #[test]
+    fn replay_path_is_relative_to_the_profile_that_sets_it() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir(dir.path().join("robots")).unwrap();
+        let path = write(&dir, "robots/replay.toml", REPLAY);
+        let loaded = load(Some(&path), &[]).unwrap();
+        let replay = loaded.profile.source.replay.unwrap();
+        assert_eq!(replay.path, dir.path().join("robots").join("rec/icl"));
+        assert_eq!(replay.mode, PlaybackMode::Recorded);
+        assert_eq!(replay.on_bad_frame, op3dsg_drivers::replay::OnBadFrame::Stop);
+        // An extending profile that does not set the path keeps the base file's folder.
+        let child = write(&dir, "child.toml", "extends = \"robots/replay.toml\"\n[source.replay]\nloop = true\n");
+        let replay = load(Some(&child), &[]).unwrap().profile.source.replay.unwrap();
+        assert_eq!(replay.path, dir.path().join("robots").join("rec/icl"));
+        assert!(replay.looping);
+        // Absolute paths stay; --set paths are relative to the working directory.
+        let replay = load(Some(&path), &["source.replay.path=\"/data/seq\"".to_owned()]).unwrap().profile.source.replay;
+        assert_eq!(replay.unwrap().path, PathBuf::from("/data/seq"));
+        let replay = load(Some(&path), &["source.replay.path=\"seq\"".to_owned()]).unwrap().profile.source.replay;
+        assert_eq!(replay.unwrap().path, PathBuf::from("seq"));
+    }
+
+    #[test]
+    fn replay_errors_name_file_and_field() {
+        let dir = tempfile::tempdir().unwrap();
+        let cases = [
+            ("[source]\nkind = \"replay\"\nrate_hz = 0.0\n", "source.replay: required with source.kind = \"replay\""),
+            (&format!("{REPLAY}on_bad_frame = \"ignore\"\n"), "source.replay.on_bad_frame: unknown variant `ignore`"),
+            (&format!("{REPLAY}speed = 2.0\n"), "source.replay.speed: unknown field `speed`"),
+            (
+                &format!("{REPLAY}max_pose_gap_ms = -1.0\n"),
+                "source.replay.max_pose_gap_ms: must be within (0, 10000], got -1",
+            ),
+            (
+                &format!(
+                    "{REPLAY}intrinsics = {{ width = 640, height = 480, fx = 0.0, fy = 525.0, cx = 319.5, cy = 239.5 }}\n"
+                ),
+                "source.replay.intrinsics.fx: must be > 0, got 0",
+            ),
+            (
+                &REPLAY.replace("rate_hz = 0.0\n", ""),
+                "source.replay.mode: \"recorded\" paces frames itself; set source.rate_hz = 0 (it is 30)",
+            ),
+        ];
+        for (i, (text, expected)) in cases.iter().enumerate() {
+            let path = write(&dir, &format!("r{i}.toml"), text);
+            let err = load(Some(&path), &[]).unwrap_err();
+            assert_eq!(err.file, path.display().to_string(), "{err}");
+            assert!(err.message.starts_with(expected), "case {i}: {err}");
+        }
+        // Fast mode is paced by source.rate_hz like the synthetic source.
+        let path = write(&dir, "fast.toml", &format!("{REPLAY}mode = \"fast\"\n"));
+        assert!(load(Some(&path), &["source.rate_hz=15".to_owned()]).is_ok());
     }
 
     #[test]

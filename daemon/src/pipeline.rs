@@ -33,7 +33,8 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{Receiver, Sender};
 use op3dsg_drivers::frame::{FramePool, PooledFrame};
 use op3dsg_drivers::pose::Isometry;
-use op3dsg_drivers::source::{FrameSource, SourceError, SourceStatus};
+use op3dsg_drivers::replay::ReplaySource;
+use op3dsg_drivers::source::{FrameSource, SourceError, SourceStatus, StepControl};
 use op3dsg_drivers::synthetic::{Scene, SyntheticSource};
 use op3dsg_ipc_types::{Health, PoseStamped, write_fixed_str};
 use tracing::{debug, error, info, warn};
@@ -102,6 +103,10 @@ pub struct PipelineStats {
     pub source_connected: AtomicBool,
     /// Set once a finite source has ended (or `max_frames` was reached).
     pub source_finished: AtomicBool,
+    /// Bad inputs a replay skipped (`on_bad_frame = "skip"`); also counted as capture errors.
+    pub source_bad_data_skipped: AtomicU64,
+    /// Set when the source stopped on an error (a replay's bad data with `on_bad_frame = "stop"`).
+    pub source_failed: AtomicBool,
     /// Per-stage figures, in pipeline order.
     pub stages: Vec<Arc<StageStats>>,
     /// Per-queue figures, in pipeline order.
@@ -160,6 +165,10 @@ pub struct RunSummary {
     pub map_nodes: u64,
     /// Seconds from start to the end of the last stage.
     pub elapsed_s: f64,
+    /// Bad inputs the source skipped.
+    pub bad_data_skipped: u64,
+    /// The source stopped on an error (the binary exits with a failure).
+    pub source_failed: bool,
 }
 
 impl RunSummary {
@@ -184,6 +193,7 @@ struct DetectionBatch {
 /// A running pipeline.
 pub struct Pipeline {
     stop: Arc<AtomicBool>,
+    step_control: Option<StepControl>,
     stats: Arc<PipelineStats>,
     finished_rx: Receiver<&'static str>,
     running: Vec<&'static str>,
@@ -240,6 +250,28 @@ pub(crate) fn build_source(profile: &Profile) -> Result<BuiltSource, StartError>
             };
             Ok(BuiltSource { source: Box::new(source), detector_factory, scene: Some(scene) })
         }
+        SourceKind::Replay => {
+            let Some(config) = &profile.source.replay else {
+                return Err(StartError::Incompatible {
+                    field: "source.replay",
+                    reason: "required with source.kind = \"replay\"".to_owned(),
+                });
+            };
+            let source = ReplaySource::new(config)?;
+            let oracle = profile.detector.oracle.clone();
+            let factory: DetectorFactory = match profile.detector.kind {
+                DetectorKind::Oracle => {
+                    warn!(
+                        "detector.kind = \"oracle\" reads the synthetic renderer's instance ids, which replayed \
+                         frames do not have: every keyframe's detection fails and the map stays empty"
+                    );
+                    Arc::new(move |worker| {
+                        Box::new(OracleDetector::new(oracle.clone(), Vec::new(), worker)) as Box<dyn Detector>
+                    })
+                }
+            };
+            Ok(BuiltSource { source: Box::new(source), detector_factory: factory, scene: None })
+        }
     }
 }
 
@@ -261,6 +293,7 @@ impl Pipeline {
             });
         }
         info!(source = %source.describe(), workers = profile.detector.workers, "starting pipeline");
+        let step_control = source.step_control();
 
         let q = &profile.queues;
         let (frames_tx, frames_rx, frames_stats) = queue::<PooledFrame>("frames", q.frames, stop.clone());
@@ -287,6 +320,8 @@ impl Pipeline {
             map_node_count: AtomicU64::new(0),
             source_connected: AtomicBool::new(true),
             source_finished: AtomicBool::new(false),
+            source_bad_data_skipped: AtomicU64::new(0),
+            source_failed: AtomicBool::new(false),
             stages,
             queues: vec![frames_stats, kf_stats, det_stats, graph_stats],
         });
@@ -389,12 +424,19 @@ impl Pipeline {
 
         Ok(Self {
             stop,
+            step_control,
             stats,
             finished_rx,
             running,
             handles,
             shutdown_timeout: Duration::from_secs_f64(profile.run.shutdown_timeout_s),
         })
+    }
+
+    /// The handle that releases frames of a stepped source (`[source.replay] mode = "stepped"`):
+    /// each `step(n)` lets `n` more frames into the pipeline. `None` for other sources and modes.
+    pub fn step_control(&self) -> Option<&StepControl> {
+        self.step_control.as_ref()
     }
 
     /// Shared counters (for tests and the binary's summary).
@@ -431,6 +473,8 @@ impl Pipeline {
             graph_version: s.graph_version.load(Ordering::Relaxed),
             map_nodes: s.map_node_count.load(Ordering::Relaxed),
             elapsed_s: s.started.elapsed().as_secs_f64(),
+            bad_data_skipped: s.source_bad_data_skipped.load(Ordering::Relaxed),
+            source_failed: s.source_failed.load(Ordering::Relaxed),
         })
     }
 }
@@ -449,6 +493,17 @@ fn capture_loop(
     let mut next_due = Instant::now();
     let mut delivered = 0u64;
     let mut consecutive_errors = 0u32;
+    // Bad data a replay skipped (it logged each): counted as capture errors for health.
+    let mut skipped_seen = 0u64;
+    let mut count_skipped = |source: &dyn FrameSource| {
+        let skipped = source.bad_data_skipped();
+        if skipped > skipped_seen {
+            stage.errors.fetch_add(skipped - skipped_seen, Ordering::Relaxed);
+            stats.source_bad_data_skipped.store(skipped, Ordering::Relaxed);
+            skipped_seen = skipped;
+        }
+    };
+    count_skipped(source);
     while !stop.load(Ordering::Relaxed) {
         if max_frames > 0 && delivered >= max_frames {
             info!(frames = delivered, "run.max_frames reached");
@@ -467,7 +522,9 @@ fn capture_loop(
             continue;
         };
         let started = Instant::now();
-        match source.next_frame(&mut frame) {
+        let status = source.next_frame(&mut frame);
+        count_skipped(source);
+        match status {
             Ok(SourceStatus::Frame) => {
                 consecutive_errors = 0;
                 delivered += 1;
@@ -479,6 +536,13 @@ fn capture_loop(
             Ok(SourceStatus::Pending) => {}
             Ok(SourceStatus::EndOfStream) => {
                 info!(frames = delivered, source = %source.describe(), "source ended");
+                stats.source_finished.store(true, Ordering::Relaxed);
+                break;
+            }
+            Err(e) if source.stops_on_error() => {
+                stage.record_error();
+                error!(error = %e, source = %source.describe(), frames = delivered, "frame source stopped on bad data");
+                stats.source_failed.store(true, Ordering::Relaxed);
                 stats.source_finished.store(true, Ordering::Relaxed);
                 break;
             }
@@ -542,6 +606,7 @@ fn detect_loop(
     stats: &PipelineStats,
 ) {
     let stage = stats.stage(&format!("detect/{worker}"));
+    let mut failures = 0u64;
     loop {
         let taken = {
             let Ok(mut guard) = tickets.lock() else { break };
@@ -561,7 +626,10 @@ fn detect_loop(
         let mut detections = Vec::new();
         if let Err(e) = detector.detect(&item.frame, &mut detections) {
             stage.record_error();
-            warn!(worker, frame_seq = item.frame.seq, error = %e, "detection failed; keyframe fused empty");
+            failures += 1;
+            if failures <= 3 || failures.is_power_of_two() {
+                warn!(worker, frame_seq = item.frame.seq, failures, error = %e, "detection failed; keyframe fused empty");
+            }
             detections.clear();
         } else {
             stage.record(started);

@@ -3,6 +3,8 @@
 //! - [`frame`]: RGB-D frames, intrinsics and the start-up-allocated [`frame::FramePool`].
 //! - [`pose`]: rigid transforms (`world_from_camera`), the interpolating [`pose::PoseBuffer`].
 //! - [`source`]: the [`source::FrameSource`] trait every source implements.
+//! - [`replay`]: recorded RGB-D in the TUM RGB-D layout (`rgb.txt`, `depth.txt`,
+//!   `groundtruth.txt`, `camera.json`) with its poses; recorded-rate, fast or stepped playback.
 //! - [`synthetic`]: seeded procedural rooms with exact ground truth, a CPU ray-cast renderer
 //!   with a D435i-like depth noise model, and a robot-like camera path.
 //! - [`graph_json`]: the scene-graph JSON form shared by ground truth and published graphs.
@@ -24,5 +26,6 @@
 pub mod frame;
 pub mod graph_json;
 pub mod pose;
+pub mod replay;
 pub mod source;
 pub mod synthetic;

@@ -1,5 +1,8 @@
 //! The frame source interface shared by the synthetic scene, replay and the camera.
 
+use std::sync::{Arc, Condvar, Mutex, PoisonError};
+use std::time::Duration;
+
 use crate::frame::{Frame, Intrinsics};
 
 /// What a call to [`FrameSource::next_frame`] produced.
@@ -75,4 +78,93 @@ pub trait FrameSource: Send {
 
     /// A short description for logs ("synthetic kitchen seed 1", "replay /data/seq").
     fn describe(&self) -> String;
+
+    /// Bad inputs (malformed index lines, unreadable images, pose gaps) the source skipped so
+    /// far instead of failing (a replay with `on_bad_frame = "skip"`). Each was logged at warn by
+    /// the source; the pipeline counts them as capture errors in `health`.
+    fn bad_data_skipped(&self) -> u64 {
+        0
+    }
+
+    /// Whether an error from [`FrameSource::next_frame`] ends the stream (a recording that hit
+    /// bad data with `on_bad_frame = "stop"`; later calls return `EndOfStream`). A live camera's
+    /// errors are transient and retried.
+    fn stops_on_error(&self) -> bool {
+        false
+    }
+
+    /// The handle that releases frames one by one when the source plays in stepped mode.
+    fn step_control(&self) -> Option<StepControl> {
+        None
+    }
+}
+
+/// Releases frames of a stepped source: each [`StepControl::step`] lets `n` more frames through;
+/// without credit the source's `next_frame` waits briefly and returns
+/// [`SourceStatus::Pending`]. Cloneable and shareable across threads (the daemon, a test, a
+/// control service drive it while the capture thread reads).
+#[derive(Debug, Clone, Default)]
+pub struct StepControl {
+    shared: Arc<StepShared>,
+}
+
+#[derive(Debug, Default)]
+struct StepShared {
+    credit: Mutex<u64>,
+    granted: Condvar,
+}
+
+impl StepControl {
+    /// A control with no credit.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Lets `frames` more frames through.
+    pub fn step(&self, frames: u64) {
+        let mut credit = self.shared.credit.lock().unwrap_or_else(PoisonError::into_inner);
+        *credit = credit.saturating_add(frames);
+        self.shared.granted.notify_all();
+    }
+
+    /// Frames allowed but not delivered yet.
+    pub fn pending(&self) -> u64 {
+        *self.shared.credit.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Takes one frame of credit, waiting up to `timeout` for it; `false` when none came.
+    pub fn take(&self, timeout: Duration) -> bool {
+        let credit = self.shared.credit.lock().unwrap_or_else(PoisonError::into_inner);
+        let (mut credit, _) = self
+            .shared
+            .granted
+            .wait_timeout_while(credit, timeout, |credit| *credit == 0)
+            .unwrap_or_else(PoisonError::into_inner);
+        if *credit == 0 {
+            return false;
+        }
+        *credit -= 1;
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn step_control_counts_credit_across_threads() {
+        let control = StepControl::new();
+        assert!(!control.take(Duration::from_millis(1)));
+        let remote = control.clone();
+        let waiter = std::thread::Builder::new()
+            .name("step-waiter".into())
+            .spawn(move || remote.take(Duration::from_secs(30)))
+            .unwrap();
+        control.step(2);
+        assert!(waiter.join().unwrap());
+        assert_eq!(control.pending(), 1);
+        assert!(control.take(Duration::ZERO));
+        assert!(!control.take(Duration::ZERO));
+    }
 }

@@ -124,8 +124,14 @@ fn main() -> ExitCode {
                 map_nodes = summary.map_nodes,
                 elapsed_s = format!("{:.2}", summary.elapsed_s),
                 keyframes_per_s = format!("{:.1}", summary.keyframes_per_s()),
+                bad_data_skipped = summary.bad_data_skipped,
                 "stopped"
             );
+            if summary.source_failed {
+                // The source logged its error when it stopped.
+                error!("the frame source stopped on bad data");
+                return ExitCode::FAILURE;
+            }
             ExitCode::SUCCESS
         }
         Err(stuck) => {
