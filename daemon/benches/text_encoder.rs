@@ -106,7 +106,7 @@ fn bench_text_encoder(c: &mut Criterion) {
     // per-call time and labels/s).
     for n in [1usize, 16, 64] {
         let labels = &LABELS[..n];
-        let reps = (320 / n).max(5);
+        let reps = (640 / n).max(20);
         let mut times: Vec<f64> = (0..reps)
             .map(|_| {
                 let start = Instant::now();

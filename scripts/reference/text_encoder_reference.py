@@ -102,7 +102,7 @@ def main() -> None:
     for n in (1, 16, 64):
         labels = LABELS[:n]
         encode(session, tok, labels)  # warm-up
-        reps = max(5, 320 // n)
+        reps = max(20, 640 // n)
         times = []
         for _ in range(reps):
             start = time.perf_counter()

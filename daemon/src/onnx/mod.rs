@@ -30,8 +30,8 @@
 //!
 //! let runtime = OnnxRuntime::init(&OnnxConfig::default())?;
 //! let mut encoder = TextEncoder::new(&runtime, &TextEncoderConfig::default())?;
-//! let [chair, seat] = encoder.encode_batch(&["red chair", "crimson seat"])?[..] else { unreachable!() };
-//! println!("cos = {:.3}", op3dsg_daemon::onnx::text_encoder::cosine(&chair, &seat));
+//! let embeddings = encoder.encode_batch(&["red chair", "crimson seat"])?;
+//! println!("cos = {:.3}", op3dsg_daemon::onnx::text_encoder::cosine(&embeddings[0], &embeddings[1]));
 //! # Ok::<(), op3dsg_daemon::onnx::OnnxError>(())
 //! ```
 
@@ -138,6 +138,9 @@ pub enum OnnxError {
         /// ONNX Runtime's message.
         message: String,
     },
+    /// A configuration value is out of range (normally caught when the profile is loaded).
+    #[error("{0}")]
+    InvalidConfig(String),
     /// A model or tokenizer file is present but not what the code expects.
     #[error("{}: {message}", path.display())]
     BadModel {
@@ -164,8 +167,8 @@ pub fn resolve_path(configured: &Path, what: &'static str, setting: &str) -> Res
             Ok(cwd) => candidates.push(cwd.join(configured)),
             Err(_) => candidates.push(configured.to_path_buf()),
         }
-        let in_source = Path::new(SOURCE_ROOT).join(configured);
-        let in_source = in_source.canonicalize().unwrap_or(in_source);
+        let source_root = Path::new(SOURCE_ROOT).canonicalize().unwrap_or_else(|_| PathBuf::from(SOURCE_ROOT));
+        let in_source = source_root.join(configured);
         if !candidates.contains(&in_source) {
             candidates.push(in_source);
         }

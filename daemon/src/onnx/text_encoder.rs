@@ -11,9 +11,10 @@
 //!
 //! Labels repeat constantly (every frame sees the same few dozen), so [`TextEncoder::encode_batch`]
 //! answers from a cache first and runs the model once for the labels it has not seen, all of
-//! them in one batch (padded to the longest). Cost on the development machine (2 cores, one
-//! intra-op thread, release): about 1.5 ms for a single label, about 0.9 ms per label in batches
-//! of 16 to 64; a cache hit is a hash lookup (`cargo bench -p op3dsg-daemon --bench text_encoder`).
+//! them in one batch (padded to the longest). Cost on the development machine (2 shared cores,
+//! one intra-op thread, release): about 2.0-2.2 ms for a single label, 1.1-1.8 ms per label in
+//! batches of 16 to 64 (the same as onnxruntime's Python API on the same input); 64 cache hits
+//! take about 6 µs (`cargo bench -p op3dsg-daemon --bench text_encoder`).
 //!
 //! **Ownership.** `ort`'s `Session::run` takes `&mut self`, and so do all encoding methods here:
 //! a [`TextEncoder`] belongs to one thread at a time. It is `Send` (build it on one thread, move
@@ -165,7 +166,7 @@ impl TextEncoder {
     /// Loads the model and tokenizer named by `config` (paths resolved like the runtime
     /// library's). A missing file is [`OnnxError::FileMissing`] naming it and the set-up script.
     pub fn new(runtime: &OnnxRuntime, config: &TextEncoderConfig) -> Result<Self, OnnxError> {
-        config.validate("text_encoder").map_err(|message| OnnxError::BadModel { path: PathBuf::new(), message })?;
+        config.validate("text_encoder").map_err(OnnxError::InvalidConfig)?;
         let model_path =
             resolve_path(&config.model_path, "text encoder model (all-MiniLM-L6-v2 ONNX)", "text_encoder.model_path")?;
         let tokenizer_path = resolve_path(
