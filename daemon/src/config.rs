@@ -25,6 +25,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::fusion::FusionConfig;
 use crate::ipc::IpcConfig;
+use crate::onnx::OnnxConfig;
+use crate::onnx::text_encoder::TextEncoderConfig;
 use crate::perception::oracle::OracleConfig;
 use crate::queue::QueueConfig;
 
@@ -63,6 +65,10 @@ pub struct Profile {
     pub run: RunConfig,
     /// World frame conventions.
     pub world: WorldConfig,
+    /// The ONNX Runtime library shared by the models.
+    pub onnx: OnnxConfig,
+    /// The label text encoder (all-MiniLM-L6-v2).
+    pub text_encoder: TextEncoderConfig,
 }
 
 /// Frame source kinds.
@@ -528,6 +534,8 @@ impl Profile {
         self.queues.detections.validate("queues.detections").map_err(split_message)?;
         self.queues.graph.validate("queues.graph").map_err(split_message)?;
         self.ipc.validate("ipc").map_err(split_message)?;
+        self.onnx.validate("onnx").map_err(split_message)?;
+        self.text_encoder.validate("text_encoder").map_err(split_message)?;
         check((10..=60_000).contains(&self.health.period_ms), "health.period_ms", || {
             format!("must be within [10, 60000], got {}", self.health.period_ms)
         })?;
@@ -698,6 +706,24 @@ mod tests {
         // Fast mode is paced by source.rate_hz like the synthetic source.
         let path = write(&dir, "fast.toml", &format!("{REPLAY}mode = \"fast\"\n"));
         assert!(load(Some(&path), &["source.rate_hz=15".to_owned()]).is_ok());
+    }
+
+    #[test]
+    fn text_encoder_is_off_in_the_base_and_checked_by_field() {
+        let loaded = load(None, &[]).unwrap();
+        assert!(!loaded.profile.text_encoder.enabled);
+        assert_eq!(loaded.profile.text_encoder, TextEncoderConfig::default());
+        assert_eq!(loaded.profile.onnx, OnnxConfig::default());
+        let dir = tempfile::tempdir().unwrap();
+        let path = write(&dir, "robot.toml", "[text_encoder]\nenabled = true\nmax_sequence_length = 2\n");
+        let err = load(Some(&path), &[]).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            format!("{}: text_encoder.max_sequence_length: must be within [4, 512], got 2", path.display())
+        );
+        let err = load(None, &["onnx.execution_provider=cuda".to_owned()]).unwrap_err();
+        assert_eq!(err.file, "--set");
+        assert!(err.message.starts_with("onnx.execution_provider: unknown variant `cuda`"), "{err}");
     }
 
     #[test]

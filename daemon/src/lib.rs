@@ -14,6 +14,7 @@
 //! | [`fusion`] | the map: multi-view association of detections into 3D nodes |
 //! | [`graph`] | the in-memory scene graph handed from fusion to publisher and tools |
 //! | [`ipc`] | the iceoryx2 services: graph, update event, health, pose input |
+//! | [`onnx`] | ONNX Runtime loaded from `.models/` at run time; the label text encoder |
 //! | [`stats`] | per-stage counters and latency percentiles |
 //!
 //! ```no_run
@@ -31,6 +32,7 @@ pub mod fusion;
 pub mod graph;
 pub mod ipc;
 pub mod keyframe;
+pub mod onnx;
 pub mod perception;
 pub mod pipeline;
 pub mod queue;

@@ -107,6 +107,12 @@ fn main() -> ExitCode {
 
     let profile = &loaded.profile;
     info!(layers = %loaded.layers.join(" <- "), prefix = %profile.ipc.prefix, "op3dsgd starting");
+    if profile.text_encoder.enabled
+        && let Err(e) = check_text_encoder(profile)
+    {
+        error!("cannot start: text encoder: {e}");
+        return ExitCode::FAILURE;
+    }
     let pipeline = match Pipeline::start(profile, stop.clone()) {
         Ok(p) => p,
         Err(e) => {
@@ -139,4 +145,22 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// Loads ONNX Runtime and the text encoder and embeds one label, so that a profile asking for
+/// the encoder stops at start-up, naming the missing file, rather than when a stage first needs
+/// it. The pipeline's stages take their own encoder when they use one (one per thread).
+fn check_text_encoder(profile: &config::Profile) -> Result<(), op3dsg_daemon::onnx::OnnxError> {
+    use op3dsg_daemon::onnx::{OnnxRuntime, text_encoder::TextEncoder};
+    let started = std::time::Instant::now();
+    let runtime = OnnxRuntime::init(&profile.onnx)?;
+    let mut encoder = TextEncoder::new(&runtime, &profile.text_encoder)?;
+    encoder.encode("chair")?;
+    info!(
+        model = %encoder.model_path().display(),
+        library = %runtime.library_path().display(),
+        load_ms = started.elapsed().as_millis() as u64,
+        "text encoder ready"
+    );
+    Ok(())
 }
