@@ -58,7 +58,8 @@ fn bench_fusion(c: &mut Criterion) {
     for target in SIZES {
         let mut fusion = PaperFusion::new(config());
         let copies = workload.fill_map(&mut fusion, target, 1000);
-        for _ in 0..20 {
+        // Warm-up past the pruning horizon (30 keyframes) of the fill's stale candidates.
+        for _ in 0..50 {
             fusion.integrate(&step.frame, &step.pose, &step.detections);
         }
         let region = Region::new(GLOBAL);

@@ -927,6 +927,9 @@ pub struct HealthReport {
     pub graph_version: u64,
     /// Nodes in the map (confirmed and pending).
     pub map_node_count: u32,
+    /// Heap bytes the fusion map holds.
+    #[serde(default)]
+    pub map_memory_bytes: u64,
     /// Whether the frame source delivers.
     pub source_connected: bool,
     /// Per-stage figures.
@@ -981,6 +984,7 @@ impl From<&Health> for HealthReport {
             detections_fused: h.detections_fused,
             graph_version: h.graph_version,
             map_node_count: h.map_node_count,
+            map_memory_bytes: h.map_memory_bytes,
             source_connected: h.source_connected != 0,
             stages: h
                 .valid_stages()

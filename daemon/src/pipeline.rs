@@ -99,6 +99,8 @@ pub struct PipelineStats {
     pub graph_version: AtomicU64,
     /// Nodes in the map.
     pub map_node_count: AtomicU64,
+    /// Heap bytes of the fusion map.
+    pub map_memory_bytes: AtomicU64,
     /// Whether the source is delivering.
     pub source_connected: AtomicBool,
     /// Set once a finite source has ended (or `max_frames` was reached).
@@ -124,6 +126,7 @@ impl PipelineStats {
         h.detections_fused = self.detections_fused.load(Ordering::Relaxed);
         h.graph_version = self.graph_version.load(Ordering::Relaxed);
         h.map_node_count = self.map_node_count.load(Ordering::Relaxed) as u32;
+        h.map_memory_bytes = self.map_memory_bytes.load(Ordering::Relaxed);
         h.source_connected = u8::from(self.source_connected.load(Ordering::Relaxed));
         for (slot, stage) in h.stages.iter_mut().zip(&self.stages) {
             let f = stage.take_figures();
@@ -163,6 +166,8 @@ pub struct RunSummary {
     pub graph_version: u64,
     /// Nodes in the map at the end.
     pub map_nodes: u64,
+    /// Heap bytes of the fusion map at the end.
+    pub map_memory_bytes: u64,
     /// Seconds from start to the end of the last stage.
     pub elapsed_s: f64,
     /// Bad inputs the source skipped.
@@ -318,6 +323,7 @@ impl Pipeline {
             detections_fused: AtomicU64::new(0),
             graph_version: AtomicU64::new(0),
             map_node_count: AtomicU64::new(0),
+            map_memory_bytes: AtomicU64::new(0),
             source_connected: AtomicBool::new(true),
             source_finished: AtomicBool::new(false),
             source_bad_data_skipped: AtomicU64::new(0),
@@ -472,6 +478,7 @@ impl Pipeline {
             keyframes: s.keyframes.load(Ordering::Relaxed),
             graph_version: s.graph_version.load(Ordering::Relaxed),
             map_nodes: s.map_node_count.load(Ordering::Relaxed),
+            map_memory_bytes: s.map_memory_bytes.load(Ordering::Relaxed),
             elapsed_s: s.started.elapsed().as_secs_f64(),
             bad_data_skipped: s.source_bad_data_skipped.load(Ordering::Relaxed),
             source_failed: s.source_failed.load(Ordering::Relaxed),
@@ -666,6 +673,7 @@ fn fusion_loop(
         graph.stamp_ns = stamp_ns;
         stats.graph_version.store(*version, Ordering::Relaxed);
         stats.map_node_count.store(fusion.node_count() as u64, Ordering::Relaxed);
+        stats.map_memory_bytes.store(fusion.memory_bytes() as u64, Ordering::Relaxed);
         graph_tx.push(graph);
     };
     loop {
@@ -789,6 +797,7 @@ fn publisher_loop(
                     keyframes = health.keyframes,
                     graph_version = health.graph_version,
                     map_nodes = health.map_node_count,
+                    map_mib = format_args!("{:.1}", health.map_memory_bytes as f64 / (1024.0 * 1024.0)),
                     "running"
                 );
             }

@@ -40,7 +40,7 @@ pub use iceoryx2::prelude::{PlacementDefault, ZeroCopySend};
 
 /// Version of this wire contract. Bumped whenever a type's layout or meaning changes; a client
 /// must check [`GraphHeader::schema_version`] and [`Health::schema_version`] before reading.
-pub const SCHEMA_VERSION: u32 = 1;
+pub const SCHEMA_VERSION: u32 = 2;
 
 /// Bytes in a node label buffer (UTF-8, NUL padded).
 pub const LABEL_CAPACITY_BYTES: usize = 48;
@@ -515,6 +515,8 @@ pub struct Health {
     pub detections_fused: u64,
     /// Current graph version.
     pub graph_version: u64,
+    /// Heap bytes the fusion map holds (capacity: what the process really uses for it).
+    pub map_memory_bytes: u64,
     /// Nodes in the map now (confirmed and pending).
     pub map_node_count: u32,
     /// Number of valid entries in `queues`.
@@ -541,6 +543,7 @@ impl Default for Health {
             frames_without_pose: 0,
             detections_fused: 0,
             graph_version: 0,
+            map_memory_bytes: 0,
             map_node_count: 0,
             queue_count: 0,
             source_connected: 0,

@@ -310,11 +310,12 @@ fn health_text(h: &HealthReport) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "uptime {:.1} s  source {}  graph version {}  map nodes {}",
+        "uptime {:.1} s  source {}  graph version {}  map nodes {} ({:.1} MiB)",
         h.uptime_s,
         if h.source_connected { "connected" } else { "disconnected" },
         h.graph_version,
-        h.map_node_count
+        h.map_node_count,
+        h.map_memory_bytes as f64 / (1024.0 * 1024.0)
     );
     let _ = writeln!(
         s,
