@@ -1253,8 +1253,12 @@ mod tests {
             snap.edges[0].origin = 7;
             let err = snapshot_to_scene_graph(&snap).expect_err("bad origin");
             assert_eq!(err.to_string(), "edges[0].origin: unknown value 7 (0..=3)");
-            snap.header.schema_version = 2;
-            assert!(matches!(snapshot_to_scene_graph(&snap), Err(SnapshotError::SchemaVersion { found: 2, .. })));
+            let other = op3dsg_ipc_types::SCHEMA_VERSION + 1;
+            snap.header.schema_version = other;
+            assert!(matches!(
+                snapshot_to_scene_graph(&snap),
+                Err(SnapshotError::SchemaVersion { found, .. }) if found == other
+            ));
         });
     }
 
