@@ -99,6 +99,10 @@ pub struct BatchRun {
     /// Indexed by instance id: keyframes in which the detector reported the instance. Empty
     /// without ground truth.
     pub detected_keyframes: Vec<u32>,
+    /// Nodes in the map at the end, confirmed or not (the graph holds the confirmed ones).
+    pub map_nodes: usize,
+    /// Heap bytes of the map at the end.
+    pub map_memory_bytes: usize,
     /// Where the time went.
     pub timing: BatchTiming,
 }
@@ -292,6 +296,8 @@ pub fn run_with_fusions<const N: usize>(
             detector_errors,
             visible_keyframes: visible_keyframes.clone(),
             detected_keyframes: detected_keyframes.clone(),
+            map_nodes: fusions[i].node_count(),
+            map_memory_bytes: fusions[i].memory_bytes(),
             timing,
         }
     }))

@@ -475,6 +475,12 @@ fn fusion_eval(
         t.detect.as_secs_f64(),
         t.fusion.as_secs_f64() + t.build_graph.as_secs_f64()
     ));
+    text.push_str(&format!(
+        "map: {} nodes ({} published, the rest pending confirmation), {:.1} MiB\n",
+        run.map_nodes,
+        run.graph.nodes.len(),
+        run.map_memory_bytes as f64 / (1024.0 * 1024.0)
+    ));
     let failures = QualityTargets::default().failures(&report);
     if failures.is_empty() {
         text.push_str("quality targets: met\n");

@@ -74,6 +74,9 @@ pub struct FusionConfig {
     pub colour: ColourParams,
     /// Nodes seen fewer times are held back from publication until confirmed.
     pub min_observations: u32,
+    /// Nodes whose mean detector score is lower are held back too (and pruned like other
+    /// unconfirmed nodes), [0, 1].
+    pub min_mean_score: f32,
     /// Unconfirmed nodes not seen for this many keyframes are removed (0 = never).
     pub prune_unconfirmed_after_keyframes: u32,
     /// Run maintenance (duplicate merge, outlier removal, pruning) every this many keyframes
@@ -147,6 +150,7 @@ impl FusionConfig {
             ("part_match_threshold", self.part_match_threshold, 0.0, 1.4),
             ("part_weight", self.part_weight, 0.0, 1.0),
             ("merge_min_overlap", self.merge_min_overlap, 0.0, 1.0),
+            ("min_mean_score", self.min_mean_score, 0.0, 1.0),
             ("merge_min_semantic", self.merge_min_semantic, 0.0, 1.0),
             ("merge_min_colour", self.merge_min_colour, 0.5, 1.0),
             ("part_attach_margin_m", self.part_attach_margin_m, 0.0, 1.0),

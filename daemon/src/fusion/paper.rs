@@ -51,7 +51,8 @@
 //! * **Outlier removal** of the points added since the last run: points with fewer than
 //!   `outlier_min_neighbours` other points within `outlier_radius_voxels` voxels go (nodes under
 //!   32 points are left alone).
-//! * **Pruning**: unconfirmed nodes (fewer than `min_observations`) not seen for
+//! * **Pruning**: unconfirmed nodes (fewer than `min_observations` detections, or a mean detector
+//!   score below `min_mean_score`: detectors score their false positives low) not seen for
 //!   `prune_unconfirmed_after_keyframes` keyframes are removed. Publication ([`Fusion::build_graph`])
 //!   holds back unconfirmed nodes in any case.
 //!
@@ -723,16 +724,12 @@ impl PaperFusion {
 
     /// Duplicate merge, outlier removal and pruning (see the module docs).
     fn maintain(&mut self, report: &mut FusionReport) {
-        let (prune_after, min_observations) =
-            (u64::from(self.config.prune_unconfirmed_after_keyframes), self.config.min_observations);
+        let prune_after = u64::from(self.config.prune_unconfirmed_after_keyframes);
         // Pruning.
         if prune_after > 0 {
             for slot in 0..self.nodes.len() as u32 {
                 let n = &self.nodes[slot as usize];
-                if n.alive
-                    && n.observation_count < min_observations
-                    && self.keyframe.saturating_sub(n.last_keyframe) >= prune_after
-                {
+                if n.alive && !self.confirmed(n) && self.keyframe.saturating_sub(n.last_keyframe) >= prune_after {
                     self.remove_node(slot);
                     report.pruned += 1;
                 }
@@ -895,6 +892,12 @@ impl PaperFusion {
         self.reindex(keep);
     }
 
+    /// Published: seen `min_observations` times with a mean score of at least `min_mean_score`.
+    fn confirmed(&self, node: &Node) -> bool {
+        node.observation_count >= self.config.min_observations
+            && node.score_sum >= self.config.min_mean_score * node.observation_count as f32
+    }
+
     fn label_of(&self, node: &Node) -> (&str, u32) {
         // Highest count; ties go to the lexically smallest label (deterministic).
         let mut best: Option<(&str, u32)> = None;
@@ -1044,7 +1047,7 @@ impl Fusion for PaperFusion {
     fn build_graph(&self, out: &mut SceneGraph) {
         out.nodes.clear();
         out.edges.clear();
-        for node in self.nodes.iter().filter(|n| n.alive && n.observation_count >= self.config.min_observations) {
+        for node in self.nodes.iter().filter(|n| n.alive && self.confirmed(n)) {
             let (label, votes) = self.label_of(node);
             let n = node.observation_count as f32;
             let confidence = (votes as f32 / n) * (node.score_sum / n);
@@ -1359,6 +1362,27 @@ mod tests {
         assert_eq!(graph.nodes[0].label, "cabinet");
         assert_eq!(graph.nodes[0].observation_count, 2);
         assert!((graph.nodes[0].centre_m[2] - 2.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn low_scoring_nodes_are_held_back_and_pruned() {
+        let mut fusion = PaperFusion::new(FusionConfig {
+            maintenance_every_keyframes: 1,
+            prune_unconfirmed_after_keyframes: 2,
+            ..dense()
+        });
+        let frame = wall_frame(2000);
+        let mut weak = square("kettle", NodeKind::Object, 10, 10, 12);
+        weak.score = 0.3;
+        for _ in 0..3 {
+            fusion.integrate(&frame, &Isometry::IDENTITY, std::slice::from_ref(&weak));
+        }
+        let mut graph = SceneGraph::default();
+        fusion.build_graph(&mut graph);
+        assert!(graph.nodes.is_empty(), "seen 3 times, mean score 0.3 < 0.5");
+        assert_eq!(fusion.node_count(), 1);
+        let pruned: u32 = (0..2).map(|_| fusion.integrate(&frame, &Isometry::IDENTITY, &[]).pruned).sum();
+        assert_eq!((pruned, fusion.node_count()), (1, 0));
     }
 
     #[test]
