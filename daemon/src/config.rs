@@ -28,6 +28,7 @@ use crate::ipc::IpcConfig;
 use crate::onnx::OnnxConfig;
 use crate::onnx::text_encoder::TextEncoderConfig;
 use crate::perception::oracle::OracleConfig;
+use crate::perception::yolox::YoloxConfig;
 use crate::queue::QueueConfig;
 
 /// The built-in base profile.
@@ -36,7 +37,7 @@ pub const BASE_PROFILE: &str = include_str!("../../profiles/base.toml");
 pub const BASE_PROFILE_NAME: &str = "<built-in profiles/base.toml>";
 /// Keys (besides `extends`) whose value is a file path, resolved against the folder of the file
 /// that sets them.
-pub const PATH_KEYS: &[&str] = &["source.replay.path"];
+pub const PATH_KEYS: &[&str] = &["source.replay.path", "detector.yolox.model_path"];
 
 /// The whole daemon configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -164,6 +165,10 @@ pub struct KeyframeConfig {
 pub enum DetectorKind {
     /// Reads the synthetic source's instance ids, with configurable noise.
     Oracle,
+    /// YOLOX (closed vocabulary, COCO) through ONNX Runtime, masks from depth
+    /// (`[detector.yolox]`); `"onnx"` is accepted as a synonym.
+    #[serde(alias = "onnx")]
+    Yolox,
 }
 
 /// `[detector]`.
@@ -176,6 +181,10 @@ pub struct DetectorConfig {
     pub workers: usize,
     /// `[detector.oracle]`: a `preset = "clean" | "realistic"` plus any knob to override.
     pub oracle: OracleConfig,
+    /// `[detector.yolox]`: model, thresholds, class map, depth masks (used with
+    /// `kind = "yolox"`).
+    #[serde(default)]
+    pub yolox: YoloxConfig,
 }
 
 /// `[queues]`.
@@ -528,6 +537,12 @@ impl Profile {
             format!("must be within [1, 64], got {}", self.detector.workers)
         })?;
         self.detector.oracle.validate("detector.oracle").map_err(split_message)?;
+        if self.detector.kind == DetectorKind::Yolox {
+            self.detector.yolox.validate("detector.yolox").map_err(split_message)?;
+            check(!self.detector.yolox.class_map.is_empty(), "detector.yolox.class_map", || {
+                "must map at least one class of the model to a label (unmapped classes are dropped)".to_owned()
+            })?;
+        }
         self.fusion.validate("fusion").map_err(split_message)?;
         self.queues.frames.validate("queues.frames").map_err(split_message)?;
         self.queues.keyframes.validate("queues.keyframes").map_err(split_message)?;
