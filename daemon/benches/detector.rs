@@ -30,10 +30,8 @@ fn shared() -> PathBuf {
 }
 
 fn config() -> YoloxConfig {
-    let mut config = YoloxConfig {
-        model_path: shared().join("models/yolox_nano/yolox_nano.onnx"),
-        ..YoloxConfig::default()
-    };
+    let mut config =
+        YoloxConfig { model_path: shared().join("models/yolox_nano/yolox_nano.onnx"), ..YoloxConfig::default() };
     for class in ["chair", "sofa", "tvmonitor", "vase", "pottedplant", "diningtable", "bed"] {
         config.class_map.insert(class.to_owned(), class.to_owned());
     }
@@ -117,7 +115,10 @@ fn bench_detector(c: &mut Criterion) {
         .skip(3)
         .collect();
     times.sort_by(f64::total_cmp);
-    println!("yolox inference (letterbox + run + copy out): median {:.3} ms, min {:.3} ms over 200", times[100], times[0]);
+    println!(
+        "yolox inference (letterbox + run + copy out): median {:.3} ms, min {:.3} ms over 200",
+        times[100], times[0]
+    );
 
     let sample: Arc<Vec<Frame>> = Arc::new(all.into_iter().take(THROUGHPUT_FRAMES).collect());
     for workers in [1, 2] {

@@ -322,7 +322,7 @@ mod tests {
         let profile = crate::config::load(None, &[]).unwrap().profile;
         let error = run(&profile, &VisibilityThresholds::default()).unwrap_err();
         assert!(matches!(error, BatchError::Unbounded), "{error}");
-        assert!(error.to_string().starts_with("source.synthetic.frame_count:"), "{error}");
+        assert!(error.to_string().contains("set source.synthetic.frame_count"), "{error}");
     }
 
     #[test]

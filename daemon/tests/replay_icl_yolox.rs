@@ -115,11 +115,7 @@ fn icl_living_room_with_yolox_has_one_chair_where_the_depth_puts_it() {
     }
     println!("chair detected in {frames_with_chair} of 211 frames; {} depth points", points[0].len());
     assert!(frames_with_chair >= 20, "YOLOX sees the chair in many frames");
-    assert!(
-        chair.observation_count >= 5,
-        "the node gathers many views ({} observations)",
-        chair.observation_count
-    );
+    assert!(chair.observation_count >= 5, "the node gathers many views ({} observations)", chair.observation_count);
     let percentile = |list: &mut Vec<f32>, q: f32| {
         list.sort_unstable_by(f32::total_cmp);
         list[((list.len() - 1) as f32 * q) as usize]

@@ -52,7 +52,7 @@ fn rgb(index: u32) -> Vec<u8> {
 // #   3440: [-0.6390081644058228, 1.0564253330230713, 1.7027125358581543, 1.8757340908050537, 0.7405076026916504, 1.6361474990844727e-05]
 // // (class, score, [x0, y0, x1, y1]) from scripts/reference/yolox_reference.py
 //     (59, 0.6273113, [230.7962, 88.9839, 498.9466, 407.1235]), // bed, anchor 3452
-//     (56, 0.5023745, [227.2780, 88.3014, 497.4966, 409.5621]), // chair, anchor 3440
+//     (56, 0.5023745, [227.278, 88.3014, 497.4966, 409.5621]), // chair, anchor 3440
 // (PIL's own JPEG decoding of the frame gives a byte sum of 162977234 and scores 0.6245 / 0.5111.)
 const FRAME: u32 = 180;
 const RGB_BYTE_SUM: u64 = 162_981_271;
@@ -64,7 +64,7 @@ const RAW_ROWS: [(usize, [f32; 6]); 2] = [
 // (class, score, [x0, y0, x1, y1]) at thresholds 0.3 (score) and 0.45 (IoU).
 const BOXES: [(usize, f32, [f32; 4]); 2] = [
     (59, 0.627_311_3, [230.7962, 88.9839, 498.9466, 407.1235]), // bed, anchor 3452
-    (56, 0.502_374_5, [227.2780, 88.3014, 497.4966, 409.5621]), // chair, anchor 3440
+    (56, 0.502_374_5, [227.278, 88.3014, 497.4966, 409.5621]),  // chair, anchor 3440
 ];
 
 #[test]
@@ -108,8 +108,8 @@ fn yolox_matches_onnxruntime_python_on_an_icl_frame() {
     for (b, (class, score, bbox)) in boxes.iter().zip(BOXES) {
         assert_eq!(b.class, class, "{got:?}");
         assert!((b.score - score).abs() < 1e-5, "{got:?}");
-        for k in 0..4 {
-            assert!((b.bbox[k] - bbox[k]).abs() < 1e-3, "{got:?}");
+        for (got_k, want_k) in b.bbox.iter().zip(bbox) {
+            assert!((got_k - want_k).abs() < 1e-3, "{got:?}");
         }
     }
     // The same through the one-call path.
@@ -126,4 +126,5 @@ fn a_missing_model_says_which_key_and_what_to_run() {
     let config = YoloxConfig { model_path: PathBuf::from("/no/such/yolox.onnx"), ..YoloxConfig::default() };
     let err = YoloxModel::new(&runtime, &config).unwrap_err().to_string();
     assert!(err.contains("/no/such/yolox.onnx") && err.contains("detector.yolox.model_path"), "{err}");
+    assert!(err.contains("YOLOX-nano") && !err.contains("setup-models.sh"), "says where the model comes from: {err}");
 }

@@ -339,7 +339,15 @@ mod tests {
     fn holes_are_excluded_and_an_empty_box_has_no_mask() {
         let inside = |x: u32, y: u32| (20..40).contains(&x) && (16..32).contains(&y);
         let hole = |x: u32, y: u32| (28..32).contains(&x) && (22..26).contains(&y);
-        let depth = image(|x, y| if hole(x, y) { 0.0 } else if inside(x, y) { 1.5 } else { 3.0 });
+        let depth = image(|x, y| {
+            if hole(x, y) {
+                0.0
+            } else if inside(x, y) {
+                1.5
+            } else {
+                3.0
+            }
+        });
         let mask = segment(&depth, full_box(), DepthMaskConfig::default()).unwrap();
         assert_eq!(mask.area(), 20 * 16 - 16);
         assert!(!mask.contains(29, 23));
@@ -380,7 +388,11 @@ mod tests {
     #[test]
     fn validation_names_the_field() {
         let bad = DepthMaskConfig { seed_fraction: 0.0, ..DepthMaskConfig::default() };
-        assert!(bad.validate("detector.yolox.depth_mask").unwrap_err().starts_with("detector.yolox.depth_mask.seed_fraction"));
+        assert!(
+            bad.validate("detector.yolox.depth_mask")
+                .unwrap_err()
+                .starts_with("detector.yolox.depth_mask.seed_fraction")
+        );
         DepthMaskConfig::default().validate("x").unwrap();
     }
 }

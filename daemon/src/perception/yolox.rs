@@ -46,6 +46,11 @@ pub const STRIDES: [u32; 3] = [8, 16, 32];
 /// Letterbox padding value.
 pub const PAD_VALUE: f32 = 114.0;
 
+/// Where a missing YOLOX model comes from (`setup-models.sh` does not fetch it).
+pub const MODEL_HINT: &str = "point detector.yolox.model_path at a YOLOX ONNX export (YOLOX-nano: model/yolox_nano.onnx of \
+     github.com/Kazuhito00/YOLOX-ONNX-TFLite-Sample; in the development setup \
+     ../shared/data/models/yolox_nano/yolox_nano.onnx beside the checkout)";
+
 const INPUT_NAME: &str = "images";
 const OUTPUT_NAME: &str = "output";
 
@@ -100,8 +105,11 @@ impl YoloxConfig {
         if self.model_path.as_os_str().is_empty() {
             return Err(format!("{path}.model_path: must not be empty"));
         }
-        if self.input_size == 0 || self.input_size % 32 != 0 || self.input_size > 4096 {
-            return Err(format!("{path}.input_size: must be a multiple of 32 within [32, 4096], got {}", self.input_size));
+        if self.input_size == 0 || !self.input_size.is_multiple_of(32) || self.input_size > 4096 {
+            return Err(format!(
+                "{path}.input_size: must be a multiple of 32 within [32, 4096], got {}",
+                self.input_size
+            ));
         }
         if !(self.score_threshold > 0.0 && self.score_threshold < 1.0) {
             return Err(format!("{path}.score_threshold: must be within (0, 1), got {}", self.score_threshold));
@@ -274,7 +282,14 @@ impl YoloxModel {
     /// key) into a new session on `runtime`.
     pub fn new(runtime: &OnnxRuntime, config: &YoloxConfig) -> Result<Self, OnnxError> {
         config.validate("detector.yolox").map_err(OnnxError::InvalidConfig)?;
-        let model_path = resolve_path(&config.model_path, "YOLOX model (ONNX)", "detector.yolox.model_path")?;
+        let model_path = resolve_path(&config.model_path, "YOLOX model (ONNX)", "detector.yolox.model_path").map_err(
+            |e| match e {
+                OnnxError::FileMissing { what, looked_for, setting } => {
+                    OnnxError::ModelMissing { what, looked_for, setting, hint: MODEL_HINT }
+                }
+                other => other,
+            },
+        )?;
         let ort_error = |step: &str, message: String| OnnxError::Ort {
             context: format!("loading the YOLOX model {} ({step})", model_path.display()),
             message,
@@ -495,7 +510,10 @@ mod tests {
         c.validate("detector.yolox").unwrap();
         // This export spells the classes the VOC way (`sofa`, `tvmonitor`), not `couch`, `tv`.
         c.class_map.insert("couch".into(), "couch".into());
-        assert_eq!(c.validate("detector.yolox").unwrap_err(), "detector.yolox.class_map.couch: not a COCO class of the model");
+        assert_eq!(
+            c.validate("detector.yolox").unwrap_err(),
+            "detector.yolox.class_map.couch: not a COCO class of the model"
+        );
         let c = YoloxConfig { score_threshold: 1.5, ..YoloxConfig::default() };
         assert!(c.validate("detector.yolox").unwrap_err().starts_with("detector.yolox.score_threshold"));
     }
