@@ -120,6 +120,32 @@ fn bench_detector(c: &mut Criterion) {
         times[100], times[0]
     );
 
+    // The letterbox alone, to compare session.run with session.run.
+    let mut input = Vec::new();
+    let mut letterbox_ms: Vec<f64> = (0..200)
+        .map(|_| {
+            let t = Instant::now();
+            op3dsg_daemon::perception::yolox::letterbox(
+                &frame.rgb,
+                frame.intrinsics.width,
+                frame.intrinsics.height,
+                416,
+                &mut input,
+            );
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    letterbox_ms.sort_by(f64::total_cmp);
+    println!(
+        "letterbox alone: median {:.3} ms; inference without it: about {:.3} ms",
+        letterbox_ms[100],
+        times[100] - letterbox_ms[100]
+    );
+    println!(
+        "load average now (2 shared cores): {}",
+        std::fs::read_to_string("/proc/loadavg").unwrap_or_default().trim()
+    );
+
     let sample: Arc<Vec<Frame>> = Arc::new(all.into_iter().take(THROUGHPUT_FRAMES).collect());
     for workers in [1, 2] {
         let fps = throughput(&runtime, &sample, workers);
