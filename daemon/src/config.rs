@@ -611,6 +611,26 @@ mod tests {
     }
 
     #[test]
+    fn yolox_detector_paths_resolve_and_ranges_name_the_field() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = write(
+            &dir,
+            "icl.toml",
+            "[detector]\nkind = \"onnx\"\n[detector.yolox]\nmodel_path = \"m/yolox.onnx\"\n\
+             [detector.yolox.class_map]\nchair = \"chair\"\n",
+        );
+        let profile = load(Some(&path), &[]).unwrap().profile;
+        assert_eq!(profile.detector.kind, DetectorKind::Yolox, "onnx is an alias of yolox");
+        assert_eq!(profile.detector.yolox.model_path, dir.path().join("m/yolox.onnx"), "relative to the profile");
+        let path = write(&dir, "bad.toml", "[detector]\nkind = \"yolox\"\n[detector.yolox]\nnms_iou_threshold = 0.0\n");
+        let err = load(Some(&path), &[]).unwrap_err();
+        assert!(err.to_string().contains("detector.yolox.nms_iou_threshold: must be within (0, 1]"), "{err}");
+        let path = write(&dir, "empty.toml", "[detector]\nkind = \"yolox\"\n");
+        let err = load(Some(&path), &[]).unwrap_err();
+        assert!(err.to_string().contains("detector.yolox.class_map: must map at least one class"), "{err}");
+    }
+
+    #[test]
     fn unknown_key_names_file_and_field() {
         let dir = tempfile::tempdir().unwrap();
         let path = write(&dir, "robot.toml", "[fusion]\nvoxel_sise_m = 0.02\n");
