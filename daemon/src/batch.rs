@@ -28,7 +28,7 @@ use op3dsg_drivers::source::{SourceError, SourceStatus};
 use op3dsg_drivers::synthetic::{InstanceKind, Scene};
 use tracing::warn;
 
-use crate::config::{PoseSourceKind, Profile};
+use crate::config::{PoseSourceKind, Profile, SourceKind};
 use crate::fusion::Fusion;
 use crate::graph::SceneGraph;
 use crate::keyframe::{GateDecision, KeyframeGate};
@@ -121,7 +121,10 @@ pub enum BatchError {
     #[error(transparent)]
     Start(#[from] StartError),
     /// The source never ends.
-    #[error("source.synthetic.frame_count: the batch runner needs a finite source; set it (or run.max_frames) above 0")]
+    #[error(
+        "the batch runner needs a finite source: set source.synthetic.frame_count (or run.max_frames) above 0, or \
+         turn source.replay.loop off"
+    )]
     Unbounded,
     /// The source failed mid-run. The pipeline retries; a batch run stops, because skipping a
     /// frame would make the result depend on the failure.
@@ -160,7 +163,12 @@ pub fn run_with_fusions<const N: usize>(
 ) -> Result<[BatchRun; N], BatchError> {
     let started = Instant::now();
     let max_frames = profile.run.max_frames;
-    if max_frames == 0 && profile.source.synthetic.frame_count.is_none_or(|n| n == 0) {
+    let unbounded = match profile.source.kind {
+        SourceKind::Synthetic => profile.source.synthetic.frame_count.is_none_or(|n| n == 0),
+        // A recording ends unless it loops.
+        SourceKind::Replay => profile.source.replay.as_ref().is_some_and(|r| r.looping),
+    };
+    if max_frames == 0 && unbounded {
         return Err(BatchError::Unbounded);
     }
     let BuiltSource { mut source, detector_factory, scene } = build_source(profile)?;
@@ -320,7 +328,7 @@ mod tests {
         let profile = crate::config::load(None, &[]).unwrap().profile;
         let error = run(&profile, &VisibilityThresholds::default()).unwrap_err();
         assert!(matches!(error, BatchError::Unbounded), "{error}");
-        assert!(error.to_string().starts_with("source.synthetic.frame_count:"), "{error}");
+        assert!(error.to_string().contains("set source.synthetic.frame_count"), "{error}");
     }
 
     #[test]

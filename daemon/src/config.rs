@@ -28,6 +28,7 @@ use crate::ipc::IpcConfig;
 use crate::onnx::OnnxConfig;
 use crate::onnx::text_encoder::TextEncoderConfig;
 use crate::perception::oracle::OracleConfig;
+use crate::perception::yolox::YoloxConfig;
 use crate::queue::QueueConfig;
 
 /// The built-in base profile.
@@ -36,7 +37,7 @@ pub const BASE_PROFILE: &str = include_str!("../../profiles/base.toml");
 pub const BASE_PROFILE_NAME: &str = "<built-in profiles/base.toml>";
 /// Keys (besides `extends`) whose value is a file path, resolved against the folder of the file
 /// that sets them.
-pub const PATH_KEYS: &[&str] = &["source.replay.path"];
+pub const PATH_KEYS: &[&str] = &["source.replay.path", "detector.yolox.model_path"];
 
 /// The whole daemon configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -164,6 +165,10 @@ pub struct KeyframeConfig {
 pub enum DetectorKind {
     /// Reads the synthetic source's instance ids, with configurable noise.
     Oracle,
+    /// YOLOX (closed vocabulary, COCO) through ONNX Runtime, masks from depth
+    /// (`[detector.yolox]`); `"onnx"` is accepted as a synonym.
+    #[serde(alias = "onnx")]
+    Yolox,
 }
 
 /// `[detector]`.
@@ -176,6 +181,10 @@ pub struct DetectorConfig {
     pub workers: usize,
     /// `[detector.oracle]`: a `preset = "clean" | "realistic"` plus any knob to override.
     pub oracle: OracleConfig,
+    /// `[detector.yolox]`: model, thresholds, class map, depth masks (used with
+    /// `kind = "yolox"`).
+    #[serde(default)]
+    pub yolox: YoloxConfig,
 }
 
 /// `[queues]`.
@@ -528,6 +537,12 @@ impl Profile {
             format!("must be within [1, 64], got {}", self.detector.workers)
         })?;
         self.detector.oracle.validate("detector.oracle").map_err(split_message)?;
+        if self.detector.kind == DetectorKind::Yolox {
+            self.detector.yolox.validate("detector.yolox").map_err(split_message)?;
+            check(!self.detector.yolox.class_map.is_empty(), "detector.yolox.class_map", || {
+                "must map at least one class of the model to a label (unmapped classes are dropped)".to_owned()
+            })?;
+        }
         self.fusion.validate("fusion").map_err(split_message)?;
         self.queues.frames.validate("queues.frames").map_err(split_message)?;
         self.queues.keyframes.validate("queues.keyframes").map_err(split_message)?;
@@ -593,6 +608,26 @@ mod tests {
         let loaded = load(None, &[]).unwrap();
         assert_eq!(loaded.profile.source.kind, SourceKind::Synthetic);
         assert_eq!(loaded.layers, [BASE_PROFILE_NAME]);
+    }
+
+    #[test]
+    fn yolox_detector_paths_resolve_and_ranges_name_the_field() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = write(
+            &dir,
+            "icl.toml",
+            "[detector]\nkind = \"onnx\"\n[detector.yolox]\nmodel_path = \"m/yolox.onnx\"\n\
+             [detector.yolox.class_map]\nchair = \"chair\"\n",
+        );
+        let profile = load(Some(&path), &[]).unwrap().profile;
+        assert_eq!(profile.detector.kind, DetectorKind::Yolox, "onnx is an alias of yolox");
+        assert_eq!(profile.detector.yolox.model_path, dir.path().join("m/yolox.onnx"), "relative to the profile");
+        let path = write(&dir, "bad.toml", "[detector]\nkind = \"yolox\"\n[detector.yolox]\nnms_iou_threshold = 0.0\n");
+        let err = load(Some(&path), &[]).unwrap_err();
+        assert!(err.to_string().contains("detector.yolox.nms_iou_threshold: must be within (0, 1]"), "{err}");
+        let path = write(&dir, "empty.toml", "[detector]\nkind = \"yolox\"\n");
+        let err = load(Some(&path), &[]).unwrap_err();
+        assert!(err.to_string().contains("detector.yolox.class_map: must map at least one class"), "{err}");
     }
 
     #[test]

@@ -45,7 +45,8 @@ use crate::graph::SceneGraph;
 use crate::ipc::GraphServer;
 use crate::keyframe::{GateDecision, KeyframeGate};
 use crate::perception::oracle::OracleDetector;
-use crate::perception::{Detection, Detector};
+use crate::perception::yolox::YoloxDetector;
+use crate::perception::{Detection, Detector, DetectorError};
 use crate::queue::{Popped, QueueReceiver, QueueSender, QueueStats, queue};
 use crate::stats::StageStats;
 
@@ -69,6 +70,9 @@ pub enum StartError {
     /// The iceoryx2 services could not be created.
     #[error("iceoryx2: {0}")]
     Ipc(String),
+    /// A model or the ONNX Runtime could not be loaded (the message says what to run).
+    #[error("detector: {0}")]
+    Model(#[from] crate::onnx::OnnxError),
     /// A thread could not be started.
     #[error("thread {name}: {reason}")]
     Thread {
@@ -252,6 +256,7 @@ pub(crate) fn build_source(profile: &Profile) -> Result<BuiltSource, StartError>
                 DetectorKind::Oracle => Arc::new(move |worker| {
                     Box::new(OracleDetector::new(oracle.clone(), instances.clone(), worker)) as Box<dyn Detector>
                 }),
+                DetectorKind::Yolox => yolox_factory(profile)?,
             };
             Ok(BuiltSource { source: Box::new(source), detector_factory, scene: Some(scene) })
         }
@@ -274,9 +279,49 @@ pub(crate) fn build_source(profile: &Profile) -> Result<BuiltSource, StartError>
                         Box::new(OracleDetector::new(oracle.clone(), Vec::new(), worker)) as Box<dyn Detector>
                     })
                 }
+                DetectorKind::Yolox => yolox_factory(profile)?,
             };
             Ok(BuiltSource { source: Box::new(source), detector_factory: factory, scene: None })
         }
+    }
+}
+
+/// Loads the ONNX Runtime and one YOLOX session per detection worker now, so a missing runtime
+/// or model stops start-up with the error that says what to run. The factory hands worker `i`
+/// its preloaded session; a worker index beyond `detector.workers` (none in the pipeline) loads
+/// a fresh one.
+fn yolox_factory(profile: &Profile) -> Result<DetectorFactory, StartError> {
+    let runtime = crate::onnx::OnnxRuntime::init(&profile.onnx)?;
+    let config = profile.detector.yolox.clone();
+    let mut preloaded = Vec::with_capacity(profile.detector.workers);
+    for _ in 0..profile.detector.workers.max(1) {
+        preloaded.push(Some(YoloxDetector::new(&runtime, &config)?));
+    }
+    let preloaded = Arc::new(Mutex::new(preloaded));
+    Ok(Arc::new(move |worker| {
+        let taken = preloaded
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .get_mut(worker as usize)
+            .and_then(Option::take);
+        match taken.map_or_else(|| YoloxDetector::new(&runtime, &config), Ok) {
+            Ok(detector) => Box::new(detector) as Box<dyn Detector>,
+            Err(e) => Box::new(FailedDetector(e.to_string())),
+        }
+    }))
+}
+
+/// A detector whose model could not be loaded: every detection fails with the load error.
+struct FailedDetector(String);
+
+impl Detector for FailedDetector {
+    fn detect(&mut self, _frame: &op3dsg_drivers::frame::Frame, out: &mut Vec<Detection>) -> Result<(), DetectorError> {
+        out.clear();
+        Err(DetectorError::Backend(self.0.clone()))
+    }
+
+    fn name(&self) -> &str {
+        "failed"
     }
 }
 

@@ -103,6 +103,19 @@ pub enum OnnxError {
         /// The profile key or environment variable that points at it.
         setting: String,
     },
+    /// A model the user supplies (not fetched by the set-up script) is not where the profile
+    /// says.
+    #[error("{what} not found: looked for {}; {hint} (set {setting})", list_paths(looked_for))]
+    ModelMissing {
+        /// What the file is.
+        what: &'static str,
+        /// Every path tried, in order.
+        looked_for: Vec<PathBuf>,
+        /// The profile key that points at it.
+        setting: String,
+        /// Where to get it.
+        hint: &'static str,
+    },
     /// The ONNX Runtime library is there but cannot be used (not a library, wrong architecture,
     /// older than 1.31).
     #[error(

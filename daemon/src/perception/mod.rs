@@ -3,7 +3,9 @@
 use op3dsg_drivers::frame::Frame;
 use op3dsg_ipc_types::NodeKind;
 
+pub mod depth_mask;
 pub mod oracle;
+pub mod yolox;
 
 /// A binary mask over the detection's pixel box.
 #[derive(Debug, Clone, Default, PartialEq)]
