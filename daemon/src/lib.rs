@@ -15,6 +15,7 @@
 //! | [`graph`] | the in-memory scene graph handed from fusion to publisher and tools |
 //! | [`knowledge`] | the knowledge base: objects, parts, affordances, functional-relation templates |
 //! | [`prior`] | the prior graph: neighbours through a grid, spatial relations from geometry and gravity |
+//! | [`reasoner`] | reasoners over the prior graph; the offline knowledge reasoner |
 //! | [`ipc`] | the iceoryx2 services: graph, update event, health, pose input |
 //! | [`onnx`] | ONNX Runtime loaded from `.models/` at run time; the label text encoder |
 //! | [`stats`] | per-stage counters and latency percentiles |
@@ -40,4 +41,5 @@ pub mod perception;
 pub mod pipeline;
 pub mod prior;
 pub mod queue;
+pub mod reasoner;
 pub mod stats;

@@ -1,0 +1,150 @@
+//! Reasoners: turn a versioned [`PriorGraph`] into functional relations (local and remote),
+//! affordances per node and spatial corrections, each with node ids and a confidence.
+//!
+//! One interface, [`Reasoner`], so that the offline [`KnowledgeReasoner`] (deterministic, the
+//! default) and later LLM agents are interchangeable. A reasoner never writes into the graph
+//! itself: its [`ReasonerOutput`] names the graph version it was computed from and is applied by
+//! the owner of the graph with [`apply`], which drops anything whose nodes no longer exist.
+//!
+//! ```
+//! use op3dsg_daemon::{knowledge::KnowledgeBase, prior, reasoner::{self, Reasoner}};
+//! let kb = std::sync::Arc::new(KnowledgeBase::builtin().unwrap());
+//! let mut graph = op3dsg_daemon::graph::SceneGraph::default();
+//! let prior = prior::build(&graph, &kb, &prior::PriorConfig::default());
+//! let output = reasoner::KnowledgeReasoner::new(kb).reason(&prior);
+//! reasoner::apply(&mut graph, &output, op3dsg_ipc_types::EdgeOrigin::Knowledge);
+//! ```
+
+mod knowledge;
+
+pub use knowledge::KnowledgeReasoner;
+
+use op3dsg_ipc_types::{EdgeKind, EdgeOrigin};
+
+use crate::graph::{GraphEdge, SceneGraph};
+use crate::prior::PriorGraph;
+
+/// A functional relation: `source_id` acts on `target_id`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FunctionalRelation {
+    /// Acting node (a part, or an object such as a remote control).
+    pub source_id: u32,
+    /// Acted-on object.
+    pub target_id: u32,
+    /// Canonical functional relation id (`op3dsg_ipc_types::relation_id`).
+    pub relation_id: u16,
+    /// Confidence in [0, 1].
+    pub confidence: f32,
+    /// `false`: a local relation on a part-of pair; `true`: a remote relation.
+    pub remote: bool,
+}
+
+/// Affordances of one node.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NodeAffordances {
+    /// The node.
+    pub node_id: u32,
+    /// Bit set over `op3dsg_ipc_types::AFFORDANCES`.
+    pub affordance_bits: u16,
+    /// Confidence in [0, 1].
+    pub confidence: f32,
+}
+
+/// A proposed change to a spatial edge.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SpatialCorrection {
+    /// Source node.
+    pub source_id: u32,
+    /// Target node.
+    pub target_id: u32,
+    /// Canonical spatial relation id.
+    pub relation_id: u16,
+    /// `true`: add the edge; `false`: remove it.
+    pub add: bool,
+    /// Confidence in [0, 1].
+    pub confidence: f32,
+}
+
+/// What a reasoner concluded about one prior-graph version.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ReasonerOutput {
+    /// Version of the prior graph it was computed from.
+    pub graph_version: u64,
+    /// Functional relations.
+    pub functional: Vec<FunctionalRelation>,
+    /// Affordances per node.
+    pub affordances: Vec<NodeAffordances>,
+    /// Spatial corrections.
+    pub spatial_corrections: Vec<SpatialCorrection>,
+}
+
+/// A reasoner over prior graphs.
+pub trait Reasoner: Send {
+    /// Short name for logs and health (`knowledge`, ...).
+    fn name(&self) -> &'static str;
+    /// Reasons over one prior-graph version.
+    fn reason(&mut self, prior: &PriorGraph) -> ReasonerOutput;
+}
+
+/// Applies `output` to `graph`: functional edges (with `origin`) and affordance bits for nodes
+/// that still exist, spatial corrections likewise. Returns how many items were dropped because
+/// a node is gone.
+pub fn apply(graph: &mut SceneGraph, output: &ReasonerOutput, origin: EdgeOrigin) -> usize {
+    let exists = |nodes: &[crate::graph::GraphNode], id: u32| nodes.binary_search_by_key(&id, |n| n.id).is_ok();
+    let mut dropped = 0;
+    for relation in &output.functional {
+        if !(exists(&graph.nodes, relation.source_id) && exists(&graph.nodes, relation.target_id)) {
+            dropped += 1;
+            continue;
+        }
+        let duplicate = graph.edges.iter().any(|e| {
+            e.kind == EdgeKind::Functional
+                && e.source_id == relation.source_id
+                && e.target_id == relation.target_id
+                && e.relation_id == relation.relation_id
+        });
+        if !duplicate {
+            graph.edges.push(GraphEdge {
+                source_id: relation.source_id,
+                target_id: relation.target_id,
+                kind: EdgeKind::Functional,
+                relation_id: relation.relation_id,
+                confidence: relation.confidence.clamp(0.0, 1.0),
+                origin,
+            });
+        }
+    }
+    for affordances in &output.affordances {
+        match graph.nodes.binary_search_by_key(&affordances.node_id, |n| n.id) {
+            Ok(i) => graph.nodes[i].affordance_bits |= affordances.affordance_bits,
+            Err(_) => dropped += 1,
+        }
+    }
+    for correction in &output.spatial_corrections {
+        if !(exists(&graph.nodes, correction.source_id) && exists(&graph.nodes, correction.target_id)) {
+            dropped += 1;
+            continue;
+        }
+        let same = |e: &GraphEdge| {
+            e.kind == EdgeKind::Spatial
+                && e.source_id == correction.source_id
+                && e.target_id == correction.target_id
+                && e.relation_id == correction.relation_id
+        };
+        if correction.add {
+            if !graph.edges.iter().any(same) {
+                graph.edges.push(GraphEdge {
+                    source_id: correction.source_id,
+                    target_id: correction.target_id,
+                    kind: EdgeKind::Spatial,
+                    relation_id: correction.relation_id,
+                    confidence: correction.confidence.clamp(0.0, 1.0),
+                    origin,
+                });
+            }
+        } else {
+            graph.edges.retain(|e| !same(e));
+        }
+    }
+    dropped
+}
