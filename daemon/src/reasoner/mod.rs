@@ -19,10 +19,70 @@ mod knowledge;
 
 pub use knowledge::KnowledgeReasoner;
 
+use std::path::Path;
+use std::sync::Arc;
+
 use op3dsg_ipc_types::{EdgeKind, EdgeOrigin};
 
+use crate::config::{Profile, ReasonerKind};
 use crate::graph::{GraphEdge, SceneGraph};
-use crate::prior::PriorGraph;
+use crate::knowledge::{KnowledgeBase, KnowledgeError};
+use crate::prior::{self, PriorConfig, PriorGraph};
+
+/// What the fusion thread (and the batch runner) run on each graph they publish: the prior
+/// graph's spatial relations, then the reasoner's functional relations and affordances.
+pub struct GraphEnricher {
+    knowledge: Arc<KnowledgeBase>,
+    prior_config: PriorConfig,
+    reasoner: Box<dyn Reasoner>,
+}
+
+impl std::fmt::Debug for GraphEnricher {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GraphEnricher")
+            .field("objects", &self.knowledge.objects().len())
+            .field("prior_config", &self.prior_config)
+            .field("reasoner", &self.reasoner.name())
+            .finish()
+    }
+}
+
+impl GraphEnricher {
+    /// The enricher `[reasoner]` asks for; `None` with `kind = "none"`.
+    pub fn from_profile(profile: &Profile) -> Result<Option<Self>, KnowledgeError> {
+        let config = &profile.reasoner;
+        if config.kind == ReasonerKind::None {
+            return Ok(None);
+        }
+        let knowledge = Arc::new(match &config.knowledge_dir {
+            Some(dir) => KnowledgeBase::load_dir(Path::new(dir))?,
+            None => KnowledgeBase::builtin()?,
+        });
+        let prior_config = PriorConfig {
+            up_axis: profile.world.up_axis,
+            neighbour_radius_m: config.neighbour_radius_m,
+            contact_tolerance_m: config.contact_tolerance_m,
+            next_to_gap_m: config.next_to_gap_m,
+            min_footprint_overlap: config.min_footprint_overlap,
+            inside_tolerance_m: config.inside_tolerance_m,
+        };
+        let reasoner: Box<dyn Reasoner> = match config.kind {
+            ReasonerKind::Knowledge | ReasonerKind::None => Box::new(KnowledgeReasoner::new(knowledge.clone())),
+        };
+        Ok(Some(Self { knowledge, prior_config, reasoner }))
+    }
+
+    /// Adds the prior graph's object relations and the reasoner's results to `graph` (fusion's
+    /// `part of` edges are already there). Returns the prior graph for callers that want it.
+    pub fn enrich(&mut self, graph: &mut SceneGraph) -> PriorGraph {
+        let prior = prior::build(graph, &self.knowledge, &self.prior_config);
+        let part_of = op3dsg_ipc_types::relation_id("part of").map_or(0, |(_, id)| id);
+        graph.edges.extend(prior.spatial_edges.iter().filter(|e| e.relation_id != part_of).cloned());
+        let output = self.reasoner.reason(&prior);
+        apply(graph, &output, EdgeOrigin::Knowledge);
+        prior
+    }
+}
 
 /// A functional relation: `source_id` acts on `target_id`.
 #[derive(Debug, Clone, PartialEq)]
