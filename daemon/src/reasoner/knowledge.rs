@@ -125,7 +125,7 @@ impl Reasoner for KnowledgeReasoner {
                     let Some(target) = candidate.category.and_then(|c| c.object()) else { continue };
                     let Some(rank) = template.targets.iter().position(|t| *t == target) else { continue };
                     let distance = node.centre_m.distance(candidate.centre_m);
-                    if !(distance <= template.max_distance_m) {
+                    if distance.is_nan() || distance > template.max_distance_m {
                         continue;
                     }
                     let better = best.is_none_or(|(d, r, _)| (distance, rank) < (d, r));
