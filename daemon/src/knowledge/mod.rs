@@ -691,6 +691,24 @@ mod tests {
     const OBJECTS: &str = "[[object]]\nname = \"stove\"\nparts = [{ part = \"knob\", relation = \"rotate to adjust the setting or temperature\" }]\n";
 
     #[test]
+    fn load_dir_reads_the_three_files_and_names_the_path_in_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join(OBJECTS_FILE), BUILTIN_OBJECTS_TOML).unwrap();
+        std::fs::write(dir.path().join(PARTS_FILE), BUILTIN_PARTS_TOML).unwrap();
+        std::fs::write(dir.path().join(REMOTE_FILE), BUILTIN_REMOTE_TOML).unwrap();
+        let kb = KnowledgeBase::load_dir(dir.path()).unwrap();
+        assert_eq!(kb.pair_count(), KnowledgeBase::builtin().unwrap().pair_count());
+        let bad = BUILTIN_REMOTE_TOML.replace("\"remote to control\"", "\"beam to control\"");
+        std::fs::write(dir.path().join(REMOTE_FILE), bad).unwrap();
+        let error = KnowledgeBase::load_dir(dir.path()).unwrap_err();
+        assert_eq!(error.file, dir.path().join(REMOTE_FILE).display().to_string());
+        assert!(error.path.ends_with(".relation"), "{error}");
+        std::fs::remove_file(dir.path().join(PARTS_FILE)).unwrap();
+        let missing = KnowledgeBase::load_dir(dir.path()).unwrap_err();
+        assert!(missing.file.ends_with(PARTS_FILE), "{missing}");
+    }
+
+    #[test]
     fn minimal_tables_load() {
         let kb = load(OBJECTS, PARTS, "").unwrap();
         assert_eq!(kb.pair_count(), 1);
