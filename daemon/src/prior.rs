@@ -236,6 +236,8 @@ pub fn neighbours(centres: &[Vec3], radius_m: f32) -> Vec<(u32, u32)> {
 
 /// Builds the prior graph of `graph`.
 pub fn build(graph: &SceneGraph, knowledge: &KnowledgeBase, config: &PriorConfig) -> PriorGraph {
+    // Labels repeat (every "cabinet handle"): resolve each distinct label once.
+    let mut resolved: FxHashMap<&str, Option<Resolved>> = FxHashMap::default();
     let mut nodes: Vec<PriorNode> = graph
         .nodes
         .iter()
@@ -244,7 +246,7 @@ pub fn build(graph: &SceneGraph, knowledge: &KnowledgeBase, config: &PriorConfig
             kind: n.kind,
             parent_id: n.parent_id,
             label: n.label.clone(),
-            category: knowledge.resolve(&n.label),
+            category: *resolved.entry(n.label.as_str()).or_insert_with(|| knowledge.resolve(&n.label)),
             confidence: n.confidence,
             centre_m: Vec3::from(n.centre_m),
             box_min_m: Vec3::from(n.box_min_m),
