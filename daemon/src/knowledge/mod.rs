@@ -144,6 +144,20 @@ pub struct RemoteTemplate {
     pub max_distance_m: f32,
     /// Confidence of the resulting edge.
     pub confidence: f32,
+    /// How the target is chosen among the candidates within `max_distance_m`.
+    pub choose: TargetChoice,
+}
+
+/// How a remote template picks its target (`choose` in `remote.toml`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TargetChoice {
+    /// The nearest candidate; ties go to the earlier listed target (outlets, switches).
+    #[default]
+    Nearest,
+    /// The earliest listed target category, the nearest of that category (a remote control
+    /// controls the TV before the game console beside it).
+    ListedOrder,
 }
 
 /// The compiled knowledge base.
@@ -216,6 +230,8 @@ struct RemoteEntry {
     relation: String,
     max_distance_m: f32,
     confidence: f32,
+    #[serde(default)]
+    choose: TargetChoice,
 }
 
 /// Sources of the three tables: `(file name for messages, TOML text)`.
@@ -471,6 +487,7 @@ impl KnowledgeBase {
                 relation_id,
                 max_distance_m: entry.max_distance_m,
                 confidence: entry.confidence,
+                choose: entry.choose,
             });
         }
         Ok(Self { objects, parts, remotes, labels })

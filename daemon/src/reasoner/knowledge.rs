@@ -15,9 +15,11 @@
 //!   [`HINTED_LOCAL_CONFIDENCE`].
 //! - **Remote relations** for nodes without a local relation (a wall switch, a wall outlet, a
 //!   power strip's outlets, a remote control, a loose knob): for each remote template of the
-//!   node's category, the *nearest* object (centre to centre) whose category is one of the
-//!   template's targets, within the template's `max_distance_m`, excluding the node itself and
-//!   its own parent. Ties go to the earlier target in the template's list. Nearest within a
+//!   node's category, among the objects (centre to centre within the template's
+//!   `max_distance_m`, not the node itself nor its own parent) whose category is one of the
+//!   template's targets: with `choose = "nearest"` (default) the nearest, ties to the earlier
+//!   listed target; with `choose = "listed_order"` the nearest of the earliest listed category
+//!   present (a remote control picks the TV over the game console beside it). Nearest within a
 //!   distance stands in for "in the same room", which the graph does not know yet.
 //!   Confidence: the template's × the source node's.
 //! - **Spatial corrections**: none (geometry decides spatial relations; LLM agents may
@@ -31,7 +33,7 @@ use std::sync::Arc;
 use op3dsg_ipc_types::NodeKind;
 
 use super::{FunctionalRelation, NodeAffordances, Reasoner, ReasonerOutput};
-use crate::knowledge::{Category, KnowledgeBase, ObjectId};
+use crate::knowledge::{Category, KnowledgeBase, ObjectId, TargetChoice};
 use crate::prior::{PriorGraph, PriorNode};
 
 /// Confidence factor of a local relation from the parent's own pair.
@@ -128,7 +130,10 @@ impl Reasoner for KnowledgeReasoner {
                     if distance.is_nan() || distance > template.max_distance_m {
                         continue;
                     }
-                    let better = best.is_none_or(|(d, r, _)| (distance, rank) < (d, r));
+                    let better = best.is_none_or(|(d, r, _)| match template.choose {
+                        TargetChoice::Nearest => (distance, rank) < (d, r),
+                        TargetChoice::ListedOrder => (rank, distance) < (r, d),
+                    });
                     if better {
                         best = Some((distance, rank, candidate.id));
                     }
@@ -239,6 +244,7 @@ mod tests {
             node(2, "television", None, [9.0, 0.0, 1.0], 0.4),
             node(3, "remote control", None, [2.0, 1.0, 0.5], 0.05),
             node(4, "sofa", None, [2.0, 1.5, 0.4], 0.4),
+            node(5, "game console", None, [1.5, 0.5, 0.3], 0.1),
         ]);
         let (relations, affordances) = run(&g);
         assert_eq!(relations, [(3, 1, "remote to control", true)]);
