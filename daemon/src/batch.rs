@@ -32,7 +32,7 @@ use crate::config::{PoseSourceKind, Profile, SourceKind};
 use crate::fusion::Fusion;
 use crate::graph::SceneGraph;
 use crate::keyframe::{GateDecision, KeyframeGate};
-use crate::pipeline::{BuiltSource, StartError, build_source, make_fusion};
+use crate::pipeline::{BuiltSource, StartError, build_source, make_enricher, make_fusion};
 
 /// How many pixels of `Frame::instance_ids` make a ground-truth instance count as visible in a
 /// keyframe.
@@ -66,7 +66,7 @@ pub struct BatchTiming {
     pub detect: Duration,
     /// `Fusion::integrate` on keyframes.
     pub fusion: Duration,
-    /// The final `Fusion::build_graph`.
+    /// The final `Fusion::build_graph`, with the prior graph and reasoner (`[reasoner]`).
     pub build_graph: Duration,
     /// Counting ground-truth pixels and detections.
     pub ground_truth: Duration,
@@ -172,6 +172,7 @@ pub fn run_with_fusions<const N: usize>(
         return Err(BatchError::Unbounded);
     }
     let BuiltSource { mut source, detector_factory, scene } = build_source(profile)?;
+    let mut enricher = make_enricher(profile)?;
     if profile.pose.source != PoseSourceKind::Frame {
         return Err(StartError::Incompatible {
             field: "pose.source",
@@ -290,6 +291,9 @@ pub fn run_with_fusions<const N: usize>(
         let t = Instant::now();
         let mut graph = SceneGraph::default();
         fusions[i].build_graph(&mut graph);
+        if let Some(enricher) = enricher.as_mut() {
+            enricher.enrich(&mut graph);
+        }
         graph.version = changed_keyframes[i].max(1);
         graph.stamp_ns = stamp_ns;
         let timing =

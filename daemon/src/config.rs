@@ -12,7 +12,8 @@
 //! that set the offending key and the dotted field path, e.g.
 //! `profiles/robot.toml: fusion.voxel_size_m: must be > 0, got -0.01`.
 //!
-//! File paths in a profile (`extends`, and the keys in [`PATH_KEYS`]: `source.replay.path`) are
+//! File paths in a profile (`extends`, and the keys in [`PATH_KEYS`]: `source.replay.path`,
+//! `detector.yolox.model_path`, `reasoner.knowledge_dir`) are
 //! relative to the folder of the file that sets them; a path given with `--set` is relative to
 //! the working directory. `--print-config` shows them resolved.
 
@@ -37,7 +38,7 @@ pub const BASE_PROFILE: &str = include_str!("../../profiles/base.toml");
 pub const BASE_PROFILE_NAME: &str = "<built-in profiles/base.toml>";
 /// Keys (besides `extends`) whose value is a file path, resolved against the folder of the file
 /// that sets them.
-pub const PATH_KEYS: &[&str] = &["source.replay.path", "detector.yolox.model_path"];
+pub const PATH_KEYS: &[&str] = &["source.replay.path", "detector.yolox.model_path", "reasoner.knowledge_dir"];
 
 /// The whole daemon configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -70,6 +71,42 @@ pub struct Profile {
     pub onnx: OnnxConfig,
     /// The label text encoder (all-MiniLM-L6-v2).
     pub text_encoder: TextEncoderConfig,
+    /// The prior graph and the reasoner run on every published graph.
+    pub reasoner: ReasonerConfig,
+}
+
+/// Reasoner kinds (`reasoner.kind`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ReasonerKind {
+    /// Published graphs carry fusion's nodes and part-of edges only.
+    None,
+    /// Prior graph (spatial relations) + the offline knowledge reasoner (functional relations,
+    /// affordances); see `crate::reasoner::knowledge`.
+    Knowledge,
+}
+
+/// `[reasoner]`: the prior graph (`crate::prior`) and the reasoner applied to each published
+/// graph.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReasonerConfig {
+    /// Which reasoner runs.
+    pub kind: ReasonerKind,
+    /// Folder with `objects.toml`, `parts.toml`, `remote.toml` replacing the built-in knowledge
+    /// base (relative to the profile file that sets it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub knowledge_dir: Option<String>,
+    /// Nodes whose centres are this close are neighbours, metres.
+    pub neighbour_radius_m: f32,
+    /// `on` / `under` when the vertical gap is at most this, metres.
+    pub contact_tolerance_m: f32,
+    /// `next to` when footprints are at most this far apart, metres.
+    pub next_to_gap_m: f32,
+    /// Footprint overlap (fraction of the smaller footprint) for `on`/`under`/`above`/`below`.
+    pub min_footprint_overlap: f32,
+    /// Slack for `inside`, metres.
+    pub inside_tolerance_m: f32,
 }
 
 /// Frame source kinds.
@@ -551,6 +588,22 @@ impl Profile {
         self.ipc.validate("ipc").map_err(split_message)?;
         self.onnx.validate("onnx").map_err(split_message)?;
         self.text_encoder.validate("text_encoder").map_err(split_message)?;
+        let r = &self.reasoner;
+        check(r.neighbour_radius_m > 0.0 && r.neighbour_radius_m <= 10.0, "reasoner.neighbour_radius_m", || {
+            format!("must be within (0, 10] metres, got {}", r.neighbour_radius_m)
+        })?;
+        for (name, v) in [
+            ("contact_tolerance_m", r.contact_tolerance_m),
+            ("next_to_gap_m", r.next_to_gap_m),
+            ("inside_tolerance_m", r.inside_tolerance_m),
+        ] {
+            check((0.0..=1.0).contains(&v), &format!("reasoner.{name}"), || {
+                format!("must be within [0, 1] metres, got {v}")
+            })?;
+        }
+        check((0.0..=1.0).contains(&r.min_footprint_overlap), "reasoner.min_footprint_overlap", || {
+            format!("must be within [0, 1], got {}", r.min_footprint_overlap)
+        })?;
         check((10..=60_000).contains(&self.health.period_ms), "health.period_ms", || {
             format!("must be within [10, 60000], got {}", self.health.period_ms)
         })?;

@@ -13,6 +13,9 @@
 //! | [`perception`] | the `Detector` trait, detections and masks; the synthetic oracle |
 //! | [`fusion`] | the map: multi-view association of detections into 3D nodes |
 //! | [`graph`] | the in-memory scene graph handed from fusion to publisher and tools |
+//! | [`knowledge`] | the knowledge base: objects, parts, affordances, functional-relation templates |
+//! | [`prior`] | the prior graph: neighbours through a grid, spatial relations from geometry and gravity |
+//! | [`reasoner`] | reasoners over the prior graph; the offline knowledge reasoner |
 //! | [`ipc`] | the iceoryx2 services: graph, update event, health, pose input |
 //! | [`onnx`] | ONNX Runtime loaded from `.models/` at run time; the label text encoder |
 //! | [`stats`] | per-stage counters and latency percentiles |
@@ -32,8 +35,11 @@ pub mod fusion;
 pub mod graph;
 pub mod ipc;
 pub mod keyframe;
+pub mod knowledge;
 pub mod onnx;
 pub mod perception;
 pub mod pipeline;
+pub mod prior;
 pub mod queue;
+pub mod reasoner;
 pub mod stats;

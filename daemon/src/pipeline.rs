@@ -48,6 +48,7 @@ use crate::perception::oracle::OracleDetector;
 use crate::perception::yolox::YoloxDetector;
 use crate::perception::{Detection, Detector, DetectorError};
 use crate::queue::{Popped, QueueReceiver, QueueSender, QueueStats, queue};
+use crate::reasoner::GraphEnricher;
 use crate::stats::StageStats;
 
 /// How long a stage waits on an empty queue before it checks the stop flag again.
@@ -331,6 +332,13 @@ pub fn make_fusion(profile: &Profile) -> Box<dyn Fusion> {
     crate::fusion::build(&profile.fusion)
 }
 
+/// The prior graph + reasoner the profile asks for (`[reasoner]`), shared by the pipeline and
+/// the batch runner.
+pub fn make_enricher(profile: &Profile) -> Result<Option<GraphEnricher>, StartError> {
+    GraphEnricher::from_profile(profile)
+        .map_err(|e| StartError::Incompatible { field: "reasoner.knowledge_dir", reason: e.to_string() })
+}
+
 impl Pipeline {
     /// Opens the source and the iceoryx2 services and starts every stage. Returns once the
     /// services exist (the daemon may then report ready).
@@ -426,9 +434,10 @@ impl Pipeline {
         {
             let stats = stats.clone();
             let fusion = make_fusion(profile);
+            let enricher = make_enricher(profile)?;
             let min_interval = Duration::from_millis(profile.run.min_publish_interval_ms);
             handles.push(spawn_stage("fusion", &finished_tx, move || {
-                fusion_loop(fusion, det_rx, graph_tx, &stats, min_interval);
+                fusion_loop(fusion, enricher, det_rx, graph_tx, &stats, min_interval);
             })?);
             running.push("fusion");
         }
@@ -698,6 +707,7 @@ fn detect_loop(
 
 fn fusion_loop(
     mut fusion: Box<dyn Fusion>,
+    mut enricher: Option<GraphEnricher>,
     det_rx: QueueReceiver<DetectionBatch>,
     graph_tx: QueueSender<SceneGraph>,
     stats: &PipelineStats,
@@ -710,9 +720,12 @@ fn fusion_loop(
     let mut stamp_ns = 0u64;
     let mut dirty = false;
     let mut last_publish: Option<Instant> = None;
-    let publish = |fusion: &dyn Fusion, version: &mut u64, stamp_ns: u64| {
+    let mut publish = |fusion: &dyn Fusion, version: &mut u64, stamp_ns: u64| {
         let mut graph = SceneGraph::default();
         fusion.build_graph(&mut graph);
+        if let Some(enricher) = enricher.as_mut() {
+            enricher.enrich(&mut graph);
+        }
         *version += 1;
         graph.version = *version;
         graph.stamp_ns = stamp_ns;

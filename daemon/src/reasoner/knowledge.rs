@@ -1,0 +1,313 @@
+//! The offline knowledge reasoner: deterministic, no network, the default.
+//!
+//! For a prior graph it concludes:
+//!
+//! - **Affordances** per node. An object gets its category's own affordances (a remote control:
+//!   `key_press`). A part gets the affordances of its object-part pair, conditioned on the
+//!   parent's category (a knob on a cabinet: `rotate`, `pinch_pull`; on a drawer:
+//!   `pinch_pull`); without a parent, or when the parent's category lacks that part, the
+//!   category named in the part's own label ("drawer knob" → drawer), else the part's defaults.
+//!   Confidence: the node's.
+//! - **Local relations** on part-of pairs: the template of the pair (part category, parent
+//!   category), part → parent, confidence [`LOCAL_CONFIDENCE`] × the part's confidence. When the
+//!   parent's category has no such pair but the part's label names an object category that does
+//!   ("oven handle" fused onto a "stove"), that template is used towards the parent with
+//!   [`HINTED_LOCAL_CONFIDENCE`].
+//! - **Remote relations** for nodes without a local relation (a wall switch, a wall outlet, a
+//!   power strip's outlets, a remote control, a loose knob): for each remote template of the
+//!   node's category, among the objects (centre to centre within the template's
+//!   `max_distance_m`, not the node itself nor its own parent) whose category is one of the
+//!   template's targets: with `choose = "nearest"` (default) the nearest, ties to the earlier
+//!   listed target; with `choose = "listed_order"` the nearest of the earliest listed category
+//!   present (a remote control picks the TV over the game console beside it). Nearest within a
+//!   distance stands in for "in the same room", which the graph does not know yet.
+//!   Confidence: the template's × the source node's.
+//! - **Spatial corrections**: none (geometry decides spatial relations; LLM agents may
+//!   propose corrections later).
+//!
+//! Remote search is a scan over the objects per source node: sources are few (switches,
+//! outlets, remotes) and the distances (up to 10 m) are far beyond the neighbour radius.
+
+use std::sync::Arc;
+
+use op3dsg_ipc_types::NodeKind;
+
+use super::{FunctionalRelation, NodeAffordances, Reasoner, ReasonerOutput};
+use crate::knowledge::{Category, KnowledgeBase, ObjectId, TargetChoice};
+use crate::prior::{PriorGraph, PriorNode};
+
+/// Confidence factor of a local relation from the parent's own pair.
+pub const LOCAL_CONFIDENCE: f32 = 0.9;
+/// Confidence factor of a local relation taken from the object named in the part's label.
+pub const HINTED_LOCAL_CONFIDENCE: f32 = 0.6;
+
+/// The offline knowledge reasoner.
+#[derive(Debug, Clone)]
+pub struct KnowledgeReasoner {
+    knowledge: Arc<KnowledgeBase>,
+}
+
+impl KnowledgeReasoner {
+    /// A reasoner over `knowledge`.
+    pub fn new(knowledge: Arc<KnowledgeBase>) -> Self {
+        Self { knowledge }
+    }
+
+    fn parent_category(&self, prior: &PriorGraph, node: &PriorNode) -> Option<ObjectId> {
+        let parent = node.parent_id.and_then(|id| prior.index_of(id)).map(|i| &prior.nodes[i]);
+        parent.and_then(|p| p.category).and_then(|c| c.object())
+    }
+}
+
+impl Reasoner for KnowledgeReasoner {
+    fn name(&self) -> &'static str {
+        "knowledge"
+    }
+
+    fn reason(&mut self, prior: &PriorGraph) -> ReasonerOutput {
+        let kb = &*self.knowledge;
+        let mut output = ReasonerOutput { graph_version: prior.version, ..ReasonerOutput::default() };
+        for node in &prior.nodes {
+            let Some(resolved) = node.category else { continue };
+            let mut has_local = false;
+            match resolved.category {
+                Category::Object(object) => {
+                    let bits = kb.object(object).affordance_bits;
+                    if bits != 0 {
+                        output.affordances.push(NodeAffordances {
+                            node_id: node.id,
+                            affordance_bits: bits,
+                            confidence: node.confidence,
+                        });
+                    }
+                }
+                Category::Part(part) => {
+                    let parent = self.parent_category(prior, node);
+                    let conditioned_on = parent
+                        .filter(|p| kb.pair(part, *p).is_some())
+                        .or(resolved.object_hint.filter(|h| kb.pair(part, *h).is_some()));
+                    let bits = kb.part_affordances(part, conditioned_on);
+                    if bits != 0 {
+                        output.affordances.push(NodeAffordances {
+                            node_id: node.id,
+                            affordance_bits: bits,
+                            confidence: node.confidence,
+                        });
+                    }
+                    if let (Some(parent_id), Some(parent)) = (node.parent_id, parent) {
+                        let local = kb.local_relation(part, parent).map(|r| (r, LOCAL_CONFIDENCE)).or_else(|| {
+                            let hint = resolved.object_hint.filter(|_| kb.pair(part, parent).is_none())?;
+                            kb.local_relation(part, hint).map(|r| (r, HINTED_LOCAL_CONFIDENCE))
+                        });
+                        if let Some((relation_id, factor)) = local {
+                            has_local = true;
+                            output.functional.push(FunctionalRelation {
+                                source_id: node.id,
+                                target_id: parent_id,
+                                relation_id,
+                                confidence: factor * node.confidence,
+                                remote: false,
+                            });
+                        }
+                    }
+                }
+            }
+            if has_local {
+                continue;
+            }
+            for template in kb.remote_templates_for(resolved.category) {
+                let mut best: Option<(f32, usize, u32)> = None;
+                for candidate in &prior.nodes {
+                    if candidate.kind != NodeKind::Object
+                        || candidate.id == node.id
+                        || Some(candidate.id) == node.parent_id
+                    {
+                        continue;
+                    }
+                    let Some(target) = candidate.category.and_then(|c| c.object()) else { continue };
+                    let Some(rank) = template.targets.iter().position(|t| *t == target) else { continue };
+                    let distance = node.centre_m.distance(candidate.centre_m);
+                    if distance.is_nan() || distance > template.max_distance_m {
+                        continue;
+                    }
+                    let better = best.is_none_or(|(d, r, _)| match template.choose {
+                        TargetChoice::Nearest => (distance, rank) < (d, r),
+                        TargetChoice::ListedOrder => (rank, distance) < (r, d),
+                    });
+                    if better {
+                        best = Some((distance, rank, candidate.id));
+                    }
+                }
+                if let Some((_, _, target_id)) = best {
+                    output.functional.push(FunctionalRelation {
+                        source_id: node.id,
+                        target_id,
+                        relation_id: template.relation_id,
+                        confidence: template.confidence * node.confidence,
+                        remote: true,
+                    });
+                }
+            }
+        }
+        output
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+    use op3dsg_ipc_types::{EdgeKind, EdgeOrigin, affordance_names, relation_phrase};
+
+    use super::*;
+    use crate::graph::{GraphEdge, GraphNode, SceneGraph};
+    use crate::prior::{self, PriorConfig};
+
+    fn node(id: u32, label: &str, parent: Option<u32>, centre: [f32; 3], half: f32) -> GraphNode {
+        let c = Vec3::from(centre);
+        GraphNode {
+            id,
+            kind: if label_is_part(label) { NodeKind::Part } else { NodeKind::Object },
+            parent_id: parent,
+            label: label.to_owned(),
+            confidence: 1.0,
+            centre_m: centre,
+            box_min_m: (c - half).to_array(),
+            box_max_m: (c + half).to_array(),
+            observation_count: 3,
+            affordance_bits: 0,
+            last_seen_stamp_ns: 0,
+        }
+    }
+
+    fn label_is_part(label: &str) -> bool {
+        let kb = KnowledgeBase::builtin().unwrap();
+        kb.resolve(label).and_then(|r| r.part()).is_some()
+    }
+
+    fn graph(nodes: Vec<GraphNode>) -> SceneGraph {
+        let edges = nodes
+            .iter()
+            .filter_map(|n| n.parent_id.map(|p| (n.id, p)))
+            .map(|(source_id, target_id)| GraphEdge {
+                source_id,
+                target_id,
+                kind: EdgeKind::Spatial,
+                relation_id: 0,
+                confidence: 1.0,
+                origin: EdgeOrigin::Geometry,
+            })
+            .collect();
+        SceneGraph { version: 1, stamp_ns: 0, nodes, edges }
+    }
+
+    /// `(source, target, phrase, remote)` and `(node, affordances)` of the reasoner's output.
+    #[allow(clippy::type_complexity)]
+    fn run(g: &SceneGraph) -> (Vec<(u32, u32, &'static str, bool)>, Vec<(u32, Vec<&'static str>)>) {
+        let kb = Arc::new(KnowledgeBase::builtin().unwrap());
+        let prior = prior::build(g, &kb, &PriorConfig::default());
+        let output = KnowledgeReasoner::new(kb).reason(&prior);
+        assert_eq!(output.graph_version, g.version);
+        let relations = output
+            .functional
+            .iter()
+            .map(|r| (r.source_id, r.target_id, relation_phrase(r.relation_id).unwrap_or("?"), r.remote))
+            .collect();
+        let affordances =
+            output.affordances.iter().map(|a| (a.node_id, affordance_names(a.affordance_bits).collect())).collect();
+        (relations, affordances)
+    }
+
+    #[test]
+    fn a_stove_with_knobs_and_an_oven_handle() {
+        let g = graph(vec![
+            node(1, "stove", None, [1.0, 0.3, 0.45], 0.3),
+            node(2, "stove knob", Some(1), [0.9, 0.0, 0.8], 0.02),
+            node(3, "stove knob", Some(1), [1.1, 0.0, 0.8], 0.02),
+            node(4, "oven handle", Some(1), [1.0, 0.0, 0.6], 0.02),
+        ]);
+        let (relations, affordances) = run(&g);
+        assert_eq!(
+            relations,
+            [
+                (2, 1, "rotate to adjust the setting or temperature", false),
+                (3, 1, "rotate to adjust the setting or temperature", false),
+                (4, 1, "pull to open or close", false),
+            ]
+        );
+        assert_eq!(affordances, [(2, vec!["rotate"]), (3, vec!["rotate"]), (4, vec!["hook_pull"])]);
+    }
+
+    #[test]
+    fn a_remote_controls_the_nearest_tv() {
+        let g = graph(vec![
+            node(1, "tv", None, [0.0, 0.0, 1.0], 0.4),
+            node(2, "television", None, [9.0, 0.0, 1.0], 0.4),
+            node(3, "remote control", None, [2.0, 1.0, 0.5], 0.05),
+            node(4, "sofa", None, [2.0, 1.5, 0.4], 0.4),
+            node(5, "game console", None, [1.5, 0.5, 0.3], 0.1),
+        ]);
+        let (relations, affordances) = run(&g);
+        assert_eq!(relations, [(3, 1, "remote to control", true)]);
+        assert_eq!(affordances, [(3, vec!["key_press"])]);
+    }
+
+    #[test]
+    fn a_light_switch_turns_on_a_lamp_and_a_lamp_switch_stays_local() {
+        let g = graph(vec![
+            node(1, "ceiling light", None, [2.0, 2.0, 2.6], 0.2),
+            node(2, "light switch", None, [0.0, 0.5, 1.1], 0.04),
+            node(3, "lamp", None, [3.0, 3.0, 0.8], 0.15),
+            node(4, "lamp switch", Some(3), [3.0, 2.85, 0.7], 0.01),
+        ]);
+        let (relations, affordances) = run(&g);
+        assert_eq!(relations, [(2, 1, "turn on or turn off", true), (4, 3, "turn on or turn off", false)]);
+        assert_eq!(affordances, [(2, vec!["tip_push"]), (4, vec!["tip_push"])]);
+    }
+
+    #[test]
+    fn an_outlet_powers_the_nearest_appliance_but_not_its_own_strip() {
+        let g = graph(vec![
+            node(1, "kettle", None, [1.0, 0.3, 1.0], 0.1),
+            node(2, "toaster", None, [1.9, 0.3, 1.0], 0.1),
+            node(3, "power outlet", None, [1.2, 0.0, 1.1], 0.04),
+            node(4, "power strip", None, [5.0, 0.2, 0.05], 0.15),
+            node(5, "power outlet", Some(4), [5.0, 0.2, 0.1], 0.02),
+            node(6, "tv", None, [5.5, 0.2, 1.0], 0.4),
+            node(7, "unicorn", None, [1.2, 0.1, 1.0], 0.1),
+        ]);
+        let (relations, affordances) = run(&g);
+        assert_eq!(
+            relations,
+            [(3, 1, "provide power", true), (4, 6, "provide power", true), (5, 6, "provide power", true)]
+        );
+        assert_eq!(affordances, [(3, vec!["plug_in", "unplug"]), (5, vec!["plug_in", "unplug"])]);
+    }
+
+    #[test]
+    fn affordances_follow_the_parent_and_apply_drops_vanished_nodes() {
+        let mut g = graph(vec![
+            node(1, "cabinet", None, [0.0, 0.0, 0.4], 0.3),
+            node(2, "knob", Some(1), [0.0, -0.3, 0.6], 0.01),
+            node(3, "nightstand", None, [2.0, 0.0, 0.3], 0.25),
+            node(4, "drawer knob", Some(3), [2.0, -0.25, 0.4], 0.01),
+            node(5, "knob", None, [4.0, 0.0, 1.0], 0.01),
+        ]);
+        let (relations, affordances) = run(&g);
+        assert_eq!(relations, [(2, 1, "rotate to open or close", false), (4, 3, "pull to open or close", false)]);
+        assert_eq!(affordances, [(2, vec!["rotate", "pinch_pull"]), (4, vec!["pinch_pull"]), (5, vec!["rotate"])]);
+
+        let kb = Arc::new(KnowledgeBase::builtin().unwrap());
+        let prior = prior::build(&g, &kb, &PriorConfig::default());
+        let output = KnowledgeReasoner::new(kb).reason(&prior);
+        g.nodes.retain(|n| n.id != 4);
+        let dropped = super::super::apply(&mut g, &output, EdgeOrigin::Knowledge);
+        assert_eq!(dropped, 2, "the vanished knob's relation and affordances");
+        let functional: Vec<_> = g.edges.iter().filter(|e| e.kind == EdgeKind::Functional).collect();
+        assert_eq!(functional.len(), 1);
+        assert_eq!(functional[0].origin, EdgeOrigin::Knowledge);
+        assert_eq!(g.nodes[1].affordance_bits, op3dsg_ipc_types::affordance_bits(["rotate", "pinch_pull"]).unwrap());
+        // Applying twice adds nothing.
+        super::super::apply(&mut g, &output, EdgeOrigin::Knowledge);
+        assert_eq!(g.edges.iter().filter(|e| e.kind == EdgeKind::Functional).count(), 1);
+    }
+}
