@@ -43,11 +43,11 @@
 //! # Maintenance, every `maintenance_every_keyframes` keyframes
 //!
 //! * **Duplicate merge** (nodes changed since the last run against their neighbours): two nodes
-//!   of one kind with overlapping boxes whose larger
-//!   nearest-neighbour ratio (either direction) reaches `merge_min_overlap`, with `s^s ≥
-//!   merge_min_semantic` and, for parts with valid colour on both sides, `s^c ≥
-//!   merge_min_colour`. The node with more observations survives (ties: the older id); features
-//!   are averaged by observation count, votes summed.
+//!   of one kind with overlapping boxes whose larger nearest-neighbour ratio (either direction,
+//!   on a quarter of `nnr_max_points` samples) reaches `merge_min_overlap`, with
+//!   `s^s ≥ merge_min_semantic` and, for parts with valid colour on both sides,
+//!   `s^c ≥ merge_min_colour`. The node with more observations survives (ties: the older id);
+//!   features are averaged by observation count, votes summed.
 //! * **Outlier removal** of the points added since the last run: points with fewer than
 //!   `outlier_min_neighbours` other points within `outlier_radius_voxels` voxels go (nodes under
 //!   32 points are left alone).
@@ -844,7 +844,8 @@ impl PaperFusion {
             return false;
         }
         let g = self.geometry(na.kind);
-        let max_points = self.config.nnr_max_points;
+        // A yes/no decision at a ratio of 0.5 needs far fewer samples than scoring does.
+        let max_points = (self.config.nnr_max_points / 4).max(16);
         let overlap = nb.cloud.nnr(&na.cloud.points, &g, max_points);
         overlap >= self.config.merge_min_overlap
             || na.cloud.nnr(&nb.cloud.points, &g, max_points) >= self.config.merge_min_overlap
