@@ -81,7 +81,7 @@ fn bench_fusion(c: &mut Criterion) {
             "map {:>6} nodes ({copies} kitchen copies, {:.1} MiB): median {median:.3} ms, p99 {p99:.3} ms, \
              {allocations:.2} allocations/step",
             fusion.node_count(),
-            fusion.memory_bytes() as f64 / (1024.0 * 1024.0)
+            op3dsg_daemon::stats::mib(fusion.memory_bytes() as u64)
         );
         group.bench_function(format!("{} nodes", fusion.node_count()), |b| {
             b.iter(|| fusion.integrate(&step.frame, &step.pose, &step.detections))

@@ -855,7 +855,7 @@ fn publisher_loop(
                     keyframes = health.keyframes,
                     graph_version = health.graph_version,
                     map_nodes = health.map_node_count,
-                    map_mib = format_args!("{:.1}", health.map_memory_bytes as f64 / (1024.0 * 1024.0)),
+                    map_mib = format_args!("{:.1}", crate::stats::mib(health.map_memory_bytes)),
                     "running"
                 );
             }

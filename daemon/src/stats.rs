@@ -101,6 +101,11 @@ impl StageStats {
     }
 }
 
+/// Bytes as mebibytes, for logs and tables.
+pub fn mib(bytes: u64) -> f64 {
+    bytes as f64 / (1024.0 * 1024.0)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -315,7 +315,7 @@ fn health_text(h: &HealthReport) -> String {
         if h.source_connected { "connected" } else { "disconnected" },
         h.graph_version,
         h.map_node_count,
-        h.map_memory_bytes as f64 / (1024.0 * 1024.0)
+        op3dsg_daemon::stats::mib(h.map_memory_bytes)
     );
     let _ = writeln!(
         s,
@@ -479,7 +479,7 @@ fn fusion_eval(
         "map: {} nodes ({} published, the rest pending confirmation), {:.1} MiB\n",
         run.map_nodes,
         run.graph.nodes.len(),
-        run.map_memory_bytes as f64 / (1024.0 * 1024.0)
+        op3dsg_daemon::stats::mib(run.map_memory_bytes as u64)
     ));
     let failures = QualityTargets::default().failures(&report);
     if failures.is_empty() {

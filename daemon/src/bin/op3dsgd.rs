@@ -128,7 +128,7 @@ fn main() -> ExitCode {
                 keyframes = summary.keyframes,
                 graph_version = summary.graph_version,
                 map_nodes = summary.map_nodes,
-                map_mib = format!("{:.1}", summary.map_memory_bytes as f64 / (1024.0 * 1024.0)),
+                map_mib = format!("{:.1}", op3dsg_daemon::stats::mib(summary.map_memory_bytes)),
                 elapsed_s = format!("{:.2}", summary.elapsed_s),
                 keyframes_per_s = format!("{:.1}", summary.keyframes_per_s()),
                 bad_data_skipped = summary.bad_data_skipped,

@@ -73,7 +73,7 @@ use rustc_hash::{FxHashMap, FxHashSet};
 use super::colour::{self, ColourFeature};
 use super::{Fusion, FusionConfig, FusionReport};
 use crate::graph::{GraphEdge, GraphNode, SceneGraph};
-use crate::perception::{Detection, Mask};
+use crate::perception::{Detection, Mask, dot, normalise};
 
 const NONE: u32 = u32::MAX;
 
@@ -489,11 +489,6 @@ impl PaperFusion {
             keyframe: 0,
             scratch: Scratch::default(),
         }
-    }
-
-    /// The profile this map runs with.
-    pub fn config(&self) -> &FusionConfig {
-        &self.config
     }
 
     fn geometry(&self, kind: NodeKind) -> KindGeometry {
@@ -914,14 +909,6 @@ impl PaperFusion {
         }
         best.unwrap_or(("", 0))
     }
-
-    /// Alive nodes, confirmed or not: (id, kind, label, observation count, box min, box max).
-    pub fn nodes(&self) -> impl Iterator<Item = (u32, NodeKind, &str, u32, Vec3, Vec3)> + '_ {
-        self.nodes.iter().filter(|n| n.alive).map(|n| {
-            let (label, _) = self.label_of(n);
-            (n.id, n.kind, label, n.observation_count, n.cloud.min, n.cloud.max)
-        })
-    }
 }
 
 impl Fusion for PaperFusion {
@@ -1134,20 +1121,6 @@ fn boxes_touch(a: &Node, b: &Node, grow: f32) -> bool {
 
 fn top_vote(votes: &[(u32, u32)]) -> (u32, u32) {
     votes.iter().copied().max_by(|a, b| a.1.cmp(&b.1).then(b.0.cmp(&a.0))).unwrap_or((NONE, 0))
-}
-
-#[inline]
-fn dot(a: &[f32], b: &[f32]) -> f32 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
-}
-
-fn normalise(v: &mut [f32]) {
-    let n = dot(v, v).sqrt();
-    if n > 0.0 {
-        for x in v.iter_mut() {
-            *x /= n;
-        }
-    }
 }
 
 /// `a ← (1 − w) a + w b`, each histogram L1-renormalised with `ε`.

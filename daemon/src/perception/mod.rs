@@ -67,6 +67,20 @@ pub struct Detection {
     pub ground_truth_instance: Option<u16>,
 }
 
+/// Dot product of two semantic features (the cosine when both are L2-normalised).
+#[inline]
+pub fn dot(a: &[f32], b: &[f32]) -> f32 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// L2-normalises a semantic feature in place (a zero vector stays zero).
+pub fn normalise(v: &mut [f32]) {
+    let norm = dot(v, v).sqrt();
+    if norm > 0.0 {
+        v.iter_mut().for_each(|x| *x /= norm);
+    }
+}
+
 /// Errors of a detector.
 #[derive(Debug, thiserror::Error)]
 pub enum DetectorError {

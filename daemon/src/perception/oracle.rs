@@ -15,7 +15,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
-use super::{Detection, Detector, DetectorError, Mask};
+use super::{Detection, Detector, DetectorError, Mask, normalise};
 
 /// Largest erosion / dilation radius `validate` accepts, pixels.
 const MAX_MORPH_RADIUS_PX: u32 = 32;
@@ -657,13 +657,6 @@ pub fn label_vector(label: &str, dim: usize) -> Vec<f32> {
     let mut v: Vec<f32> = (0..dim).map(|_| rng.sample::<f32, _>(StandardNormal)).collect();
     normalise(&mut v);
     v
-}
-
-fn normalise(v: &mut [f32]) {
-    let norm = v.iter().map(|x| x * x).sum::<f32>().sqrt();
-    if norm > 0.0 {
-        v.iter_mut().for_each(|x| *x /= norm);
-    }
 }
 
 /// `clamp(N(mean, std), 0.05, 1)`.
