@@ -39,27 +39,9 @@ impl Workload {
     /// `count` keyframes of kitchen `seed`, every `spacing` frames of the 30 Hz path, detected
     /// with `oracle`.
     pub fn kitchen(seed: u64, count: usize, spacing: u64, oracle: OracleConfig) -> Self {
-        let scene = Scene::generate(RoomKind::Kitchen, seed);
-        let path = CameraPath::new(&scene, seed, 30.0);
-        let intrinsics = Intrinsics::d435i_640x480();
-        let noise = DepthNoiseConfig::default();
-        let mut renderer = Renderer::new();
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let mut detector = OracleDetector::new(oracle, scene.instances().to_vec(), 0);
-        let keyframes = (0..count as u64)
-            .map(|i| {
-                let mut frame = Frame::new(intrinsics, true);
-                let k = i * spacing;
-                let pose = path.pose_at(k);
-                renderer.render(&scene, &pose, &intrinsics, Some((&noise, &mut rng)), &mut frame);
-                frame.seq = k;
-                frame.stamp_ns = k * 33_333_333;
-                let mut detections = Vec::new();
-                // The oracle only fails on frames without instance ids; these have them.
-                let _ = detector.detect(&frame, &mut detections);
-                Keyframe { frame, pose, detections }
-            })
-            .collect();
+        let mut camera = Camera::new(seed, oracle);
+        let path = CameraPath::new(&camera.scene, seed, 30.0);
+        let keyframes = (0..count as u64).map(|i| camera.shoot(path.pose_at(i * spacing), i * spacing)).collect();
         Self { keyframes }
     }
 
@@ -67,8 +49,9 @@ impl Workload {
     /// at the room's centre, 25° down) the `oracle` detects most instances. A busy keyframe for
     /// the benchmark's step.
     pub fn overview(seed: u64, oracle: OracleConfig) -> Keyframe {
-        let scene = Scene::generate(RoomKind::Kitchen, seed);
-        let (lo, hi) = scene
+        let mut camera = Camera::new(seed, oracle);
+        let (lo, hi) = camera
+            .scene
             .instances()
             .iter()
             .fold((glam::Vec3::splat(f32::INFINITY), glam::Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), i| {
@@ -76,11 +59,6 @@ impl Workload {
             });
         let (lo, hi) = (lo.as_dvec3(), hi.as_dvec3());
         let centre = (lo + hi) * 0.5;
-        let intrinsics = Intrinsics::d435i_640x480();
-        let noise = DepthNoiseConfig::default();
-        let mut renderer = Renderer::new();
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let mut detector = OracleDetector::new(oracle, scene.instances().to_vec(), 0);
         let corners = [(lo.x, lo.y), (lo.x, hi.y), (hi.x, lo.y), (hi.x, hi.y)];
         let views = corners.iter().flat_map(|&c| [(c, 1.8, -25.0), (c, 2.3, -35.0), (c, 1.5, -15.0)]);
         views
@@ -88,12 +66,7 @@ impl Workload {
                 let inset = (centre - DVec3::new(x, y, centre.z)).normalize() * 0.3;
                 let position = DVec3::new(x, y, height) + DVec3::new(inset.x, inset.y, 0.0);
                 let yaw = (centre.y - position.y).atan2(centre.x - position.x);
-                let pose = Isometry::new(look_rotation(yaw, tilt_deg.to_radians()), position);
-                let mut frame = Frame::new(intrinsics, true);
-                renderer.render(&scene, &pose, &intrinsics, Some((&noise, &mut rng)), &mut frame);
-                let mut detections = Vec::new();
-                let _ = detector.detect(&frame, &mut detections);
-                Keyframe { frame, pose, detections }
+                camera.shoot(Isometry::new(look_rotation(yaw, tilt_deg.to_radians()), position), 0)
             })
             .max_by_key(|k| k.detections.len())
             .expect("four corners")
@@ -135,6 +108,43 @@ impl Workload {
                 return copy;
             }
         }
+    }
+}
+
+/// Renders and detects views of one kitchen.
+struct Camera {
+    scene: Scene,
+    intrinsics: Intrinsics,
+    noise: DepthNoiseConfig,
+    renderer: Renderer,
+    rng: ChaCha8Rng,
+    detector: OracleDetector,
+}
+
+impl Camera {
+    fn new(seed: u64, oracle: OracleConfig) -> Self {
+        let scene = Scene::generate(RoomKind::Kitchen, seed);
+        let detector = OracleDetector::new(oracle, scene.instances().to_vec(), 0);
+        Self {
+            scene,
+            intrinsics: Intrinsics::d435i_640x480(),
+            noise: DepthNoiseConfig::default(),
+            renderer: Renderer::new(),
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            detector,
+        }
+    }
+
+    /// Frame `seq` (30 Hz stamps) rendered at `pose`, with the oracle's detections.
+    fn shoot(&mut self, pose: Isometry, seq: u64) -> Keyframe {
+        let mut frame = Frame::new(self.intrinsics, true);
+        self.renderer.render(&self.scene, &pose, &self.intrinsics, Some((&self.noise, &mut self.rng)), &mut frame);
+        frame.seq = seq;
+        frame.stamp_ns = seq * 33_333_333;
+        let mut detections = Vec::new();
+        // The oracle only fails on frames without instance ids; these have them.
+        let _ = self.detector.detect(&frame, &mut detections);
+        Keyframe { frame, pose, detections }
     }
 }
 
