@@ -20,6 +20,11 @@
 //! the same letterbox on an ICL-NUIM frame; `daemon/tests/yolox.rs` checks these functions
 //! against its numbers.
 //!
+//! Sliced inference ([`YoloxDetector::detect_sliced`], `tiles = [columns, rows]`): besides the
+//! whole frame, each of a grid of overlapping tiles ([`tile_rects`]) is letterboxed to the full
+//! input, so small objects get several times the pixels; [`merge_sliced`] drops tile boxes cut
+//! by a tile edge and suppresses duplicates across passes.
+//!
 //! The [`YoloxDetector`] then maps COCO classes to the profile's labels (`class_map`; classes not
 //! in it are dropped), and segments each box from the depth image ([`super::depth_mask`]); a
 //! box without enough depth gives no detection. Semantic features: none (fusion compares
@@ -86,6 +91,12 @@ pub struct YoloxConfig {
     pub execution_provider: ExecutionProvider,
     /// COCO class name → our label. Classes not listed are dropped.
     pub class_map: BTreeMap<String, String>,
+    /// Sliced inference: `[columns, rows]` of overlapping tiles, each run through the model at
+    /// full input size besides the whole frame. `[1, 1]` (the default): the whole frame only.
+    pub tiles: [u32; 2],
+    /// Overlap of neighbouring tiles, fraction of a tile's side, [0, 0.9]. An object narrower
+    /// than the overlap lies wholly inside some tile.
+    pub tile_overlap: f32,
     /// `[detector.yolox.depth_mask]`.
     pub depth_mask: DepthMaskConfig,
 }
@@ -101,6 +112,8 @@ impl Default for YoloxConfig {
             intra_op_threads: 1,
             execution_provider: ExecutionProvider::Cpu,
             class_map: BTreeMap::new(),
+            tiles: [1, 1],
+            tile_overlap: 0.2,
             depth_mask: DepthMaskConfig::default(),
         }
     }
@@ -129,6 +142,12 @@ impl YoloxConfig {
         }
         if !(1..=64).contains(&self.intra_op_threads) {
             return Err(format!("{path}.intra_op_threads: must be within [1, 64], got {}", self.intra_op_threads));
+        }
+        if !self.tiles.iter().all(|t| (1..=8).contains(t)) {
+            return Err(format!("{path}.tiles: columns and rows must be within [1, 8], got {:?}", self.tiles));
+        }
+        if !(0.0..=0.9).contains(&self.tile_overlap) {
+            return Err(format!("{path}.tile_overlap: must be within [0, 0.9], got {}", self.tile_overlap));
         }
         let classes = coco_classes();
         for (class, label) in &self.class_map {
@@ -242,7 +261,13 @@ pub fn postprocess(
             }
         }
     }
-    // Highest score first; ties by class then anchor order (stable sort keeps anchor order).
+    suppress(candidates, nms_iou_threshold, max_detections)
+}
+
+/// Greedy non-maximum suppression per class: highest score first (ties by class, then input
+/// order: the sort is stable), a box dropped when its IoU with a kept box of its class exceeds
+/// `nms_iou_threshold`; at most `max_detections` kept.
+fn suppress(mut candidates: Vec<YoloxBox>, nms_iou_threshold: f32, max_detections: usize) -> Vec<YoloxBox> {
     candidates.sort_by(|a, b| b.score.total_cmp(&a.score).then(a.class.cmp(&b.class)));
     let mut kept: Vec<YoloxBox> = Vec::new();
     for c in candidates {
@@ -402,6 +427,8 @@ pub struct YoloxDetector {
     /// Our label per COCO class index (None: dropped).
     labels: Vec<Option<String>>,
     segmenter: DepthSegmenter,
+    /// One tile's pixels (sliced inference).
+    tile_rgb: Vec<u8>,
 }
 
 impl YoloxDetector {
@@ -409,8 +436,130 @@ impl YoloxDetector {
     pub fn new(runtime: &OnnxRuntime, config: &YoloxConfig) -> Result<Self, OnnxError> {
         let model = YoloxModel::new(runtime, config)?;
         let labels = coco_classes().iter().map(|c| config.class_map.get(*c).cloned()).collect();
-        Ok(Self { model, config: config.clone(), labels, segmenter: DepthSegmenter::new(config.depth_mask.clone()) })
+        Ok(Self {
+            model,
+            config: config.clone(),
+            labels,
+            segmenter: DepthSegmenter::new(config.depth_mask.clone()),
+            tile_rgb: Vec::new(),
+        })
     }
+
+    /// The whole frame's boxes, and with `tiles` set each tile's, merged (see [`merge_sliced`]).
+    pub fn detect_sliced(&mut self, rgb: &[u8], width: u32, height: u32) -> Result<Vec<YoloxBox>, OnnxError> {
+        let c = &self.config;
+        let whole =
+            self.model.detect_boxes(rgb, width, height, c.score_threshold, c.nms_iou_threshold, c.max_detections)?;
+        if c.tiles == [1, 1] {
+            return Ok(whole);
+        }
+        let rects = tile_rects(width, height, c.tiles, c.tile_overlap);
+        let mut tiled = Vec::with_capacity(rects.len());
+        for rect in &rects {
+            let [x0, y0, x1, y1] = *rect;
+            let (tw, th) = (x1 - x0, y1 - y0);
+            self.tile_rgb.clear();
+            for y in y0..y1 {
+                let start = ((y * width + x0) * 3) as usize;
+                self.tile_rgb.extend_from_slice(&rgb[start..start + (tw * 3) as usize]);
+            }
+            let boxes = self.model.detect_boxes(
+                &self.tile_rgb,
+                tw,
+                th,
+                c.score_threshold,
+                c.nms_iou_threshold,
+                c.max_detections,
+            )?;
+            tiled.push((*rect, boxes));
+        }
+        Ok(merge_sliced(whole, &tiled, width, height, c.nms_iou_threshold, c.max_detections))
+    }
+}
+
+/// The tiles of sliced inference, `[x0, y0, x1, y1)` in pixels, row by row: `tiles = [columns,
+/// rows]` tiles of equal size covering the frame, neighbours overlapping by `overlap` of a
+/// tile's side (the side is `L / (n - (n - 1) overlap)`, rounded up).
+pub fn tile_rects(width: u32, height: u32, tiles: [u32; 2], overlap: f32) -> Vec<[u32; 4]> {
+    let spans = |length: u32, n: u32| -> Vec<(u32, u32)> {
+        let n = n.max(1);
+        let side = ((length as f32 / (n as f32 - (n - 1) as f32 * overlap)).ceil() as u32).clamp(1, length.max(1));
+        (0..n)
+            .map(|i| {
+                let start =
+                    if n == 1 { 0 } else { ((length - side) as f32 * i as f32 / (n - 1) as f32).round() as u32 };
+                (start, start + side)
+            })
+            .collect()
+    };
+    let columns = spans(width, tiles[0]);
+    let rows = spans(height, tiles[1]);
+    rows.iter().flat_map(|&(y0, y1)| columns.iter().map(move |&(x0, x1)| [x0, y0, x1, y1])).collect()
+}
+
+/// A tile box this close to a tile edge that lies inside the frame, as a fraction of the tile's
+/// side, is cut by the tile (the model rarely places a cut object's box exactly on the edge).
+pub const TILE_EDGE_FRACTION: f32 = 0.03;
+/// Across passes, a box is suppressed by a better one of its class covering this fraction of
+/// the smaller of the two.
+pub const SLICED_MIN_COVER: f32 = 0.6;
+
+/// Merges the whole frame's boxes with each tile's (tile pixels, shifted here into the frame).
+/// A tile box touching a tile edge that lies inside the frame is dropped: the tile cut the
+/// object, which the whole frame or a neighbouring tile sees whole (any object narrower than
+/// the overlap lies wholly inside some tile). The rest are suppressed together per class, by
+/// score: a box goes when a better one of its class overlaps it by IoU above
+/// `nms_iou_threshold` (as [`postprocess`] within one pass) or covers [`SLICED_MIN_COVER`] of
+/// the smaller box (a tile's view of a piece of an object the whole frame saw whole, e.g. a
+/// chair's arm reported as a chair).
+pub fn merge_sliced(
+    whole: Vec<YoloxBox>,
+    tiled: &[([u32; 4], Vec<YoloxBox>)],
+    width: u32,
+    height: u32,
+    nms_iou_threshold: f32,
+    max_detections: usize,
+) -> Vec<YoloxBox> {
+    let mut candidates = whole;
+    for ([x0, y0, x1, y1], boxes) in tiled {
+        let (x0, y0, x1, y1) = (*x0 as f32, *y0 as f32, *x1 as f32, *y1 as f32);
+        let (mx, my) = ((x1 - x0) * TILE_EDGE_FRACTION, (y1 - y0) * TILE_EDGE_FRACTION);
+        for b in boxes {
+            let bbox = [b.bbox[0] + x0, b.bbox[1] + y0, b.bbox[2] + x0, b.bbox[3] + y0];
+            let cut = (x0 > 0.0 && bbox[0] <= x0 + mx)
+                || (y0 > 0.0 && bbox[1] <= y0 + my)
+                || (x1 < width as f32 && bbox[2] >= x1 - mx)
+                || (y1 < height as f32 && bbox[3] >= y1 - my);
+            if !cut {
+                candidates.push(YoloxBox { bbox, ..*b });
+            }
+        }
+    }
+    candidates.sort_by(|a, b| b.score.total_cmp(&a.score).then(a.class.cmp(&b.class)));
+    let mut kept: Vec<YoloxBox> = Vec::new();
+    for c in candidates {
+        let covered = |k: &YoloxBox| {
+            k.class == c.class
+                && (iou(&k.bbox, &c.bbox) > nms_iou_threshold || cover(&k.bbox, &c.bbox) >= SLICED_MIN_COVER)
+        };
+        if kept.iter().any(covered) {
+            continue;
+        }
+        kept.push(c);
+        if kept.len() == max_detections {
+            break;
+        }
+    }
+    kept
+}
+
+/// Intersection of two `[x0, y0, x1, y1]` boxes over the smaller one's area.
+pub fn cover(a: &[f32; 4], b: &[f32; 4]) -> f32 {
+    let iw = (a[2].min(b[2]) - a[0].max(b[0])).max(0.0);
+    let ih = (a[3].min(b[3]) - a[1].max(b[1])).max(0.0);
+    let area = |x: &[f32; 4]| (x[2] - x[0]).max(0.0) * (x[3] - x[1]).max(0.0);
+    let smaller = area(a).min(area(b));
+    if smaller > 0.0 { iw * ih / smaller } else { 0.0 }
 }
 
 impl Detector for YoloxDetector {
@@ -421,15 +570,7 @@ impl Detector for YoloxDetector {
             return Err(DetectorError::Frame { seq: frame.seq, reason: "no RGB image of the frame's size".to_owned() });
         }
         let boxes = self
-            .model
-            .detect_boxes(
-                &frame.rgb,
-                intr.width,
-                intr.height,
-                self.config.score_threshold,
-                self.config.nms_iou_threshold,
-                self.config.max_detections,
-            )
+            .detect_sliced(&frame.rgb, intr.width, intr.height)
             .map_err(|e| DetectorError::Backend(e.to_string()))?;
         let has_depth = frame.depth.len() == intr.pixel_count();
         let depth_m = |i: usize| if has_depth { frame.depth_m(i) } else { 0.0 };
@@ -507,6 +648,51 @@ mod tests {
         assert_eq!(out[0].bbox, [32.0, 32.0, 48.0, 48.0]);
         assert_eq!(out[1].class, 1);
         assert!((out[1].score - 0.56).abs() < 1e-6);
+    }
+
+    #[test]
+    fn tiles_cover_the_frame_with_the_requested_overlap() {
+        assert_eq!(tile_rects(640, 480, [1, 1], 0.25), vec![[0, 0, 640, 480]]);
+        // Side = L / (2 - 0.25): 366 x 275; the second tile ends at the frame's edge.
+        let rects = tile_rects(640, 480, [2, 2], 0.25);
+        assert_eq!(rects, vec![[0, 0, 366, 275], [274, 0, 640, 275], [0, 205, 366, 480], [274, 205, 640, 480]]);
+        let overlap = 366 - 274;
+        assert!((overlap as f32 / 366.0 - 0.25).abs() < 0.01);
+        // Three columns, no overlap: plain thirds.
+        let rects = tile_rects(600, 100, [3, 1], 0.0);
+        assert_eq!(rects, vec![[0, 0, 200, 100], [200, 0, 400, 100], [400, 0, 600, 100]]);
+    }
+
+    #[test]
+    fn sliced_merge_shifts_tile_boxes_drops_cut_ones_and_suppresses_across_passes() {
+        let b = |bbox: [f32; 4], score: f32, class: usize| YoloxBox { bbox, score, class };
+        let whole = vec![b([100.0, 100.0, 200.0, 200.0], 0.5, 0)];
+        let tiles = vec![
+            (
+                [300u32, 0u32, 640u32, 240u32],
+                vec![
+                    // Small object inside the tile, at the frame's top edge: kept, shifted.
+                    b([250.0, 0.0, 300.0, 40.0], 0.6, 1),
+                    // Touches the tile's left edge, which lies inside the frame: cut, dropped.
+                    b([0.0, 50.0, 40.0, 90.0], 0.9, 2),
+                    // Touches the tile's bottom edge (240 < 480): dropped.
+                    b([100.0, 200.0, 150.0, 239.5], 0.9, 2),
+                    // Touches the frame's right edge (the tile's right edge is the frame's): kept.
+                    b([300.0, 100.0, 340.0, 150.0], 0.4, 3),
+                ],
+            ),
+            // The whole-frame object seen again, better, in another tile: one box survives.
+            ([0u32, 0u32, 340u32, 240u32], vec![b([101.0, 100.0, 199.0, 200.0], 0.7, 0)]),
+        ];
+        let merged = merge_sliced(whole, &tiles, 640, 480, 0.45, 100);
+        assert_eq!(
+            merged,
+            vec![
+                b([101.0, 100.0, 199.0, 200.0], 0.7, 0),
+                b([550.0, 0.0, 600.0, 40.0], 0.6, 1),
+                b([600.0, 100.0, 640.0, 150.0], 0.4, 3),
+            ]
+        );
     }
 
     #[test]
