@@ -8,7 +8,7 @@
 
 use std::path::PathBuf;
 
-use op3dsg_daemon::onnx::{OnnxConfig, OnnxRuntime};
+use op3dsg_daemon::onnx::{ExecutionProvider, OnnxConfig, OnnxRuntime};
 use op3dsg_daemon::perception::yolox::{YoloxConfig, YoloxModel, coco_classes, letterbox, postprocess};
 
 fn shared() -> PathBuf {
@@ -127,4 +127,24 @@ fn a_missing_model_says_which_key_and_what_to_run() {
     let err = YoloxModel::new(&runtime, &config).unwrap_err().to_string();
     assert!(err.contains("/no/such/yolox.onnx") && err.contains("detector.yolox.model_path"), "{err}");
     assert!(err.contains("YOLOX-nano") && !err.contains("setup-models.sh"), "says where the model comes from: {err}");
+}
+
+#[test]
+fn an_unavailable_execution_provider_falls_back_to_the_cpu() {
+    if !available() {
+        return;
+    }
+    // The PyPI `onnxruntime` library in .models/ has neither CUDA nor OpenVINO, and this build
+    // may lack the cargo features too: either way the session runs on the CPU, with a warning,
+    // and detects exactly as a CPU session does.
+    let runtime = OnnxRuntime::init(&OnnxConfig::default()).expect("ONNX Runtime");
+    let pixels = rgb(FRAME);
+    for provider in [ExecutionProvider::Cuda, ExecutionProvider::Openvino] {
+        let config =
+            YoloxConfig { model_path: model_path(), execution_provider: Some(provider), ..YoloxConfig::default() };
+        let mut model = YoloxModel::new(&runtime, &config).expect("loads on the CPU instead");
+        assert_eq!(model.provider(), ExecutionProvider::Cpu, "{provider:?}");
+        let boxes = model.detect_boxes(&pixels, 640, 480, 0.3, 0.45, 100).unwrap();
+        assert_eq!(boxes.len(), BOXES.len(), "{provider:?}: {boxes:?}");
+    }
 }

@@ -40,6 +40,7 @@ pub mod text_encoder;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
+use ort::session::Session;
 use serde::{Deserialize, Serialize};
 
 /// Environment variable that overrides `onnx.library_path`.
@@ -52,14 +53,32 @@ pub const SETUP_HINT: &str = "run ./scripts/setup-models.sh in the repository ro
 /// The source tree this crate was built from: the second place relative paths are looked up.
 const SOURCE_ROOT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
 
-/// Where a model runs. Only the CPU is supported so far; CUDA and OpenVINO come with their
-/// issue (they need an ONNX Runtime build with those providers).
+/// Where a model runs. `cuda` and `openvino` need the daemon built with the cargo feature of
+/// the same name *and* an ONNX Runtime library built with that provider (PyPI's
+/// `onnxruntime-gpu` / `onnxruntime-openvino`, pointed at by `onnx.library_path`); when either
+/// is missing, or the provider fails to start for a model, the session runs on the CPU and a
+/// warning says why ([`open_session`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ExecutionProvider {
     /// ONNX Runtime's default CPU provider (MLAS kernels).
     #[default]
     Cpu,
+    /// NVIDIA CUDA (cargo feature `cuda`).
+    Cuda,
+    /// Intel OpenVINO (cargo feature `openvino`).
+    Openvino,
+}
+
+impl ExecutionProvider {
+    /// The profile spelling.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Cpu => "cpu",
+            Self::Cuda => "cuda",
+            Self::Openvino => "openvino",
+        }
+    }
 }
 
 /// `[onnx]`: the ONNX Runtime library shared by every model of the process.
@@ -69,7 +88,8 @@ pub struct OnnxConfig {
     /// `libonnxruntime.so` (1.31 or newer). Relative: to the working directory, else to the
     /// source tree. The environment variable `OP3DSG_ORT_LIB` overrides it.
     pub library_path: PathBuf,
-    /// Execution provider of every session: `cpu` (the only one so far).
+    /// Execution provider of every session unless a model's section overrides it: `cpu`,
+    /// `cuda` or `openvino` (see [`ExecutionProvider`]).
     pub execution_provider: ExecutionProvider,
 }
 
@@ -268,6 +288,114 @@ impl OnnxRuntime {
     pub fn execution_provider(&self) -> ExecutionProvider {
         self.inner.execution_provider
     }
+}
+
+/// What [`open_session`] loads.
+#[derive(Debug, Clone, Copy)]
+pub struct SessionSpec<'a> {
+    /// What the model is, for messages ("YOLOX model", "text encoder").
+    pub what: &'a str,
+    /// The model file, already resolved.
+    pub model_path: &'a Path,
+    /// Requested execution provider.
+    pub provider: ExecutionProvider,
+    /// Intra-op threads.
+    pub intra_threads: usize,
+}
+
+/// Creates a session for `spec.model_path` on `runtime` with full graph optimisation,
+/// `intra_threads` threads that do not spin when idle (they would take CPU from the pipeline)
+/// and one inter-op thread. Returns the session and the provider it really runs on: a GPU or
+/// OpenVINO provider that this build, this library or this model cannot use gives a warning
+/// naming the reason and a CPU session.
+pub fn open_session(runtime: &OnnxRuntime, spec: SessionSpec<'_>) -> Result<(Session, ExecutionProvider), OnnxError> {
+    if spec.provider != ExecutionProvider::Cpu {
+        match accelerated_session(runtime, spec) {
+            Ok(session) => {
+                tracing::info!(model = %spec.model_path.display(), provider = spec.provider.as_str(), "{} on {}", spec.what, spec.provider.as_str());
+                return Ok((session, spec.provider));
+            }
+            Err(reason) => tracing::warn!(
+                model = %spec.model_path.display(),
+                requested = spec.provider.as_str(),
+                "{} runs on the CPU: {reason}",
+                spec.what
+            ),
+        }
+    }
+    let session = base_builder(runtime, spec)?
+        .commit_from_file(spec.model_path)
+        .map_err(|e| session_error(spec, "reading the model", e.to_string()))?;
+    Ok((session, ExecutionProvider::Cpu))
+}
+
+fn session_error(spec: SessionSpec<'_>, step: &str, message: String) -> OnnxError {
+    OnnxError::Ort { context: format!("loading the {} {} ({step})", spec.what, spec.model_path.display()), message }
+}
+
+fn base_builder(
+    runtime: &OnnxRuntime,
+    spec: SessionSpec<'_>,
+) -> Result<ort::session::builder::SessionBuilder, OnnxError> {
+    use ort::session::builder::GraphOptimizationLevel;
+    let error = |step: &str, e: ort::Error| session_error(spec, step, e.to_string());
+    Session::builder(runtime.environment())
+        .map_err(|e| error("session options", e))?
+        .with_optimization_level(GraphOptimizationLevel::All)
+        .map_err(|e| error("optimisation level", e.into()))?
+        .with_intra_threads(spec.intra_threads)
+        .map_err(|e| error("intra-op threads", e.into()))?
+        .with_inter_threads(1)
+        .map_err(|e| error("inter-op threads", e.into()))?
+        .with_intra_op_spinning(false)
+        .map_err(|e| error("intra-op spinning", e.into()))
+}
+
+/// A session on `spec.provider`, or why not (a sentence for the warning).
+fn accelerated_session(runtime: &OnnxRuntime, spec: SessionSpec<'_>) -> Result<Session, String> {
+    let dispatch = provider_dispatch(spec.provider)?;
+    let builder = base_builder(runtime, spec).map_err(|e| e.to_string())?;
+    builder
+        .with_execution_providers([dispatch.error_on_failure()])
+        .map_err(|e| format!("the provider did not start: {e}"))?
+        .commit_from_file(spec.model_path)
+        .map_err(|e| format!("the provider could not take the model: {e}"))
+}
+
+/// The `ort` provider for `provider`, if this build has it and the loaded library offers it.
+fn provider_dispatch(provider: ExecutionProvider) -> Result<ort::ep::ExecutionProviderDispatch, String> {
+    #[allow(unused_imports)]
+    use ort::ep::ExecutionProvider as _;
+    let (feature, package) = match provider {
+        ExecutionProvider::Cpu => return Ok(ort::ep::CPU::default().build()),
+        ExecutionProvider::Cuda => ("cuda", "onnxruntime-gpu"),
+        ExecutionProvider::Openvino => ("openvino", "onnxruntime-openvino"),
+    };
+    let offered = |available: ort::Result<bool>| match available {
+        Ok(true) => Ok(()),
+        Ok(false) => Err(format!(
+            "the ONNX Runtime library has no {} provider (point onnx.library_path at a library built with it, e.g. from PyPI's {package})",
+            provider.as_str()
+        )),
+        Err(e) => Err(format!("cannot list the library's providers: {e}")),
+    };
+    match provider {
+        #[cfg(feature = "cuda")]
+        ExecutionProvider::Cuda => {
+            offered(ort::ep::CUDA::is_available())?;
+            return Ok(ort::ep::CUDA::default().build());
+        }
+        #[cfg(feature = "openvino")]
+        ExecutionProvider::Openvino => {
+            offered(ort::ep::OpenVINO::is_available())?;
+            return Ok(ort::ep::OpenVINO::default().build());
+        }
+        _ => {}
+    }
+    let _ = offered;
+    Err(format!(
+        "this op3dsgd was built without the `{feature}` cargo feature (cargo build --release --features {feature})"
+    ))
 }
 
 /// ONNX Runtime's own log lines, into `tracing` (target `onnxruntime`). Its info is chatty

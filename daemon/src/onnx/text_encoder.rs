@@ -36,12 +36,11 @@ use std::path::{Path, PathBuf};
 
 use ndarray::{Axis, Ix3};
 use ort::session::Session;
-use ort::session::builder::GraphOptimizationLevel;
 use ort::value::TensorRef;
 use serde::{Deserialize, Serialize};
 use tokenizers::Tokenizer;
 
-use super::{ExecutionProvider, OnnxError, OnnxRuntime, resolve_path};
+use super::{OnnxError, OnnxRuntime, SessionSpec, open_session, resolve_path};
 
 /// Length of an embedding.
 pub const EMBEDDING_DIM: usize = 384;
@@ -189,7 +188,15 @@ impl TextEncoder {
             }))
             .map_err(|e| OnnxError::BadModel { path: tokenizer_path.clone(), message: format!("truncation: {e}") })?;
 
-        let session = build_session(runtime, &model_path, config.intra_op_threads)?;
+        let (session, _) = open_session(
+            runtime,
+            SessionSpec {
+                what: "text encoder",
+                model_path: &model_path,
+                provider: runtime.execution_provider(),
+                intra_threads: config.intra_op_threads,
+            },
+        )?;
         check_contract(&session, &model_path)?;
         tracing::info!(
             model = %model_path.display(),
@@ -452,30 +459,6 @@ impl TextEncoder {
 /// Cosine similarity of two embeddings (both unit length, so the dot product).
 pub fn cosine(a: &Embedding, b: &Embedding) -> f32 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
-}
-
-fn build_session(runtime: &OnnxRuntime, model_path: &Path, threads: usize) -> Result<Session, OnnxError> {
-    let ort_error = |step: &str, message: String| OnnxError::Ort {
-        context: format!("loading the text encoder {} ({step})", model_path.display()),
-        message,
-    };
-    match runtime.execution_provider() {
-        // The CPU provider is always registered; nothing to add.
-        ExecutionProvider::Cpu => {}
-    }
-    Session::builder(runtime.environment())
-        .map_err(|e| ort_error("session options", e.to_string()))?
-        .with_optimization_level(GraphOptimizationLevel::All)
-        .map_err(|e| ort_error("optimisation level", e.to_string()))?
-        .with_intra_threads(threads)
-        .map_err(|e| ort_error("intra-op threads", e.to_string()))?
-        .with_inter_threads(1)
-        .map_err(|e| ort_error("inter-op threads", e.to_string()))?
-        // Idle pool threads would otherwise spin and take CPU from the pipeline.
-        .with_intra_op_spinning(false)
-        .map_err(|e| ort_error("intra-op spinning", e.to_string()))?
-        .commit_from_file(model_path)
-        .map_err(|e| ort_error("reading the model", e.to_string()))
 }
 
 /// The model must have the three BERT inputs and a [.., .., 384] `last_hidden_state`.

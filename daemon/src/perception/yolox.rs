@@ -43,13 +43,12 @@ use std::path::{Path, PathBuf};
 use op3dsg_drivers::frame::Frame;
 use op3dsg_ipc_types::NodeKind;
 use ort::session::Session;
-use ort::session::builder::GraphOptimizationLevel;
 use ort::value::TensorRef;
 use serde::{Deserialize, Serialize};
 
 use super::depth_mask::{DepthMaskConfig, DepthSegmenter, PixelBox};
 use super::{Detection, Detector, DetectorError};
-use crate::onnx::{ExecutionProvider, OnnxError, OnnxRuntime, resolve_path};
+use crate::onnx::{ExecutionProvider, OnnxError, OnnxRuntime, SessionSpec, open_session, resolve_path};
 
 /// The COCO class names in the model's output order (copied from the model's folder).
 pub const COCO_CLASSES_TXT: &str = include_str!("../../data/models/yolox_nano/coco_classes.txt");
@@ -87,8 +86,10 @@ pub struct YoloxConfig {
     pub max_detections: usize,
     /// ONNX Runtime intra-op threads of each worker's session.
     pub intra_op_threads: usize,
-    /// Execution provider: `cpu`.
-    pub execution_provider: ExecutionProvider,
+    /// Execution provider of the detector's sessions (`cpu`, `cuda`, `openvino`); unset: the
+    /// one of `[onnx]`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub execution_provider: Option<ExecutionProvider>,
     /// COCO class name → our label. Classes not listed are dropped.
     pub class_map: BTreeMap<String, String>,
     /// Sliced inference: `[columns, rows]` of overlapping tiles, each run through the model at
@@ -110,7 +111,7 @@ impl Default for YoloxConfig {
             nms_iou_threshold: 0.45,
             max_detections: 100,
             intra_op_threads: 1,
-            execution_provider: ExecutionProvider::Cpu,
+            execution_provider: None,
             class_map: BTreeMap::new(),
             tiles: [1, 1],
             tile_overlap: 0.2,
@@ -297,6 +298,7 @@ pub fn iou(a: &[f32; 4], b: &[f32; 4]) -> f32 {
 pub struct YoloxModel {
     session: Session,
     model_path: PathBuf,
+    provider: ExecutionProvider,
     input_size: u32,
     num_classes: usize,
     input: Vec<f32>,
@@ -322,25 +324,16 @@ impl YoloxModel {
                 other => other,
             },
         )?;
-        let ort_error = |step: &str, message: String| OnnxError::Ort {
-            context: format!("loading the YOLOX model {} ({step})", model_path.display()),
-            message,
-        };
-        match config.execution_provider {
-            ExecutionProvider::Cpu => {}
-        }
-        let session = Session::builder(runtime.environment())
-            .map_err(|e| ort_error("session options", e.to_string()))?
-            .with_optimization_level(GraphOptimizationLevel::All)
-            .map_err(|e| ort_error("optimisation level", e.to_string()))?
-            .with_intra_threads(config.intra_op_threads)
-            .map_err(|e| ort_error("intra-op threads", e.to_string()))?
-            .with_inter_threads(1)
-            .map_err(|e| ort_error("inter-op threads", e.to_string()))?
-            .with_intra_op_spinning(false)
-            .map_err(|e| ort_error("intra-op spinning", e.to_string()))?
-            .commit_from_file(&model_path)
-            .map_err(|e| ort_error("reading the model", e.to_string()))?;
+        let provider = config.execution_provider.unwrap_or(runtime.execution_provider());
+        let (session, provider) = open_session(
+            runtime,
+            SessionSpec {
+                what: "YOLOX model",
+                model_path: &model_path,
+                provider,
+                intra_threads: config.intra_op_threads,
+            },
+        )?;
         let has_input = session.inputs().iter().any(|i| i.name() == INPUT_NAME);
         let has_output = session.outputs().iter().any(|o| o.name() == OUTPUT_NAME);
         if !has_input || !has_output {
@@ -350,13 +343,26 @@ impl YoloxModel {
             });
         }
         let num_classes = coco_classes().len();
-        tracing::info!(model = %model_path.display(), input_size = config.input_size, "YOLOX model loaded");
-        Ok(Self { session, model_path, input_size: config.input_size, num_classes, input: Vec::new(), raw: Vec::new() })
+        tracing::info!(model = %model_path.display(), input_size = config.input_size, provider = provider.as_str(), "YOLOX model loaded");
+        Ok(Self {
+            session,
+            model_path,
+            provider,
+            input_size: config.input_size,
+            num_classes,
+            input: Vec::new(),
+            raw: Vec::new(),
+        })
     }
 
     /// The model file in use.
     pub fn model_path(&self) -> &Path {
         &self.model_path
+    }
+
+    /// The execution provider the session really runs on (the CPU after a fallback).
+    pub fn provider(&self) -> ExecutionProvider {
+        self.provider
     }
 
     /// Letterboxes `rgb` and runs the model; returns the letterbox scale. The raw output rows
