@@ -4,6 +4,7 @@ use op3dsg_drivers::frame::Frame;
 use op3dsg_ipc_types::NodeKind;
 
 pub mod depth_mask;
+pub mod image_input;
 pub mod oracle;
 pub mod yolox;
 

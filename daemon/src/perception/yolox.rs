@@ -47,6 +47,7 @@ use ort::value::TensorRef;
 use serde::{Deserialize, Serialize};
 
 use super::depth_mask::{DepthMaskConfig, DepthSegmenter, PixelBox};
+use super::image_input::{ColourOrder, ImageInput, Resize, prepare};
 use super::{Detection, Detector, DetectorError};
 use crate::onnx::{ExecutionProvider, OnnxError, OnnxRuntime, SessionSpec, open_session, resolve_path};
 
@@ -175,49 +176,25 @@ pub struct YoloxBox {
 }
 
 /// Letterboxes an RGB8 image (`width x height`) into `out` as the model's BGR float32 NCHW
-/// `[1, 3, size, size]` input. Returns the scale `r` (network pixels per image pixel).
+/// `[1, 3, size, size]` input (0..255, padded with 114). Returns the scale `r` (network pixels
+/// per image pixel).
 pub fn letterbox(rgb: &[u8], width: u32, height: u32, size: u32, out: &mut Vec<f32>) -> f32 {
-    let s = size as usize;
-    out.clear();
-    out.resize(3 * s * s, PAD_VALUE);
-    let r = (size as f32 / height as f32).min(size as f32 / width as f32);
-    let new_w = ((width as f32 * r) as usize).clamp(1, s);
-    let new_h = ((height as f32 * r) as usize).clamp(1, s);
-    let (w, h) = (width as usize, height as usize);
-    let sx_scale = width as f32 / new_w as f32;
-    let sy_scale = height as f32 / new_h as f32;
-    // Horizontal sample positions and weights, computed once per column.
-    let cols: Vec<(usize, usize, f32)> = (0..new_w)
-        .map(|dx| {
-            let sx = ((dx as f32 + 0.5) * sx_scale - 0.5).max(0.0);
-            let x0 = (sx.floor() as usize).min(w - 1);
-            let fx = sx - x0 as f32;
-            (x0, (x0 + 1).min(w - 1), fx)
-        })
-        .collect();
-    let plane = s * s;
-    for dy in 0..new_h {
-        let sy = ((dy as f32 + 0.5) * sy_scale - 0.5).max(0.0);
-        let y0 = (sy.floor() as usize).min(h - 1);
-        let fy = sy - y0 as f32;
-        let y1 = (y0 + 1).min(h - 1);
-        let row0 = &rgb[y0 * w * 3..(y0 + 1) * w * 3];
-        let row1 = &rgb[y1 * w * 3..(y1 + 1) * w * 3];
-        for (dx, &(x0, x1, fx)) in cols.iter().enumerate() {
-            for c in 0..3 {
-                let p00 = f32::from(row0[x0 * 3 + c]);
-                let p01 = f32::from(row0[x1 * 3 + c]);
-                let p10 = f32::from(row1[x0 * 3 + c]);
-                let p11 = f32::from(row1[x1 * 3 + c]);
-                let top = p00 + (p01 - p00) * fx;
-                let bottom = p10 + (p11 - p10) * fx;
-                let v = (top + (bottom - top) * fy).round();
-                // RGB → BGR: channel c goes to plane 2 - c.
-                out[(2 - c) * plane + dy * s + dx] = v;
-            }
-        }
+    prepare(rgb, width, height, &input_spec(size), out).sx
+}
+
+/// YOLOX's input contract as an [`ImageInput`].
+pub fn input_spec(size: u32) -> ImageInput {
+    ImageInput {
+        name: INPUT_NAME.to_owned(),
+        width: size,
+        height: size,
+        colour_order: ColourOrder::Bgr,
+        resize: Resize::Letterbox,
+        scale: 1.0,
+        mean: [0.0; 3],
+        std: [1.0; 3],
+        pad_value: PAD_VALUE,
     }
-    r
 }
 
 /// Decodes the raw output rows (`[A, 5 + C]`, row-major) of a `size` input, thresholds,
