@@ -28,6 +28,7 @@ use crate::fusion::FusionConfig;
 use crate::ipc::IpcConfig;
 use crate::onnx::OnnxConfig;
 use crate::onnx::text_encoder::TextEncoderConfig;
+use crate::perception::open_vocab::OpenVocabConfig;
 use crate::perception::oracle::OracleConfig;
 use crate::perception::yolox::YoloxConfig;
 use crate::queue::QueueConfig;
@@ -38,7 +39,8 @@ pub const BASE_PROFILE: &str = include_str!("../../profiles/base.toml");
 pub const BASE_PROFILE_NAME: &str = "<built-in profiles/base.toml>";
 /// Keys (besides `extends`) whose value is a file path, resolved against the folder of the file
 /// that sets them.
-pub const PATH_KEYS: &[&str] = &["source.replay.path", "detector.yolox.model_path", "reasoner.knowledge_dir"];
+pub const PATH_KEYS: &[&str] =
+    &["source.replay.path", "detector.yolox.model_path", "detector.open_vocab.model_path", "reasoner.knowledge_dir"];
 
 /// The whole daemon configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -206,6 +208,9 @@ pub enum DetectorKind {
     /// (`[detector.yolox]`); `"onnx"` is accepted as a synonym.
     #[serde(alias = "onnx")]
     Yolox,
+    /// An open-vocabulary detector through ONNX Runtime that takes its prompts as text
+    /// embeddings (`[detector.open_vocab]`; contract in `perception/open_vocab.rs`).
+    OpenVocab,
 }
 
 /// `[detector]`.
@@ -222,6 +227,10 @@ pub struct DetectorConfig {
     /// `kind = "yolox"`).
     #[serde(default)]
     pub yolox: YoloxConfig,
+    /// `[detector.open_vocab]`: model contract, prompts, thresholds (used with
+    /// `kind = "open_vocab"`).
+    #[serde(default)]
+    pub open_vocab: OpenVocabConfig,
 }
 
 /// `[queues]`.
@@ -579,6 +588,9 @@ impl Profile {
             check(!self.detector.yolox.class_map.is_empty(), "detector.yolox.class_map", || {
                 "must map at least one class of the model to a label (unmapped classes are dropped)".to_owned()
             })?;
+        }
+        if self.detector.kind == DetectorKind::OpenVocab {
+            self.detector.open_vocab.validate("detector.open_vocab").map_err(split_message)?;
         }
         self.fusion.validate("fusion").map_err(split_message)?;
         self.queues.frames.validate("queues.frames").map_err(split_message)?;

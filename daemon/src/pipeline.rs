@@ -44,6 +44,8 @@ use crate::fusion::Fusion;
 use crate::graph::SceneGraph;
 use crate::ipc::GraphServer;
 use crate::keyframe::{GateDecision, KeyframeGate};
+use crate::knowledge::KnowledgeBase;
+use crate::perception::open_vocab::OpenVocabDetector;
 use crate::perception::oracle::OracleDetector;
 use crate::perception::yolox::YoloxDetector;
 use crate::perception::{Detection, Detector, DetectorError};
@@ -257,7 +259,7 @@ pub(crate) fn build_source(profile: &Profile) -> Result<BuiltSource, StartError>
                 DetectorKind::Oracle => Arc::new(move |worker| {
                     Box::new(OracleDetector::new(oracle.clone(), instances.clone(), worker)) as Box<dyn Detector>
                 }),
-                DetectorKind::Yolox => yolox_factory(profile)?,
+                DetectorKind::Yolox | DetectorKind::OpenVocab => model_factory(profile)?,
             };
             Ok(BuiltSource { source: Box::new(source), detector_factory, scene: Some(scene) })
         }
@@ -280,23 +282,39 @@ pub(crate) fn build_source(profile: &Profile) -> Result<BuiltSource, StartError>
                         Box::new(OracleDetector::new(oracle.clone(), Vec::new(), worker)) as Box<dyn Detector>
                     })
                 }
-                DetectorKind::Yolox => yolox_factory(profile)?,
+                DetectorKind::Yolox | DetectorKind::OpenVocab => model_factory(profile)?,
             };
             Ok(BuiltSource { source: Box::new(source), detector_factory: factory, scene: None })
         }
     }
 }
 
-/// Loads the ONNX Runtime and one YOLOX session per detection worker now, so a missing runtime
-/// or model stops start-up with the error that says what to run. The factory hands worker `i`
-/// its preloaded session; a worker index beyond `detector.workers` (none in the pipeline) loads
-/// a fresh one.
-fn yolox_factory(profile: &Profile) -> Result<DetectorFactory, StartError> {
+/// Loads the ONNX Runtime and one model session per detection worker now (YOLOX or the
+/// open-vocabulary detector), so a missing runtime or model stops start-up with the error that
+/// says what to run. The factory hands worker `i` its preloaded session; a worker index beyond
+/// `detector.workers` (none in the pipeline) loads a fresh one.
+fn model_factory(profile: &Profile) -> Result<DetectorFactory, StartError> {
+    type Load = dyn Fn() -> Result<Box<dyn Detector>, crate::onnx::OnnxError> + Send + Sync;
     let runtime = crate::onnx::OnnxRuntime::init(&profile.onnx)?;
-    let config = profile.detector.yolox.clone();
+    let load: Arc<Load> = match profile.detector.kind {
+        DetectorKind::OpenVocab => {
+            let config = profile.detector.open_vocab.clone();
+            let text_encoder = profile.text_encoder.clone();
+            let knowledge = KnowledgeBase::from_profile_dir(profile.reasoner.knowledge_dir.as_deref())
+                .map_err(|e| StartError::Incompatible { field: "reasoner.knowledge_dir", reason: e.to_string() })?;
+            Arc::new(move || {
+                OpenVocabDetector::new(&runtime, &config, &knowledge, &text_encoder)
+                    .map(|d| Box::new(d) as Box<dyn Detector>)
+            })
+        }
+        DetectorKind::Yolox | DetectorKind::Oracle => {
+            let config = profile.detector.yolox.clone();
+            Arc::new(move || YoloxDetector::new(&runtime, &config).map(|d| Box::new(d) as Box<dyn Detector>))
+        }
+    };
     let mut preloaded = Vec::with_capacity(profile.detector.workers);
     for _ in 0..profile.detector.workers.max(1) {
-        preloaded.push(Some(YoloxDetector::new(&runtime, &config)?));
+        preloaded.push(Some(load()?));
     }
     let preloaded = Arc::new(Mutex::new(preloaded));
     Ok(Arc::new(move |worker| {
@@ -305,8 +323,8 @@ fn yolox_factory(profile: &Profile) -> Result<DetectorFactory, StartError> {
             .unwrap_or_else(std::sync::PoisonError::into_inner)
             .get_mut(worker as usize)
             .and_then(Option::take);
-        match taken.map_or_else(|| YoloxDetector::new(&runtime, &config), Ok) {
-            Ok(detector) => Box::new(detector) as Box<dyn Detector>,
+        match taken.map_or_else(|| load(), Ok) {
+            Ok(detector) => detector,
             Err(e) => Box::new(FailedDetector(e.to_string())),
         }
     }))

@@ -319,6 +319,14 @@ impl Checker<'_> {
 }
 
 impl KnowledgeBase {
+    /// The tables of `[reasoner] knowledge_dir` when set, else the built-in ones.
+    pub fn from_profile_dir(dir: Option<&str>) -> Result<Self, KnowledgeError> {
+        match dir {
+            Some(dir) => Self::load_dir(Path::new(dir)),
+            None => Self::builtin(),
+        }
+    }
+
     /// The knowledge base compiled into the binary.
     pub fn builtin() -> Result<Self, KnowledgeError> {
         Self::from_sources(KnowledgeSources {

@@ -5,6 +5,7 @@ use op3dsg_ipc_types::NodeKind;
 
 pub mod depth_mask;
 pub mod image_input;
+pub mod open_vocab;
 pub mod oracle;
 pub mod yolox;
 
