@@ -50,7 +50,7 @@ fn frame() -> Frame {
 
 fn detect(config: &OpenVocabConfig) -> (Vec<Detection>, OpenVocabDetector) {
     let runtime = OnnxRuntime::init(&OnnxConfig::default()).expect("ONNX Runtime (run ./scripts/setup-models.sh)");
-    let knowledge = KnowledgeBase::builtin().unwrap();
+    let knowledge = KnowledgeBase::builtin().expect("built-in knowledge base");
     let mut detector = OpenVocabDetector::new(&runtime, config, &knowledge, &encoder_config()).expect("loads");
     let mut out = Vec::new();
     detector.detect(&frame(), &mut out).expect("detects");
