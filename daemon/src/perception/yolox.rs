@@ -30,12 +30,13 @@
 //! box without enough depth gives no detection. Semantic features: none (fusion compares
 //! labels).
 //!
-//! Cost (`cargo bench -p op3dsg-daemon --bench detector`, development machine: 2 shared cores
-//! under load 4-7 from other builds, one intra-op thread): inference 12.9-13.7 ms per frame
-//! median (letterbox 1.6 ms of it; `session.run` about 12.2 ms vs 11.8-12.6 ms for
-//! onnxruntime's Python API on the same input in the same session, i.e. 0.96-0.98 of its
-//! speed); whole detector (masks from depth included) 14.5-15.4 ms; 60-67 frames/s with one
-//! worker, 66-69 with two (no scaling to speak of on 2 busy cores).
+//! Cost (`OP3DSG_REFERENCE_PYTHON="env PYTHONPATH=/tmp/ortpy python3" cargo bench -p
+//! op3dsg-daemon --bench detector`, development machine: 2 cores shared with other builds, one
+//! intra-op thread): inference 14.2 ms per frame median (letterbox 1.7 ms of it); `session.run`
+//! 12.25 ms vs 12.40 ms for onnxruntime's Python API on the same pixels in the same run, i.e.
+//! 1.01 x its speed; whole detector (masks from depth included) 15.6 ms. Throughput 68.7
+//! frames/s with one worker, 138.5 with two (one session each); with 2x2 tiles (five
+//! inferences a frame) 14.5 and 15.8 frames/s (the second core was busy with other builds).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
