@@ -69,6 +69,44 @@ pub struct Detection {
     pub ground_truth_instance: Option<u16>,
 }
 
+/// Greedy non-maximum suppression over `candidates` already sorted best first: each is kept
+/// unless `overlaps(kept, candidate)` holds for one kept before it; at most `max_kept`.
+pub fn greedy_suppress<T>(candidates: Vec<T>, max_kept: usize, overlaps: impl Fn(&T, &T) -> bool) -> Vec<T> {
+    let mut kept: Vec<T> = Vec::new();
+    for c in candidates {
+        if kept.len() == max_kept {
+            break;
+        }
+        if !kept.iter().any(|k| overlaps(k, &c)) {
+            kept.push(c);
+        }
+    }
+    kept
+}
+
+/// The range checks every model detector shares; errors are `path.field: message`.
+pub fn validate_detection_limits(
+    path: &str,
+    score_threshold: f32,
+    nms_iou_threshold: f32,
+    max_detections: usize,
+    intra_op_threads: usize,
+) -> Result<(), String> {
+    if !(score_threshold > 0.0 && score_threshold < 1.0) {
+        return Err(format!("{path}.score_threshold: must be within (0, 1), got {score_threshold}"));
+    }
+    if !(nms_iou_threshold > 0.0 && nms_iou_threshold <= 1.0) {
+        return Err(format!("{path}.nms_iou_threshold: must be within (0, 1], got {nms_iou_threshold}"));
+    }
+    if max_detections == 0 {
+        return Err(format!("{path}.max_detections: must be at least 1"));
+    }
+    if !(1..=64).contains(&intra_op_threads) {
+        return Err(format!("{path}.intra_op_threads: must be within [1, 64], got {intra_op_threads}"));
+    }
+    Ok(())
+}
+
 /// Dot product of two semantic features (the cosine when both are L2-normalised).
 #[inline]
 pub fn dot(a: &[f32], b: &[f32]) -> f32 {

@@ -48,7 +48,7 @@ use serde::{Deserialize, Serialize};
 use super::depth_mask::{DepthMaskConfig, DepthSegmenter, PixelBox};
 use super::image_input::{ImageInput, Placement, prepare};
 use super::yolox::iou;
-use super::{Detection, Detector, DetectorError, Mask, normalise};
+use super::{Detection, Detector, DetectorError, Mask, greedy_suppress, normalise, validate_detection_limits};
 use crate::knowledge::KnowledgeBase;
 use crate::onnx::text_encoder::{EMBEDDING_DIM, TextEncoder, TextEncoderConfig};
 use crate::onnx::{ExecutionProvider, OnnxError, OnnxRuntime, SessionSpec, open_session, resolve_path};
@@ -194,19 +194,15 @@ impl OpenVocabConfig {
             return Err(format!("{path}.model_path: must not be empty"));
         }
         self.input.validate(&format!("{path}.input"))?;
-        for (field, v) in [("score_threshold", self.score_threshold), ("mask_threshold", self.mask_threshold)] {
-            if !(v > 0.0 && v < 1.0) {
-                return Err(format!("{path}.{field}: must be within (0, 1), got {v}"));
-            }
-        }
-        if !(self.nms_iou_threshold > 0.0 && self.nms_iou_threshold <= 1.0) {
-            return Err(format!("{path}.nms_iou_threshold: must be within (0, 1], got {}", self.nms_iou_threshold));
-        }
-        if self.max_detections == 0 {
-            return Err(format!("{path}.max_detections: must be at least 1"));
-        }
-        if !(1..=64).contains(&self.intra_op_threads) {
-            return Err(format!("{path}.intra_op_threads: must be within [1, 64], got {}", self.intra_op_threads));
+        validate_detection_limits(
+            path,
+            self.score_threshold,
+            self.nms_iou_threshold,
+            self.max_detections,
+            self.intra_op_threads,
+        )?;
+        if !(self.mask_threshold > 0.0 && self.mask_threshold < 1.0) {
+            return Err(format!("{path}.mask_threshold: must be within (0, 1), got {}", self.mask_threshold));
         }
         if self.prompts.objects.is_empty() && self.prompts.parts.is_empty() {
             return Err(format!("{path}.prompts: list at least one object tag or part prompt"));
@@ -497,16 +493,10 @@ impl Detector for OpenVocabDetector {
             }
         }
         regions.sort_by(|a, b| b.score.total_cmp(&a.score).then(a.row.cmp(&b.row)));
-        let mut kept: Vec<Region> = Vec::new();
-        for r in regions {
-            if kept.iter().any(|k| k.prompt == r.prompt && iou(&k.bbox, &r.bbox) > self.config.nms_iou_threshold) {
-                continue;
-            }
-            kept.push(r);
-            if kept.len() == self.config.max_detections {
-                break;
-            }
-        }
+        let nms = self.config.nms_iou_threshold;
+        let kept = greedy_suppress(regions, self.config.max_detections, |k, r| {
+            k.prompt == r.prompt && iou(&k.bbox, &r.bbox) > nms
+        });
 
         let masks = match &names.masks {
             Some(name) => {

@@ -49,7 +49,7 @@ use serde::{Deserialize, Serialize};
 
 use super::depth_mask::{DepthMaskConfig, DepthSegmenter, PixelBox};
 use super::image_input::{ColourOrder, ImageInput, Resize, prepare};
-use super::{Detection, Detector, DetectorError};
+use super::{Detection, Detector, DetectorError, greedy_suppress, validate_detection_limits};
 use crate::onnx::{ExecutionProvider, OnnxError, OnnxRuntime, SessionSpec, open_session, resolve_path};
 
 /// The COCO class names in the model's output order (copied from the model's folder).
@@ -134,18 +134,13 @@ impl YoloxConfig {
                 self.input_size
             ));
         }
-        if !(self.score_threshold > 0.0 && self.score_threshold < 1.0) {
-            return Err(format!("{path}.score_threshold: must be within (0, 1), got {}", self.score_threshold));
-        }
-        if !(self.nms_iou_threshold > 0.0 && self.nms_iou_threshold <= 1.0) {
-            return Err(format!("{path}.nms_iou_threshold: must be within (0, 1], got {}", self.nms_iou_threshold));
-        }
-        if self.max_detections == 0 {
-            return Err(format!("{path}.max_detections: must be at least 1"));
-        }
-        if !(1..=64).contains(&self.intra_op_threads) {
-            return Err(format!("{path}.intra_op_threads: must be within [1, 64], got {}", self.intra_op_threads));
-        }
+        validate_detection_limits(
+            path,
+            self.score_threshold,
+            self.nms_iou_threshold,
+            self.max_detections,
+            self.intra_op_threads,
+        )?;
         if !self.tiles.iter().all(|t| (1..=8).contains(t)) {
             return Err(format!("{path}.tiles: columns and rows must be within [1, 8], got {:?}", self.tiles));
         }
@@ -248,17 +243,7 @@ pub fn postprocess(
 /// `nms_iou_threshold`; at most `max_detections` kept.
 fn suppress(mut candidates: Vec<YoloxBox>, nms_iou_threshold: f32, max_detections: usize) -> Vec<YoloxBox> {
     candidates.sort_by(|a, b| b.score.total_cmp(&a.score).then(a.class.cmp(&b.class)));
-    let mut kept: Vec<YoloxBox> = Vec::new();
-    for c in candidates {
-        if kept.iter().any(|k| k.class == c.class && iou(&k.bbox, &c.bbox) > nms_iou_threshold) {
-            continue;
-        }
-        kept.push(c);
-        if kept.len() == max_detections {
-            break;
-        }
-    }
-    kept
+    greedy_suppress(candidates, max_detections, |k, c| k.class == c.class && iou(&k.bbox, &c.bbox) > nms_iou_threshold)
 }
 
 /// Intersection over union of two `[x0, y0, x1, y1]` boxes.
@@ -520,21 +505,9 @@ pub fn merge_sliced(
         }
     }
     candidates.sort_by(|a, b| b.score.total_cmp(&a.score).then(a.class.cmp(&b.class)));
-    let mut kept: Vec<YoloxBox> = Vec::new();
-    for c in candidates {
-        let covered = |k: &YoloxBox| {
-            k.class == c.class
-                && (iou(&k.bbox, &c.bbox) > nms_iou_threshold || cover(&k.bbox, &c.bbox) >= SLICED_MIN_COVER)
-        };
-        if kept.iter().any(covered) {
-            continue;
-        }
-        kept.push(c);
-        if kept.len() == max_detections {
-            break;
-        }
-    }
-    kept
+    greedy_suppress(candidates, max_detections, |k, c| {
+        k.class == c.class && (iou(&k.bbox, &c.bbox) > nms_iou_threshold || cover(&k.bbox, &c.bbox) >= SLICED_MIN_COVER)
+    })
 }
 
 /// Intersection of two `[x0, y0, x1, y1]` boxes over the smaller one's area.
