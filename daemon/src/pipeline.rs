@@ -8,6 +8,11 @@
 //!                           └──────────────────────────── poses (from <prefix>/pose) ◄──────────────────┘
 //! ```
 //!
+//! Health reports one latency entry per stage: `capture`, `keyframe`, `detect/0..N-1`, `fusion`
+//! (one keyframe's integration), `prior` (prior graph + reasoner, once per published version, on
+//! the fusion thread), `publish`, and `end_to_end`: from the moment the source delivered a
+//! keyframe to the send of the first graph version holding it (queueing included).
+//!
 //! Workers take keyframes under a ticket lock, so every keyframe they take gets a gapless ticket;
 //! fusion applies results strictly in ticket order (a small reorder buffer), which keeps the map
 //! deterministic whatever the number of workers.

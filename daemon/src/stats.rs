@@ -16,7 +16,7 @@ pub const LATENCY_WINDOW: usize = 512;
 /// Counters of one pipeline stage.
 #[derive(Debug)]
 pub struct StageStats {
-    /// Stage name as reported in health (`capture`, `detect/0`, ...).
+    /// Stage name as reported in health (`capture`, `detect/0`, `prior`, `end_to_end`, ...).
     pub name: String,
     /// Items processed since start.
     pub processed: AtomicU64,

@@ -128,7 +128,7 @@ enum BenchCommand {
     ///
     /// Prints the Markdown tables; --json, --markdown and --plot write files too. Timings of a
     /// debug build only check that the harness works: measure with `cargo build --release`.
-    Perf(PerfArgs),
+    Perf(Box<PerfArgs>),
     /// The subscriber process of `bench perf`'s IPC measurement (started by it).
     #[command(hide = true)]
     IpcPeer {
@@ -232,7 +232,7 @@ fn run(cli: Cli) -> Result<()> {
             sets.extend(overrides);
             fusion_eval(profile.as_deref(), &sets, details, check, json.as_deref())
         }
-        Command::Bench { command: BenchCommand::Perf(args) } => bench_perf(args),
+        Command::Bench { command: BenchCommand::Perf(args) } => bench_perf(*args),
         Command::Bench { command: BenchCommand::IpcPeer { pairs } } => {
             let receipts = op3dsg_daemon::perf::ipc_peer(&prefix, pairs)?;
             let mut text = serde_json::to_string(&receipts).context("serialising the receipts")?;

@@ -118,6 +118,9 @@ pub fn fusion_curve(options: &PerfOptions) -> anyhow::Result<FusionCurve> {
 /// Width and height of the plot, pixels.
 pub const PLOT_SIZE: (u32, u32) = (1000, 600);
 
+/// Which figure of a point a plotted series shows.
+type Quantity = fn(&FusionPoint) -> f64;
+
 fn plot_err(what: &str, e: impl std::fmt::Debug) -> anyhow::Error {
     anyhow!("drawing the plot ({what}): {e:?}")
 }
@@ -166,7 +169,7 @@ pub fn plot_png(curve: &FusionCurve, path: &Path) -> anyhow::Result<()> {
             .y_label_formatter(&|v| format!("{v:.2}"))
             .draw()
             .map_err(|e| plot_err("grid", e))?;
-        let series: [(&str, RGBColor, fn(&FusionPoint) -> f64); 2] =
+        let series: [(&str, RGBColor, Quantity); 2] =
             [("p50", BLUE, |p| p.step.p50_ms), ("p99", RED, |p| p.step.p99_ms)];
         for (name, colour, value) in series {
             let line: Vec<(f64, f64)> = curve.points.iter().map(|p| (nodes(p), value(p))).collect();

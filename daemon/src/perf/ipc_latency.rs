@@ -59,6 +59,10 @@ pub struct IpcRow {
     pub graph: Percentiles,
     /// Raw iceoryx2 publish → bytes in the other process.
     pub raw: Percentiles,
+    /// The publisher's share of `graph`: the `publish_graph` call alone.
+    pub graph_publish_call: Percentiles,
+    /// The publisher's share of `raw`: loan, copy, send, notify.
+    pub raw_publish_call: Percentiles,
     /// `graph.p50_ms / raw.p50_ms`.
     pub ratio_p50: f64,
     /// `graph.p99_ms / raw.p99_ms`.
@@ -274,6 +278,8 @@ pub fn ipc_latency(options: &PerfOptions) -> anyhow::Result<IpcLatency> {
     publisher.server.update_connections()?;
     publisher.raw.update_connections().map_err(|e| anyhow!("update connections of the raw publisher: {e:?}"))?;
 
+    let mut graph_calls_ms: Vec<Vec<f64>> = vec![Vec::new(); graphs.len()];
+    let mut raw_calls_ms: Vec<Vec<f64>> = vec![Vec::new(); graphs.len()];
     // id -> (size index, sent wall clock, timed)
     let mut sent_graph: HashMap<u64, (usize, u64, bool)> = HashMap::new();
     let mut sent_raw: HashMap<u64, (usize, u64, bool)> = HashMap::new();
@@ -290,15 +296,25 @@ pub fn ipc_latency(options: &PerfOptions) -> anyhow::Result<IpcLatency> {
             id += 1;
             graph.version = id;
             let t0 = wall_clock_ns();
+            let call = Instant::now();
             publisher.server.publish_graph(&graph).context("publishing a graph")?;
+            let call_ms = call.elapsed().as_secs_f64() * 1e3;
             sent_graph.insert(id, (size_index, t0, timed));
+            if timed {
+                graph_calls_ms[size_index].push(call_ms);
+            }
             publisher.wait_ack(child, "a graph")?;
 
             id += 1;
             payload[..8].copy_from_slice(&id.to_le_bytes());
             let t0 = wall_clock_ns();
+            let call = Instant::now();
             publisher.send_raw(&payload[..bytes])?;
+            let call_ms = call.elapsed().as_secs_f64() * 1e3;
             sent_raw.insert(id, (size_index, t0, timed));
+            if timed {
+                raw_calls_ms[size_index].push(call_ms);
+            }
             publisher.wait_ack(child, "a raw sample")?;
         }
     }
@@ -349,6 +365,8 @@ pub fn ipc_latency(options: &PerfOptions) -> anyhow::Result<IpcLatency> {
             ratio_p99: g.p99_ms / r.p99_ms.max(1e-9),
             graph: g,
             raw: r,
+            graph_publish_call: Percentiles::from_samples_ms(&mut graph_calls_ms[i]),
+            raw_publish_call: Percentiles::from_samples_ms(&mut raw_calls_ms[i]),
         });
     }
     Ok(IpcLatency {

@@ -111,6 +111,11 @@ impl PipelineRun {
         self.rss.iter().map(|r| r.rss_mib).fold(0.0, f64::max)
     }
 
+    /// Largest anonymous resident memory (mostly the heap) sampled, MiB.
+    pub fn anon_peak_mib(&self) -> f64 {
+        self.rss.iter().map(|r| r.anon_mib).fold(0.0, f64::max)
+    }
+
     /// RSS of the last sample, MiB.
     pub fn rss_end_mib(&self) -> f64 {
         self.rss.last().map_or(0.0, |r| r.rss_mib)
