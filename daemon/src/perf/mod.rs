@@ -364,8 +364,10 @@ fn ipc_markdown(s: &mut String, ipc: &IpcLatency) {
     }
     let _ = writeln!(
         s,
-        "\nThe last column is the publisher's share (the call alone); the rest is the wake-up, the \
-         receive and, for the graph, the conversion to a `SceneGraph`.\n"
+        "\nThe last column is the publisher's call alone, notify included; the rest is the wake-up, \
+         the receive and, for the graph, the conversion to a `SceneGraph`. With few cores the woken \
+         subscriber may run before the notify returns, so for large payloads the call can include \
+         the subscriber's work too.\n"
     );
 }
 
