@@ -156,18 +156,18 @@ struct PerfArgs {
     /// Sample the process's resident memory this often, milliseconds.
     #[arg(long, default_value_t = 250, value_parser = clap::value_parser!(u64).range(1..=60_000))]
     rss_period_ms: u64,
-    /// Graph sizes (nodes) of the IPC measurement, comma-separated (empty: skip it).
-    #[arg(long, value_delimiter = ',', default_value = "100,2000,10000")]
-    ipc_nodes: Vec<usize>,
+    /// Graph sizes (nodes) of the IPC measurement, comma-separated ("none": skip it).
+    #[arg(long, default_value = "100,2000,10000", value_parser = parse_sizes)]
+    ipc_nodes: Sizes,
     /// Timed messages per IPC size, each for the graph and for raw iceoryx2.
     #[arg(long, default_value_t = 300, value_parser = clap::value_parser!(u64).range(1..))]
     ipc_messages: u64,
     /// Untimed messages per IPC size and kind before the timed ones.
     #[arg(long, default_value_t = 20)]
     ipc_warmup: usize,
-    /// Map sizes (nodes) of the fusion curve, comma-separated (empty: skip it).
-    #[arg(long, value_delimiter = ',', default_value = "100,500,1000,2000,5000,10000,20000")]
-    fusion_sizes: Vec<usize>,
+    /// Map sizes (nodes) of the fusion curve, comma-separated ("none": skip it).
+    #[arg(long, default_value = "100,500,1000,2000,5000,10000,20000", value_parser = parse_sizes)]
+    fusion_sizes: Sizes,
     /// Timed fusion steps per map size.
     #[arg(long, default_value_t = 200, value_parser = clap::value_parser!(u64).range(1..))]
     fusion_steps: u64,
@@ -187,6 +187,21 @@ struct PerfArgs {
 
 /// Environment variable giving the prefix when `--prefix` is absent.
 const PREFIX_ENV: &str = "OP3DSG_PREFIX";
+
+/// A comma-separated list of sizes; "none" (or nothing) is the empty list.
+#[derive(Debug, Clone)]
+struct Sizes(Vec<usize>);
+
+fn parse_sizes(text: &str) -> Result<Sizes, String> {
+    let text = text.trim();
+    if text.is_empty() || text == "none" {
+        return Ok(Sizes(Vec::new()));
+    }
+    text.split(',')
+        .map(|v| v.trim().parse::<usize>().map_err(|e| format!("\"{v}\": {e} (expected sizes like 100,2000 or none)")))
+        .collect::<Result<Vec<_>, _>>()
+        .map(Sizes)
+}
 
 fn parse_room(name: &str) -> Result<RoomKind, String> {
     RoomKind::parse(name).ok_or_else(|| {
@@ -248,13 +263,14 @@ fn bench_perf(args: PerfArgs) -> Result<()> {
     if !(args.live_rate_hz.is_finite() && args.live_rate_hz >= 0.0) {
         bail!("--live-rate-hz {}: must be 0 or a positive rate", args.live_rate_hz);
     }
-    if let Some(&n) = args.ipc_nodes.iter().find(|&&n| n == 0 || n > op3dsg_ipc_types::MAX_NODES) {
+    let (ipc_nodes, fusion_sizes) = (args.ipc_nodes.0, args.fusion_sizes.0);
+    if let Some(&n) = ipc_nodes.iter().find(|&&n| n == 0 || n > op3dsg_ipc_types::MAX_NODES) {
         bail!("--ipc-nodes {n}: each size must be between 1 and {}", op3dsg_ipc_types::MAX_NODES);
     }
-    if let Some(&n) = args.fusion_sizes.iter().find(|&&n| n == 0) {
+    if let Some(&n) = fusion_sizes.iter().find(|&&n| n == 0) {
         bail!("--fusion-sizes {n}: each size must be at least 1");
     }
-    if args.plot.is_some() && args.fusion_sizes.is_empty() {
+    if args.plot.is_some() && fusion_sizes.is_empty() {
         bail!("--plot needs the fusion curve: give --fusion-sizes");
     }
     let options = perf::PerfOptions {
@@ -263,11 +279,11 @@ fn bench_perf(args: PerfArgs) -> Result<()> {
         overrides: args.overrides,
         live_rate_hz: args.live_rate_hz,
         rss_period: Duration::from_millis(args.rss_period_ms),
-        ipc_nodes: args.ipc_nodes,
+        ipc_nodes,
         ipc_messages: args.ipc_messages as usize,
         ipc_warmup: args.ipc_warmup,
         peer_exe: std::env::current_exe().context("finding this executable (the IPC subscriber)")?,
-        fusion_sizes: args.fusion_sizes,
+        fusion_sizes,
         fusion_steps: args.fusion_steps as usize,
         fusion_keyframes: args.fusion_keyframes as usize,
         command: command_line(),

@@ -63,6 +63,9 @@ pub struct IpcRow {
     pub graph_publish_call: Percentiles,
     /// The publisher's share of `raw`: loan, copy, send, notify.
     pub raw_publish_call: Percentiles,
+    /// The subscriber's share of `graph`: the `latest_graph` call that returned it (receive and
+    /// conversion to a `SceneGraph`).
+    pub graph_read_call: Percentiles,
     /// `graph.p50_ms / raw.p50_ms`.
     pub ratio_p50: f64,
     /// `graph.p99_ms / raw.p99_ms`.
@@ -165,6 +168,8 @@ impl BenchServices {
 pub struct Receipts {
     /// Graph messages (id = graph version).
     pub graph: Vec<(u64, u64)>,
+    /// Per graph message, nanoseconds spent in the successful `GraphClient::latest_graph` call.
+    pub graph_read_ns: Vec<u64>,
     /// Raw messages (id = the first 8 bytes, little endian).
     pub raw: Vec<(u64, u64)>,
 }
@@ -343,6 +348,12 @@ pub fn ipc_latency(options: &PerfOptions) -> anyhow::Result<IpcLatency> {
         Ok(per_size)
     };
     let mut graph_ms = latencies(&sent_graph, &receipts.graph, "graph")?;
+    let mut read_ms: Vec<Vec<f64>> = vec![Vec::new(); graphs.len()];
+    for (&(id, _), &read_ns) in receipts.graph.iter().zip(&receipts.graph_read_ns) {
+        if let Some(&(size, _, true)) = sent_graph.get(&id) {
+            read_ms[size].push(read_ns as f64 / 1e6);
+        }
+    }
     let mut raw_ms = latencies(&sent_raw, &receipts.raw, "raw sample")?;
     let mut rows = Vec::new();
     for (i, graph) in graphs.iter().enumerate() {
@@ -367,6 +378,7 @@ pub fn ipc_latency(options: &PerfOptions) -> anyhow::Result<IpcLatency> {
             raw: r,
             graph_publish_call: Percentiles::from_samples_ms(&mut graph_calls_ms[i]),
             raw_publish_call: Percentiles::from_samples_ms(&mut raw_calls_ms[i]),
+            graph_read_call: Percentiles::from_samples_ms(&mut read_ms[i]),
         });
     }
     Ok(IpcLatency {
@@ -413,15 +425,21 @@ pub fn ipc_peer(prefix: &str, pairs: usize) -> anyhow::Result<Receipts> {
     let acknowledge = || ack.notify().map(|_| ()).map_err(|e| anyhow!("notify {}: {e:?}", names.ack_name));
     acknowledge()?;
 
-    let mut receipts = Receipts { graph: Vec::with_capacity(pairs), raw: Vec::with_capacity(pairs) };
+    let mut receipts = Receipts {
+        graph: Vec::with_capacity(pairs),
+        graph_read_ns: Vec::with_capacity(pairs),
+        raw: Vec::with_capacity(pairs),
+    };
     let mut copy: Vec<u8> = Vec::new();
     for _ in 0..pairs {
         let deadline = Instant::now() + PEER_TIMEOUT;
         let graph = loop {
-            if client.wait_for_update(Duration::from_millis(100)).context("waiting for a graph")?
-                && let Some(graph) = client.latest_graph().context("reading a graph")?
-            {
-                break graph;
+            if client.wait_for_update(Duration::from_millis(100)).context("waiting for a graph")? {
+                let read = Instant::now();
+                if let Some(graph) = client.latest_graph().context("reading a graph")? {
+                    receipts.graph_read_ns.push(read.elapsed().as_nanos() as u64);
+                    break graph;
+                }
             }
             if Instant::now() >= deadline {
                 bail!("no graph within {} s", PEER_TIMEOUT.as_secs());
