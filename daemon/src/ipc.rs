@@ -290,17 +290,17 @@ pub enum IpcError {
     },
 }
 
-fn service_err(service: &str, operation: &'static str, reason: impl std::fmt::Debug) -> IpcError {
+pub(crate) fn service_err(service: &str, operation: &'static str, reason: impl std::fmt::Debug) -> IpcError {
     IpcError::Service { service: service.to_owned(), operation, reason: format!("{reason:?}") }
 }
 
-fn service_name(prefix: &str, full: &str) -> Result<ServiceName, IpcError> {
+pub(crate) fn service_name(prefix: &str, full: &str) -> Result<ServiceName, IpcError> {
     validate_prefix(prefix).map_err(|reason| IpcError::InvalidPrefix { prefix: prefix.to_owned(), reason })?;
     ServiceName::new(full)
         .map_err(|e| IpcError::InvalidPrefix { prefix: prefix.to_owned(), reason: format!("{full}: {e:?}") })
 }
 
-fn create_node(node_name: &str) -> Result<Node<IpcService>, IpcError> {
+pub(crate) fn create_node(node_name: &str) -> Result<Node<IpcService>, IpcError> {
     let name = NodeName::new(node_name)
         .map_err(|e| IpcError::Node { node: node_name.to_owned(), reason: format!("invalid name: {e:?}") })?;
     NodeBuilder::new()

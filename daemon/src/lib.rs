@@ -19,6 +19,7 @@
 //! | [`ipc`] | the iceoryx2 services: graph, update event, health, pose input |
 //! | [`onnx`] | ONNX Runtime loaded from `.models/` at run time; the label text encoder |
 //! | [`stats`] | per-stage counters and latency percentiles |
+//! | [`perf`] | `op3dsg bench perf`: pipeline, IPC and fusion-cost figures, JSON / Markdown / PNG |
 //!
 //! ```no_run
 //! use std::sync::{Arc, atomic::AtomicBool};
@@ -38,6 +39,7 @@ pub mod keyframe;
 pub mod knowledge;
 pub mod onnx;
 pub mod perception;
+pub mod perf;
 pub mod pipeline;
 pub mod prior;
 pub mod queue;

@@ -8,6 +8,11 @@
 //!                           └──────────────────────────── poses (from <prefix>/pose) ◄──────────────────┘
 //! ```
 //!
+//! Health reports one latency entry per stage: `capture`, `keyframe`, `detect/0..N-1`, `fusion`
+//! (one keyframe's integration), `prior` (prior graph + reasoner, once per published version, on
+//! the fusion thread), `publish`, and `end_to_end`: from the moment the source delivered a
+//! keyframe to the send of the first graph version holding it (queueing included).
+//!
 //! Workers take keyframes under a ticket lock, so every keyframe they take gets a gapless ticket;
 //! fusion applies results strictly in ticket order (a small reorder buffer), which keeps the map
 //! deterministic whatever the number of workers.
@@ -190,16 +195,32 @@ impl RunSummary {
     }
 }
 
+/// A frame as the source delivered it, with the moment it was delivered (the start of the
+/// `end_to_end` latency).
+struct CapturedFrame {
+    frame: PooledFrame,
+    captured_at: Instant,
+}
+
 struct KeyframeItem {
     frame: PooledFrame,
+    captured_at: Instant,
     world_from_camera: Isometry,
 }
 
 struct DetectionBatch {
     ticket: u64,
     frame: PooledFrame,
+    captured_at: Instant,
     world_from_camera: Isometry,
     detections: Vec<Detection>,
+}
+
+/// A graph version for the publisher, with the capture moment of the newest keyframe fused into
+/// it (`None` before the first keyframe).
+struct GraphItem {
+    graph: SceneGraph,
+    newest_capture: Option<Instant>,
 }
 
 /// A running pipeline.
@@ -372,10 +393,10 @@ impl Pipeline {
         let step_control = source.step_control();
 
         let q = &profile.queues;
-        let (frames_tx, frames_rx, frames_stats) = queue::<PooledFrame>("frames", q.frames, stop.clone());
+        let (frames_tx, frames_rx, frames_stats) = queue::<CapturedFrame>("frames", q.frames, stop.clone());
         let (kf_tx, kf_rx, kf_stats) = queue::<KeyframeItem>("keyframes", q.keyframes, stop.clone());
         let (det_tx, det_rx, det_stats) = queue::<DetectionBatch>("detections", q.detections, stop.clone());
-        let (graph_tx, graph_rx, graph_stats) = queue::<SceneGraph>("graph", q.graph, stop.clone());
+        let (graph_tx, graph_rx, graph_stats) = queue::<GraphItem>("graph", q.graph, stop.clone());
         let (pose_tx, pose_rx) = crossbeam_channel::bounded::<PoseStamped>(profile.pose.buffer_len);
 
         let mut stages = vec![Arc::new(StageStats::new("capture")), Arc::new(StageStats::new("keyframe"))];
@@ -383,7 +404,10 @@ impl Pipeline {
             stages.push(Arc::new(StageStats::new(format!("detect/{i}"))));
         }
         stages.push(Arc::new(StageStats::new("fusion")));
+        stages.push(Arc::new(StageStats::new("prior")));
         stages.push(Arc::new(StageStats::new("publish")));
+        // Not a thread: from a keyframe's capture to the send of the first graph holding it.
+        stages.push(Arc::new(StageStats::new("end_to_end")));
         let stats = Arc::new(PipelineStats {
             started: Instant::now(),
             frames_captured: AtomicU64::new(0),
@@ -561,7 +585,7 @@ impl Pipeline {
 fn capture_loop(
     source: &mut dyn FrameSource,
     pool: &FramePool,
-    frames_tx: QueueSender<PooledFrame>,
+    frames_tx: QueueSender<CapturedFrame>,
     rate_hz: f64,
     max_frames: u64,
     stats: &PipelineStats,
@@ -610,7 +634,7 @@ fn capture_loop(
                 stats.frames_captured.fetch_add(1, Ordering::Relaxed);
                 stage.record(started);
                 tracing::trace!(frame_seq = frame.seq, "captured");
-                frames_tx.push(frame);
+                frames_tx.push(CapturedFrame { frame, captured_at: Instant::now() });
             }
             Ok(SourceStatus::Pending) => {}
             Ok(SourceStatus::EndOfStream) => {
@@ -641,7 +665,7 @@ fn capture_loop(
 fn keyframe_loop(
     config: &crate::config::KeyframeConfig,
     pose_config: &crate::config::PoseConfig,
-    frames_rx: QueueReceiver<PooledFrame>,
+    frames_rx: QueueReceiver<CapturedFrame>,
     kf_tx: QueueSender<KeyframeItem>,
     pose_rx: Receiver<PoseStamped>,
     stats: &PipelineStats,
@@ -650,8 +674,8 @@ fn keyframe_loop(
     let stage = stats.stage("keyframe");
     let mut gate = KeyframeGate::new(config, pose_config);
     loop {
-        let frame = match frames_rx.pop_timeout(POLL) {
-            Popped::Item(frame) => frame,
+        let CapturedFrame { frame, captured_at } = match frames_rx.pop_timeout(POLL) {
+            Popped::Item(captured) => captured,
             Popped::Empty if stop.load(Ordering::Relaxed) => break,
             Popped::Empty => continue,
             Popped::Finished => break,
@@ -671,7 +695,7 @@ fn keyframe_loop(
             GateDecision::Keyframe(world_from_camera) => {
                 stage.record(started);
                 stats.keyframes.fetch_add(1, Ordering::Relaxed);
-                kf_tx.push(KeyframeItem { frame, world_from_camera });
+                kf_tx.push(KeyframeItem { frame, captured_at, world_from_camera });
             }
         }
     }
@@ -717,6 +741,7 @@ fn detect_loop(
         det_tx.push(DetectionBatch {
             ticket,
             frame: item.frame,
+            captured_at: item.captured_at,
             world_from_camera: item.world_from_camera,
             detections,
         });
@@ -727,22 +752,26 @@ fn fusion_loop(
     mut fusion: Box<dyn Fusion>,
     mut enricher: Option<GraphEnricher>,
     det_rx: QueueReceiver<DetectionBatch>,
-    graph_tx: QueueSender<SceneGraph>,
+    graph_tx: QueueSender<GraphItem>,
     stats: &PipelineStats,
     min_interval: Duration,
 ) {
     let stage = stats.stage("fusion");
+    let prior_stage = stats.stage("prior");
+    let mut newest_capture: Option<Instant> = None;
     let mut pending: BTreeMap<u64, DetectionBatch> = BTreeMap::new();
     let mut next_ticket = 0u64;
     let mut version = 0u64;
     let mut stamp_ns = 0u64;
     let mut dirty = false;
     let mut last_publish: Option<Instant> = None;
-    let mut publish = |fusion: &dyn Fusion, version: &mut u64, stamp_ns: u64| {
+    let mut publish = |fusion: &dyn Fusion, version: &mut u64, stamp_ns: u64, newest_capture: Option<Instant>| {
         let mut graph = SceneGraph::default();
         fusion.build_graph(&mut graph);
         if let Some(enricher) = enricher.as_mut() {
+            let started = Instant::now();
             enricher.enrich(&mut graph);
+            prior_stage.record(started);
         }
         *version += 1;
         graph.version = *version;
@@ -750,7 +779,7 @@ fn fusion_loop(
         stats.graph_version.store(*version, Ordering::Relaxed);
         stats.map_node_count.store(fusion.node_count() as u64, Ordering::Relaxed);
         stats.map_memory_bytes.store(fusion.memory_bytes() as u64, Ordering::Relaxed);
-        graph_tx.push(graph);
+        graph_tx.push(GraphItem { graph, newest_capture });
     };
     loop {
         let finished = match det_rx.pop_timeout(POLL) {
@@ -771,6 +800,7 @@ fn fusion_loop(
             let report = fusion.integrate(&batch.frame, &batch.world_from_camera, &batch.detections);
             stats.detections_fused.fetch_add(batch.detections.len() as u64, Ordering::Relaxed);
             stamp_ns = stamp_ns.max(batch.frame.stamp_ns);
+            newest_capture = newest_capture.max(Some(batch.captured_at));
             stage.record(started);
             tracing::trace!(
                 frame_seq = batch.frame.seq,
@@ -783,14 +813,14 @@ fn fusion_loop(
         }
         let due = last_publish.is_none_or(|t| t.elapsed() >= min_interval);
         if dirty && (due || finished) {
-            publish(fusion.as_ref(), &mut version, stamp_ns);
+            publish(fusion.as_ref(), &mut version, stamp_ns, newest_capture);
             last_publish = Some(Instant::now());
             dirty = false;
         }
         if finished {
             if version == 0 {
                 // Publish an empty graph so clients see the daemon served.
-                publish(fusion.as_ref(), &mut version, stamp_ns);
+                publish(fusion.as_ref(), &mut version, stamp_ns, newest_capture);
             }
             break;
         }
@@ -800,7 +830,7 @@ fn fusion_loop(
 #[allow(clippy::too_many_arguments)]
 fn publisher_loop(
     mut server: GraphServer,
-    graph_rx: QueueReceiver<SceneGraph>,
+    graph_rx: QueueReceiver<GraphItem>,
     pose_tx: Sender<PoseStamped>,
     pose_source: PoseSourceKind,
     stats: &PipelineStats,
@@ -810,6 +840,7 @@ fn publisher_loop(
     exit_at_end: bool,
 ) {
     let stage = stats.stage("publish");
+    let end_to_end = stats.stage("end_to_end");
     let mut next_health = Instant::now();
     let mut periods = 0u32;
     let mut upstream_done = false;
@@ -817,11 +848,14 @@ fn publisher_loop(
     let mut publish_errors = 0u64;
     loop {
         match graph_rx.pop_timeout(if upstream_done { Duration::from_millis(100) } else { POLL }) {
-            Popped::Item(graph) => {
+            Popped::Item(GraphItem { graph, newest_capture }) => {
                 let started = Instant::now();
                 match server.publish_graph(&graph) {
                     Ok(report) => {
                         stage.record(started);
+                        if let Some(captured_at) = newest_capture {
+                            end_to_end.record(captured_at);
+                        }
                         if report.truncated {
                             warn!(version = graph.version, "graph exceeds the snapshot capacity; truncated");
                         }

@@ -459,7 +459,7 @@ pub struct PoseStamped {
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend, PlacementDefault)]
 #[type_name("op3dsg::StageHealth")]
 pub struct StageHealth {
-    /// Stage name (`capture`, `keyframe`, `detect/0`, `fusion`, `publish`, ...), NUL padded.
+    /// Stage name (`capture`, `keyframe`, `detect/0`, `fusion`, `prior`, `publish`, `end_to_end`, ...), NUL padded.
     pub name: [u8; NAME_CAPACITY_BYTES],
     /// Items processed since start.
     pub processed: u64,

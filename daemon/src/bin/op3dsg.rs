@@ -1,7 +1,7 @@
 //! `op3dsg`: the client CLI of the op3dsg scene-graph daemon.
 //!
-//! Reads what a running `op3dsgd` publishes over iceoryx2 shared memory (graph, health) and
-//! writes the synthetic benchmark's ground truth.
+//! Reads what a running `op3dsgd` publishes over iceoryx2 shared memory (graph, health), writes
+//! the synthetic benchmark's ground truth, and runs the benchmarks (`op3dsg bench perf`).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -112,10 +112,96 @@ enum Command {
         #[arg(long, value_name = "FILE")]
         json: Option<PathBuf>,
     },
+    /// Benchmarks (no daemon needed).
+    Bench {
+        #[command(subcommand)]
+        command: BenchCommand,
+    },
+}
+
+#[derive(Debug, Subcommand)]
+enum BenchCommand {
+    /// Performance: the real pipeline on a synthetic scene (per-stage latency p50/p99 for capture,
+    /// detection, fusion, prior graph and publish; keyframes/s; capture → published-graph latency;
+    /// RSS over time), graph publish → receive latency between two processes next to raw iceoryx2
+    /// with a payload of the same size, and fusion cost against map size (with a PNG plot).
+    ///
+    /// Prints the Markdown tables; --json, --markdown and --plot write files too. Timings of a
+    /// debug build only check that the harness works: measure with `cargo build --release`.
+    Perf(Box<PerfArgs>),
+    /// The subscriber process of `bench perf`'s IPC measurement (started by it).
+    #[command(hide = true)]
+    IpcPeer {
+        /// Graph + raw message pairs to take before exiting.
+        #[arg(long)]
+        pairs: usize,
+    },
+}
+
+#[derive(Debug, clap::Args)]
+struct PerfArgs {
+    /// Frames per pipeline run (one run as fast as possible, one at camera rate).
+    #[arg(long, default_value_t = 900, value_parser = clap::value_parser!(u64).range(1..))]
+    frames: u64,
+    /// Rate of the camera-rate run, Hz (0 skips it).
+    #[arg(long, default_value_t = 30.0)]
+    live_rate_hz: f64,
+    /// Profile the pipeline runs and the fusion curve start from (default: the built-in base:
+    /// synthetic kitchen, oracle detector with realistic noise).
+    #[arg(long)]
+    profile: Option<PathBuf>,
+    /// Profile overrides, section.key=value, applied after each run's own settings.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    overrides: Vec<String>,
+    /// Sample the process's resident memory this often, milliseconds.
+    #[arg(long, default_value_t = 250, value_parser = clap::value_parser!(u64).range(1..=60_000))]
+    rss_period_ms: u64,
+    /// Graph sizes (nodes) of the IPC measurement, comma-separated ("none": skip it).
+    #[arg(long, default_value = "100,2000,10000", value_parser = parse_sizes)]
+    ipc_nodes: Sizes,
+    /// Timed messages per IPC size, each for the graph and for raw iceoryx2.
+    #[arg(long, default_value_t = 300, value_parser = clap::value_parser!(u64).range(1..))]
+    ipc_messages: u64,
+    /// Untimed messages per IPC size and kind before the timed ones.
+    #[arg(long, default_value_t = 20)]
+    ipc_warmup: usize,
+    /// Map sizes (nodes) of the fusion curve, comma-separated ("none": skip it).
+    #[arg(long, default_value = "100,500,1000,2000,5000,10000,20000", value_parser = parse_sizes)]
+    fusion_sizes: Sizes,
+    /// Timed fusion steps per map size.
+    #[arg(long, default_value_t = 200, value_parser = clap::value_parser!(u64).range(1..))]
+    fusion_steps: u64,
+    /// Keyframes of the kitchen path the fusion maps are built from.
+    #[arg(long, default_value_t = 30, value_parser = clap::value_parser!(u64).range(1..=1000))]
+    fusion_keyframes: u64,
+    /// Write the report as JSON (schema op3dsg.bench_perf/1) to this file.
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
+    /// Write the Markdown tables to this file.
+    #[arg(long, value_name = "FILE")]
+    markdown: Option<PathBuf>,
+    /// Write the plot of fusion cost against map size to this PNG file.
+    #[arg(long, value_name = "FILE.png")]
+    plot: Option<PathBuf>,
 }
 
 /// Environment variable giving the prefix when `--prefix` is absent.
 const PREFIX_ENV: &str = "OP3DSG_PREFIX";
+
+/// A comma-separated list of sizes; "none" (or nothing) is the empty list.
+#[derive(Debug, Clone)]
+struct Sizes(Vec<usize>);
+
+fn parse_sizes(text: &str) -> Result<Sizes, String> {
+    let text = text.trim();
+    if text.is_empty() || text == "none" {
+        return Ok(Sizes(Vec::new()));
+    }
+    text.split(',')
+        .map(|v| v.trim().parse::<usize>().map_err(|e| format!("\"{v}\": {e} (expected sizes like 100,2000 or none)")))
+        .collect::<Result<Vec<_>, _>>()
+        .map(Sizes)
+}
 
 fn parse_room(name: &str) -> Result<RoomKind, String> {
     RoomKind::parse(name).ok_or_else(|| {
@@ -161,7 +247,76 @@ fn run(cli: Cli) -> Result<()> {
             sets.extend(overrides);
             fusion_eval(profile.as_deref(), &sets, details, check, json.as_deref())
         }
+        Command::Bench { command: BenchCommand::Perf(args) } => bench_perf(*args),
+        Command::Bench { command: BenchCommand::IpcPeer { pairs } } => {
+            let receipts = op3dsg_daemon::perf::ipc_peer(&prefix, pairs)?;
+            let mut text = serde_json::to_string(&receipts).context("serialising the receipts")?;
+            text.push('\n');
+            write_output(None, &text)
+        }
     }
+}
+
+/// `op3dsg bench perf`.
+fn bench_perf(args: PerfArgs) -> Result<()> {
+    use op3dsg_daemon::perf;
+    if !(args.live_rate_hz.is_finite() && args.live_rate_hz >= 0.0) {
+        bail!("--live-rate-hz {}: must be 0 or a positive rate", args.live_rate_hz);
+    }
+    let (ipc_nodes, fusion_sizes) = (args.ipc_nodes.0, args.fusion_sizes.0);
+    if let Some(&n) = ipc_nodes.iter().find(|&&n| n == 0 || n > op3dsg_ipc_types::MAX_NODES) {
+        bail!("--ipc-nodes {n}: each size must be between 1 and {}", op3dsg_ipc_types::MAX_NODES);
+    }
+    if let Some(&n) = fusion_sizes.iter().find(|&&n| n == 0) {
+        bail!("--fusion-sizes {n}: each size must be at least 1");
+    }
+    if args.plot.is_some() && fusion_sizes.is_empty() {
+        bail!("--plot needs the fusion curve: give --fusion-sizes");
+    }
+    let options = perf::PerfOptions {
+        frames: args.frames,
+        profile: args.profile,
+        overrides: args.overrides,
+        live_rate_hz: args.live_rate_hz,
+        rss_period: Duration::from_millis(args.rss_period_ms),
+        ipc_nodes,
+        ipc_messages: args.ipc_messages as usize,
+        ipc_warmup: args.ipc_warmup,
+        peer_exe: std::env::current_exe().context("finding this executable (the IPC subscriber)")?,
+        fusion_sizes,
+        fusion_steps: args.fusion_steps as usize,
+        fusion_keyframes: args.fusion_keyframes as usize,
+        command: command_line(),
+    };
+    let report = perf::run(&options)?;
+    if let Some(path) = &args.plot
+        && let Some(curve) = &report.fusion
+    {
+        perf::fusion_curve::plot_png(curve, path)?;
+    }
+    let plot_link = args.plot.as_ref().map(|p| p.display().to_string());
+    let markdown = report.to_markdown(plot_link.as_deref());
+    write_output(None, &markdown)?;
+    if let Some(path) = &args.markdown {
+        write_output(Some(path), &markdown)?;
+    }
+    if let Some(path) = &args.json {
+        report.write_json(path)?;
+    }
+    Ok(())
+}
+
+/// The command line as typed, program name shortened to `op3dsg`.
+fn command_line() -> String {
+    let mut words = vec!["op3dsg".to_owned()];
+    words.extend(std::env::args().skip(1).map(|a| {
+        if a.is_empty() || a.contains(|c: char| c.is_whitespace() || c == '"' || c == '\'') {
+            format!("'{a}'")
+        } else {
+            a
+        }
+    }));
+    words.join(" ")
 }
 
 fn seconds(value: f64) -> Result<Duration> {

@@ -93,7 +93,20 @@ impl Workload {
     /// Integrates every keyframe at the original place, then copies of the kitchen 20 m apart
     /// until `fusion` holds at least `target_nodes` nodes (or `max_copies` copies exist).
     pub fn fill_map(&self, fusion: &mut dyn Fusion, target_nodes: usize, max_copies: usize) -> usize {
-        let mut copy = 0usize;
+        self.grow_map(fusion, 0, target_nodes, max_copies)
+    }
+
+    /// Like [`Self::fill_map`], but starts at kitchen copy `first_copy` of a map already filled
+    /// with the copies before it (the value the previous call returned), so one map can be grown
+    /// through several sizes. Returns the next copy to integrate.
+    pub fn grow_map(
+        &self,
+        fusion: &mut dyn Fusion,
+        first_copy: usize,
+        target_nodes: usize,
+        max_copies: usize,
+    ) -> usize {
+        let mut copy = first_copy;
         loop {
             let offset = copy_offset(copy);
             for kf in &self.keyframes {
