@@ -13,7 +13,7 @@
 //! `profiles/robot.toml: fusion.voxel_size_m: must be > 0, got -0.01`.
 //!
 //! File paths in a profile (`extends`, and the keys in [`PATH_KEYS`]: `source.replay.path`,
-//! `detector.yolox.model_path`, `reasoner.knowledge_dir`) are
+//! `detector.yolox.model_path`, `reasoner.knowledge_dir`, `reasoner.llm.api_key_file`) are
 //! relative to the folder of the file that sets them; a path given with `--set` is relative to
 //! the working directory. `--print-config` shows them resolved.
 
@@ -38,7 +38,8 @@ pub const BASE_PROFILE: &str = include_str!("../../profiles/base.toml");
 pub const BASE_PROFILE_NAME: &str = "<built-in profiles/base.toml>";
 /// Keys (besides `extends`) whose value is a file path, resolved against the folder of the file
 /// that sets them.
-pub const PATH_KEYS: &[&str] = &["source.replay.path", "detector.yolox.model_path", "reasoner.knowledge_dir"];
+pub const PATH_KEYS: &[&str] =
+    &["source.replay.path", "detector.yolox.model_path", "reasoner.knowledge_dir", "reasoner.llm.api_key_file"];
 
 /// The whole daemon configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -84,6 +85,9 @@ pub enum ReasonerKind {
     /// Prior graph (spatial relations) + the offline knowledge reasoner (functional relations,
     /// affordances); see `crate::reasoner::knowledge`.
     Knowledge,
+    /// `knowledge` on every published graph, plus the asynchronous LLM refiner
+    /// (`[reasoner.llm]`, `crate::reasoner::llm`): verified LLM edges are added as they arrive.
+    Llm,
 }
 
 /// `[reasoner]`: the prior graph (`crate::prior`) and the reasoner applied to each published
@@ -107,6 +111,9 @@ pub struct ReasonerConfig {
     pub min_footprint_overlap: f32,
     /// Slack for `inside`, metres.
     pub inside_tolerance_m: f32,
+    /// The LLM endpoint and the refiner's policies (used with `kind = "llm"`).
+    #[serde(default)]
+    pub llm: crate::reasoner::llm::LlmConfig,
 }
 
 /// Frame source kinds.
@@ -604,6 +611,7 @@ impl Profile {
         check((0.0..=1.0).contains(&r.min_footprint_overlap), "reasoner.min_footprint_overlap", || {
             format!("must be within [0, 1], got {}", r.min_footprint_overlap)
         })?;
+        r.llm.validate("reasoner.llm", r.kind == ReasonerKind::Llm).map_err(split_message)?;
         check((10..=60_000).contains(&self.health.period_ms), "health.period_ms", || {
             format!("must be within [10, 60000], got {}", self.health.period_ms)
         })?;

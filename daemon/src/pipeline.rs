@@ -48,7 +48,8 @@ use crate::perception::oracle::OracleDetector;
 use crate::perception::yolox::YoloxDetector;
 use crate::perception::{Detection, Detector, DetectorError};
 use crate::queue::{Popped, QueueReceiver, QueueSender, QueueStats, queue};
-use crate::reasoner::GraphEnricher;
+use crate::reasoner::llm::RefinerStats;
+use crate::reasoner::{EnricherError, GraphEnricher};
 use crate::stats::StageStats;
 
 /// How long a stage waits on an empty queue before it checks the stop flag again.
@@ -118,6 +119,8 @@ pub struct PipelineStats {
     pub stages: Vec<Arc<StageStats>>,
     /// Per-queue figures, in pipeline order.
     pub queues: Vec<Arc<QueueStats>>,
+    /// The LLM refiner (state `off` without `reasoner.kind = "llm"`).
+    pub refiner: Arc<RefinerStats>,
 }
 
 impl PipelineStats {
@@ -151,6 +154,7 @@ impl PipelineStats {
             slot.pushed = q.pushed.load(Ordering::Relaxed);
         }
         h.queue_count = self.queues.len().min(h.queues.len()) as u32;
+        h.refiner = self.refiner.health();
         h
     }
 
@@ -335,8 +339,12 @@ pub fn make_fusion(profile: &Profile) -> Box<dyn Fusion> {
 /// The prior graph + reasoner the profile asks for (`[reasoner]`), shared by the pipeline and
 /// the batch runner.
 pub fn make_enricher(profile: &Profile) -> Result<Option<GraphEnricher>, StartError> {
-    GraphEnricher::from_profile(profile)
-        .map_err(|e| StartError::Incompatible { field: "reasoner.knowledge_dir", reason: e.to_string() })
+    GraphEnricher::from_profile(profile).map_err(|e| match e {
+        EnricherError::Knowledge(e) => {
+            StartError::Incompatible { field: "reasoner.knowledge_dir", reason: e.to_string() }
+        }
+        EnricherError::Llm { field, reason } => StartError::Incompatible { field, reason },
+    })
 }
 
 impl Pipeline {
@@ -366,6 +374,8 @@ impl Pipeline {
         }
         stages.push(Arc::new(StageStats::new("fusion")));
         stages.push(Arc::new(StageStats::new("publish")));
+        // Before the counters: the LLM refiner (if any) owns its own.
+        let enricher = make_enricher(profile)?;
         let stats = Arc::new(PipelineStats {
             started: Instant::now(),
             frames_captured: AtomicU64::new(0),
@@ -383,6 +393,7 @@ impl Pipeline {
             source_failed: AtomicBool::new(false),
             stages,
             queues: vec![frames_stats, kf_stats, det_stats, graph_stats],
+            refiner: enricher.as_ref().and_then(GraphEnricher::refiner_stats).unwrap_or_default(),
         });
 
         let (finished_tx, finished_rx) = crossbeam_channel::unbounded::<&'static str>();
@@ -434,7 +445,6 @@ impl Pipeline {
         {
             let stats = stats.clone();
             let fusion = make_fusion(profile);
-            let enricher = make_enricher(profile)?;
             let min_interval = Duration::from_millis(profile.run.min_publish_interval_ms);
             handles.push(spawn_stage("fusion", &finished_tx, move || {
                 fusion_loop(fusion, enricher, det_rx, graph_tx, &stats, min_interval);
@@ -723,12 +733,12 @@ fn fusion_loop(
     let mut publish = |fusion: &dyn Fusion, version: &mut u64, stamp_ns: u64| {
         let mut graph = SceneGraph::default();
         fusion.build_graph(&mut graph);
-        if let Some(enricher) = enricher.as_mut() {
-            enricher.enrich(&mut graph);
-        }
         *version += 1;
         graph.version = *version;
         graph.stamp_ns = stamp_ns;
+        if let Some(enricher) = enricher.as_mut() {
+            enricher.enrich(&mut graph);
+        }
         stats.graph_version.store(*version, Ordering::Relaxed);
         stats.map_node_count.store(fusion.node_count() as u64, Ordering::Relaxed);
         stats.map_memory_bytes.store(fusion.memory_bytes() as u64, Ordering::Relaxed);

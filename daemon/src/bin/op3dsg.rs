@@ -338,6 +338,25 @@ fn health_text(h: &HealthReport) -> String {
     for q in &h.queues {
         let _ = writeln!(s, "{:<16} {:>7} {:>9} {:>10} {:>10}", q.name, q.depth, q.capacity, q.dropped, q.pushed);
     }
+    let r = &h.refiner;
+    if r.state != "off" {
+        let _ = writeln!(
+            s,
+            "llm refiner {}{}  refreshes {}  calls {}  failures {} (timeouts {}, 429 {})  accepted {}  last latency {:.0} ms  last graph version {}",
+            r.state,
+            if r.breaker_open { " (breaker open)" } else { "" },
+            r.refreshes,
+            r.calls,
+            r.failures,
+            r.timeouts,
+            r.rate_limited,
+            r.accepted,
+            f64::from(r.last_latency_us) / 1000.0,
+            r.last_graph_version
+        );
+        let rejections: Vec<String> = r.rejections.iter().map(|(k, v)| format!("{k} {v}")).collect();
+        let _ = writeln!(s, "llm rejections  {}", rejections.join("  "));
+    }
     s
 }
 
