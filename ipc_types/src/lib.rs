@@ -504,7 +504,7 @@ pub const REFINER_STATES: [&str; 6] = ["off", "idle", "calling", "backoff", "bre
 /// `stale` (accepted, but its nodes were gone when the result reached the graph).
 pub const REFINER_REJECTIONS: [&str; 5] = ["malformed", "unknown_node", "wrong_kind", "non_canonical", "stale"];
 
-/// The LLM refiner (size 136 bytes); all zero (state `off`) when no LLM is configured.
+/// The LLM refiner (size 128 bytes); all zero (state `off`) when no LLM is configured.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend, PlacementDefault)]
 #[type_name("op3dsg::RefinerHealth")]
@@ -651,8 +651,8 @@ mod tests {
         assert_eq!(size_of::<PoseStamped>(), 104);
         assert_eq!(size_of::<StageHealth>(), 64);
         assert_eq!(size_of::<QueueHealth>(), 56);
-        assert_eq!(size_of::<RefinerHealth>(), 136);
-        assert_eq!(size_of::<Health>(), 88 + MAX_STAGES * 64 + MAX_QUEUES * 56 + 136);
+        assert_eq!(size_of::<RefinerHealth>(), 128);
+        assert_eq!(size_of::<Health>(), 88 + MAX_STAGES * 64 + MAX_QUEUES * 56 + 128);
         assert_eq!(size_of::<GraphSnapshot>(), 56 + MAX_NODES * size_of::<Node>() + MAX_EDGES * size_of::<Edge>());
     }
 
