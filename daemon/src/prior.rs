@@ -33,6 +33,14 @@
 //! grown by a margin, contains the part's centre, the one whose label is contained in the part's
 //! label — "cabinet handle" → cabinet — else the nearest by surface distance; one object per
 //! part). The prior graph keeps those parents and their `part of` edges as they are.
+//!
+//! A part fusion left without a parent (none within its margin) is attached here by the same
+//! rule over its spatially close objects, the objects among its neighbours (centres within
+//! `neighbour_radius_m`): an object whose label is contained in the part's label (normalised
+//! words, or the object named by the part's compound label in the knowledge base) wins, else the
+//! nearest by surface distance (the gap between the two boxes); ties go to the lower id. A part
+//! with no object nearby stays unattached. These attachments are listed in
+//! [`PriorGraph::attached`] and get a `part of` edge of origin geometry.
 
 use glam::Vec3;
 use op3dsg_ipc_types::{EdgeKind, EdgeOrigin, NodeKind, relation_id};
@@ -104,8 +112,11 @@ pub struct PriorGraph {
     pub nodes: Vec<PriorNode>,
     /// Neighbouring pairs as node indices `(i, j)`, `i < j`.
     pub neighbours: Vec<(u32, u32)>,
-    /// Spatial edges: `part of` from fusion, then the object relations.
+    /// Spatial edges: `part of` from fusion, then the object relations, then `part of` for the
+    /// parts attached here.
     pub spatial_edges: Vec<GraphEdge>,
+    /// Parts fusion left without a parent that were attached here: `(part_id, object_id)`.
+    pub attached: Vec<(u32, u32)>,
 }
 
 impl PriorGraph {
@@ -277,7 +288,78 @@ pub fn build(graph: &SceneGraph, knowledge: &KnowledgeBase, config: &PriorConfig
             });
         }
     }
-    PriorGraph { version: graph.version, nodes, neighbours, spatial_edges }
+    let attached = attach_orphan_parts(&mut nodes, &neighbours);
+    for &(part_id, object_id) in &attached {
+        let confidence = [part_id, object_id]
+            .iter()
+            .filter_map(|id| nodes.binary_search_by_key(id, |n| n.id).ok())
+            .map(|i| nodes[i].confidence)
+            .fold(1.0f32, f32::min);
+        spatial_edges.push(GraphEdge {
+            source_id: part_id,
+            target_id: object_id,
+            kind: EdgeKind::Spatial,
+            relation_id: part_of,
+            confidence,
+            origin: EdgeOrigin::Geometry,
+        });
+    }
+    PriorGraph { version: graph.version, nodes, neighbours, spatial_edges, attached }
+}
+
+/// Gap between two axis-aligned boxes (0 when they touch or overlap), metres.
+fn box_gap(a_min: Vec3, a_max: Vec3, b_min: Vec3, b_max: Vec3) -> f32 {
+    (a_min - b_max).max(b_min - a_max).max(Vec3::ZERO).length()
+}
+
+/// Whether the words of `object` appear, in order and whole, in `part` (both normalised).
+fn label_contains(part: &str, object: &str) -> bool {
+    !object.is_empty() && format!(" {part} ").contains(&format!(" {object} "))
+}
+
+/// Attaches parts without a (present) parent by the rule in the module docs; returns the new
+/// `(part_id, object_id)` pairs, in part id order.
+fn attach_orphan_parts(nodes: &mut [PriorNode], neighbours: &[(u32, u32)]) -> Vec<(u32, u32)> {
+    let present = |nodes: &[PriorNode], id: u32| nodes.binary_search_by_key(&id, |n| n.id).is_ok();
+    let orphan: Vec<bool> =
+        nodes.iter().map(|n| n.kind == NodeKind::Part && n.parent_id.is_none_or(|p| !present(nodes, p))).collect();
+    if !orphan.contains(&true) {
+        return Vec::new();
+    }
+    // Per orphan part index: (lexical, gap, object id, object index).
+    let mut best: FxHashMap<u32, (bool, f32, u32, u32)> = FxHashMap::default();
+    for &(i, j) in neighbours {
+        for (p, o) in [(i, j), (j, i)] {
+            let (part, object) = (&nodes[p as usize], &nodes[o as usize]);
+            if !orphan[p as usize] || object.kind != NodeKind::Object {
+                continue;
+            }
+            let hint = part.category.and_then(|c| c.object_hint);
+            let lexical = (hint.is_some() && hint == object.category.and_then(|c| c.object()))
+                || label_contains(
+                    &crate::knowledge::normalise(&part.label),
+                    &crate::knowledge::normalise(&object.label),
+                );
+            let gap = box_gap(part.box_min_m, part.box_max_m, object.box_min_m, object.box_max_m);
+            let candidate = (lexical, gap, object.id, o);
+            let better = best.get(&p).is_none_or(|&(bl, bg, bid, _)| {
+                (lexical, std::cmp::Reverse(gap.to_bits()), std::cmp::Reverse(object.id))
+                    > (bl, std::cmp::Reverse(bg.to_bits()), std::cmp::Reverse(bid))
+            });
+            if better {
+                best.insert(p, candidate);
+            }
+        }
+    }
+    let mut attached: Vec<(u32, u32)> = best
+        .into_iter()
+        .map(|(p, (_, _, object_id, _))| {
+            nodes[p as usize].parent_id = Some(object_id);
+            (nodes[p as usize].id, object_id)
+        })
+        .collect();
+    attached.sort_unstable();
+    attached
 }
 
 #[cfg(test)]
@@ -405,5 +487,34 @@ mod tests {
             .map(|e| (e.source_id, e.target_id, op3dsg_ipc_types::relation_phrase(e.relation_id).unwrap_or("?")))
             .collect();
         assert_eq!(phrases, [(3, 1, "part of"), (2, 1, "on"), (1, 2, "under")]);
+        assert!(prior.attached.is_empty());
+    }
+
+    #[test]
+    fn parts_fusion_left_alone_are_attached_lexically_else_nearest() {
+        let kb = KnowledgeBase::builtin().unwrap();
+        let graph = SceneGraph {
+            version: 3,
+            stamp_ns: 0,
+            nodes: vec![
+                node(1, "cabinet", NodeKind::Object, [0.0, 0.0, 0.0], [0.6, 0.6, 0.9]),
+                node(2, "microwave", NodeKind::Object, [0.0, -0.5, 0.5], [0.4, -0.15, 0.8]),
+                // Nearer the microwave's box, but its label names the cabinet.
+                node(3, "cabinet handle", NodeKind::Part, [0.3, -0.14, 0.5], [0.4, -0.12, 0.52]),
+                // No label match: the nearest box (the microwave) wins.
+                node(4, "knob", NodeKind::Part, [0.1, -0.14, 0.6], [0.14, -0.1, 0.64]),
+                // Nothing within the neighbour radius.
+                node(5, "drawer handle", NodeKind::Part, [9.0, 9.0, 0.5], [9.1, 9.02, 0.52]),
+            ],
+            edges: Vec::new(),
+        };
+        let prior = build(&graph, &kb, &PriorConfig::default());
+        assert_eq!(prior.attached, [(3, 1), (4, 2)]);
+        assert_eq!(prior.nodes[2].parent_id, Some(1));
+        assert_eq!(prior.nodes[4].parent_id, None);
+        let part_of: Vec<(u32, u32)> =
+            prior.spatial_edges.iter().filter(|e| e.relation_id == 0).map(|e| (e.source_id, e.target_id)).collect();
+        assert_eq!(part_of, [(3, 1), (4, 2)]);
+        assert!(label_contains("tv stand drawer handle", "tv stand") && !label_contains("cabinets handle", "cabinet"));
     }
 }

@@ -119,7 +119,21 @@ impl GraphEnricher {
     pub fn enrich(&mut self, graph: &mut SceneGraph) -> Arc<PriorGraph> {
         let prior = Arc::new(prior::build(graph, &self.knowledge, &self.prior_config));
         let part_of = op3dsg_ipc_types::relation_id("part of").map_or(0, |(_, id)| id);
-        graph.edges.extend(prior.spatial_edges.iter().filter(|e| e.relation_id != part_of).cloned());
+        // Fusion's own part-of edges are in the graph already; the prior graph's attachments not.
+        graph.edges.extend(
+            prior
+                .spatial_edges
+                .iter()
+                .filter(|e| {
+                    e.relation_id != part_of || prior.attached.binary_search(&(e.source_id, e.target_id)).is_ok()
+                })
+                .cloned(),
+        );
+        for &(part_id, object_id) in &prior.attached {
+            if let Ok(i) = graph.nodes.binary_search_by_key(&part_id, |n| n.id) {
+                graph.nodes[i].parent_id = Some(object_id);
+            }
+        }
         let output = self.reasoner.reason(&prior);
         apply(graph, &output, EdgeOrigin::Knowledge);
         if self.refiner.is_some() && !self.synchronous {
