@@ -57,7 +57,8 @@ enum Command {
         out: Option<PathBuf>,
     },
     /// Print the daemon's latest health record (frames, keyframes, stage rates and latencies,
-    /// queue depths and drops).
+    /// queue depths and drops, and with reasoner.kind = "llm" the LLM refiner: state, calls,
+    /// failures, rejections by reason, last latency, breaker).
     Health {
         /// Print JSON instead of text.
         #[arg(long)]
