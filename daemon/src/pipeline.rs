@@ -12,12 +12,17 @@
 //! fusion applies results strictly in ticket order (a small reorder buffer), which keeps the map
 //! deterministic whatever the number of workers.
 //!
+//! With `reasoner.kind = "llm"` the fusion thread also owns the LLM refiner (thread `op3dsg-llm`,
+//! `crate::reasoner::llm`): it hands each prior graph over (latest wins) and picks up verified
+//! results without ever waiting; the refiner's counters are part of the health record.
+//!
 //! ## Shutdown ladder (SIGINT / SIGTERM, `run.max_frames`, or the end of a finite source)
 //! 1. The stop flag is set (or the source ends): capture stops reading, returns its frames to the
 //!    pool and closes the `frames` queue.
 //! 2. The keyframe gate drains `frames`, then closes `keyframes`.
 //! 3. Each worker finishes the keyframe it holds and exits; the last one closes `detections`.
-//! 4. Fusion applies every result it received, publishes the final graph into `graph` and exits.
+//! 4. Fusion applies every result it received, publishes the final graph into `graph` and exits
+//!    (stopping the LLM refiner, which abandons any request in flight).
 //! 5. The publisher sends that final graph and a last health record, then releases its iceoryx2
 //!    services. At the end of a finite source without `run.exit_at_end` it keeps serving instead
 //!    until a signal arrives.

@@ -1,8 +1,9 @@
 //! Reasoners: turn a versioned [`PriorGraph`] into functional relations (local and remote),
 //! affordances per node and spatial corrections, each with node ids and a confidence.
 //!
-//! One interface, [`Reasoner`], so that the offline [`KnowledgeReasoner`] (deterministic, the
-//! default) and later LLM agents are interchangeable. A reasoner never writes into the graph
+//! One interface, [`Reasoner`], for the offline [`KnowledgeReasoner`] (deterministic, the
+//! default, run on every published graph); the LLM agents ([`llm`]) run asynchronously beside it
+//! and produce the same [`ReasonerOutput`], applied on later graphs. A reasoner never writes into the graph
 //! itself: its [`ReasonerOutput`] names the graph version it was computed from and is applied by
 //! the owner of the graph with [`apply`], which drops anything whose nodes no longer exist.
 //!
