@@ -805,6 +805,26 @@ mod tests {
     }
 
     #[test]
+    fn llm_section_is_checked_by_field_and_its_key_file_is_a_path() {
+        let loaded = load(None, &[]).unwrap();
+        assert_eq!(loaded.profile.reasoner.llm, crate::reasoner::llm::LlmConfig::default());
+        let dir = tempfile::tempdir().unwrap();
+        let path = write(&dir, "robot.toml", "[reasoner]\nkind = \"llm\"\n");
+        let err = load(Some(&path), &[]).unwrap_err();
+        // Named by the field (the empty base URL comes from the built-in base).
+        assert!(err.to_string().ends_with(": reasoner.llm.base_url: required with reasoner.kind = \"llm\""), "{err}");
+        let path = write(
+            &dir,
+            "robot.toml",
+            "[reasoner]\nkind = \"llm\"\n[reasoner.llm]\nbase_url = \"http://127.0.0.1:8000/v1\"\nmodel = \"m\"\napi_key_file = \"llm.key\"\nmax_concurrent_calls = 0\n",
+        );
+        let err = load(Some(&path), &[]).unwrap_err();
+        assert!(err.to_string().ends_with("reasoner.llm.max_concurrent_calls: must be within [1, 64], got 0"), "{err}");
+        let ok = load(Some(&path), &["reasoner.llm.max_concurrent_calls=2".to_owned()]).unwrap();
+        assert_eq!(ok.profile.reasoner.llm.api_key_file, Some(dir.path().join("llm.key")));
+    }
+
+    #[test]
     fn text_encoder_is_off_in_the_base_and_checked_by_field() {
         let loaded = load(None, &[]).unwrap();
         assert!(!loaded.profile.text_encoder.enabled);

@@ -522,3 +522,53 @@ async fn futures_join_all<F: std::future::Future>(futures: impl Iterator<Item = 
     .await;
     outputs.into_iter().flatten().collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::prior::PriorNode;
+
+    fn prior(nodes: &[(u32, &str)]) -> PriorGraph {
+        PriorGraph {
+            nodes: nodes
+                .iter()
+                .map(|&(id, label)| PriorNode {
+                    id,
+                    kind: op3dsg_ipc_types::NodeKind::Object,
+                    parent_id: None,
+                    label: label.to_owned(),
+                    category: None,
+                    confidence: 1.0,
+                    centre_m: glam::Vec3::ZERO,
+                    box_min_m: glam::Vec3::ZERO,
+                    box_max_m: glam::Vec3::ZERO,
+                })
+                .collect(),
+            ..PriorGraph::default()
+        }
+    }
+
+    #[test]
+    fn change_counts_added_removed_and_relabelled_nodes() {
+        let before: FxHashMap<u32, String> =
+            [(1, "cabinet"), (2, "stove"), (3, "tv")].iter().map(|&(id, l)| (id, l.to_owned())).collect();
+        assert_eq!(changed_nodes(&before, &prior(&[(1, "cabinet"), (2, "stove"), (3, "tv")])), 0);
+        // 2 relabelled, 3 removed, 4 added.
+        assert_eq!(changed_nodes(&before, &prior(&[(1, "cabinet"), (2, "oven"), (4, "sink")])), 3);
+    }
+
+    #[test]
+    fn health_reports_the_state_and_the_rejections() {
+        let stats = RefinerStats::default();
+        assert_eq!(stats.health().state, RefinerState::Off as u8);
+        stats.set_state(RefinerState::BreakerOpen);
+        let mut rejections = Rejections::default();
+        rejections.add(Rejection::NonCanonical);
+        rejections.add(Rejection::NonCanonical);
+        stats.add_rejections(&rejections);
+        let h = stats.health();
+        assert_eq!(op3dsg_ipc_types::REFINER_STATES[h.state as usize], "breaker_open");
+        assert_eq!(h.rejections[..5], [0, 0, 0, 2, 0]);
+        assert_eq!(op3dsg_ipc_types::REFINER_REJECTIONS[3], "non_canonical");
+    }
+}
