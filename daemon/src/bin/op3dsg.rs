@@ -520,3 +520,24 @@ fn fusion_eval(
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn health_text_shows_the_llm_refiner_only_when_configured() {
+        let mut health = Health::default();
+        assert!(!health_text(&HealthReport::from(&health)).contains("llm"));
+        health.refiner.state = 4;
+        health.refiner.breaker_open = 1;
+        health.refiner.calls = 6;
+        health.refiner.failures = 6;
+        health.refiner.rejections[1] = 2;
+        let text = health_text(&HealthReport::from(&health));
+        assert!(text.contains("llm refiner breaker_open (breaker open)  refreshes 0  calls 6  failures 6"), "{text}");
+        assert!(text.contains("unknown_node 2"), "{text}");
+        let json = serde_json::to_value(HealthReport::from(&health)).unwrap();
+        assert_eq!(json["refiner"]["rejections"]["unknown_node"], 2);
+    }
+}
