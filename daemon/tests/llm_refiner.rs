@@ -470,3 +470,34 @@ fn the_api_key_never_appears_in_logs_prompts_or_published_data() {
     assert!(!format!("{enricher:?} {profile:?}").contains(KEY));
     assert!(!toml::to_string(&profile).unwrap().contains(KEY), "--print-config shows the path only");
 }
+
+#[test]
+fn batch_runs_await_the_refiner_on_the_synthetic_kitchen() {
+    let server = TestServer::start(Mode::Good);
+    let mut o = overrides(&server, &[]);
+    o.push("source.synthetic.frame_count=300".to_owned());
+    let profile = config::load(None, &o).expect("profile").profile;
+    let run =
+        op3dsg_daemon::batch::run(&profile, &op3dsg_daemon::batch::VisibilityThresholds::default()).expect("batch run");
+    let graph = &run.graph;
+    let label = |id: u32| graph.nodes.iter().find(|n| n.id == id).map_or("?", |n| n.label.as_str());
+    let mut agreeing = 0;
+    let mut llm_only = 0;
+    for e in graph.edges.iter().filter(|e| e.kind == EdgeKind::Functional) {
+        match (e.origin, relation_phrase(e.relation_id).unwrap()) {
+            (EdgeOrigin::KnowledgeAndLlm, "pull to open or close") => {
+                assert!(label(e.source_id).ends_with("handle"));
+                agreeing += 1;
+            }
+            (EdgeOrigin::Llm, "push or press to open") => llm_only += 1,
+            _ => {}
+        }
+    }
+    // Every handle the server saw gets its LLM-only edge; those knowledge agrees with are K+L.
+    assert!(agreeing >= 2 && llm_only >= agreeing, "{agreeing} agreeing, {llm_only} from the LLM alone");
+    let mut agents: Vec<String> = server.requests().into_iter().map(|r| r.agent).collect();
+    agents.sort();
+    // One refresh for the one graph; this short run has no remotable source with a candidate
+    // target other than its own parent, so the remote agent had nothing to ask.
+    assert_eq!(agents, ["affordances", "local_relations"], "one prompt per agent");
+}
