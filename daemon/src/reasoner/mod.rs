@@ -154,6 +154,9 @@ impl GraphEnricher {
     /// with [`GraphEnricher::refine_now`] instead.
     pub fn set_synchronous(&mut self, synchronous: bool) {
         self.synchronous = synchronous;
+        if let Some(refiner) = &self.refiner {
+            refiner.set_synchronous(synchronous);
+        }
     }
 
     /// Batch runs: hands `prior` (of `graph`, already enriched) to the refiner for a refresh

@@ -138,6 +138,8 @@ struct Shared {
     wake: Notify,
     /// The next snapshot is refreshed whatever changed, and answered even on failure.
     forced: AtomicBool,
+    /// Only forced snapshots are refreshed (batch runs).
+    synchronous: AtomicBool,
     stop: AtomicBool,
     stop_notify: Notify,
 }
@@ -164,6 +166,7 @@ impl LlmRefiner {
             slot: Mutex::new(None),
             wake: Notify::new(),
             forced: AtomicBool::new(false),
+            synchronous: AtomicBool::new(false),
             stop: AtomicBool::new(false),
             stop_notify: Notify::new(),
         });
@@ -213,6 +216,12 @@ impl LlmRefiner {
             self.shared.forced.store(true, Ordering::SeqCst);
         }
         self.shared.wake.notify_one();
+    }
+
+    /// `true`: refresh only what [`LlmRefiner::offer_forced`] hands over (batch runs, where each
+    /// result must belong to the graph just offered).
+    pub fn set_synchronous(&self, synchronous: bool) {
+        self.shared.synchronous.store(synchronous, Ordering::SeqCst);
     }
 
     /// The latest verified result, if one arrived since the last call.
@@ -311,7 +320,8 @@ impl Worker {
             let last_ok = last_attempt.is_none_or(|(_, ok)| ok);
             let due = (changed >= self.config.refresh_min_changed_nodes && (last_ok || period_passed))
                 || (changed > 0 && period_passed);
-            if !(due || forced) {
+            let synchronous = self.shared.synchronous.load(Ordering::SeqCst);
+            if !(forced || due && !synchronous) {
                 continue;
             }
             let breaker_open = self.breaker_until.lock().ok().and_then(|b| *b).is_some_and(|t| Instant::now() < t);
