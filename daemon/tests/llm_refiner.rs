@@ -501,3 +501,35 @@ fn batch_runs_await_the_refiner_on_the_synthetic_kitchen() {
     // target other than its own parent, so the remote agent had nothing to ask.
     assert_eq!(agents, ["affordances", "local_relations"], "one prompt per agent");
 }
+
+#[test]
+fn the_pipeline_publishes_verified_llm_edges_and_the_refiner_health() {
+    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
+    let server = TestServer::start(Mode::Good);
+    let prefix = format!("op3dsg-test-llm-good-{}", std::process::id());
+    let extra = [&*format!("ipc.prefix={prefix:?}"), "health.period_ms=100"];
+    let profile = config::load(None, &overrides(&server, &extra)).expect("profile").profile;
+    let stop = Arc::new(AtomicBool::new(false));
+    let pipeline = Pipeline::start(&profile, stop.clone()).expect("pipeline starts");
+    let mut client = op3dsg_daemon::ipc::GraphClient::open_wait(&prefix, "llm-test-client", Duration::from_secs(10))
+        .expect("the daemon serves");
+    let deadline = Instant::now() + WATCHDOG;
+    let (mut llm_edge, mut refiner_health) = (false, None);
+    while !(llm_edge && refiner_health.is_some()) {
+        assert!(Instant::now() < deadline, "timed out waiting for published LLM edges (llm {llm_edge})");
+        if let Some(graph) = client.latest_graph().expect("graph") {
+            llm_edge |= graph.edges.iter().any(|e| e.kind == EdgeKind::Functional && e.origin == EdgeOrigin::Llm);
+        }
+        if let Some(h) = client.latest_health().expect("health")
+            && h.refiner.accepted > 0
+        {
+            refiner_health = Some(h.refiner);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let refiner = refiner_health.unwrap();
+    assert!(refiner.calls >= 2 && refiner.failures == 0 && refiner.last_graph_version > 0, "{refiner:?}");
+    assert_eq!(refiner.rejections, [0; 8]);
+    stop.store(true, Ordering::SeqCst);
+    pipeline.wait().expect("orderly shutdown");
+}
