@@ -53,6 +53,7 @@ pub enum EnricherError {
 pub struct GraphEnricher {
     knowledge: Arc<KnowledgeBase>,
     prior_config: PriorConfig,
+    prior_builder: prior::PriorBuilder,
     reasoner: Box<dyn Reasoner>,
     refiner: Option<llm::LlmRefiner>,
     /// The refiner's latest verified result, applied to every graph until a newer one arrives.
@@ -101,6 +102,7 @@ impl GraphEnricher {
         Ok(Some(Self {
             knowledge,
             prior_config,
+            prior_builder: prior::PriorBuilder::default(),
             reasoner,
             refiner,
             llm_output: None,
@@ -118,7 +120,7 @@ impl GraphEnricher {
     /// `part of` edges are already there; `graph.version` is set), then the LLM refiner's latest
     /// verified result, and hands the prior graph to the refiner. Never waits for the refiner.
     pub fn enrich(&mut self, graph: &mut SceneGraph) -> Arc<PriorGraph> {
-        let prior = Arc::new(prior::build(graph, &self.knowledge, &self.prior_config));
+        let prior = Arc::new(self.prior_builder.build(graph, &self.knowledge, &self.prior_config));
         let part_of = op3dsg_ipc_types::relation_id("part of").map_or(0, |(_, id)| id);
         // Fusion's own part-of edges are in the graph already; the prior graph's attachments not.
         graph.edges.extend(
