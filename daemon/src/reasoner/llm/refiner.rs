@@ -310,6 +310,9 @@ impl Worker {
                 latest = Some(prior);
                 forced = self.shared.forced.swap(false, Ordering::SeqCst);
             }
+            if self.stats.state() == RefinerState::BudgetExhausted as u8 && self.budget_left() > 0 {
+                self.stats.set_state(RefinerState::Idle);
+            }
             let Some(prior) = latest.clone() else { continue };
             if prior.nodes.is_empty() && !forced {
                 continue;
