@@ -533,3 +533,23 @@ fn the_pipeline_publishes_verified_llm_edges_and_the_refiner_health() {
     stop.store(true, Ordering::SeqCst);
     pipeline.wait().expect("orderly shutdown");
 }
+
+/// The nearest canonical phrase by MiniLM similarity (needs `.models/`, like
+/// `tests/text_encoder.rs`; never skips).
+#[test]
+fn paraphrased_labels_map_to_the_nearest_canonical_phrase_with_the_text_encoder() {
+    use op3dsg_daemon::onnx::text_encoder::{TextEncoder, TextEncoderConfig};
+    use op3dsg_daemon::onnx::{OnnxConfig, OnnxRuntime};
+    use op3dsg_daemon::reasoner::llm::gate::LabelMapper;
+    let runtime = OnnxRuntime::init(&OnnxConfig::default()).expect("ONNX Runtime (run scripts/setup-models.sh)");
+    let encoder = TextEncoder::new(&runtime, &TextEncoderConfig { enabled: true, ..TextEncoderConfig::default() })
+        .expect("MiniLM (run scripts/setup-models.sh)");
+    let mut mapper = LabelMapper::new(Some(Box::new(encoder)), 0.8);
+    let id = |phrase: &str| op3dsg_ipc_types::relation_id(phrase).unwrap().1;
+    assert_eq!(mapper.relation("pull to open or shut"), Some(id("pull to open or close")));
+    assert_eq!(mapper.relation("turn on and turn off"), Some(id("turn on or turn off")));
+    assert_eq!(mapper.relation("sing a song"), None);
+    assert_eq!(mapper.affordance("hook pulling"), Some(3));
+    let mut plain = LabelMapper::new(None, 0.8);
+    assert_eq!(plain.relation("pull to open or shut"), None, "no encoder: rejected");
+}
