@@ -173,6 +173,13 @@ pub fn run_with_fusions<const N: usize>(
     }
     let BuiltSource { mut source, detector_factory, scene } = build_source(profile)?;
     let mut enricher = make_enricher(profile)?;
+    if let Some(enricher) = enricher.as_mut() {
+        enricher.set_synchronous(true);
+    }
+    // Batch runs await the LLM refiner (when configured): the longest one refresh can take.
+    let llm = &profile.reasoner.llm;
+    let llm_wait =
+        Duration::from_secs_f64((llm.request_timeout_s + llm.backoff_max_s) * f64::from(llm.max_retries + 1) + 1.0);
     if profile.pose.source != PoseSourceKind::Frame {
         return Err(StartError::Incompatible {
             field: "pose.source",
@@ -291,11 +298,12 @@ pub fn run_with_fusions<const N: usize>(
         let t = Instant::now();
         let mut graph = SceneGraph::default();
         fusions[i].build_graph(&mut graph);
-        if let Some(enricher) = enricher.as_mut() {
-            enricher.enrich(&mut graph);
-        }
         graph.version = changed_keyframes[i].max(1);
         graph.stamp_ns = stamp_ns;
+        if let Some(enricher) = enricher.as_mut() {
+            let prior = enricher.enrich(&mut graph);
+            enricher.refine_now(&mut graph, prior, llm_wait);
+        }
         let timing =
             BatchTiming { fusion: fusion_time[i], build_graph: t.elapsed(), total: started.elapsed(), ..timing };
         BatchRun {

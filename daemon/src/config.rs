@@ -13,7 +13,7 @@
 //! `profiles/robot.toml: fusion.voxel_size_m: must be > 0, got -0.01`.
 //!
 //! File paths in a profile (`extends`, and the keys in [`PATH_KEYS`]: `source.replay.path`,
-//! `detector.yolox.model_path`, `reasoner.knowledge_dir`) are
+//! `detector.yolox.model_path`, `reasoner.knowledge_dir`, `reasoner.llm.api_key_file`) are
 //! relative to the folder of the file that sets them; a path given with `--set` is relative to
 //! the working directory. `--print-config` shows them resolved.
 
@@ -40,7 +40,13 @@ pub const BASE_PROFILE_NAME: &str = "<built-in profiles/base.toml>";
 /// Keys (besides `extends`) whose value is a file path, resolved against the folder of the file
 /// that sets them.
 pub const PATH_KEYS: &[&str] =
-    &["source.replay.path", "detector.yolox.model_path", "detector.open_vocab.model_path", "reasoner.knowledge_dir"];
+    &[
+        "source.replay.path",
+        "detector.yolox.model_path",
+        "detector.open_vocab.model_path",
+        "reasoner.knowledge_dir",
+        "reasoner.llm.api_key_file",
+    ];
 
 /// The whole daemon configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -86,6 +92,9 @@ pub enum ReasonerKind {
     /// Prior graph (spatial relations) + the offline knowledge reasoner (functional relations,
     /// affordances); see `crate::reasoner::knowledge`.
     Knowledge,
+    /// `knowledge` on every published graph, plus the asynchronous LLM refiner
+    /// (`[reasoner.llm]`, `crate::reasoner::llm`): verified LLM edges are added as they arrive.
+    Llm,
 }
 
 /// `[reasoner]`: the prior graph (`crate::prior`) and the reasoner applied to each published
@@ -109,6 +118,9 @@ pub struct ReasonerConfig {
     pub min_footprint_overlap: f32,
     /// Slack for `inside`, metres.
     pub inside_tolerance_m: f32,
+    /// The LLM endpoint and the refiner's policies (used with `kind = "llm"`).
+    #[serde(default)]
+    pub llm: crate::reasoner::llm::LlmConfig,
 }
 
 /// Frame source kinds.
@@ -616,6 +628,7 @@ impl Profile {
         check((0.0..=1.0).contains(&r.min_footprint_overlap), "reasoner.min_footprint_overlap", || {
             format!("must be within [0, 1], got {}", r.min_footprint_overlap)
         })?;
+        r.llm.validate("reasoner.llm", r.kind == ReasonerKind::Llm).map_err(split_message)?;
         check((10..=60_000).contains(&self.health.period_ms), "health.period_ms", || {
             format!("must be within [10, 60000], got {}", self.health.period_ms)
         })?;
@@ -806,6 +819,26 @@ mod tests {
         // Fast mode is paced by source.rate_hz like the synthetic source.
         let path = write(&dir, "fast.toml", &format!("{REPLAY}mode = \"fast\"\n"));
         assert!(load(Some(&path), &["source.rate_hz=15".to_owned()]).is_ok());
+    }
+
+    #[test]
+    fn llm_section_is_checked_by_field_and_its_key_file_is_a_path() {
+        let loaded = load(None, &[]).unwrap();
+        assert_eq!(loaded.profile.reasoner.llm, crate::reasoner::llm::LlmConfig::default());
+        let dir = tempfile::tempdir().unwrap();
+        let path = write(&dir, "robot.toml", "[reasoner]\nkind = \"llm\"\n");
+        let err = load(Some(&path), &[]).unwrap_err();
+        // Named by the field (the empty base URL comes from the built-in base).
+        assert!(err.to_string().ends_with(": reasoner.llm.base_url: required with reasoner.kind = \"llm\""), "{err}");
+        let path = write(
+            &dir,
+            "robot.toml",
+            "[reasoner]\nkind = \"llm\"\n[reasoner.llm]\nbase_url = \"http://127.0.0.1:8000/v1\"\nmodel = \"m\"\napi_key_file = \"llm.key\"\nmax_concurrent_calls = 0\n",
+        );
+        let err = load(Some(&path), &[]).unwrap_err();
+        assert!(err.to_string().ends_with("reasoner.llm.max_concurrent_calls: must be within [1, 64], got 0"), "{err}");
+        let ok = load(Some(&path), &["reasoner.llm.max_concurrent_calls=2".to_owned()]).unwrap();
+        assert_eq!(ok.profile.reasoner.llm.api_key_file, Some(dir.path().join("llm.key")));
     }
 
     #[test]

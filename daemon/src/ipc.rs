@@ -938,6 +938,59 @@ pub struct HealthReport {
     pub stages: Vec<StageReport>,
     /// Per-queue figures.
     pub queues: Vec<QueueReport>,
+    /// The LLM refiner.
+    #[serde(default)]
+    pub refiner: RefinerReport,
+}
+
+/// The LLM refiner in a [`HealthReport`] (see `op3dsg_ipc_types::RefinerHealth`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RefinerReport {
+    /// State (`off`, `idle`, `calling`, `backoff`, `breaker_open`, `budget_exhausted`).
+    pub state: String,
+    /// Whether the circuit breaker is open.
+    pub breaker_open: bool,
+    /// Refreshes started.
+    pub refreshes: u64,
+    /// HTTP requests sent, retries included.
+    pub calls: u64,
+    /// Requests that failed.
+    pub failures: u64,
+    /// Of `failures`: timeouts.
+    pub timeouts: u64,
+    /// Of `failures`: 429 answers.
+    pub rate_limited: u64,
+    /// Items that passed the verification gate.
+    pub accepted: u64,
+    /// Rejections by reason (`malformed`, `unknown_node`, `wrong_kind`, `non_canonical`, `stale`).
+    pub rejections: std::collections::BTreeMap<String, u64>,
+    /// Latency of the last call, microseconds.
+    pub last_latency_us: u32,
+    /// Graph version of the last verified result.
+    pub last_graph_version: u64,
+}
+
+impl From<&op3dsg_ipc_types::RefinerHealth> for RefinerReport {
+    fn from(r: &op3dsg_ipc_types::RefinerHealth) -> Self {
+        Self {
+            state: op3dsg_ipc_types::REFINER_STATES.get(r.state as usize).copied().unwrap_or("unknown").to_owned(),
+            breaker_open: r.breaker_open != 0,
+            refreshes: r.refreshes,
+            calls: r.calls,
+            failures: r.failures,
+            timeouts: r.timeouts,
+            rate_limited: r.rate_limited,
+            accepted: r.accepted,
+            rejections: op3dsg_ipc_types::REFINER_REJECTIONS
+                .iter()
+                .zip(r.rejections)
+                .map(|(name, n)| ((*name).to_owned(), n))
+                .collect(),
+            last_latency_us: r.last_latency_us,
+            last_graph_version: r.last_graph_version,
+        }
+    }
 }
 
 /// One stage of a [`HealthReport`].
@@ -1011,6 +1064,7 @@ impl From<&Health> for HealthReport {
                     pushed: q.pushed,
                 })
                 .collect(),
+            refiner: RefinerReport::from(&h.refiner),
         }
     }
 }

@@ -17,12 +17,17 @@
 //! fusion applies results strictly in ticket order (a small reorder buffer), which keeps the map
 //! deterministic whatever the number of workers.
 //!
+//! With `reasoner.kind = "llm"` the fusion thread also owns the LLM refiner (thread `op3dsg-llm`,
+//! `crate::reasoner::llm`): it hands each prior graph over (latest wins) and picks up verified
+//! results without ever waiting; the refiner's counters are part of the health record.
+//!
 //! ## Shutdown ladder (SIGINT / SIGTERM, `run.max_frames`, or the end of a finite source)
 //! 1. The stop flag is set (or the source ends): capture stops reading, returns its frames to the
 //!    pool and closes the `frames` queue.
 //! 2. The keyframe gate drains `frames`, then closes `keyframes`.
 //! 3. Each worker finishes the keyframe it holds and exits; the last one closes `detections`.
-//! 4. Fusion applies every result it received, publishes the final graph into `graph` and exits.
+//! 4. Fusion applies every result it received, publishes the final graph into `graph` and exits
+//!    (stopping the LLM refiner, which abandons any request in flight).
 //! 5. The publisher sends that final graph and a last health record, then releases its iceoryx2
 //!    services. At the end of a finite source without `run.exit_at_end` it keeps serving instead
 //!    until a signal arrives.
@@ -55,7 +60,8 @@ use crate::perception::oracle::OracleDetector;
 use crate::perception::yolox::YoloxDetector;
 use crate::perception::{Detection, Detector, DetectorError};
 use crate::queue::{Popped, QueueReceiver, QueueSender, QueueStats, queue};
-use crate::reasoner::GraphEnricher;
+use crate::reasoner::llm::RefinerStats;
+use crate::reasoner::{EnricherError, GraphEnricher};
 use crate::stats::StageStats;
 
 /// How long a stage waits on an empty queue before it checks the stop flag again.
@@ -125,6 +131,8 @@ pub struct PipelineStats {
     pub stages: Vec<Arc<StageStats>>,
     /// Per-queue figures, in pipeline order.
     pub queues: Vec<Arc<QueueStats>>,
+    /// The LLM refiner (state `off` without `reasoner.kind = "llm"`).
+    pub refiner: Arc<RefinerStats>,
 }
 
 impl PipelineStats {
@@ -158,6 +166,7 @@ impl PipelineStats {
             slot.pushed = q.pushed.load(Ordering::Relaxed);
         }
         h.queue_count = self.queues.len().min(h.queues.len()) as u32;
+        h.refiner = self.refiner.health();
         h
     }
 
@@ -374,8 +383,12 @@ pub fn make_fusion(profile: &Profile) -> Box<dyn Fusion> {
 /// The prior graph + reasoner the profile asks for (`[reasoner]`), shared by the pipeline and
 /// the batch runner.
 pub fn make_enricher(profile: &Profile) -> Result<Option<GraphEnricher>, StartError> {
-    GraphEnricher::from_profile(profile)
-        .map_err(|e| StartError::Incompatible { field: "reasoner.knowledge_dir", reason: e.to_string() })
+    GraphEnricher::from_profile(profile).map_err(|e| match e {
+        EnricherError::Knowledge(e) => {
+            StartError::Incompatible { field: "reasoner.knowledge_dir", reason: e.to_string() }
+        }
+        EnricherError::Llm { field, reason } => StartError::Incompatible { field, reason },
+    })
 }
 
 impl Pipeline {
@@ -408,6 +421,8 @@ impl Pipeline {
         stages.push(Arc::new(StageStats::new("publish")));
         // Not a thread: from a keyframe's capture to the send of the first graph holding it.
         stages.push(Arc::new(StageStats::new("end_to_end")));
+        // Before the counters: the LLM refiner (if any) owns its own.
+        let enricher = make_enricher(profile)?;
         let stats = Arc::new(PipelineStats {
             started: Instant::now(),
             frames_captured: AtomicU64::new(0),
@@ -425,6 +440,7 @@ impl Pipeline {
             source_failed: AtomicBool::new(false),
             stages,
             queues: vec![frames_stats, kf_stats, det_stats, graph_stats],
+            refiner: enricher.as_ref().and_then(GraphEnricher::refiner_stats).unwrap_or_default(),
         });
 
         let (finished_tx, finished_rx) = crossbeam_channel::unbounded::<&'static str>();
@@ -476,7 +492,6 @@ impl Pipeline {
         {
             let stats = stats.clone();
             let fusion = make_fusion(profile);
-            let enricher = make_enricher(profile)?;
             let min_interval = Duration::from_millis(profile.run.min_publish_interval_ms);
             handles.push(spawn_stage("fusion", &finished_tx, move || {
                 fusion_loop(fusion, enricher, det_rx, graph_tx, &stats, min_interval);
@@ -768,14 +783,14 @@ fn fusion_loop(
     let mut publish = |fusion: &dyn Fusion, version: &mut u64, stamp_ns: u64, newest_capture: Option<Instant>| {
         let mut graph = SceneGraph::default();
         fusion.build_graph(&mut graph);
+        *version += 1;
+        graph.version = *version;
+        graph.stamp_ns = stamp_ns;
         if let Some(enricher) = enricher.as_mut() {
             let started = Instant::now();
             enricher.enrich(&mut graph);
             prior_stage.record(started);
         }
-        *version += 1;
-        graph.version = *version;
-        graph.stamp_ns = stamp_ns;
         stats.graph_version.store(*version, Ordering::Relaxed);
         stats.map_node_count.store(fusion.node_count() as u64, Ordering::Relaxed);
         stats.map_memory_bytes.store(fusion.memory_bytes() as u64, Ordering::Relaxed);

@@ -33,6 +33,14 @@
 //! grown by a margin, contains the part's centre, the one whose label is contained in the part's
 //! label — "cabinet handle" → cabinet — else the nearest by surface distance; one object per
 //! part). The prior graph keeps those parents and their `part of` edges as they are.
+//!
+//! A part fusion left without a parent (none within its margin) is attached here by the same
+//! rule over its spatially close objects, the objects among its neighbours (centres within
+//! `neighbour_radius_m`): an object whose label is contained in the part's label (normalised
+//! words, or the object named by the part's compound label in the knowledge base) wins, else the
+//! nearest by surface distance (the gap between the two boxes); ties go to the lower id. A part
+//! with no object nearby stays unattached. These attachments are listed in
+//! [`PriorGraph::attached`] and get a `part of` edge of origin geometry.
 
 use glam::Vec3;
 use op3dsg_ipc_types::{EdgeKind, EdgeOrigin, NodeKind, relation_id};
@@ -104,8 +112,11 @@ pub struct PriorGraph {
     pub nodes: Vec<PriorNode>,
     /// Neighbouring pairs as node indices `(i, j)`, `i < j`.
     pub neighbours: Vec<(u32, u32)>,
-    /// Spatial edges: `part of` from fusion, then the object relations.
+    /// Spatial edges: `part of` from fusion, then the object relations, then `part of` for the
+    /// parts attached here.
     pub spatial_edges: Vec<GraphEdge>,
+    /// Parts fusion left without a parent that were attached here: `(part_id, object_id)`.
+    pub attached: Vec<(u32, u32)>,
 }
 
 impl PriorGraph {
@@ -198,14 +209,31 @@ pub fn object_relations(
 /// grid of `radius_m` cells.
 pub fn neighbours(centres: &[Vec3], radius_m: f32) -> Vec<(u32, u32)> {
     let mut pairs = Vec::new();
+    neighbours_into(centres, radius_m, &mut FxHashMap::default(), &mut pairs);
+    pairs
+}
+
+/// [`neighbours`] into `pairs`, with `grid` as reusable scratch space (its cell vectors keep
+/// their capacity between calls).
+fn neighbours_into(
+    centres: &[Vec3],
+    radius_m: f32,
+    grid: &mut FxHashMap<(i32, i32, i32), Vec<u32>>,
+    pairs: &mut Vec<(u32, u32)>,
+) {
+    pairs.clear();
     if !(radius_m.is_finite() && radius_m > 0.0) {
-        return pairs;
+        return;
     }
     let cell_of = |p: Vec3| {
         let c = (p / radius_m).floor();
         (c.x as i32, c.y as i32, c.z as i32)
     };
-    let mut grid: FxHashMap<(i32, i32, i32), Vec<u32>> = FxHashMap::default();
+    // Keep the cells' allocations, unless the map kept far more cells than there are points.
+    if grid.len() > 4 * centres.len().max(64) {
+        grid.clear();
+    }
+    grid.values_mut().for_each(Vec::clear);
     for (i, centre) in centres.iter().enumerate() {
         if centre.is_finite() {
             grid.entry(cell_of(*centre)).or_default().push(i as u32);
@@ -231,53 +259,153 @@ pub fn neighbours(centres: &[Vec3], radius_m: f32) -> Vec<(u32, u32)> {
         }
     }
     pairs.sort_unstable();
-    pairs
 }
 
-/// Builds the prior graph of `graph`.
+/// Builds the prior graph of `graph` (a one-off [`PriorBuilder`]).
 pub fn build(graph: &SceneGraph, knowledge: &KnowledgeBase, config: &PriorConfig) -> PriorGraph {
-    // Labels repeat (every "cabinet handle"): resolve each distinct label once.
-    let mut resolved: FxHashMap<&str, Option<Resolved>> = FxHashMap::default();
-    let mut nodes: Vec<PriorNode> = graph
-        .nodes
-        .iter()
-        .map(|n| PriorNode {
-            id: n.id,
-            kind: n.kind,
-            parent_id: n.parent_id,
-            label: n.label.clone(),
-            category: *resolved.entry(n.label.as_str()).or_insert_with(|| knowledge.resolve(&n.label)),
-            confidence: n.confidence,
-            centre_m: Vec3::from(n.centre_m),
-            box_min_m: Vec3::from(n.box_min_m),
-            box_max_m: Vec3::from(n.box_max_m),
-        })
-        .collect();
-    nodes.sort_unstable_by_key(|n| n.id);
-    let centres: Vec<Vec3> = nodes.iter().map(|n| n.centre_m).collect();
-    let neighbours = neighbours(&centres, config.neighbour_radius_m);
-    let part_of = relation_id("part of").map_or(0, |(_, id)| id);
-    let mut spatial_edges: Vec<GraphEdge> =
-        graph.edges.iter().filter(|e| e.kind == EdgeKind::Spatial && e.relation_id == part_of).cloned().collect();
-    for &(i, j) in &neighbours {
-        let (a, b) = (&nodes[i as usize], &nodes[j as usize]);
-        if a.kind != NodeKind::Object || b.kind != NodeKind::Object {
-            continue;
+    PriorBuilder::default().build(graph, knowledge, config)
+}
+
+/// Rebuilds prior graphs with state kept between rebuilds: the labels already resolved against
+/// the knowledge base (labels repeat from one graph to the next) and the neighbour grid's
+/// cells. The owner of a knowledge base keeps one builder per knowledge base.
+#[derive(Debug, Default)]
+pub struct PriorBuilder {
+    resolved: FxHashMap<String, Option<Resolved>>,
+    grid: FxHashMap<(i32, i32, i32), Vec<u32>>,
+    centres: Vec<Vec3>,
+}
+
+/// Distinct labels kept resolved at most; beyond, the cache starts over.
+const RESOLVED_CACHE_CAPACITY: usize = 4096;
+
+impl PriorBuilder {
+    /// Builds the prior graph of `graph`. Use one builder with one knowledge base only.
+    pub fn build(&mut self, graph: &SceneGraph, knowledge: &KnowledgeBase, config: &PriorConfig) -> PriorGraph {
+        if self.resolved.len() > RESOLVED_CACHE_CAPACITY {
+            self.resolved.clear();
         }
-        for (phrase, a_is_source) in object_relations(config, a.box_min_m, a.box_max_m, b.box_min_m, b.box_max_m) {
-            let Some((_, relation_id)) = relation_id(phrase) else { continue };
-            let (source, target) = if a_is_source { (a, b) } else { (b, a) };
+        let resolved = &mut self.resolved;
+        let mut nodes: Vec<PriorNode> = graph
+            .nodes
+            .iter()
+            .map(|n| {
+                let category = match resolved.get(n.label.as_str()) {
+                    Some(category) => *category,
+                    None => *resolved.entry(n.label.clone()).or_insert_with(|| knowledge.resolve(&n.label)),
+                };
+                PriorNode {
+                    id: n.id,
+                    kind: n.kind,
+                    parent_id: n.parent_id,
+                    label: n.label.clone(),
+                    category,
+                    confidence: n.confidence,
+                    centre_m: Vec3::from(n.centre_m),
+                    box_min_m: Vec3::from(n.box_min_m),
+                    box_max_m: Vec3::from(n.box_max_m),
+                }
+            })
+            .collect();
+        nodes.sort_unstable_by_key(|n| n.id);
+        self.centres.clear();
+        self.centres.extend(nodes.iter().map(|n| n.centre_m));
+        let mut neighbours = Vec::new();
+        neighbours_into(&self.centres, config.neighbour_radius_m, &mut self.grid, &mut neighbours);
+        let part_of = relation_id("part of").map_or(0, |(_, id)| id);
+        let mut spatial_edges: Vec<GraphEdge> =
+            graph.edges.iter().filter(|e| e.kind == EdgeKind::Spatial && e.relation_id == part_of).cloned().collect();
+        for &(i, j) in &neighbours {
+            let (a, b) = (&nodes[i as usize], &nodes[j as usize]);
+            if a.kind != NodeKind::Object || b.kind != NodeKind::Object {
+                continue;
+            }
+            for (phrase, a_is_source) in object_relations(config, a.box_min_m, a.box_max_m, b.box_min_m, b.box_max_m) {
+                let Some((_, relation_id)) = relation_id(phrase) else { continue };
+                let (source, target) = if a_is_source { (a, b) } else { (b, a) };
+                spatial_edges.push(GraphEdge {
+                    source_id: source.id,
+                    target_id: target.id,
+                    kind: EdgeKind::Spatial,
+                    relation_id,
+                    confidence: a.confidence.min(b.confidence),
+                    origin: EdgeOrigin::Geometry,
+                });
+            }
+        }
+        let attached = attach_orphan_parts(&mut nodes, &neighbours);
+        for &(part_id, object_id) in &attached {
+            let confidence = [part_id, object_id]
+                .iter()
+                .filter_map(|id| nodes.binary_search_by_key(id, |n| n.id).ok())
+                .map(|i| nodes[i].confidence)
+                .fold(1.0f32, f32::min);
             spatial_edges.push(GraphEdge {
-                source_id: source.id,
-                target_id: target.id,
+                source_id: part_id,
+                target_id: object_id,
                 kind: EdgeKind::Spatial,
-                relation_id,
-                confidence: a.confidence.min(b.confidence),
+                relation_id: part_of,
+                confidence,
                 origin: EdgeOrigin::Geometry,
             });
         }
+        PriorGraph { version: graph.version, nodes, neighbours, spatial_edges, attached }
     }
-    PriorGraph { version: graph.version, nodes, neighbours, spatial_edges }
+}
+
+/// Gap between two axis-aligned boxes (0 when they touch or overlap), metres.
+fn box_gap(a_min: Vec3, a_max: Vec3, b_min: Vec3, b_max: Vec3) -> f32 {
+    (a_min - b_max).max(b_min - a_max).max(Vec3::ZERO).length()
+}
+
+/// Whether the words of `object` appear, in order and whole, in `part` (both normalised).
+fn label_contains(part: &str, object: &str) -> bool {
+    !object.is_empty() && format!(" {part} ").contains(&format!(" {object} "))
+}
+
+/// Attaches parts without a (present) parent by the rule in the module docs; returns the new
+/// `(part_id, object_id)` pairs, in part id order.
+fn attach_orphan_parts(nodes: &mut [PriorNode], neighbours: &[(u32, u32)]) -> Vec<(u32, u32)> {
+    let present = |nodes: &[PriorNode], id: u32| nodes.binary_search_by_key(&id, |n| n.id).is_ok();
+    let orphan: Vec<bool> =
+        nodes.iter().map(|n| n.kind == NodeKind::Part && n.parent_id.is_none_or(|p| !present(nodes, p))).collect();
+    if !orphan.contains(&true) {
+        return Vec::new();
+    }
+    // Per orphan part index: (lexical, gap, object id, object index).
+    let mut best: FxHashMap<u32, (bool, f32, u32, u32)> = FxHashMap::default();
+    for &(i, j) in neighbours {
+        for (p, o) in [(i, j), (j, i)] {
+            let (part, object) = (&nodes[p as usize], &nodes[o as usize]);
+            if !orphan[p as usize] || object.kind != NodeKind::Object {
+                continue;
+            }
+            let hint = part.category.and_then(|c| c.object_hint);
+            let lexical = (hint.is_some() && hint == object.category.and_then(|c| c.object()))
+                || label_contains(
+                    &crate::knowledge::normalise(&part.label),
+                    &crate::knowledge::normalise(&object.label),
+                );
+            let gap = box_gap(part.box_min_m, part.box_max_m, object.box_min_m, object.box_max_m);
+            let candidate = (lexical, gap, object.id, o);
+            let better = best.get(&p).is_none_or(|&(bl, bg, bid, _)| {
+                (lexical, std::cmp::Reverse(gap.to_bits()), std::cmp::Reverse(object.id))
+                    > (bl, std::cmp::Reverse(bg.to_bits()), std::cmp::Reverse(bid))
+            });
+            if better {
+                best.insert(p, candidate);
+            }
+        }
+    }
+    let mut attached: Vec<(u32, u32)> = best
+        .into_iter()
+        .map(|(p, (_, _, object_id, _))| {
+            nodes[p as usize].parent_id = Some(object_id);
+            (nodes[p as usize].id, object_id)
+        })
+        .collect();
+    attached.sort_unstable();
+    attached
 }
 
 #[cfg(test)]
@@ -405,5 +533,58 @@ mod tests {
             .map(|e| (e.source_id, e.target_id, op3dsg_ipc_types::relation_phrase(e.relation_id).unwrap_or("?")))
             .collect();
         assert_eq!(phrases, [(3, 1, "part of"), (2, 1, "on"), (1, 2, "under")]);
+        assert!(prior.attached.is_empty());
+    }
+
+    #[test]
+    fn a_reused_builder_builds_what_a_fresh_one_does() {
+        let kb = KnowledgeBase::builtin().unwrap();
+        let mut builder = PriorBuilder::default();
+        let mut graph = SceneGraph::default();
+        for round in 0..3u32 {
+            // Shift and grow the scene so cells empty, fill and move between rounds.
+            let shift = round as f32 * 1.7;
+            graph.nodes.clear();
+            for i in 0..(40 + 20 * round) {
+                let f = i as f32;
+                let min = [(f * 0.37) % 4.0 + shift, (f * 0.71) % 3.0, (f * 0.13) % 1.5];
+                let label = ["cabinet", "microwave", "table", "cabinet handle", "knob"][i as usize % 5];
+                let kind = if label.contains(' ') || label == "knob" { NodeKind::Part } else { NodeKind::Object };
+                graph.nodes.push(node(i, label, kind, min, [min[0] + 0.3, min[1] + 0.2, min[2] + 0.25]));
+            }
+            graph.version = u64::from(round);
+            assert_eq!(
+                builder.build(&graph, &kb, &PriorConfig::default()),
+                build(&graph, &kb, &PriorConfig::default())
+            );
+        }
+    }
+
+    #[test]
+    fn parts_fusion_left_alone_are_attached_lexically_else_nearest() {
+        let kb = KnowledgeBase::builtin().unwrap();
+        let graph = SceneGraph {
+            version: 3,
+            stamp_ns: 0,
+            nodes: vec![
+                node(1, "cabinet", NodeKind::Object, [0.0, 0.0, 0.0], [0.6, 0.6, 0.9]),
+                node(2, "microwave", NodeKind::Object, [0.0, -0.5, 0.5], [0.4, -0.15, 0.8]),
+                // Nearer the microwave's box, but its label names the cabinet.
+                node(3, "cabinet handle", NodeKind::Part, [0.3, -0.14, 0.5], [0.4, -0.12, 0.52]),
+                // No label match: the nearest box (the microwave) wins.
+                node(4, "knob", NodeKind::Part, [0.1, -0.14, 0.6], [0.14, -0.1, 0.64]),
+                // Nothing within the neighbour radius.
+                node(5, "drawer handle", NodeKind::Part, [9.0, 9.0, 0.5], [9.1, 9.02, 0.52]),
+            ],
+            edges: Vec::new(),
+        };
+        let prior = build(&graph, &kb, &PriorConfig::default());
+        assert_eq!(prior.attached, [(3, 1), (4, 2)]);
+        assert_eq!(prior.nodes[2].parent_id, Some(1));
+        assert_eq!(prior.nodes[4].parent_id, None);
+        let part_of: Vec<(u32, u32)> =
+            prior.spatial_edges.iter().filter(|e| e.relation_id == 0).map(|e| (e.source_id, e.target_id)).collect();
+        assert_eq!(part_of, [(3, 1), (4, 2)]);
+        assert!(label_contains("tv stand drawer handle", "tv stand") && !label_contains("cabinets handle", "cabinet"));
     }
 }

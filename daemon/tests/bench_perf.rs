@@ -102,8 +102,6 @@ fn bench_perf_runs_and_reports_sane_figures() {
         sane(&row.raw_publish_call, &format!("raw publish call {}", row.nodes));
         sane(&row.graph_read_call, &format!("graph read call {}", row.nodes));
         assert_eq!(row.graph_read_call.count as usize, IPC_MESSAGES);
-        // The publisher's call is part of the publish → receive latency.
-        assert!(row.graph_publish_call.p50_ms <= row.graph.max_ms, "{row:?}");
         assert_eq!(row.bytes, 56 + row.nodes * 120 + row.edges * 64);
         assert!(row.ratio_p50.is_finite() && row.ratio_p50 > 0.0);
         assert!(row.ratio_p99.is_finite() && row.ratio_p99 > 0.0);

@@ -40,7 +40,7 @@ pub use iceoryx2::prelude::{PlacementDefault, ZeroCopySend};
 
 /// Version of this wire contract. Bumped whenever a type's layout or meaning changes; a client
 /// must check [`GraphHeader::schema_version`] and [`Health::schema_version`] before reading.
-pub const SCHEMA_VERSION: u32 = 2;
+pub const SCHEMA_VERSION: u32 = 3;
 
 /// Bytes in a node label buffer (UTF-8, NUL padded).
 pub const LABEL_CAPACITY_BYTES: usize = 48;
@@ -492,6 +492,49 @@ pub struct QueueHealth {
     pub pushed: u64,
 }
 
+/// States of the LLM refiner ([`RefinerHealth::state`] indexes this).
+pub const REFINER_STATES: [&str; 6] = ["off", "idle", "calling", "backoff", "breaker_open", "budget_exhausted"];
+
+/// Why the LLM refiner's verification gate rejected an answer or one of its items
+/// ([`RefinerHealth::rejections`] index `i` counts `REFINER_REJECTIONS[i]`):
+/// `malformed` (an answer that fails strict parsing, or an item with a bad confidence),
+/// `unknown_node` (an id not in that graph version), `wrong_kind` (a local relation off a
+/// part-of pair, a remote one between nodes the knowledge base does not allow),
+/// `non_canonical` (a relation or affordance label that maps onto no canonical one),
+/// `stale` (accepted, but its nodes were gone when the result reached the graph).
+pub const REFINER_REJECTIONS: [&str; 5] = ["malformed", "unknown_node", "wrong_kind", "non_canonical", "stale"];
+
+/// The LLM refiner (size 128 bytes); all zero (state `off`) when no LLM is configured.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, PlacementDefault)]
+#[type_name("op3dsg::RefinerHealth")]
+pub struct RefinerHealth {
+    /// Index into [`REFINER_STATES`].
+    pub state: u8,
+    /// 1 while the circuit breaker is open (no calls until its cool-down ends).
+    pub breaker_open: u8,
+    /// Reserved, zero.
+    pub reserved: [u8; 2],
+    /// Latency of the last completed call (success or failure), microseconds.
+    pub last_latency_us: u32,
+    /// Refreshes started (each sends one prompt per agent).
+    pub refreshes: u64,
+    /// HTTP requests sent, retries included (each counts against the hourly budget).
+    pub calls: u64,
+    /// Requests that failed (timeout, transport error, HTTP error status).
+    pub failures: u64,
+    /// Of `failures`: timeouts.
+    pub timeouts: u64,
+    /// Of `failures`: HTTP 429 answers.
+    pub rate_limited: u64,
+    /// Items that passed the verification gate.
+    pub accepted: u64,
+    /// Graph version of the last result sent to the fusion thread.
+    pub last_graph_version: u64,
+    /// Rejections by reason ([`REFINER_REJECTIONS`] order; the rest reserved, zero).
+    pub rejections: [u64; 8],
+}
+
 /// Daemon health, published on `<prefix>/health` every health period (profile).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, ZeroCopySend, PlacementDefault)]
@@ -529,6 +572,8 @@ pub struct Health {
     pub stages: [StageHealth; MAX_STAGES],
     /// Per-queue figures.
     pub queues: [QueueHealth; MAX_QUEUES],
+    /// The LLM refiner.
+    pub refiner: RefinerHealth,
 }
 
 impl Default for Health {
@@ -550,6 +595,7 @@ impl Default for Health {
             reserved: [0; 7],
             stages: [StageHealth::default(); MAX_STAGES],
             queues: [QueueHealth::default(); MAX_QUEUES],
+            refiner: RefinerHealth::default(),
         }
     }
 }
@@ -605,6 +651,8 @@ mod tests {
         assert_eq!(size_of::<PoseStamped>(), 104);
         assert_eq!(size_of::<StageHealth>(), 64);
         assert_eq!(size_of::<QueueHealth>(), 56);
+        assert_eq!(size_of::<RefinerHealth>(), 128);
+        assert_eq!(size_of::<Health>(), 88 + MAX_STAGES * 64 + MAX_QUEUES * 56 + 128);
         assert_eq!(size_of::<GraphSnapshot>(), 56 + MAX_NODES * size_of::<Node>() + MAX_EDGES * size_of::<Edge>());
     }
 
@@ -615,6 +663,7 @@ mod tests {
             assert_eq!(<Node as ZeroCopySend>::type_name(), "op3dsg::Node");
             assert_eq!(<GraphSnapshot as ZeroCopySend>::type_name(), "op3dsg::GraphSnapshot");
             assert_eq!(<Health as ZeroCopySend>::type_name(), "op3dsg::Health");
+            assert_eq!(<RefinerHealth as ZeroCopySend>::type_name(), "op3dsg::RefinerHealth");
             assert_eq!(<PoseStamped as ZeroCopySend>::type_name(), "op3dsg::PoseStamped");
         }
     }

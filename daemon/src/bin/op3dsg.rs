@@ -57,7 +57,8 @@ enum Command {
         out: Option<PathBuf>,
     },
     /// Print the daemon's latest health record (frames, keyframes, stage rates and latencies,
-    /// queue depths and drops).
+    /// queue depths and drops, and with reasoner.kind = "llm" the LLM refiner: state, calls,
+    /// failures, rejections by reason, last latency, breaker).
     Health {
         /// Print JSON instead of text.
         #[arg(long)]
@@ -493,6 +494,25 @@ fn health_text(h: &HealthReport) -> String {
     for q in &h.queues {
         let _ = writeln!(s, "{:<16} {:>7} {:>9} {:>10} {:>10}", q.name, q.depth, q.capacity, q.dropped, q.pushed);
     }
+    let r = &h.refiner;
+    if r.state != "off" {
+        let _ = writeln!(
+            s,
+            "llm refiner {}{}  refreshes {}  calls {}  failures {} (timeouts {}, 429 {})  accepted {}  last latency {:.0} ms  last graph version {}",
+            r.state,
+            if r.breaker_open { " (breaker open)" } else { "" },
+            r.refreshes,
+            r.calls,
+            r.failures,
+            r.timeouts,
+            r.rate_limited,
+            r.accepted,
+            f64::from(r.last_latency_us) / 1000.0,
+            r.last_graph_version
+        );
+        let rejections: Vec<String> = r.rejections.iter().map(|(k, v)| format!("{k} {v}")).collect();
+        let _ = writeln!(s, "llm rejections  {}", rejections.join("  "));
+    }
     s
 }
 
@@ -654,4 +674,25 @@ fn fusion_eval(
         bail!("{name}: quality targets missed");
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn health_text_shows_the_llm_refiner_only_when_configured() {
+        let mut health = Health::default();
+        assert!(!health_text(&HealthReport::from(&health)).contains("llm"));
+        health.refiner.state = 4;
+        health.refiner.breaker_open = 1;
+        health.refiner.calls = 6;
+        health.refiner.failures = 6;
+        health.refiner.rejections[1] = 2;
+        let text = health_text(&HealthReport::from(&health));
+        assert!(text.contains("llm refiner breaker_open (breaker open)  refreshes 0  calls 6  failures 6"), "{text}");
+        assert!(text.contains("unknown_node 2"), "{text}");
+        let json = serde_json::to_value(HealthReport::from(&health)).unwrap();
+        assert_eq!(json["refiner"]["rejections"]["unknown_node"], 2);
+    }
 }

@@ -1,0 +1,587 @@
+//! The asynchronous refiner: its own named thread with its own (single-threaded) tokio runtime.
+//!
+//! ```text
+//!  fusion thread ── offer(Arc<PriorGraph>) ──▶ slot (1, latest wins) ──▶ refiner thread
+//!        ▲                                                                   │ 3 agents, joined
+//!        └──────── try_result() ◀── results (1, latest wins) ◀── gate ◀──────┘
+//! ```
+//!
+//! The fusion thread never waits: `offer` swaps a pointer under a lock the refiner holds only to
+//! take it, `try_result` never blocks. The refiner refreshes when at least
+//! `refresh_min_changed_nodes` nodes were added, removed or relabelled since the last successful
+//! refresh, or after `refresh_period_s` when anything changed (a failed refresh waits a period
+//! before the next try). A refresh sends the three agents' prompts concurrently (at most
+//! `max_concurrent_calls` in flight), each call retried on timeouts, transport errors, 429 and 5xx
+//! with exponential backoff (`Retry-After` honoured), every request counted against the rolling
+//! hourly budget; `breaker_failures` consecutive failed calls open the circuit breaker for
+//! `breaker_cooldown_s`. Stopping (drop) cancels whatever is in flight.
+
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU32, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::{Receiver, Sender};
+use op3dsg_ipc_types::RefinerHealth;
+use rustc_hash::FxHashMap;
+use tokio::sync::{Notify, Semaphore};
+use tracing::{debug, info, warn};
+
+use super::client::{ApiKey, CallError, ChatClient};
+use super::config::LlmConfig;
+use super::gate::{self, LabelMapper, Rejection, Rejections};
+use super::prompt::{self, Prompt, PromptSet};
+use crate::knowledge::KnowledgeBase;
+use crate::prior::PriorGraph;
+use crate::reasoner::ReasonerOutput;
+
+/// Refiner states (`op3dsg_ipc_types::REFINER_STATES` order).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum RefinerState {
+    /// No LLM configured.
+    Off = 0,
+    /// Waiting for a graph that changed enough.
+    Idle = 1,
+    /// Requests in flight.
+    Calling = 2,
+    /// Waiting before a retry.
+    Backoff = 3,
+    /// Circuit breaker open.
+    BreakerOpen = 4,
+    /// Hourly budget spent.
+    BudgetExhausted = 5,
+}
+
+/// Counters of the refiner, shared with the health reporter.
+#[derive(Debug, Default)]
+pub struct RefinerStats {
+    state: AtomicU8,
+    breaker_open: AtomicBool,
+    last_latency_us: AtomicU32,
+    /// Refreshes started.
+    pub refreshes: AtomicU64,
+    /// HTTP requests sent.
+    pub calls: AtomicU64,
+    /// Requests that failed.
+    pub failures: AtomicU64,
+    /// Of `failures`: timeouts.
+    pub timeouts: AtomicU64,
+    /// Of `failures`: 429 answers.
+    pub rate_limited: AtomicU64,
+    /// Items that passed the gate.
+    pub accepted: AtomicU64,
+    /// Graph version of the last result sent.
+    pub last_graph_version: AtomicU64,
+    /// Results sent to the fusion thread.
+    pub results: AtomicU64,
+    rejections: [AtomicU64; 8],
+}
+
+impl RefinerStats {
+    /// The state now.
+    pub fn state(&self) -> u8 {
+        self.state.load(Ordering::Relaxed)
+    }
+    fn set_state(&self, state: RefinerState) {
+        self.state.store(state as u8, Ordering::Relaxed);
+    }
+    /// Rejections for `reason` since start.
+    pub fn rejections(&self, reason: Rejection) -> u64 {
+        self.rejections[reason as usize].load(Ordering::Relaxed)
+    }
+    /// Adds rejection counts.
+    pub fn add_rejections(&self, rejections: &Rejections) {
+        for (slot, n) in self.rejections.iter().zip(rejections.0) {
+            slot.fetch_add(n, Ordering::Relaxed);
+        }
+    }
+    /// Whether the breaker is open.
+    pub fn breaker_open(&self) -> bool {
+        self.breaker_open.load(Ordering::Relaxed)
+    }
+    /// The health record's refiner section.
+    pub fn health(&self) -> RefinerHealth {
+        let mut h = RefinerHealth {
+            state: self.state(),
+            breaker_open: u8::from(self.breaker_open()),
+            last_latency_us: self.last_latency_us.load(Ordering::Relaxed),
+            refreshes: self.refreshes.load(Ordering::Relaxed),
+            calls: self.calls.load(Ordering::Relaxed),
+            failures: self.failures.load(Ordering::Relaxed),
+            timeouts: self.timeouts.load(Ordering::Relaxed),
+            rate_limited: self.rate_limited.load(Ordering::Relaxed),
+            accepted: self.accepted.load(Ordering::Relaxed),
+            last_graph_version: self.last_graph_version.load(Ordering::Relaxed),
+            ..RefinerHealth::default()
+        };
+        for (slot, n) in h.rejections.iter_mut().zip(&self.rejections) {
+            *slot = n.load(Ordering::Relaxed);
+        }
+        h
+    }
+}
+
+/// What the refiner needs besides its configuration.
+#[derive(Debug)]
+pub struct RefinerParts {
+    /// The knowledge base (remote candidates).
+    pub knowledge: Arc<KnowledgeBase>,
+    /// The API key, when there is one.
+    pub key: Option<ApiKey>,
+    /// Maps labels onto the canonical tables.
+    pub mapper: LabelMapper,
+}
+
+struct Shared {
+    slot: Mutex<Option<Arc<PriorGraph>>>,
+    wake: Notify,
+    /// The next snapshot is refreshed whatever changed, and answered even on failure.
+    forced: AtomicBool,
+    /// Only forced snapshots are refreshed (batch runs).
+    synchronous: AtomicBool,
+    stop: AtomicBool,
+    stop_notify: Notify,
+}
+
+/// Handle of the refiner thread, owned by the fusion thread (or the batch runner).
+pub struct LlmRefiner {
+    shared: Arc<Shared>,
+    results: Receiver<ReasonerOutput>,
+    stats: Arc<RefinerStats>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl std::fmt::Debug for LlmRefiner {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LlmRefiner").field("state", &self.stats.state()).finish_non_exhaustive()
+    }
+}
+
+impl LlmRefiner {
+    /// Starts the refiner thread (`op3dsg-llm`).
+    pub fn start(config: &LlmConfig, parts: RefinerParts) -> Result<Self, String> {
+        let client = ChatClient::new(config, parts.key.as_ref())?;
+        let shared = Arc::new(Shared {
+            slot: Mutex::new(None),
+            wake: Notify::new(),
+            forced: AtomicBool::new(false),
+            synchronous: AtomicBool::new(false),
+            stop: AtomicBool::new(false),
+            stop_notify: Notify::new(),
+        });
+        let stats = Arc::new(RefinerStats::default());
+        stats.set_state(RefinerState::Idle);
+        // Results: latest wins (the refiner pops an unread older one before pushing).
+        let (results_tx, results_rx) = crossbeam_channel::bounded::<ReasonerOutput>(1);
+        let worker = Worker {
+            config: config.clone(),
+            client,
+            knowledge: parts.knowledge,
+            mapper: parts.mapper,
+            shared: shared.clone(),
+            stats: stats.clone(),
+            results_tx,
+            results_rx: results_rx.clone(),
+            calls_in_hour: Mutex::new(VecDeque::new()),
+            consecutive_failures: AtomicU32::new(0),
+            breaker_until: Mutex::new(None),
+            permits: Semaphore::new(config.max_concurrent_calls as usize),
+        };
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .map_err(|e| format!("tokio runtime: {e}"))?;
+        let thread = std::thread::Builder::new()
+            .name("op3dsg-llm".to_owned())
+            .spawn(move || runtime.block_on(worker.run()))
+            .map_err(|e| format!("thread op3dsg-llm: {e}"))?;
+        Ok(Self { shared, results: results_rx, stats, thread: Some(thread) })
+    }
+
+    /// Hands the latest prior graph over (replaces one not yet taken). Never blocks on the
+    /// refiner's work.
+    pub fn offer(&self, prior: Arc<PriorGraph>) {
+        if let Ok(mut slot) = self.shared.slot.lock() {
+            *slot = Some(prior);
+        }
+        self.shared.wake.notify_one();
+    }
+
+    /// Hands `prior` over for an immediate refresh whatever changed; its result (empty when
+    /// every call failed or was refused) follows on the results channel (the batch runner).
+    pub fn offer_forced(&self, prior: Arc<PriorGraph>) {
+        if let Ok(mut slot) = self.shared.slot.lock() {
+            *slot = Some(prior);
+            self.shared.forced.store(true, Ordering::SeqCst);
+        }
+        self.shared.wake.notify_one();
+    }
+
+    /// `true`: refresh only what [`LlmRefiner::offer_forced`] hands over (batch runs, where each
+    /// result must belong to the graph just offered).
+    pub fn set_synchronous(&self, synchronous: bool) {
+        self.shared.synchronous.store(synchronous, Ordering::SeqCst);
+    }
+
+    /// The latest verified result, if one arrived since the last call.
+    pub fn try_result(&self) -> Option<ReasonerOutput> {
+        self.results.try_recv().ok()
+    }
+
+    /// Waits up to `timeout` for a result (the batch runner; never the fusion thread).
+    pub fn wait_result(&self, timeout: Duration) -> Option<ReasonerOutput> {
+        self.results.recv_timeout(timeout).ok()
+    }
+
+    /// The counters.
+    pub fn stats(&self) -> &Arc<RefinerStats> {
+        &self.stats
+    }
+}
+
+impl Drop for LlmRefiner {
+    fn drop(&mut self) {
+        self.shared.stop.store(true, Ordering::SeqCst);
+        self.shared.stop_notify.notify_one();
+        self.shared.wake.notify_one();
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
+struct Worker {
+    config: LlmConfig,
+    client: ChatClient,
+    knowledge: Arc<KnowledgeBase>,
+    mapper: LabelMapper,
+    shared: Arc<Shared>,
+    stats: Arc<RefinerStats>,
+    results_tx: Sender<ReasonerOutput>,
+    results_rx: Receiver<ReasonerOutput>,
+    calls_in_hour: Mutex<VecDeque<Instant>>,
+    consecutive_failures: AtomicU32,
+    breaker_until: Mutex<Option<Instant>>,
+    permits: Semaphore,
+}
+
+/// How a refresh went.
+#[derive(Debug, PartialEq)]
+enum Outcome {
+    /// At least one agent answered.
+    Answered,
+    /// Every call failed, or the breaker or the budget refused them.
+    Failed,
+}
+
+/// Nodes added, removed or relabelled between two label maps.
+fn changed_nodes(before: &FxHashMap<u32, String>, prior: &PriorGraph) -> u32 {
+    let mut changed = 0u32;
+    for node in &prior.nodes {
+        if before.get(&node.id) != Some(&node.label) {
+            changed += 1;
+        }
+    }
+    let removed = before.keys().filter(|id| prior.index_of(**id).is_none()).count() as u32;
+    changed + removed
+}
+
+impl Worker {
+    async fn run(mut self) {
+        info!(model = %self.config.model, "LLM refiner started");
+        let shared = self.shared.clone();
+        let tick = self.config.refresh_period().min(Duration::from_millis(500));
+        let mut latest: Option<Arc<PriorGraph>> = None;
+        let mut refreshed_labels: Option<FxHashMap<u32, String>> = None;
+        let mut last_attempt: Option<(Instant, bool)> = None;
+        loop {
+            tokio::select! {
+                () = self.shared.wake.notified() => {}
+                () = tokio::time::sleep(tick) => {}
+            }
+            if self.shared.stop.load(Ordering::SeqCst) {
+                break;
+            }
+            let mut forced = false;
+            if let Ok(mut slot) = self.shared.slot.lock()
+                && let Some(prior) = slot.take()
+            {
+                latest = Some(prior);
+                forced = self.shared.forced.swap(false, Ordering::SeqCst);
+            }
+            if self.stats.state() == RefinerState::BudgetExhausted as u8 && self.budget_left() > 0 {
+                self.stats.set_state(RefinerState::Idle);
+            }
+            let Some(prior) = latest.clone() else { continue };
+            if prior.nodes.is_empty() && !forced {
+                continue;
+            }
+            let changed = refreshed_labels.as_ref().map_or(u32::MAX, |before| changed_nodes(before, &prior));
+            let since = last_attempt.map(|(t, _)| t.elapsed());
+            let period_passed = since.is_none_or(|s| s >= self.config.refresh_period());
+            let last_ok = last_attempt.is_none_or(|(_, ok)| ok);
+            let due = (changed >= self.config.refresh_min_changed_nodes && (last_ok || period_passed))
+                || (changed > 0 && period_passed);
+            let synchronous = self.shared.synchronous.load(Ordering::SeqCst);
+            if !(forced || due && !synchronous) {
+                continue;
+            }
+            let breaker_open = self.breaker_until.lock().ok().and_then(|b| *b).is_some_and(|t| Instant::now() < t);
+            let refused = if breaker_open {
+                self.stats.set_state(RefinerState::BreakerOpen);
+                true
+            } else if self.budget_left() == 0 {
+                self.stats.set_state(RefinerState::BudgetExhausted);
+                true
+            } else {
+                false
+            };
+            if refused {
+                if forced {
+                    self.send(ReasonerOutput { graph_version: prior.version, ..ReasonerOutput::default() });
+                }
+                continue;
+            }
+            let outcome = tokio::select! {
+                outcome = self.refresh(&prior, forced) => outcome,
+                () = shared.stop_notify.notified() => break,
+            };
+            last_attempt = Some((Instant::now(), outcome == Outcome::Answered));
+            if outcome == Outcome::Answered {
+                refreshed_labels = Some(prior.nodes.iter().map(|n| (n.id, n.label.clone())).collect());
+            }
+            if !self.stats.breaker_open() && self.stats.state() != RefinerState::BudgetExhausted as u8 {
+                self.stats.set_state(RefinerState::Idle);
+            }
+        }
+        self.stats.set_state(RefinerState::Idle);
+        debug!("LLM refiner stopped");
+    }
+
+    /// Calls left in the rolling hour.
+    fn budget_left(&self) -> u32 {
+        let Ok(mut calls) = self.calls_in_hour.lock() else { return 0 };
+        let hour = Duration::from_secs(3600);
+        while calls.front().is_some_and(|t| t.elapsed() >= hour) {
+            calls.pop_front();
+        }
+        self.config.hourly_call_budget.saturating_sub(calls.len() as u32)
+    }
+
+    fn take_budget(&self) -> bool {
+        if self.budget_left() == 0 {
+            return false;
+        }
+        self.calls_in_hour.lock().map(|mut c| c.push_back(Instant::now())).is_ok()
+    }
+
+    /// Sends a result to the fusion thread; latest wins (an unread older result is replaced).
+    fn send(&self, output: ReasonerOutput) {
+        let _ = self.results_rx.try_recv();
+        if self.results_tx.try_send(output).is_ok() {
+            self.stats.results.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    async fn refresh(&mut self, prior: &PriorGraph, forced: bool) -> Outcome {
+        let prompts: PromptSet = prompt::build(prior, &self.knowledge, self.config.max_prompt_items as usize);
+        if prompts.prompts.is_empty() {
+            if forced {
+                self.send(ReasonerOutput { graph_version: prior.version, ..ReasonerOutput::default() });
+            }
+            return Outcome::Answered;
+        }
+        self.stats.refreshes.fetch_add(1, Ordering::Relaxed);
+        self.stats.set_state(RefinerState::Calling);
+        debug!(graph_version = prior.version, prompts = prompts.prompts.len(), "LLM refresh");
+        let answers = {
+            let this = &*self;
+            let calls = prompts.prompts.iter().map(|p| this.call_with_retries(p));
+            futures_join_all(calls).await
+        };
+        let mut output = ReasonerOutput { graph_version: prior.version, ..ReasonerOutput::default() };
+        let mut rejections = Rejections::default();
+        let mut accepted = 0;
+        let mut answered = false;
+        for (prompt, answer) in prompts.prompts.iter().zip(answers) {
+            let Some(answer) = answer else { continue };
+            answered = true;
+            accepted +=
+                gate::check(prompt.agent, &answer, prior, &prompts, &mut self.mapper, &mut output, &mut rejections);
+        }
+        self.stats.add_rejections(&rejections);
+        self.stats.accepted.fetch_add(accepted, Ordering::Relaxed);
+        if rejections.total() > 0 {
+            warn!(
+                graph_version = prior.version,
+                malformed = rejections.get(Rejection::Malformed),
+                unknown_node = rejections.get(Rejection::UnknownNode),
+                wrong_kind = rejections.get(Rejection::WrongKind),
+                non_canonical = rejections.get(Rejection::NonCanonical),
+                "LLM answers rejected by the verification gate"
+            );
+        }
+        if !answered {
+            if forced {
+                self.send(output);
+            }
+            return Outcome::Failed;
+        }
+        self.stats.last_graph_version.store(prior.version, Ordering::Relaxed);
+        self.send(output);
+        Outcome::Answered
+    }
+
+    /// One agent's call with its retries; `None` when it finally failed or was refused.
+    async fn call_with_retries(&self, prompt: &Prompt) -> Option<String> {
+        let mut backoff = self.config.backoff_initial();
+        for attempt in 0..=self.config.max_retries {
+            if self.breaker_until.lock().ok().and_then(|b| *b).is_some_and(|until| Instant::now() < until) {
+                return None;
+            }
+            if !self.take_budget() {
+                self.stats.set_state(RefinerState::BudgetExhausted);
+                warn!(budget = self.config.hourly_call_budget, "LLM hourly call budget spent");
+                return None;
+            }
+            let result = {
+                let Ok(_permit) = self.permits.acquire().await else { return None };
+                self.stats.set_state(RefinerState::Calling);
+                self.stats.calls.fetch_add(1, Ordering::Relaxed);
+                let started = Instant::now();
+                let result = self.client.complete(prompt).await;
+                self.stats
+                    .last_latency_us
+                    .store(started.elapsed().as_micros().min(u128::from(u32::MAX)) as u32, Ordering::Relaxed);
+                result
+            };
+            let error = match result {
+                Ok(answer) => {
+                    self.consecutive_failures.store(0, Ordering::Relaxed);
+                    if let Ok(mut breaker) = self.breaker_until.lock() {
+                        *breaker = None;
+                    }
+                    self.stats.breaker_open.store(false, Ordering::Relaxed);
+                    return Some(answer);
+                }
+                // A 2xx that is not a completion: the gate counts it as malformed.
+                Err(CallError::BadEnvelope(reason)) => {
+                    debug!(agent = prompt.agent.name(), %reason, "LLM answer is no chat completion");
+                    return Some(String::new());
+                }
+                Err(e) => e,
+            };
+            self.stats.failures.fetch_add(1, Ordering::Relaxed);
+            let retry_after = match &error {
+                CallError::Timeout => {
+                    self.stats.timeouts.fetch_add(1, Ordering::Relaxed);
+                    None
+                }
+                CallError::Status { status: 429, retry_after } => {
+                    self.stats.rate_limited.fetch_add(1, Ordering::Relaxed);
+                    *retry_after
+                }
+                CallError::Status { retry_after, .. } => *retry_after,
+                _ => None,
+            };
+            warn!(agent = prompt.agent.name(), attempt, error = %error, "LLM call failed");
+            if !error.retryable() || attempt == self.config.max_retries {
+                break;
+            }
+            let wait = retry_after.map_or(backoff, |r| r.max(backoff)).min(self.config.backoff_max());
+            self.stats.set_state(RefinerState::Backoff);
+            tokio::time::sleep(wait).await;
+            backoff = (backoff * 2).min(self.config.backoff_max());
+        }
+        let failures = self.consecutive_failures.fetch_add(1, Ordering::Relaxed) + 1;
+        if failures >= self.config.breaker_failures {
+            if let Ok(mut breaker) = self.breaker_until.lock() {
+                *breaker = Some(Instant::now() + self.config.breaker_cooldown());
+            }
+            if !self.stats.breaker_open.swap(true, Ordering::Relaxed) {
+                warn!(
+                    failures,
+                    cooldown_s = self.config.breaker_cooldown_s,
+                    "LLM circuit breaker open after repeated failures"
+                );
+            }
+            self.stats.set_state(RefinerState::BreakerOpen);
+        }
+        None
+    }
+}
+
+/// Runs futures concurrently on the current task and returns their outputs in order.
+async fn futures_join_all<F: std::future::Future>(futures: impl Iterator<Item = F>) -> Vec<F::Output> {
+    let mut set = Vec::new();
+    for f in futures {
+        set.push(Box::pin(f));
+    }
+    let mut outputs: Vec<Option<F::Output>> = (0..set.len()).map(|_| None).collect();
+    std::future::poll_fn(|cx| {
+        let mut pending = false;
+        for (fut, out) in set.iter_mut().zip(outputs.iter_mut()) {
+            if out.is_some() {
+                continue;
+            }
+            match fut.as_mut().poll(cx) {
+                std::task::Poll::Ready(v) => *out = Some(v),
+                std::task::Poll::Pending => pending = true,
+            }
+        }
+        if pending { std::task::Poll::Pending } else { std::task::Poll::Ready(()) }
+    })
+    .await;
+    outputs.into_iter().flatten().collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::prior::PriorNode;
+
+    fn prior(nodes: &[(u32, &str)]) -> PriorGraph {
+        PriorGraph {
+            nodes: nodes
+                .iter()
+                .map(|&(id, label)| PriorNode {
+                    id,
+                    kind: op3dsg_ipc_types::NodeKind::Object,
+                    parent_id: None,
+                    label: label.to_owned(),
+                    category: None,
+                    confidence: 1.0,
+                    centre_m: glam::Vec3::ZERO,
+                    box_min_m: glam::Vec3::ZERO,
+                    box_max_m: glam::Vec3::ZERO,
+                })
+                .collect(),
+            ..PriorGraph::default()
+        }
+    }
+
+    #[test]
+    fn change_counts_added_removed_and_relabelled_nodes() {
+        let before: FxHashMap<u32, String> =
+            [(1, "cabinet"), (2, "stove"), (3, "tv")].iter().map(|&(id, l)| (id, l.to_owned())).collect();
+        assert_eq!(changed_nodes(&before, &prior(&[(1, "cabinet"), (2, "stove"), (3, "tv")])), 0);
+        // 2 relabelled, 3 removed, 4 added.
+        assert_eq!(changed_nodes(&before, &prior(&[(1, "cabinet"), (2, "oven"), (4, "sink")])), 3);
+    }
+
+    #[test]
+    fn health_reports_the_state_and_the_rejections() {
+        let stats = RefinerStats::default();
+        assert_eq!(stats.health().state, RefinerState::Off as u8);
+        stats.set_state(RefinerState::BreakerOpen);
+        let mut rejections = Rejections::default();
+        rejections.add(Rejection::NonCanonical);
+        rejections.add(Rejection::NonCanonical);
+        stats.add_rejections(&rejections);
+        let h = stats.health();
+        assert_eq!(op3dsg_ipc_types::REFINER_STATES[h.state as usize], "breaker_open");
+        assert_eq!(h.rejections[..5], [0, 0, 0, 2, 0]);
+        assert_eq!(op3dsg_ipc_types::REFINER_REJECTIONS[3], "non_canonical");
+    }
+}
