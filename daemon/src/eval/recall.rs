@@ -65,7 +65,7 @@ use std::collections::{HashMap, HashSet};
 use std::fmt::Write as _;
 
 use glam::Vec3;
-use op3dsg_drivers::graph_json::{GraphJson, NodeJson};
+use op3dsg_drivers::graph_json::GraphJson;
 use serde::Serialize;
 
 use crate::eval::fusion_match::{label_alternatives, normalise_label};
