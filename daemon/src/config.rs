@@ -588,6 +588,12 @@ impl Profile {
         self.ipc.validate("ipc").map_err(split_message)?;
         self.onnx.validate("onnx").map_err(split_message)?;
         self.text_encoder.validate("text_encoder").map_err(split_message)?;
+        check(
+            self.detector.oracle.semantic_source != crate::perception::oracle::SemanticSource::TextEncoder
+                || self.text_encoder.enabled,
+            "detector.oracle.semantic_source",
+            || "\"text_encoder\" needs the text encoder: set [text_encoder] enabled = true".to_owned(),
+        )?;
         let r = &self.reasoner;
         check(r.neighbour_radius_m > 0.0 && r.neighbour_radius_m <= 10.0, "reasoner.neighbour_radius_m", || {
             format!("must be within (0, 10] metres, got {}", r.neighbour_radius_m)

@@ -726,7 +726,7 @@ pub fn text_report(report: &RecallReport) -> String {
 
 #[cfg(test)]
 mod tests {
-    use op3dsg_drivers::graph_json::EdgeJson;
+    use op3dsg_drivers::graph_json::{EdgeJson, NodeJson};
 
     use super::*;
 
