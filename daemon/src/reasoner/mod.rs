@@ -15,8 +15,10 @@
 //! reasoner::apply(&mut graph, &output, op3dsg_ipc_types::EdgeOrigin::Knowledge);
 //! ```
 
+pub mod ablation;
 mod knowledge;
 
+pub use ablation::ReasoningSetup;
 pub use knowledge::KnowledgeReasoner;
 
 use std::path::Path;
@@ -35,6 +37,7 @@ pub struct GraphEnricher {
     knowledge: Arc<KnowledgeBase>,
     prior_config: PriorConfig,
     reasoner: Box<dyn Reasoner>,
+    setup: ReasoningSetup,
 }
 
 impl std::fmt::Debug for GraphEnricher {
@@ -43,6 +46,7 @@ impl std::fmt::Debug for GraphEnricher {
             .field("objects", &self.knowledge.objects().len())
             .field("prior_config", &self.prior_config)
             .field("reasoner", &self.reasoner.name())
+            .field("setup", &self.setup)
             .finish()
     }
 }
@@ -69,12 +73,36 @@ impl GraphEnricher {
         let reasoner: Box<dyn Reasoner> = match config.kind {
             ReasonerKind::Knowledge | ReasonerKind::None => Box::new(KnowledgeReasoner::new(knowledge.clone())),
         };
-        Ok(Some(Self { knowledge, prior_config, reasoner }))
+        Ok(Some(Self { knowledge, prior_config, reasoner, setup: ReasoningSetup::Split }))
+    }
+
+    /// The same enricher with the reasoning stage set up as `setup` (the paper's ablations; see
+    /// [`ablation`]).
+    pub fn with_setup(mut self, setup: ReasoningSetup) -> Self {
+        self.setup = setup;
+        if setup == ReasoningSetup::Single {
+            self.reasoner = Box::new(ablation::SingleReasoner::new(&self.knowledge, self.prior_config.neighbour_radius_m));
+        } else {
+            self.reasoner = Box::new(KnowledgeReasoner::new(self.knowledge.clone()));
+        }
+        self
     }
 
     /// Adds the prior graph's object relations and the reasoner's results to `graph` (fusion's
     /// `part of` edges are already there). Returns the prior graph for callers that want it.
     pub fn enrich(&mut self, graph: &mut SceneGraph) -> PriorGraph {
+        if self.setup == ReasoningSetup::FlatNodeList {
+            *graph = ablation::flat_node_list(graph, &self.knowledge, self.prior_config.neighbour_radius_m);
+            let mut prior = prior::build(graph, &self.knowledge, &self.prior_config);
+            let part_of = op3dsg_ipc_types::relation_id("part of").map_or(0, |(_, id)| id);
+            prior.spatial_edges.retain(|e| e.relation_id == part_of);
+            let relations = ablation::flat_object_relations(&prior);
+            prior.spatial_edges.extend(relations.iter().cloned());
+            graph.edges.extend(relations);
+            let output = self.reasoner.reason(&prior);
+            apply(graph, &output, EdgeOrigin::Knowledge);
+            return prior;
+        }
         let prior = prior::build(graph, &self.knowledge, &self.prior_config);
         let part_of = op3dsg_ipc_types::relation_id("part of").map_or(0, |(_, id)| id);
         graph.edges.extend(prior.spatial_edges.iter().filter(|e| e.relation_id != part_of).cloned());
