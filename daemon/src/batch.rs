@@ -31,8 +31,8 @@ use tracing::warn;
 use crate::config::{PoseSourceKind, Profile, SourceKind};
 use crate::fusion::Fusion;
 use crate::graph::SceneGraph;
-use crate::perception::Detector;
 use crate::keyframe::{GateDecision, KeyframeGate};
+use crate::perception::Detector;
 use crate::pipeline::{BuiltSource, StartError, build_source, make_enricher, make_fusion};
 
 /// How many pixels of `Frame::instance_ids` make a ground-truth instance count as visible in a

@@ -315,12 +315,15 @@ fn oracle_candidates(profile: &Profile) -> Result<Option<Arc<PartCandidates>>, S
     Ok(Some(Arc::new(PartCandidates::new(Arc::new(knowledge), mode))))
 }
 
+/// Label → semantic vector, shared by the detection workers.
+type LabelVectors = Arc<HashMap<String, Vec<f32>>>;
+
 /// With `detector.oracle.semantic_source = "text_encoder"`, the text encoder's embedding of
 /// every label of the scene (loaded once here, so a missing model stops start-up).
 fn oracle_label_vectors(
     profile: &Profile,
     instances: &[op3dsg_drivers::synthetic::InstanceInfo],
-) -> Result<Option<Arc<HashMap<String, Vec<f32>>>>, StartError> {
+) -> Result<Option<LabelVectors>, StartError> {
     if profile.detector.oracle.semantic_source != SemanticSource::TextEncoder {
         return Ok(None);
     }

@@ -236,13 +236,22 @@ fn run(cli: Cli) -> Result<()> {
             evaluate(&pred, &gt, &vocabulary, profile.as_deref(), json.as_deref())
         }
         Command::Bench {
-            command: BenchCommand::Quality { preset, scenes, frames, threads, profile, overrides, json, markdown, check },
+            command:
+                BenchCommand::Quality { preset, scenes, frames, threads, profile, overrides, json, markdown, check },
         } => {
             let mut sets =
                 vec![format!("source.synthetic.frame_count={frames}"), format!("detector.oracle.preset={preset}")];
             sets.extend(overrides);
             let threads = threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-            bench_quality(profile.as_deref(), &sets, scenes as usize, threads, json.as_deref(), markdown.as_deref(), check)
+            bench_quality(
+                profile.as_deref(),
+                &sets,
+                scenes as usize,
+                threads,
+                json.as_deref(),
+                markdown.as_deref(),
+                check,
+            )
         }
     }
 }

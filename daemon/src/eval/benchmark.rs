@@ -256,14 +256,12 @@ pub struct QualityReport {
 }
 
 /// Scores scene runs with `evaluator`'s embedder (the vocabulary is the scenes' labels).
-pub fn score(
-    runs: &[SceneRun],
-    embedder: &mut dyn super::recall::PhraseEmbedder,
-) -> Result<QualityReport, String> {
+pub fn score(runs: &[SceneRun], embedder: &mut dyn super::recall::PhraseEmbedder) -> Result<QualityReport, String> {
     let vocabulary = Vocabulary::from_ground_truths(runs.iter().map(|r| &r.ground_truth));
     let vocabulary_labels = vocabulary.node_labels.len();
     let mut evaluator = RecallEvaluator::new(embedder, vocabulary);
-    let mut rows: Vec<(String, RecallFigures)> = ROWS.iter().map(|r| ((*r).to_owned(), RecallFigures::default())).collect();
+    let mut rows: Vec<(String, RecallFigures)> =
+        ROWS.iter().map(|r| ((*r).to_owned(), RecallFigures::default())).collect();
     let mut losses = Losses::default();
     let mut mix = BTreeMap::new();
     for run in runs {
@@ -334,8 +332,21 @@ fn cells(f: &RecallFigures) -> Vec<String> {
 }
 
 const HEADER: [&str; 15] = [
-    "Obj R@3", "Obj R@5", "Part R@3", "Part R@5", "All R@3", "All R@5", "Aff R@3", "Aff R@5", "Func R@3", "Func R@5",
-    "Spat R@3", "Spat R@5", "Assoc R@3", "Assoc R@5", "Assoc R@10",
+    "Obj R@3",
+    "Obj R@5",
+    "Part R@3",
+    "Part R@5",
+    "All R@3",
+    "All R@5",
+    "Aff R@3",
+    "Aff R@5",
+    "Func R@3",
+    "Func R@5",
+    "Spat R@3",
+    "Spat R@5",
+    "Assoc R@3",
+    "Assoc R@5",
+    "Assoc R@10",
 ];
 
 /// Which full-row targets are missed: `(metric, R@3 percent, target)`.

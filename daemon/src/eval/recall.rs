@@ -632,7 +632,8 @@ impl<'a> RecallEvaluator<'a> {
                     miss[k_index] = Some(EdgeMiss::MissingEdge);
                     continue;
                 }
-                let best_rank = candidates.iter().map(|r| self.rank(vocabulary, r, &relation)).min().unwrap_or(usize::MAX);
+                let best_rank =
+                    candidates.iter().map(|r| self.rank(vocabulary, r, &relation)).min().unwrap_or(usize::MAX);
                 if best_rank > k {
                     miss[k_index] = Some(EdgeMiss::WrongRelation);
                 }
@@ -705,7 +706,11 @@ pub fn text_report(report: &RecallReport) -> String {
         for n in missed {
             match (&n.best_rank, &n.best_predicted_label) {
                 (Some(rank), Some(label)) => {
-                    let _ = writeln!(s, "  {} {} '{}': best overlapping '{}' ranks it {rank}", n.kind, n.id, n.label, label);
+                    let _ = writeln!(
+                        s,
+                        "  {} {} '{}': best overlapping '{}' ranks it {rank}",
+                        n.kind, n.id, n.label, label
+                    );
                 }
                 _ => {
                     let _ = writeln!(s, "  {} {} '{}': no predicted {} overlaps it", n.kind, n.id, n.label, n.kind);
@@ -1031,7 +1036,7 @@ mod tests {
         pred.nodes[3].label = "pull".to_owned();
         let mut e = embedder();
         // Make "cabinet handle" less similar than "knob" (0.7) by overriding the "pull" vector.
-        let mut pull = vec![0.0f32; 40];
+        let mut pull = [0.0f32; 40];
         pull[4] = 0.6;
         pull[5] = 0.8;
         pull[7] = 0.9;

@@ -235,7 +235,8 @@ mod tests {
         c.prompts(&["cabinet", "stove", "sofa"], &mut list);
         let t = texts(&list);
         assert_eq!(&t[..3], ["cabinet", "stove", "sofa"], "tags first");
-        for expected in ["cabinet handle", "cabinet knob", "stove knob", "stove handle", "light switch", "power outlet"] {
+        for expected in ["cabinet handle", "cabinet knob", "stove knob", "stove handle", "light switch", "power outlet"]
+        {
             assert!(t.contains(&expected), "{expected} missing from {t:?}");
         }
         assert!(!t.contains(&"handle"), "no generic prompts: {t:?}");
@@ -275,7 +276,8 @@ mod tests {
         let mut list = PromptList::default();
         knowledge.prompts(&["cabinet", "nightstand", "sink"], &mut list);
         // Exact label: own label.
-        let m = match_part(&list, &labels(&["cabinet handle"]), cat("cabinet handle"), obj("cabinet"), "cabinet handle");
+        let m =
+            match_part(&list, &labels(&["cabinet handle"]), cat("cabinet handle"), obj("cabinet"), "cabinet handle");
         assert_eq!(m, Some(None));
         // The knob of a nightstand, called "drawer knob": found by the nightstand's prompt.
         let m = match_part(&list, &labels(&["drawer knob"]), cat("drawer knob"), obj("nightstand"), "drawer knob");
@@ -292,7 +294,8 @@ mod tests {
 
         let generic = candidates(CandidateMode::Generic);
         generic.prompts(&["cabinet", "stove", "sink"], &mut list);
-        let m = match_part(&list, &labels(&["cabinet handle"]), cat("cabinet handle"), obj("cabinet"), "cabinet handle");
+        let m =
+            match_part(&list, &labels(&["cabinet handle"]), cat("cabinet handle"), obj("cabinet"), "cabinet handle");
         assert_eq!(m, Some(Some("handle")));
         let m = match_part(&list, &labels(&["stove knob"]), cat("stove knob"), obj("stove"), "stove knob");
         assert_eq!(m, Some(Some("knob")));

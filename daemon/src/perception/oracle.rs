@@ -403,10 +403,8 @@ impl OracleDetector {
             }
             prepared.part_category = kb.resolve(&info.label).and_then(|r| r.part());
             prepared.parent_category = prepared.parent.and_then(|p| kb.object_category(&self.instances[p].label));
-            prepared.accepted_labels = possible_labels(&self.instances, info)
-                .iter()
-                .map(|l| crate::knowledge::normalise(l))
-                .collect();
+            prepared.accepted_labels =
+                possible_labels(&self.instances, info).iter().map(|l| crate::knowledge::normalise(l)).collect();
         }
         self.candidates = Some(candidates);
         self

@@ -81,7 +81,8 @@ impl GraphEnricher {
     pub fn with_setup(mut self, setup: ReasoningSetup) -> Self {
         self.setup = setup;
         if setup == ReasoningSetup::Single {
-            self.reasoner = Box::new(ablation::SingleReasoner::new(&self.knowledge, self.prior_config.neighbour_radius_m));
+            self.reasoner =
+                Box::new(ablation::SingleReasoner::new(&self.knowledge, self.prior_config.neighbour_radius_m));
         } else {
             self.reasoner = Box::new(KnowledgeReasoner::new(self.knowledge.clone()));
         }
