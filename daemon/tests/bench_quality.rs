@@ -65,3 +65,33 @@ fn the_synthetic_mix_is_led_by_pull_to_open_like_the_benchmark() {
     assert!((35..=60).contains(&(100 * pull / total)), "{mix:?}");
     assert_eq!(mix.len(), 11, "{mix:?}");
 }
+
+/// The oracle with MiniLM label embeddings as semantic features (`semantic_source =
+/// "text_encoder"`) drives the same pipeline to a comparable graph.
+#[test]
+fn text_encoder_semantic_features_fuse_like_label_vectors() {
+    let mut base = profile();
+    base.source.synthetic.frame_count = Some(300);
+    let mut with_encoder = op3dsg_daemon::config::load(
+        None,
+        &[
+            "text_encoder.enabled=true".to_owned(),
+            "detector.oracle.semantic_source=text_encoder".to_owned(),
+            "source.synthetic.frame_count=300".to_owned(),
+        ],
+    )
+    .unwrap_or_else(|e| panic!("{e}"))
+    .profile;
+    with_encoder.source.synthetic.intrinsics = base.source.synthetic.intrinsics;
+    let visibility = op3dsg_daemon::batch::VisibilityThresholds::default();
+    let a = op3dsg_daemon::batch::run(&base, &visibility).unwrap();
+    let b = op3dsg_daemon::batch::run(&with_encoder, &visibility).unwrap();
+    assert_eq!(a.keyframes, b.keyframes);
+    let (na, nb) = (a.graph.nodes.len() as i64, b.graph.nodes.len() as i64);
+    assert!(na >= 8 && (na - nb).abs() <= na / 4, "label vectors {na} nodes, MiniLM {nb}");
+    // Missing [text_encoder] enabled is refused by field.
+    let error = op3dsg_daemon::config::load(None, &["detector.oracle.semantic_source=text_encoder".to_owned()])
+        .unwrap_err()
+        .to_string();
+    assert!(error.contains("detector.oracle.semantic_source"), "{error}");
+}
