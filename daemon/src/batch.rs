@@ -32,6 +32,7 @@ use crate::config::{PoseSourceKind, Profile, SourceKind};
 use crate::fusion::Fusion;
 use crate::graph::SceneGraph;
 use crate::keyframe::{GateDecision, KeyframeGate};
+use crate::perception::Detector;
 use crate::pipeline::{BuiltSource, StartError, build_source, make_enricher, make_fusion};
 
 /// How many pixels of `Frame::instance_ids` make a ground-truth instance count as visible in a
@@ -159,8 +160,54 @@ pub fn run_with_fusion(
 pub fn run_with_fusions<const N: usize>(
     profile: &Profile,
     visibility: &VisibilityThresholds,
-    mut fusions: [Box<dyn Fusion>; N],
+    fusions: [Box<dyn Fusion>; N],
 ) -> Result<[BatchRun; N], BatchError> {
+    let lane = Lane { detector: None, fusions: fusions.into() };
+    let runs = run_lanes(profile, visibility, vec![lane])?.pop().unwrap_or_default();
+    runs.try_into().map_err(|runs: Vec<BatchRun>| {
+        BatchError::Start(StartError::Incompatible {
+            field: "batch",
+            reason: format!("{} runs came back for {N} fusions", runs.len()),
+        })
+    })
+}
+
+/// One detector and the fusions its detections feed, for [`run_lanes`].
+pub struct Lane {
+    /// The detector; `None`: the one the profile makes.
+    pub detector: Option<Box<dyn Detector>>,
+    /// Fusions fed with this detector's detections, in order.
+    pub fusions: Vec<Box<dyn Fusion>>,
+}
+
+impl std::fmt::Debug for Lane {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Lane")
+            .field("detector", &self.detector.as_ref().map(|d| d.name().to_owned()))
+            .field("fusions", &self.fusions.len())
+            .finish()
+    }
+}
+
+/// The detector `profile` makes for worker 0 (to give a [`Lane`] another detector
+/// configuration than the run's profile).
+pub fn make_detector(profile: &Profile) -> Result<Box<dyn Detector>, BatchError> {
+    let BuiltSource { detector_factory, .. } = build_source(profile)?;
+    Ok(detector_factory(0))
+}
+
+/// Runs `profile`'s source and keyframe gate once and feeds every keyframe to each lane: the
+/// lane's detector, then each of its fusions. One [`BatchRun`] per fusion, grouped by lane:
+/// variants that differ in detector or fusion see exactly the same keyframes, rendered once.
+///
+/// Sources that can preview a frame's pose
+/// ([`op3dsg_drivers::source::FrameSource::peek_pose`], the synthetic one)
+/// only produce the pixels of keyframes; the result is the same as producing every frame.
+pub fn run_lanes(
+    profile: &Profile,
+    visibility: &VisibilityThresholds,
+    mut lanes: Vec<Lane>,
+) -> Result<Vec<Vec<BatchRun>>, BatchError> {
     let started = Instant::now();
     let max_frames = profile.run.max_frames;
     let unbounded = match profile.source.kind {
@@ -194,7 +241,8 @@ pub fn run_with_fusions<const N: usize>(
         }
         .into());
     }
-    let mut detector = detector_factory(0);
+    let mut detectors: Vec<Box<dyn Detector>> =
+        lanes.iter_mut().map(|lane| lane.detector.take().unwrap_or_else(|| detector_factory(0))).collect();
     let mut gate = KeyframeGate::new(&profile.keyframe, &profile.pose);
     let mut frame = Frame::new(source.intrinsics(), source.has_instance_ids());
 
@@ -209,16 +257,19 @@ pub fn run_with_fusions<const N: usize>(
             };
         }
     }
+    let lane_count = lanes.len();
     let mut pixels = vec![0u32; id_count];
     let mut detected_now = vec![false; id_count];
     let mut visible_keyframes = vec![0u32; id_count];
-    let mut detected_keyframes = vec![0u32; id_count];
+    let mut detected_keyframes = vec![vec![0u32; id_count]; lane_count];
 
     let mut timing = BatchTiming::default();
-    let (mut frames, mut keyframes, mut frames_without_pose, mut detections_total, mut detector_errors) =
-        (0u64, 0u64, 0u64, 0u64, 0u64);
-    let mut changed_keyframes = [0u64; N];
-    let mut fusion_time = [Duration::ZERO; N];
+    let (mut frames, mut keyframes, mut frames_without_pose) = (0u64, 0u64, 0u64);
+    let mut detections_total = vec![0u64; lane_count];
+    let mut detector_errors = vec![0u64; lane_count];
+    let mut detect_time = vec![Duration::ZERO; lane_count];
+    let mut changed_keyframes: Vec<Vec<u64>> = lanes.iter().map(|l| vec![0; l.fusions.len()]).collect();
+    let mut fusion_time: Vec<Vec<Duration>> = lanes.iter().map(|l| vec![Duration::ZERO; l.fusions.len()]).collect();
     let mut stamp_ns = 0u64;
     let mut detections = Vec::new();
     loop {
@@ -226,7 +277,12 @@ pub fn run_with_fusions<const N: usize>(
             break;
         }
         let t = Instant::now();
-        let status = source.next_frame(&mut frame).map_err(|error| BatchError::Source { frames, error })?;
+        // Preview the pose first where the source can: only keyframes are rendered.
+        let previewed = source.peek_pose(&mut frame);
+        let status = match previewed {
+            Some(status) => status,
+            None => source.next_frame(&mut frame).map_err(|error| BatchError::Source { frames, error })?,
+        };
         timing.source += t.elapsed();
         match status {
             SourceStatus::Frame => frames += 1,
@@ -243,29 +299,31 @@ pub fn run_with_fusions<const N: usize>(
         let world_from_camera = match decision {
             GateDecision::NoPose => {
                 frames_without_pose += 1;
+                if previewed.is_some() {
+                    source.skip_frame();
+                }
                 continue;
             }
-            GateDecision::Skip => continue,
+            GateDecision::Skip => {
+                if previewed.is_some() {
+                    source.skip_frame();
+                }
+                continue;
+            }
             GateDecision::Keyframe(world_from_camera) => world_from_camera,
         };
-        keyframes += 1;
-
-        let t = Instant::now();
-        if let Err(e) = detector.detect(&frame, &mut detections) {
-            // As the pipeline does: the keyframe is fused empty.
-            warn!(frame_seq = frame.seq, error = %e, "detection failed; keyframe fused empty");
-            detector_errors += 1;
-            detections.clear();
-        }
-        timing.detect += t.elapsed();
-
-        for ((fusion, changed), time) in fusions.iter_mut().zip(&mut changed_keyframes).zip(&mut fusion_time) {
+        if previewed.is_some() {
             let t = Instant::now();
-            let report = fusion.integrate(&frame, &world_from_camera, &detections);
-            *time += t.elapsed();
-            *changed += u64::from(report.merged + report.created > 0);
+            let status = source.next_frame(&mut frame).map_err(|error| BatchError::Source { frames, error })?;
+            timing.source += t.elapsed();
+            if status != SourceStatus::Frame {
+                return Err(BatchError::Source {
+                    frames,
+                    error: SourceError::Frame { seq: frame.seq, reason: "previewed but not delivered".to_owned() },
+                });
+            }
         }
-        detections_total += detections.len() as u64;
+        keyframes += 1;
         stamp_ns = stamp_ns.max(frame.stamp_ns);
 
         if id_count > 0 {
@@ -281,46 +339,81 @@ pub fn run_with_fusions<const N: usize>(
                     *visible += u32::from(*count >= *min);
                 }
             }
-            detected_now.fill(false);
-            for id in detections.iter().filter_map(|d| d.ground_truth_instance) {
-                if let Some(flag) = detected_now.get_mut(usize::from(id)) {
-                    *flag = true;
-                }
-            }
-            for (count, now) in detected_keyframes.iter_mut().zip(&detected_now) {
-                *count += u32::from(*now);
-            }
             timing.ground_truth += t.elapsed();
+        }
+
+        for (lane_index, lane) in lanes.iter_mut().enumerate() {
+            let t = Instant::now();
+            if let Err(e) = detectors[lane_index].detect(&frame, &mut detections) {
+                // As the pipeline does: the keyframe is fused empty.
+                warn!(frame_seq = frame.seq, error = %e, "detection failed; keyframe fused empty");
+                detector_errors[lane_index] += 1;
+                detections.clear();
+            }
+            detect_time[lane_index] += t.elapsed();
+            for ((fusion, changed), time) in
+                lane.fusions.iter_mut().zip(&mut changed_keyframes[lane_index]).zip(&mut fusion_time[lane_index])
+            {
+                let t = Instant::now();
+                let report = fusion.integrate(&frame, &world_from_camera, &detections);
+                *time += t.elapsed();
+                *changed += u64::from(report.merged + report.created > 0);
+            }
+            detections_total[lane_index] += detections.len() as u64;
+            if id_count > 0 {
+                let t = Instant::now();
+                detected_now.fill(false);
+                for id in detections.iter().filter_map(|d| d.ground_truth_instance) {
+                    if let Some(flag) = detected_now.get_mut(usize::from(id)) {
+                        *flag = true;
+                    }
+                }
+                for (count, now) in detected_keyframes[lane_index].iter_mut().zip(&detected_now) {
+                    *count += u32::from(*now);
+                }
+                timing.ground_truth += t.elapsed();
+            }
         }
     }
 
-    Ok(std::array::from_fn(|i| {
-        let t = Instant::now();
-        let mut graph = SceneGraph::default();
-        fusions[i].build_graph(&mut graph);
-        graph.version = changed_keyframes[i].max(1);
-        graph.stamp_ns = stamp_ns;
-        if let Some(enricher) = enricher.as_mut() {
-            let prior = enricher.enrich(&mut graph);
-            enricher.refine_now(&mut graph, prior, llm_wait);
+    let mut out = Vec::with_capacity(lane_count);
+    for (lane_index, lane) in lanes.iter_mut().enumerate() {
+        let mut runs = Vec::with_capacity(lane.fusions.len());
+        for (i, fusion) in lane.fusions.iter_mut().enumerate() {
+            let t = Instant::now();
+            let mut graph = SceneGraph::default();
+            fusion.build_graph(&mut graph);
+            graph.version = changed_keyframes[lane_index][i].max(1);
+            graph.stamp_ns = stamp_ns;
+            if let Some(enricher) = enricher.as_mut() {
+                let prior = enricher.enrich(&mut graph);
+                enricher.refine_now(&mut graph, prior, llm_wait);
+            }
+            let timing = BatchTiming {
+                detect: detect_time[lane_index],
+                fusion: fusion_time[lane_index][i],
+                build_graph: t.elapsed(),
+                total: started.elapsed(),
+                ..timing
+            };
+            runs.push(BatchRun {
+                graph,
+                scene: scene.clone(),
+                frames,
+                keyframes,
+                frames_without_pose,
+                detections: detections_total[lane_index],
+                detector_errors: detector_errors[lane_index],
+                visible_keyframes: visible_keyframes.clone(),
+                detected_keyframes: detected_keyframes[lane_index].clone(),
+                map_nodes: fusion.node_count(),
+                map_memory_bytes: fusion.memory_bytes(),
+                timing,
+            });
         }
-        let timing =
-            BatchTiming { fusion: fusion_time[i], build_graph: t.elapsed(), total: started.elapsed(), ..timing };
-        BatchRun {
-            graph,
-            scene: scene.clone(),
-            frames,
-            keyframes,
-            frames_without_pose,
-            detections: detections_total,
-            detector_errors,
-            visible_keyframes: visible_keyframes.clone(),
-            detected_keyframes: detected_keyframes.clone(),
-            map_nodes: fusions[i].node_count(),
-            map_memory_bytes: fusions[i].memory_bytes(),
-            timing,
-        }
-    }))
+        out.push(runs);
+    }
+    Ok(out)
 }
 
 #[cfg(test)]

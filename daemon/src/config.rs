@@ -39,14 +39,13 @@ pub const BASE_PROFILE: &str = include_str!("../../profiles/base.toml");
 pub const BASE_PROFILE_NAME: &str = "<built-in profiles/base.toml>";
 /// Keys (besides `extends`) whose value is a file path, resolved against the folder of the file
 /// that sets them.
-pub const PATH_KEYS: &[&str] =
-    &[
-        "source.replay.path",
-        "detector.yolox.model_path",
-        "detector.open_vocab.model_path",
-        "reasoner.knowledge_dir",
-        "reasoner.llm.api_key_file",
-    ];
+pub const PATH_KEYS: &[&str] = &[
+    "source.replay.path",
+    "detector.yolox.model_path",
+    "detector.open_vocab.model_path",
+    "reasoner.knowledge_dir",
+    "reasoner.llm.api_key_file",
+];
 
 /// The whole daemon configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -612,6 +611,12 @@ impl Profile {
         self.ipc.validate("ipc").map_err(split_message)?;
         self.onnx.validate("onnx").map_err(split_message)?;
         self.text_encoder.validate("text_encoder").map_err(split_message)?;
+        check(
+            self.detector.oracle.semantic_source != crate::perception::oracle::SemanticSource::TextEncoder
+                || self.text_encoder.enabled,
+            "detector.oracle.semantic_source",
+            || "\"text_encoder\" needs the text encoder: set [text_encoder] enabled = true".to_owned(),
+        )?;
         let r = &self.reasoner;
         check(r.neighbour_radius_m > 0.0 && r.neighbour_radius_m <= 10.0, "reasoner.neighbour_radius_m", || {
             format!("must be within (0, 10] metres, got {}", r.neighbour_radius_m)

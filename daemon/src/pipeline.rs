@@ -35,7 +35,7 @@
 //! A stage that has not finished `run.shutdown_timeout_s` after the stop is named in the log and
 //! the daemon exits with an error; a second signal exits at once (see the `op3dsgd` binary).
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashMap};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -55,8 +55,9 @@ use crate::graph::SceneGraph;
 use crate::ipc::GraphServer;
 use crate::keyframe::{GateDecision, KeyframeGate};
 use crate::knowledge::KnowledgeBase;
+use crate::perception::candidates::{CandidateMode, PartCandidates};
 use crate::perception::open_vocab::OpenVocabDetector;
-use crate::perception::oracle::OracleDetector;
+use crate::perception::oracle::{OracleDetector, SemanticSource};
 use crate::perception::yolox::YoloxDetector;
 use crate::perception::{Detection, Detector, DetectorError};
 use crate::queue::{Popped, QueueReceiver, QueueSender, QueueStats, queue};
@@ -286,9 +287,20 @@ pub(crate) fn build_source(profile: &Profile) -> Result<BuiltSource, StartError>
             let instances = scene.instances().to_vec();
             let oracle = profile.detector.oracle.clone();
             let detector_factory: DetectorFactory = match profile.detector.kind {
-                DetectorKind::Oracle => Arc::new(move |worker| {
-                    Box::new(OracleDetector::new(oracle.clone(), instances.clone(), worker)) as Box<dyn Detector>
-                }),
+                DetectorKind::Oracle => {
+                    let candidates = oracle_candidates(profile)?;
+                    let vectors = oracle_label_vectors(profile, &instances)?;
+                    Arc::new(move |worker| {
+                        let mut detector = OracleDetector::new(oracle.clone(), instances.clone(), worker);
+                        if let Some(candidates) = &candidates {
+                            detector = detector.with_candidates(candidates.clone());
+                        }
+                        if let Some(vectors) = &vectors {
+                            detector = detector.with_label_vectors(vectors);
+                        }
+                        Box::new(detector) as Box<dyn Detector>
+                    })
+                }
                 DetectorKind::Yolox | DetectorKind::OpenVocab => model_factory(profile)?,
             };
             Ok(BuiltSource { source: Box::new(source), detector_factory, scene: Some(scene) })
@@ -317,6 +329,39 @@ pub(crate) fn build_source(profile: &Profile) -> Result<BuiltSource, StartError>
             Ok(BuiltSource { source: Box::new(source), detector_factory: factory, scene: None })
         }
     }
+}
+
+/// The oracle's prompt lists (`detector.oracle.part_prompts`), from the knowledge base the
+/// reasoner uses (`reasoner.knowledge_dir`, else the built-in tables); `None` for `all`.
+fn oracle_candidates(profile: &Profile) -> Result<Option<Arc<PartCandidates>>, StartError> {
+    let mode = profile.detector.oracle.part_prompts;
+    if mode == CandidateMode::All {
+        return Ok(None);
+    }
+    let knowledge = KnowledgeBase::from_profile_dir(profile.reasoner.knowledge_dir.as_deref())
+        .map_err(|e| StartError::Incompatible { field: "reasoner.knowledge_dir", reason: e.to_string() })?;
+    Ok(Some(Arc::new(PartCandidates::new(Arc::new(knowledge), mode))))
+}
+
+/// Label → semantic vector, shared by the detection workers.
+type LabelVectors = Arc<HashMap<String, Vec<f32>>>;
+
+/// With `detector.oracle.semantic_source = "text_encoder"`, the text encoder's embedding of
+/// every label of the scene (loaded once here, so a missing model stops start-up).
+fn oracle_label_vectors(
+    profile: &Profile,
+    instances: &[op3dsg_drivers::synthetic::InstanceInfo],
+) -> Result<Option<LabelVectors>, StartError> {
+    if profile.detector.oracle.semantic_source != SemanticSource::TextEncoder {
+        return Ok(None);
+    }
+    let runtime = crate::onnx::OnnxRuntime::init(&profile.onnx)?;
+    let mut encoder = crate::onnx::text_encoder::TextEncoder::new(&runtime, &profile.text_encoder)?;
+    let mut labels: Vec<&str> = instances.iter().map(|i| i.label.as_str()).collect();
+    labels.sort_unstable();
+    labels.dedup();
+    let embeddings = encoder.encode_batch(&labels)?;
+    Ok(Some(Arc::new(labels.iter().zip(embeddings).map(|(l, e)| ((*l).to_owned(), e.to_vec())).collect())))
 }
 
 /// Loads the ONNX Runtime and one model session per detection worker now (YOLOX or the

@@ -97,6 +97,20 @@ pub trait FrameSource: Send {
     fn step_control(&self) -> Option<StepControl> {
         None
     }
+
+    /// Writes the next frame's `seq`, `stamp_ns` and `world_from_camera` into `frame` without
+    /// producing its pixels and without advancing, when the source can do that cheaply (the
+    /// synthetic renderer); `None` (the default) when it cannot. A caller that needs the pixels
+    /// of only some frames (the batch runner's keyframe gate) then either takes the frame with
+    /// [`FrameSource::next_frame`], which delivers exactly the frame previewed, or passes it
+    /// with [`FrameSource::skip_frame`]. `Some(EndOfStream)` at the end.
+    fn peek_pose(&mut self, _frame: &mut Frame) -> Option<SourceStatus> {
+        None
+    }
+
+    /// Advances past the frame [`FrameSource::peek_pose`] previewed without producing it.
+    /// Sources without `peek_pose` ignore it.
+    fn skip_frame(&mut self) {}
 }
 
 /// Releases frames of a stepped source: each [`StepControl::step`] lets `n` more frames through;

@@ -4,8 +4,10 @@
 //! |---|---|
 //! | [`fusion_match`] | fused nodes ↔ ground-truth nodes: matched fraction, fragmentation, wrong merges, false positives, and which stage lost each missed node |
 //! | [`ablation`] | the colour-feature ablation on the `colour_panel` scene |
-//!
-//! The benchmark's evaluator (node / part / affordance / triplet recall at K) will live here too.
+//! | [`benchmark`] | the synthetic quality benchmark (`op3dsg bench quality`): scenes, ablation rows, where recall is lost |
+//! | [`recall`] | the benchmark's protocol: node, affordance, triplet and associated-node recall at K |
 
 pub mod ablation;
+pub mod benchmark;
 pub mod fusion_match;
+pub mod recall;

@@ -590,6 +590,16 @@ impl KnowledgeBase {
     pub fn remote_templates_for(&self, category: Category) -> impl Iterator<Item = &RemoteTemplate> {
         self.remotes.iter().filter(move |r| r.source == category)
     }
+
+    /// A copy whose remote templates reach at most `max_distance_m` (the single-reasoner
+    /// ablation, `crate::reasoner::ablation`).
+    pub fn with_remote_reach(&self, max_distance_m: f32) -> Self {
+        let mut kb = self.clone();
+        for r in &mut kb.remotes {
+            r.max_distance_m = r.max_distance_m.min(max_distance_m);
+        }
+        kb
+    }
 }
 
 #[cfg(test)]

@@ -3,6 +3,7 @@
 use op3dsg_drivers::frame::Frame;
 use op3dsg_ipc_types::NodeKind;
 
+pub mod candidates;
 pub mod depth_mask;
 pub mod image_input;
 pub mod open_vocab;

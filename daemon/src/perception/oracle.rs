@@ -6,6 +6,27 @@
 //! The noise of a frame is a pure function of `(config, frame)`: the random stream is seeded from
 //! `hash(config.seed, frame.seq)`, so the output does not depend on which worker handles which
 //! frame, and different frames (hence different workers) draw uncorrelated noise.
+//!
+//! ## Prompt lists
+//!
+//! With `part_prompts = "knowledge"` or `"generic"` the oracle behaves like an open-vocabulary
+//! detector given a prompt list ([`super::candidates`]): each frame's tags are the canonical
+//! labels of the objects visible in it (an ideal image tagger), the list is built from them, and
+//! a visible part is only reported when the list asks for it
+//! ([`super::candidates::match_part`]), under its own label or the prompt's text (`nightstand
+//! knob`, or `handle` with the generic vocabulary). Parts nothing asks for are missed. The random
+//! draws of a frame do not depend on the list, so two modes differ only by what the list does.
+//! With `"all"` (the default) every part is reported as before.
+//!
+//! ## Semantic features
+//!
+//! By default a detection's semantic feature is a fixed pseudo-random vector per canonical label
+//! ([`label_vector`], `semantic_dim` long) plus noise. With `semantic_source = "text_encoder"`
+//! it is the all-MiniLM-L6-v2 embedding of the canonical label (384 long, from the profile's
+//! `[onnx]` and `[text_encoder]`, which must be enabled) plus the same noise: labels that mean
+//! similar things then get similar features, as a real region embedding would.
+
+use std::sync::Arc;
 
 use op3dsg_drivers::frame::Frame;
 use op3dsg_drivers::synthetic::{InstanceInfo, InstanceKind};
@@ -15,7 +36,9 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
+use super::candidates::{CandidateMode, PartCandidates, PromptList, match_part};
 use super::{Detection, Detector, DetectorError, Mask, normalise};
+use crate::knowledge::{ObjectId, PartId};
 
 /// Largest erosion / dilation radius `validate` accepts, pixels.
 const MAX_MORPH_RADIUS_PX: u32 = 32;
@@ -92,6 +115,25 @@ pub struct OracleConfig {
     pub semantic_noise: f64,
     /// Seed of the noise; the stream of a frame is seeded from `(seed, frame.seq)`.
     pub seed: u64,
+    /// Which parts are reported: `all` (every visible part), `knowledge` (those the frame's
+    /// knowledge-guided prompt list asks for) or `generic` (those a fixed generic part
+    /// vocabulary finds). See the module docs.
+    pub part_prompts: CandidateMode,
+    /// Where semantic features come from: `label_vector` (pseudo-random per label,
+    /// `semantic_dim` long) or `text_encoder` (MiniLM embedding of the label, 384 long; needs
+    /// `[text_encoder] enabled = true`).
+    pub semantic_source: SemanticSource,
+}
+
+/// Where the oracle's semantic features come from (`detector.oracle.semantic_source`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SemanticSource {
+    /// [`label_vector`]: a fixed pseudo-random unit vector per canonical label.
+    #[default]
+    LabelVector,
+    /// The text encoder's embedding of the canonical label.
+    TextEncoder,
 }
 
 impl Default for OracleConfig {
@@ -122,6 +164,8 @@ impl OracleConfig {
             semantic_dim: SEMANTIC_DIM,
             semantic_noise: 0.0,
             seed: 0,
+            part_prompts: CandidateMode::All,
+            semantic_source: SemanticSource::LabelVector,
         }
     }
 
@@ -145,6 +189,8 @@ impl OracleConfig {
             semantic_dim: SEMANTIC_DIM,
             semantic_noise: 0.3,
             seed: 0,
+            part_prompts: CandidateMode::All,
+            semantic_source: SemanticSource::LabelVector,
         }
     }
 
@@ -222,6 +268,12 @@ struct Prepared {
     parent: Option<usize>,
     /// Byte offset of the parent's label inside this part's label, at word boundaries.
     parent_label_at: Option<usize>,
+    /// Part category of the label (set with a prompt list).
+    part_category: Option<PartId>,
+    /// Object category of the parent's label (set with a prompt list).
+    parent_category: Option<ObjectId>,
+    /// Normalised labels the detector may use for it (set with a prompt list).
+    accepted_labels: Vec<String>,
 }
 
 /// Pixel statistics of one instance in the current frame.
@@ -269,6 +321,12 @@ pub struct OracleDetector {
     depth_scratch: Vec<u16>,
     unknown_pixels_last: u64,
     unknown_pixels_total: u64,
+    /// Prompt lists, when `part_prompts` is not `all`.
+    candidates: Option<Arc<PartCandidates>>,
+    /// The current frame's prompt list.
+    prompt_list: PromptList,
+    /// The current frame's tags (indices into `instances`).
+    tag_scratch: Vec<usize>,
 }
 
 impl OracleDetector {
@@ -292,7 +350,14 @@ impl OracleDetector {
                     .filter(|index| *index != NO_INSTANCE)
                     .map(|index| index as usize);
                 let parent_label_at = parent.and_then(|p| find_word(&info.label, &instances[p].label));
-                Prepared { kind: node_kind(info.kind), parent, parent_label_at }
+                Prepared {
+                    kind: node_kind(info.kind),
+                    parent,
+                    parent_label_at,
+                    part_category: None,
+                    parent_category: None,
+                    accepted_labels: Vec::new(),
+                }
             })
             .collect();
         let mut scene_labels: Vec<(String, NodeKind)> = Vec::new();
@@ -318,7 +383,76 @@ impl OracleDetector {
             depth_scratch: Vec::new(),
             unknown_pixels_last: 0,
             unknown_pixels_total: 0,
+            candidates: None,
+            prompt_list: PromptList::default(),
+            tag_scratch: Vec::new(),
         }
+    }
+
+    /// Reports parts only when the frame's prompt list from `candidates` asks for them (see the
+    /// module docs); a [`CandidateMode::All`] list changes nothing.
+    pub fn with_candidates(mut self, candidates: Arc<PartCandidates>) -> Self {
+        if candidates.mode() == CandidateMode::All {
+            return self;
+        }
+        let kb = candidates.knowledge();
+        for (index, info) in self.instances.iter().enumerate() {
+            let prepared = &mut self.prepared[index];
+            if prepared.kind != NodeKind::Part {
+                continue;
+            }
+            prepared.part_category = kb.resolve(&info.label).and_then(|r| r.part());
+            prepared.parent_category = prepared.parent.and_then(|p| kb.object_category(&self.instances[p].label));
+            prepared.accepted_labels =
+                possible_labels(&self.instances, info).iter().map(|l| crate::knowledge::normalise(l)).collect();
+        }
+        self.candidates = Some(candidates);
+        self
+    }
+
+    /// Uses `vectors` (canonical label → unit vector) as the semantic vectors of the labels it
+    /// has; other labels keep theirs. For the text encoder's label embeddings.
+    pub fn with_label_vectors(mut self, vectors: &std::collections::HashMap<String, Vec<f32>>) -> Self {
+        for (info, v) in self.instances.iter().zip(&mut self.instance_vectors) {
+            if let Some(embedding) = vectors.get(&info.label) {
+                v.clone_from(embedding);
+            }
+        }
+        for ((label, _), v) in self.scene_labels.iter().zip(&mut self.scene_label_vectors) {
+            if let Some(embedding) = vectors.get(label) {
+                v.clone_from(embedding);
+            }
+        }
+        self
+    }
+
+    /// Builds the frame's prompt list from the objects visible in it.
+    fn build_prompt_list(&mut self) {
+        let Some(candidates) = &self.candidates else { return };
+        self.tag_scratch.clear();
+        for (index, s) in self.stats.iter().enumerate() {
+            if s.count >= self.config.min_visible_px && self.prepared[index].kind == NodeKind::Object {
+                self.tag_scratch.push(index);
+            }
+        }
+        let tags: Vec<&str> = self.tag_scratch.iter().map(|&i| self.instances[i].label.as_str()).collect();
+        candidates.prompts(&tags, &mut self.prompt_list);
+    }
+
+    /// Whether the frame's prompt list asks for instance `index`, and under which label
+    /// (`Some(None)`: its own).
+    fn asked_for(&self, index: usize) -> Option<Option<&str>> {
+        let prepared = &self.prepared[index];
+        if self.candidates.is_none() || prepared.kind == NodeKind::Object {
+            return Some(None);
+        }
+        match_part(
+            &self.prompt_list,
+            &prepared.accepted_labels,
+            prepared.part_category,
+            prepared.parent_category,
+            &self.instances[index].label,
+        )
     }
 
     /// The configuration.
@@ -535,6 +669,7 @@ impl Detector for OracleDetector {
             return Ok(());
         }
         self.gather_stats(ids, width);
+        self.build_prompt_list();
         let mut rng = ChaCha8Rng::seed_from_u64(frame_seed(self.config.seed, frame.seq));
 
         for index in 0..self.instances.len() {
@@ -553,6 +688,12 @@ impl Detector for OracleDetector {
             // Erosion may swallow a thin instance whole: then the detector saw nothing.
             let Some(mask) = instance_mask(ids, width, height, id, s, morph) else { continue };
             let semantic_feature = self.semantic_feature(&self.instance_vectors[index], &mut rng);
+            // Decided after the draws, so the list changes nothing else in the frame.
+            let label = match self.asked_for(index) {
+                None => continue,
+                Some(None) => label,
+                Some(Some(prompt)) => prompt.to_owned(),
+            };
             out.push(Detection {
                 label,
                 kind: self.prepared[index].kind,
@@ -1255,5 +1396,60 @@ mod tests {
         assert!(detections > 40, "{detections}");
         assert!(all.iter().flatten().all(|d| d.mask.area() > 0 && (0.05..=1.0).contains(&d.score)));
         assert_eq!(detection_rate(&all, 5), 0.0);
+    }
+
+    fn labels_of(detector: &mut OracleDetector, frame: &Frame) -> Vec<(u16, String)> {
+        let mut out = Vec::new();
+        detector.detect(frame, &mut out).unwrap();
+        out.iter().filter_map(|d| Some((d.ground_truth_instance?, d.label.clone()))).collect()
+    }
+
+    #[test]
+    fn prompt_lists_decide_which_parts_are_reported_and_how() {
+        use crate::knowledge::KnowledgeBase;
+        let kb = Arc::new(KnowledgeBase::builtin().unwrap());
+        let (frame, instances) = kitchen();
+        let with = |mode| {
+            OracleDetector::new(no_noise(), instances.clone(), 0)
+                .with_candidates(Arc::new(PartCandidates::new(kb.clone(), mode)))
+        };
+        let all = labels_of(&mut OracleDetector::new(no_noise(), instances.clone(), 0), &frame);
+        let knowledge = labels_of(&mut with(CandidateMode::Knowledge), &frame);
+        let generic = labels_of(&mut with(CandidateMode::Generic), &frame);
+        let label = |list: &[(u16, String)], id: u16| list.iter().find(|(i, _)| *i == id).map(|(_, l)| l.clone());
+        // Objects are always reported; with the knowledge list every part under its own name.
+        assert_eq!(knowledge, all);
+        assert_eq!(label(&knowledge, 2).as_deref(), Some("cabinet handle"));
+        assert_eq!(label(&knowledge, 4).as_deref(), Some("stove knob"));
+        // The generic vocabulary finds them under generic names.
+        assert_eq!(label(&generic, 2).as_deref(), Some("handle"));
+        assert_eq!(label(&generic, 4).as_deref(), Some("knob"));
+        assert_eq!(label(&generic, 1).as_deref(), Some("cabinet"));
+        // Without the stove in view its knob is not asked for (the knob alone is visible).
+        let mut no_stove = frame.clone();
+        for id in no_stove.instance_ids.as_mut().unwrap().iter_mut().filter(|id| **id == 3) {
+            *id = 0;
+        }
+        let knowledge = labels_of(&mut with(CandidateMode::Knowledge), &no_stove);
+        assert_eq!(label(&knowledge, 4), None);
+        assert_eq!(label(&knowledge, 2).as_deref(), Some("cabinet handle"));
+        // "all" changes nothing.
+        assert_eq!(labels_of(&mut with(CandidateMode::All), &frame), all);
+    }
+
+    #[test]
+    fn label_vectors_can_be_replaced() {
+        let (frame, instances) = kitchen();
+        let mut vectors = HashMap::new();
+        let mut v = vec![0.0f32; 8];
+        v[3] = 1.0;
+        vectors.insert("cabinet".to_owned(), v.clone());
+        let mut detector = OracleDetector::new(no_noise(), instances, 0).with_label_vectors(&vectors);
+        let mut out = Vec::new();
+        detector.detect(&frame, &mut out).unwrap();
+        let cabinet = out.iter().find(|d| d.ground_truth_instance == Some(1)).unwrap();
+        assert_eq!(cabinet.semantic_feature.as_deref(), Some(v.as_slice()));
+        let stove = out.iter().find(|d| d.ground_truth_instance == Some(3)).unwrap();
+        assert_eq!(stove.semantic_feature.as_ref().map(Vec::len), Some(SEMANTIC_DIM));
     }
 }

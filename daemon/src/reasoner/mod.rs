@@ -16,9 +16,11 @@
 //! reasoner::apply(&mut graph, &output, op3dsg_ipc_types::EdgeOrigin::Knowledge);
 //! ```
 
+pub mod ablation;
 mod knowledge;
 pub mod llm;
 
+pub use ablation::ReasoningSetup;
 pub use knowledge::KnowledgeReasoner;
 
 use std::path::Path;
@@ -62,6 +64,7 @@ pub struct GraphEnricher {
     llm_output_new: bool,
     /// Batch runs: the refiner only refreshes through [`GraphEnricher::refine_now`].
     synchronous: bool,
+    setup: ReasoningSetup,
 }
 
 impl std::fmt::Debug for GraphEnricher {
@@ -71,6 +74,7 @@ impl std::fmt::Debug for GraphEnricher {
             .field("prior_config", &self.prior_config)
             .field("reasoner", &self.reasoner.name())
             .field("refiner", &self.refiner)
+            .field("setup", &self.setup)
             .finish()
     }
 }
@@ -108,6 +112,7 @@ impl GraphEnricher {
             llm_output: None,
             llm_output_new: false,
             synchronous: false,
+            setup: ReasoningSetup::Split,
         }))
     }
 
@@ -116,10 +121,35 @@ impl GraphEnricher {
         self.refiner.as_ref().map(|r| r.stats().clone())
     }
 
+    /// The same enricher with the reasoning stage set up as `setup` (the paper's ablations; see
+    /// [`ablation`]).
+    pub fn with_setup(mut self, setup: ReasoningSetup) -> Self {
+        self.setup = setup;
+        if setup == ReasoningSetup::Single {
+            self.reasoner =
+                Box::new(ablation::SingleReasoner::new(&self.knowledge, self.prior_config.neighbour_radius_m));
+        } else {
+            self.reasoner = Box::new(KnowledgeReasoner::new(self.knowledge.clone()));
+        }
+        self
+    }
+
     /// Adds the prior graph's object relations and the reasoner's results to `graph` (fusion's
     /// `part of` edges are already there; `graph.version` is set), then the LLM refiner's latest
     /// verified result, and hands the prior graph to the refiner. Never waits for the refiner.
     pub fn enrich(&mut self, graph: &mut SceneGraph) -> Arc<PriorGraph> {
+        if self.setup == ReasoningSetup::FlatNodeList {
+            *graph = ablation::flat_node_list(graph, &self.knowledge, self.prior_config.neighbour_radius_m);
+            let mut prior = prior::build(graph, &self.knowledge, &self.prior_config);
+            let part_of = op3dsg_ipc_types::relation_id("part of").map_or(0, |(_, id)| id);
+            prior.spatial_edges.retain(|e| e.relation_id == part_of);
+            let relations = ablation::flat_object_relations(&prior);
+            prior.spatial_edges.extend(relations.iter().cloned());
+            graph.edges.extend(relations);
+            let output = self.reasoner.reason(&prior);
+            apply(graph, &output, EdgeOrigin::Knowledge);
+            return Arc::new(prior);
+        }
         let prior = Arc::new(self.prior_builder.build(graph, &self.knowledge, &self.prior_config));
         let part_of = op3dsg_ipc_types::relation_id("part of").map_or(0, |(_, id)| id);
         // Fusion's own part-of edges are in the graph already; the prior graph's attachments not.

@@ -102,6 +102,17 @@ impl SyntheticSource {
         &self.path
     }
 
+    /// Camera pose of frame `k` (the path repeats when the source is endless).
+    fn pose_of(&self, k: u64) -> crate::pose::Isometry {
+        let path_k = if self.config.frame_count.is_none() { k % self.path.period_frames() } else { k };
+        self.path.pose_at(path_k)
+    }
+
+    /// Stamp of frame `k`, nanoseconds.
+    fn stamp_of(&self, k: u64) -> u64 {
+        (k as f64 * 1e9 / self.config.frame_rate_hz) as u64
+    }
+
     /// Noise generator of frame `k`: depends only on the seed and `k`, so a frame is
     /// reproducible on its own.
     fn noise_rng(&self, k: u64) -> ChaCha8Rng {
@@ -129,15 +140,31 @@ impl FrameSource for SyntheticSource {
             return Ok(SourceStatus::EndOfStream);
         }
         let k = self.next;
-        let path_k = if self.config.frame_count.is_none() { k % self.path.period_frames() } else { k };
-        let pose = self.path.pose_at(path_k);
+        let pose = self.pose_of(k);
         let mut rng = self.noise_rng(k);
         let noise = self.config.depth_noise.as_ref().map(|n| (n, &mut rng));
         self.renderer.render(&self.scene, &pose, &self.config.intrinsics, noise, frame);
         frame.seq = k;
-        frame.stamp_ns = (k as f64 * 1e9 / self.config.frame_rate_hz) as u64;
+        frame.stamp_ns = self.stamp_of(k);
         self.next += 1;
         Ok(SourceStatus::Frame)
+    }
+
+    fn peek_pose(&mut self, frame: &mut Frame) -> Option<SourceStatus> {
+        if self.config.frame_count.is_some_and(|n| self.next >= n) {
+            return Some(SourceStatus::EndOfStream);
+        }
+        let k = self.next;
+        frame.seq = k;
+        frame.stamp_ns = self.stamp_of(k);
+        frame.world_from_camera = Some(self.pose_of(k));
+        Some(SourceStatus::Frame)
+    }
+
+    fn skip_frame(&mut self) {
+        if self.config.frame_count.is_none_or(|n| self.next < n) {
+            self.next += 1;
+        }
     }
 
     fn len_hint(&self) -> Option<u64> {
