@@ -331,6 +331,14 @@ pub(crate) fn build_source(profile: &Profile) -> Result<BuiltSource, StartError>
     }
 }
 
+/// The knowledge base of `reasoner.knowledge_dir`, else the built-in tables (the detectors' part
+/// candidates use the reasoner's tables).
+fn knowledge_base(profile: &Profile) -> Result<Arc<KnowledgeBase>, StartError> {
+    KnowledgeBase::from_profile_dir(profile.reasoner.knowledge_dir.as_deref())
+        .map(Arc::new)
+        .map_err(|e| StartError::Incompatible { field: "reasoner.knowledge_dir", reason: e.to_string() })
+}
+
 /// The oracle's prompt lists (`detector.oracle.part_prompts`), from the knowledge base the
 /// reasoner uses (`reasoner.knowledge_dir`, else the built-in tables); `None` for `all`.
 fn oracle_candidates(profile: &Profile) -> Result<Option<Arc<PartCandidates>>, StartError> {
@@ -338,9 +346,7 @@ fn oracle_candidates(profile: &Profile) -> Result<Option<Arc<PartCandidates>>, S
     if mode == CandidateMode::All {
         return Ok(None);
     }
-    let knowledge = KnowledgeBase::from_profile_dir(profile.reasoner.knowledge_dir.as_deref())
-        .map_err(|e| StartError::Incompatible { field: "reasoner.knowledge_dir", reason: e.to_string() })?;
-    Ok(Some(Arc::new(PartCandidates::new(Arc::new(knowledge), mode))))
+    Ok(Some(Arc::new(PartCandidates::new(knowledge_base(profile)?, mode))))
 }
 
 /// Label → semantic vector, shared by the detection workers.
@@ -375,10 +381,9 @@ fn model_factory(profile: &Profile) -> Result<DetectorFactory, StartError> {
         DetectorKind::OpenVocab => {
             let config = profile.detector.open_vocab.clone();
             let text_encoder = profile.text_encoder.clone();
-            let knowledge = KnowledgeBase::from_profile_dir(profile.reasoner.knowledge_dir.as_deref())
-                .map_err(|e| StartError::Incompatible { field: "reasoner.knowledge_dir", reason: e.to_string() })?;
+            let knowledge = knowledge_base(profile)?;
             Arc::new(move || {
-                OpenVocabDetector::new(&runtime, &config, &knowledge, &text_encoder)
+                OpenVocabDetector::new(&runtime, &config, knowledge.clone(), &text_encoder)
                     .map(|d| Box::new(d) as Box<dyn Detector>)
             })
         }

@@ -8,10 +8,12 @@
 //! Needs `.models/` (`./scripts/setup-models.sh`).
 
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use op3dsg_daemon::knowledge::KnowledgeBase;
 use op3dsg_daemon::onnx::text_encoder::{TextEncoder, TextEncoderConfig};
 use op3dsg_daemon::onnx::{OnnxConfig, OnnxRuntime};
+use op3dsg_daemon::perception::candidates::CandidateMode;
 use op3dsg_daemon::perception::image_input::ImageInput;
 use op3dsg_daemon::perception::open_vocab::{OpenVocabConfig, OpenVocabDetector, OutputNames, PromptConfig};
 use op3dsg_daemon::perception::{Detection, Detector};
@@ -35,7 +37,11 @@ fn config() -> OpenVocabConfig {
             region_embeddings: Some("region_embeddings".into()),
             ..OutputNames::default()
         },
-        prompts: PromptConfig { objects: vec!["cabinet".into(), "stove".into()], ..PromptConfig::default() },
+        prompts: PromptConfig {
+            objects: vec!["cabinet".into(), "stove".into()],
+            part_prompts: CandidateMode::All,
+            ..PromptConfig::default()
+        },
         ..OpenVocabConfig::default()
     }
 }
@@ -50,8 +56,8 @@ fn frame() -> Frame {
 
 fn detect(config: &OpenVocabConfig) -> (Vec<Detection>, OpenVocabDetector) {
     let runtime = OnnxRuntime::init(&OnnxConfig::default()).expect("ONNX Runtime (run ./scripts/setup-models.sh)");
-    let knowledge = KnowledgeBase::builtin().expect("built-in knowledge base");
-    let mut detector = OpenVocabDetector::new(&runtime, config, &knowledge, &encoder_config()).expect("loads");
+    let knowledge = Arc::new(KnowledgeBase::builtin().expect("built-in knowledge base"));
+    let mut detector = OpenVocabDetector::new(&runtime, config, knowledge, &encoder_config()).expect("loads");
     let mut out = Vec::new();
     detector.detect(&frame(), &mut out).expect("detects");
     (out, detector)
@@ -106,11 +112,13 @@ fn a_score_matrix_is_decoded_like_scores_with_prompt_indices() {
 #[test]
 fn knowledge_guided_parts_extend_the_prompts_the_model_sees() {
     let mut guided = config();
-    guided.prompts.knowledge_parts = true;
+    guided.prompts.part_prompts = CandidateMode::Knowledge;
     let (out, detector) = detect(&guided);
     let texts: Vec<&str> = detector.prompts().iter().map(|p| p.text.as_str()).collect();
     assert!(texts.contains(&"cabinet handle") && texts.contains(&"stove knob"), "{texts:?}");
-    assert!(detector.prompts().iter().skip(2).all(|p| p.kind == NodeKind::Part));
+    let generated =
+        detector.prompts().iter().filter(|p| p.text.starts_with("cabinet ") || p.text.starts_with("stove "));
+    assert!(generated.clone().count() >= 3 && generated.clone().all(|p| p.kind == NodeKind::Part));
     // The model still answers prompts 1 and 0 (the objects).
     assert_eq!(out.iter().map(|d| d.label.as_str()).collect::<Vec<_>>(), ["stove", "cabinet"]);
 }
@@ -118,10 +126,10 @@ fn knowledge_guided_parts_extend_the_prompts_the_model_sees() {
 #[test]
 fn a_model_that_breaks_the_contract_is_refused_naming_the_key() {
     let runtime = OnnxRuntime::init(&OnnxConfig::default()).expect("ONNX Runtime");
-    let knowledge = KnowledgeBase::builtin().unwrap();
+    let knowledge = Arc::new(KnowledgeBase::builtin().unwrap());
     let mut wrong = config();
     wrong.outputs.boxes = "detections".into();
-    let err = OpenVocabDetector::new(&runtime, &wrong, &knowledge, &encoder_config()).unwrap_err().to_string();
+    let err = OpenVocabDetector::new(&runtime, &wrong, knowledge.clone(), &encoder_config()).unwrap_err().to_string();
     assert!(err.contains("\"detections\"") && err.contains("detector.open_vocab.outputs.boxes"), "{err}");
     assert!(
         err.contains("open_vocab_fixture.onnx") && err.contains("\"region_embeddings\""),
@@ -130,11 +138,11 @@ fn a_model_that_breaks_the_contract_is_refused_naming_the_key() {
 
     let mut wrong = config();
     wrong.input.name = "pixel_values".into();
-    let err = OpenVocabDetector::new(&runtime, &wrong, &knowledge, &encoder_config()).unwrap_err().to_string();
+    let err = OpenVocabDetector::new(&runtime, &wrong, knowledge.clone(), &encoder_config()).unwrap_err().to_string();
     assert!(err.contains("detector.open_vocab.input.name"), "{err}");
 
     let err =
-        OpenVocabDetector::new(&runtime, &config(), &knowledge, &TextEncoderConfig::default()).unwrap_err().to_string();
+        OpenVocabDetector::new(&runtime, &config(), knowledge, &TextEncoderConfig::default()).unwrap_err().to_string();
     assert!(err.contains("text_encoder.enabled"), "{err}");
 }
 
@@ -159,7 +167,7 @@ workers = 1
 
 [detector.open_vocab]
 model_path = "{model}"
-prompts = {{ objects = ["cabinet", "stove"], knowledge_parts = true }}
+prompts = {{ objects = ["cabinet", "stove"], part_prompts = "knowledge" }}
 input = {{ width = 64, height = 64, colour_order = "rgb", resize = "letterbox", scale = 0.00392157 }}
 outputs = {{ boxes = "boxes", scores = "scores", prompt_index = "prompt_index", masks = "masks", region_embeddings = "region_embeddings" }}
 

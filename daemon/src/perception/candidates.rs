@@ -98,7 +98,8 @@ impl PromptList {
         self.prompts.iter().any(|p| p.text == text)
     }
 
-    fn push(&mut self, prompt: Prompt) {
+    /// Appends `prompt` unless a prompt has its text already.
+    pub fn push(&mut self, prompt: Prompt) {
         if !self.contains(&prompt.text) {
             self.prompts.push(prompt);
         }

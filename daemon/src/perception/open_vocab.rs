@@ -28,11 +28,13 @@
 //!
 //! # Prompts: knowledge-guided part candidates
 //!
-//! The prompt list is the object tags of `[detector.open_vocab.prompts] objects` (kind object),
-//! then the part prompts (kind part): `parts` as given, and with `knowledge_parts = true` the
-//! knowledge base's interactive parts of every tagged object, phrased "<object> <part>"
-//! ("cabinet handle", "stove knob"), so the detector looks for the parts those objects have
-//! and fusion's lexical rule attaches each to its object. Duplicates are dropped, order kept.
+//! The prompt list is built by [`super::candidates::PartCandidates`] from the object tags of
+//! `[detector.open_vocab.prompts] objects`: with `part_prompts = "knowledge"` (the default) the
+//! knowledge base's interactive parts of every tagged object, phrased "<tag> <part>" ("cabinet
+//! handle", "stove knob"), so the detector looks for the parts those objects have and fusion's
+//! lexical rule attaches each to its object, plus a few small things a tagger misses (light
+//! switch, power outlet, remote control); `"generic"` a fixed generic part vocabulary instead;
+//! `"all"` the tags alone. Then `parts`, as given. Duplicates are dropped, order kept.
 //!
 //! `scripts/reference/open_vocab_fixture.py` writes a tiny model with this contract and known
 //! answers; `daemon/tests/open_vocab.rs` runs the adapter on it.
@@ -49,6 +51,9 @@ use super::depth_mask::{DepthMaskConfig, DepthSegmenter, PixelBox};
 use super::image_input::{ImageInput, Placement, prepare};
 use super::yolox::iou;
 use super::{Detection, Detector, DetectorError, Mask, greedy_suppress, normalise, validate_detection_limits};
+use std::sync::Arc;
+
+use super::candidates::{CandidateMode, PartCandidates, Prompt, PromptList};
 use crate::knowledge::KnowledgeBase;
 use crate::onnx::text_encoder::{EMBEDDING_DIM, TextEncoder, TextEncoderConfig};
 use crate::onnx::{ExecutionProvider, OnnxError, OnnxRuntime, SessionSpec, open_session, resolve_path};
@@ -126,15 +131,21 @@ impl Default for OutputNames {
 }
 
 /// `[detector.open_vocab.prompts]`.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PromptConfig {
     /// Object tags (kind object).
     pub objects: Vec<String>,
-    /// Part prompts given as they are (kind part).
+    /// Part prompts given as they are (kind part), after the generated ones.
     pub parts: Vec<String>,
-    /// Add the knowledge base's parts of every tagged object as "<object> <part>".
-    pub knowledge_parts: bool,
+    /// Part prompts generated from the tags: `knowledge`, `generic` or `all` (none).
+    pub part_prompts: CandidateMode,
+}
+
+impl Default for PromptConfig {
+    fn default() -> Self {
+        Self { objects: Vec::new(), parts: Vec::new(), part_prompts: CandidateMode::Knowledge }
+    }
 }
 
 /// `[detector.open_vocab]`.
@@ -214,43 +225,23 @@ impl OpenVocabConfig {
     }
 }
 
-/// One entry of the vocabulary.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Prompt {
-    /// The text (encoded, and reported as the detection's label).
-    pub text: String,
-    /// Object or part.
-    pub kind: NodeKind,
-}
-
-/// The prompt list of `config` (see the module docs): object tags, then part prompts, then
-/// with `knowledge_parts` the knowledge base's parts of each tag that it knows.
-pub fn prompt_list(config: &PromptConfig, knowledge: &KnowledgeBase) -> Vec<Prompt> {
-    let mut prompts: Vec<Prompt> = Vec::new();
-    let mut push = |text: String, kind: NodeKind| {
-        let text = text.trim().to_lowercase();
-        if !prompts.iter().any(|p| p.text == text) {
-            prompts.push(Prompt { text, kind });
-        }
-    };
-    for tag in &config.objects {
-        push(tag.clone(), NodeKind::Object);
-    }
+/// The prompt list of `config` (see the module docs).
+pub fn prompt_list(config: &PromptConfig, knowledge: Arc<KnowledgeBase>) -> Vec<Prompt> {
+    let candidates = PartCandidates::new(knowledge, config.part_prompts);
+    let tags: Vec<&str> = config.objects.iter().map(String::as_str).collect();
+    let mut list = PromptList::default();
+    candidates.prompts(&tags, &mut list);
     for part in &config.parts {
-        push(part.clone(), NodeKind::Part);
+        let text = crate::knowledge::normalise(part);
+        let category = candidates.knowledge().resolve(&text);
+        list.push(Prompt {
+            text,
+            kind: NodeKind::Part,
+            part: category.as_ref().and_then(|r| r.part()),
+            object: category.and_then(|r| r.object_hint),
+        });
     }
-    if config.knowledge_parts {
-        for tag in &config.objects {
-            let Some(object) = knowledge.object_category(tag) else { continue };
-            let name = &knowledge.object(object).name;
-            for pair in knowledge.parts_of(object) {
-                let part = &knowledge.part(pair.part).name;
-                let text = if part.contains(name.as_str()) { part.clone() } else { format!("{name} {part}") };
-                push(text, NodeKind::Part);
-            }
-        }
-    }
-    prompts
+    list.prompts
 }
 
 /// A decoded region before masks: image-pixel box, score, prompt, row in the outputs.
@@ -290,7 +281,7 @@ impl OpenVocabDetector {
     pub fn new(
         runtime: &OnnxRuntime,
         config: &OpenVocabConfig,
-        knowledge: &KnowledgeBase,
+        knowledge: Arc<KnowledgeBase>,
         text_encoder: &TextEncoderConfig,
     ) -> Result<Self, OnnxError> {
         config.validate("detector.open_vocab").map_err(OnnxError::InvalidConfig)?;
@@ -590,25 +581,26 @@ mod tests {
 
     #[test]
     fn knowledge_guided_prompts_add_each_tagged_objects_parts() {
-        let kb = KnowledgeBase::builtin().unwrap();
+        let kb = Arc::new(KnowledgeBase::builtin().unwrap());
         let config = PromptConfig {
-            objects: vec!["cabinet".into(), "Stove".into(), "cupboard".into()],
-            parts: vec!["handle".into()],
-            knowledge_parts: true,
+            objects: vec!["cabinet".into(), "Stove".into()],
+            parts: vec!["Door Handle".into()],
+            part_prompts: CandidateMode::Knowledge,
         };
-        let prompts = prompt_list(&config, &kb);
+        let prompts = prompt_list(&config, kb.clone());
         let texts: Vec<&str> = prompts.iter().map(|p| p.text.as_str()).collect();
-        assert_eq!(&texts[..4], ["cabinet", "stove", "cupboard", "handle"]);
-        assert!(prompts[..3].iter().all(|p| p.kind == NodeKind::Object));
-        assert!(prompts[3..].iter().all(|p| p.kind == NodeKind::Part));
+        assert_eq!(&texts[..2], ["cabinet", "stove"]);
+        assert!(prompts[..2].iter().all(|p| p.kind == NodeKind::Object));
+        let generated = prompts.iter().filter(|p| p.text.starts_with("cabinet ") || p.text.starts_with("stove "));
+        assert!(generated.clone().count() >= 3 && generated.clone().all(|p| p.kind == NodeKind::Part));
+        assert!(texts.contains(&"light switch"), "small things a tagger misses are added: {texts:?}");
         assert!(
             texts.contains(&"cabinet handle") && texts.contains(&"cabinet knob") && texts.contains(&"stove knob"),
             "{texts:?}"
         );
-        // "cupboard" is a synonym of cabinet: its parts are the cabinet's, not added twice.
-        assert_eq!(texts.iter().filter(|t| **t == "cabinet handle").count(), 1);
-        let plain = prompt_list(&PromptConfig { knowledge_parts: false, ..config }, &kb);
-        assert_eq!(plain.len(), 4, "without knowledge only the listed prompts");
+        assert_eq!(texts.last(), Some(&"door handle"), "listed parts come last, normalised");
+        let plain = prompt_list(&PromptConfig { part_prompts: CandidateMode::All, ..config }, kb);
+        assert_eq!(plain.iter().map(|p| p.text.as_str()).collect::<Vec<_>>(), ["cabinet", "stove", "door handle"]);
     }
 
     #[test]

@@ -23,7 +23,6 @@ pub mod llm;
 pub use ablation::ReasoningSetup;
 pub use knowledge::KnowledgeReasoner;
 
-use std::path::Path;
 use std::sync::Arc;
 
 use op3dsg_ipc_types::{EdgeKind, EdgeOrigin};
@@ -86,10 +85,7 @@ impl GraphEnricher {
         if config.kind == ReasonerKind::None {
             return Ok(None);
         }
-        let knowledge = Arc::new(match &config.knowledge_dir {
-            Some(dir) => KnowledgeBase::load_dir(Path::new(dir))?,
-            None => KnowledgeBase::builtin()?,
-        });
+        let knowledge = Arc::new(KnowledgeBase::from_profile_dir(config.knowledge_dir.as_deref())?);
         let prior_config = PriorConfig {
             up_axis: profile.world.up_axis,
             neighbour_radius_m: config.neighbour_radius_m,
