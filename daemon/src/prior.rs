@@ -38,8 +38,11 @@
 //! rule over its spatially close objects, the objects among its neighbours (centres within
 //! `neighbour_radius_m`): an object whose label is contained in the part's label (normalised
 //! words, or the object named by the part's compound label in the knowledge base) wins, else the
-//! nearest by surface distance (the gap between the two boxes); ties go to the lower id. A part
-//! with no object nearby stays unattached. These attachments are listed in
+//! nearest by surface distance (the gap between the two boxes) among the objects whose category
+//! has that part in the knowledge base and whose box is within [`ORPHAN_MAX_GAP_M`]; ties go to
+//! the lower id. A part with no such object stays unattached: wall outlets and light switches
+//! belong to the room, not to the lamp or sofa beside them (attaching them there would also make
+//! that object unreachable as the target of their remote relation). These attachments are listed in
 //! [`PriorGraph::attached`] and get a `part of` edge of origin geometry.
 
 use glam::Vec3;
@@ -333,7 +336,7 @@ impl PriorBuilder {
                 });
             }
         }
-        let attached = attach_orphan_parts(&mut nodes, &neighbours);
+        let attached = attach_orphan_parts(&mut nodes, &neighbours, knowledge);
         for &(part_id, object_id) in &attached {
             let confidence = [part_id, object_id]
                 .iter()
@@ -358,6 +361,10 @@ fn box_gap(a_min: Vec3, a_max: Vec3, b_min: Vec3, b_max: Vec3) -> f32 {
     (a_min - b_max).max(b_min - a_max).max(Vec3::ZERO).length()
 }
 
+/// An orphan part is attached to an object by proximity alone only when their boxes are at most
+/// this far apart, metres (a part touches its object; depth noise and a coarse map leave gaps).
+pub const ORPHAN_MAX_GAP_M: f32 = 0.1;
+
 /// Whether the words of `object` appear, in order and whole, in `part` (both normalised).
 fn label_contains(part: &str, object: &str) -> bool {
     !object.is_empty() && format!(" {part} ").contains(&format!(" {object} "))
@@ -365,7 +372,11 @@ fn label_contains(part: &str, object: &str) -> bool {
 
 /// Attaches parts without a (present) parent by the rule in the module docs; returns the new
 /// `(part_id, object_id)` pairs, in part id order.
-fn attach_orphan_parts(nodes: &mut [PriorNode], neighbours: &[(u32, u32)]) -> Vec<(u32, u32)> {
+fn attach_orphan_parts(
+    nodes: &mut [PriorNode],
+    neighbours: &[(u32, u32)],
+    knowledge: &KnowledgeBase,
+) -> Vec<(u32, u32)> {
     let present = |nodes: &[PriorNode], id: u32| nodes.binary_search_by_key(&id, |n| n.id).is_ok();
     let orphan: Vec<bool> =
         nodes.iter().map(|n| n.kind == NodeKind::Part && n.parent_id.is_none_or(|p| !present(nodes, p))).collect();
@@ -387,6 +398,13 @@ fn attach_orphan_parts(nodes: &mut [PriorNode], neighbours: &[(u32, u32)]) -> Ve
                     &crate::knowledge::normalise(&object.label),
                 );
             let gap = box_gap(part.box_min_m, part.box_max_m, object.box_min_m, object.box_max_m);
+            let known_pair = match (part.category.and_then(|c| c.part()), object.category.and_then(|c| c.object())) {
+                (Some(part), Some(object)) => knowledge.pair(part, object).is_some(),
+                _ => false,
+            };
+            if !(lexical || (known_pair && gap <= ORPHAN_MAX_GAP_M)) {
+                continue;
+            }
             let candidate = (lexical, gap, object.id, o);
             let better = best.get(&p).is_none_or(|&(bl, bg, bid, _)| {
                 (lexical, std::cmp::Reverse(gap.to_bits()), std::cmp::Reverse(object.id))
@@ -571,8 +589,11 @@ mod tests {
                 node(2, "microwave", NodeKind::Object, [0.0, -0.5, 0.5], [0.4, -0.15, 0.8]),
                 // Nearer the microwave's box, but its label names the cabinet.
                 node(3, "cabinet handle", NodeKind::Part, [0.3, -0.14, 0.5], [0.4, -0.12, 0.52]),
-                // No label match: the nearest box (the microwave) wins.
-                node(4, "knob", NodeKind::Part, [0.1, -0.14, 0.6], [0.14, -0.1, 0.64]),
+                // No label match: the nearest box that has buttons (the microwave) wins.
+                node(4, "button", NodeKind::Part, [0.1, -0.14, 0.6], [0.14, -0.1, 0.64]),
+                // A wall outlet 5 cm from the microwave: microwaves have no outlets, it stays
+                // the room's.
+                node(6, "outlet", NodeKind::Part, [0.0, -0.5, 0.85], [0.05, -0.49, 0.9]),
                 // Nothing within the neighbour radius.
                 node(5, "drawer handle", NodeKind::Part, [9.0, 9.0, 0.5], [9.1, 9.02, 0.52]),
             ],
@@ -582,6 +603,7 @@ mod tests {
         assert_eq!(prior.attached, [(3, 1), (4, 2)]);
         assert_eq!(prior.nodes[2].parent_id, Some(1));
         assert_eq!(prior.nodes[4].parent_id, None);
+        assert_eq!(prior.nodes[5].parent_id, None, "the outlet stays unattached");
         let part_of: Vec<(u32, u32)> =
             prior.spatial_edges.iter().filter(|e| e.relation_id == 0).map(|e| (e.source_id, e.target_id)).collect();
         assert_eq!(part_of, [(3, 1), (4, 2)]);

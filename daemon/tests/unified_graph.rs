@@ -74,7 +74,23 @@ fn recovered(room: RoomKind, run: &BatchRun, report: &FusionMatchReport) -> Reco
         if has_edge(run, sources, targets, edge.relation) {
             functional += 1;
         } else {
-            println!("{}: missing {} --[{}]--> {}", room.as_str(), label(edge.source), edge.relation, label(edge.target));
+            let instead: Vec<String> = run
+                .graph
+                .edges
+                .iter()
+                .filter(|e| e.kind == EdgeKind::Functional && sources.contains(&e.source_id))
+                .map(|e| {
+                    let phrase = op3dsg_ipc_types::relation_phrase(e.relation_id).unwrap_or("?");
+                    format!("[{phrase}] -> {}", node(run, e.target_id).label)
+                })
+                .collect();
+            println!(
+                "{}: missing {} --[{}]--> {}; the graph has {instead:?}",
+                room.as_str(),
+                label(edge.source),
+                edge.relation,
+                label(edge.target)
+            );
         }
     }
     let (mut affordances, mut affordances_checkable) = (0, 0);
@@ -111,7 +127,8 @@ fn kitchen_handles_pull_their_cabinets_open_and_afford_hook_pull() {
     let pull = affordance_bits(["hook_pull"]).expect("canonical");
     let mut handles = 0;
     for edge in scene.edges().iter().filter(|e| e.kind == "functional") {
-        let (source, target) = (scene.instance(edge.source).expect("source"), scene.instance(edge.target).expect("target"));
+        let (source, target) =
+            (scene.instance(edge.source).expect("source"), scene.instance(edge.target).expect("target"));
         if source.label != "cabinet handle" {
             continue;
         }
@@ -128,7 +145,11 @@ fn kitchen_handles_pull_their_cabinets_open_and_afford_hook_pull() {
             target.label,
             edge.target
         );
-        assert!(sources.iter().any(|&n| node(&run, n).affordance_bits & pull == pull), "handle {} affords hook pull", edge.source);
+        assert!(
+            sources.iter().any(|&n| node(&run, n).affordance_bits & pull == pull),
+            "handle {} affords hook pull",
+            edge.source
+        );
         // Part-of: the handle's node hangs on its cabinet's node.
         assert!(sources.iter().any(|&n| node(&run, n).parent_id.is_some_and(|p| targets.contains(&p))));
     }
