@@ -18,7 +18,7 @@ use serde::Deserialize;
 
 use super::prompt::{Agent, PromptSet};
 use crate::onnx::text_encoder::{Embedding, TextEncoder, cosine};
-use crate::prior::PriorGraph;
+use crate::prior::{PriorGraph, PriorNode};
 use crate::reasoner::{FunctionalRelation, NodeAffordances, ReasonerOutput};
 
 /// Why an item was rejected (index into `op3dsg_ipc_types::REFINER_REJECTIONS`).
@@ -206,6 +206,27 @@ fn confidence(value: f64) -> Option<f32> {
     (value.is_finite() && (0.0..=1.0).contains(&value)).then_some(value as f32)
 }
 
+/// Checks one proposed functional relation `(source, target, phrase, confidence)`, in the order
+/// the rejections are counted: confidence in [0, 1], both endpoints in the graph, the agent's
+/// kind rule (`allowed`), a canonical phrase.
+fn verify_relation<'a>(
+    (source_id, target_id, phrase, value): (u32, u32, &str, f64),
+    node: &impl Fn(u32) -> Option<&'a PriorNode>,
+    allowed: bool,
+    remote: bool,
+    mapper: &mut LabelMapper,
+) -> Result<FunctionalRelation, Rejection> {
+    let confidence = confidence(value).ok_or(Rejection::Malformed)?;
+    if node(source_id).is_none() || node(target_id).is_none() {
+        return Err(Rejection::UnknownNode);
+    }
+    if !allowed {
+        return Err(Rejection::WrongKind);
+    }
+    let relation_id = mapper.relation(phrase).ok_or(Rejection::NonCanonical)?;
+    Ok(FunctionalRelation { source_id, target_id, relation_id, confidence, remote })
+}
+
 /// Checks one agent's answer against the graph version `prompts` was built from; accepted items
 /// are added to `output`, rejections to `rejections`. Returns how many items were accepted.
 pub fn check(
@@ -227,30 +248,17 @@ pub fn check(
                 return 0;
             };
             for item in answer.relations {
-                let Some(confidence) = confidence(item.confidence) else {
-                    rejections.add(Rejection::Malformed);
-                    continue;
-                };
-                let (Some(part), Some(_)) = (node(item.part_id), node(item.object_id)) else {
-                    rejections.add(Rejection::UnknownNode);
-                    continue;
-                };
-                if part.kind != NodeKind::Part || part.parent_id != Some(item.object_id) {
-                    rejections.add(Rejection::WrongKind);
-                    continue;
+                // Local relations only on the graph's part-of pairs.
+                let allowed = node(item.part_id)
+                    .is_some_and(|part| part.kind == NodeKind::Part && part.parent_id == Some(item.object_id));
+                let proposal = (item.part_id, item.object_id, item.relation.as_str(), item.confidence);
+                match verify_relation(proposal, &node, allowed, false, mapper) {
+                    Ok(relation) => {
+                        output.functional.push(relation);
+                        accepted += 1;
+                    }
+                    Err(reason) => rejections.add(reason),
                 }
-                let Some(relation_id) = mapper.relation(&item.relation) else {
-                    rejections.add(Rejection::NonCanonical);
-                    continue;
-                };
-                output.functional.push(FunctionalRelation {
-                    source_id: item.part_id,
-                    target_id: item.object_id,
-                    relation_id,
-                    confidence,
-                    remote: false,
-                });
-                accepted += 1;
             }
         }
         Agent::Remote => {
@@ -259,30 +267,16 @@ pub fn check(
                 return 0;
             };
             for item in answer.relations {
-                let Some(confidence) = confidence(item.confidence) else {
-                    rejections.add(Rejection::Malformed);
-                    continue;
-                };
-                if node(item.source_id).is_none() || node(item.target_id).is_none() {
-                    rejections.add(Rejection::UnknownNode);
-                    continue;
+                // Remote relations only on the pairs the prompt offered.
+                let allowed = prompts.remote_candidates.contains(&(item.source_id, item.target_id));
+                let proposal = (item.source_id, item.target_id, item.relation.as_str(), item.confidence);
+                match verify_relation(proposal, &node, allowed, true, mapper) {
+                    Ok(relation) => {
+                        output.functional.push(relation);
+                        accepted += 1;
+                    }
+                    Err(reason) => rejections.add(reason),
                 }
-                if !prompts.remote_candidates.contains(&(item.source_id, item.target_id)) {
-                    rejections.add(Rejection::WrongKind);
-                    continue;
-                }
-                let Some(relation_id) = mapper.relation(&item.relation) else {
-                    rejections.add(Rejection::NonCanonical);
-                    continue;
-                };
-                output.functional.push(FunctionalRelation {
-                    source_id: item.source_id,
-                    target_id: item.target_id,
-                    relation_id,
-                    confidence,
-                    remote: true,
-                });
-                accepted += 1;
             }
         }
         Agent::Affordances => {
