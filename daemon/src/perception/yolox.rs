@@ -31,12 +31,12 @@
 //! labels).
 //!
 //! Cost (`OP3DSG_REFERENCE_PYTHON="env PYTHONPATH=/tmp/ortpy python3" cargo bench -p
-//! op3dsg-daemon --bench detector`, development machine: 2 cores shared with other builds, one
-//! intra-op thread): inference 14.2 ms per frame median (letterbox 1.7 ms of it); `session.run`
-//! 12.25 ms vs 12.40 ms for onnxruntime's Python API on the same pixels in the same run, i.e.
-//! 1.01 x its speed; whole detector (masks from depth included) 15.6 ms. Throughput 68.7
-//! frames/s with one worker, 138.5 with two (one session each); with 2x2 tiles (five
-//! inferences a frame) 14.5 and 15.8 frames/s (the second core was busy with other builds).
+//! op3dsg-daemon --bench detector`, development machine, 2 cores, load 1.3-1.9, one intra-op
+//! thread): inference 14.6 ms per frame median (letterbox 1.7 ms of it); `session.run`
+//! 12.85 ms vs 12.74 ms for onnxruntime's Python API on the same pixels in the same run, i.e.
+//! 0.99 x its speed (1.01 x in an earlier run); whole detector (masks from depth included)
+//! 16.1 ms. Throughput, one session per worker: 65.9 frames/s with one worker, 129.1 with two;
+//! with 2x2 tiles (five inferences a frame) 13.5 and 26.4 frames/s.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
