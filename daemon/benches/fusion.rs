@@ -36,15 +36,7 @@ fn bench_fusion(c: &mut Criterion) {
     // that kitchen, detected with the realistic preset's mask, label and score noise but no
     // misses or false positives (so that 40 detections fit in one 640x480 view).
     let workload = Workload::kitchen(3, 30, 15, OracleConfig::realistic());
-    let dense = OracleConfig {
-        object_miss_rate: 0.0,
-        part_miss_rate: 0.0,
-        small_miss_boost: 0.0,
-        far_miss_boost: 0.0,
-        false_positives_per_frame: 0.0,
-        ..OracleConfig::realistic()
-    };
-    let step = Workload { keyframes: vec![Workload::overview(3, dense)] }.step(40);
+    let step = Workload::busy_step(3, 40);
     let parts = step.detections.iter().filter(|d| d.kind == NodeKind::Part).count();
     let mask_px: usize = step.detections.iter().map(|d| d.mask.area()).sum();
     eprintln!(

@@ -45,6 +45,21 @@ impl Workload {
         Self { keyframes }
     }
 
+    /// The benchmarks' fusion step: the busiest wide view of kitchen `seed` ([`Workload::overview`])
+    /// detected with the realistic preset's mask, label and score noise but no misses or false
+    /// positives (so that `detections` of them fit in one 640x480 view).
+    pub fn busy_step(seed: u64, detections: usize) -> Keyframe {
+        let dense = OracleConfig {
+            object_miss_rate: 0.0,
+            part_miss_rate: 0.0,
+            small_miss_boost: 0.0,
+            far_miss_boost: 0.0,
+            false_positives_per_frame: 0.0,
+            ..OracleConfig::realistic()
+        };
+        Workload { keyframes: vec![Workload::overview(seed, dense)] }.step(detections)
+    }
+
     /// A wide view of kitchen `seed`: from whichever upper corner of the room (1.8 m high, looking
     /// at the room's centre, 25° down) the `oracle` detects most instances. A busy keyframe for
     /// the benchmark's step.

@@ -63,15 +63,7 @@ pub fn fusion_curve(options: &PerfOptions) -> anyhow::Result<FusionCurve> {
         .map_err(|e| anyhow!("bad profile: {e}"))?
         .profile;
     let workload = Workload::kitchen(3, options.fusion_keyframes.max(1), 15, OracleConfig::realistic());
-    let dense = OracleConfig {
-        object_miss_rate: 0.0,
-        part_miss_rate: 0.0,
-        small_miss_boost: 0.0,
-        far_miss_boost: 0.0,
-        false_positives_per_frame: 0.0,
-        ..OracleConfig::realistic()
-    };
-    let step = Workload { keyframes: vec![Workload::overview(3, dense)] }.step(STEP_DETECTIONS);
+    let step = Workload::busy_step(3, STEP_DETECTIONS);
     let parts = step.detections.iter().filter(|d| d.kind == NodeKind::Part).count();
 
     let mut sizes = options.fusion_sizes.clone();
