@@ -123,6 +123,20 @@ fn bench_prior(c: &mut Criterion) {
             black_box(reasoner.reason(&prior_graph));
         }),
     );
+    // Applying the reasoner's output to the published graph (which holds the prior graph's
+    // spatial edges by then), as the fusion thread does for every published version.
+    let output = reasoner.reason(&prior_graph);
+    let mut enriched = graph.clone();
+    enriched.edges.extend(prior_graph.spatial_edges.iter().cloned());
+    println!("{} functional relations onto {} edges", output.functional.len(), enriched.edges.len());
+    report(
+        "apply reasoner output (2,000 nodes)",
+        time(&mut || {
+            let mut g = enriched.clone();
+            op3dsg_daemon::reasoner::apply(&mut g, &output, op3dsg_ipc_types::EdgeOrigin::Knowledge);
+            black_box(g);
+        }),
+    );
     c.bench_function("prior_build_2000", |b| b.iter(|| prior::build(black_box(&graph), &kb, &config)));
     c.bench_function("prior_rebuild_reused_2000", |b| b.iter(|| builder.build(black_box(&graph), &kb, &config)));
     c.bench_function("knowledge_reason_2000", |b| b.iter(|| reasoner.reason(black_box(&prior_graph))));

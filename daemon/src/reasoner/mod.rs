@@ -26,6 +26,7 @@ pub use knowledge::KnowledgeReasoner;
 use std::sync::Arc;
 
 use op3dsg_ipc_types::{EdgeKind, EdgeOrigin};
+use rustc_hash::FxHashMap;
 
 use crate::config::{Profile, ReasonerKind};
 use crate::graph::{GraphEdge, SceneGraph};
@@ -320,21 +321,24 @@ fn combined_origin(existing: EdgeOrigin, new: EdgeOrigin) -> EdgeOrigin {
 pub fn apply(graph: &mut SceneGraph, output: &ReasonerOutput, origin: EdgeOrigin) -> usize {
     let exists = |nodes: &[crate::graph::GraphNode], id: u32| nodes.binary_search_by_key(&id, |n| n.id).is_ok();
     let mut dropped = 0;
+    // The graph's functional edges by (source, target, relation): one lookup per relation
+    // instead of a scan of every edge (this runs on the fusion thread for each published graph).
+    let mut functional: FxHashMap<(u32, u32, u16), usize> = FxHashMap::default();
+    for (i, e) in graph.edges.iter().enumerate().filter(|(_, e)| e.kind == EdgeKind::Functional) {
+        functional.entry((e.source_id, e.target_id, e.relation_id)).or_insert(i);
+    }
     for relation in &output.functional {
         if !(exists(&graph.nodes, relation.source_id) && exists(&graph.nodes, relation.target_id)) {
             dropped += 1;
             continue;
         }
-        let existing = graph.edges.iter_mut().find(|e| {
-            e.kind == EdgeKind::Functional
-                && e.source_id == relation.source_id
-                && e.target_id == relation.target_id
-                && e.relation_id == relation.relation_id
-        });
-        if let Some(edge) = existing {
+        let key = (relation.source_id, relation.target_id, relation.relation_id);
+        if let Some(&i) = functional.get(&key) {
+            let edge = &mut graph.edges[i];
             edge.origin = combined_origin(edge.origin, origin);
             edge.confidence = edge.confidence.max(relation.confidence.clamp(0.0, 1.0));
         } else {
+            functional.insert(key, graph.edges.len());
             graph.edges.push(GraphEdge {
                 source_id: relation.source_id,
                 target_id: relation.target_id,
