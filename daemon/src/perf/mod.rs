@@ -338,7 +338,7 @@ fn ipc_markdown(s: &mut String, ipc: &IpcLatency) {
          slice of the graph's filled size, copy, send, notify; receive, copy out.\n",
         ipc.messages,
         ipc.warmup,
-        ipc.snapshot_bytes as f64 / (1024.0 * 1024.0)
+        crate::stats::mib(ipc.snapshot_bytes as u64)
     );
     let _ = writeln!(
         s,
