@@ -1,0 +1,187 @@
+//! [`GraphSubscriber`]: the planner's reader of `<prefix>/graph`, woken by `<prefix>/graph_updated`.
+
+use std::time::Duration;
+
+use iceoryx2::node::Node as IoxNode;
+use iceoryx2::port::listener::{Listener, ListenerWaitError};
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::service::builder::event::EventOpenError;
+use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
+
+use crate::GraphSnapshot;
+use crate::client::{ClientError, ErrorCause, Graph, Operation, create_node, retry_while_not_serving};
+use crate::services::{HISTORY_SIZE, IpcService, ServiceKind, ServiceNames, service_name};
+
+/// Reads the daemon's scene graph: waits for `graph_updated`, then copies the newest sample of
+/// `graph` into an owned [`Graph`] it keeps (and reuses) across calls.
+///
+/// A subscriber may borrow only one sample at a time, and samples are 3.9 MiB: [`Self::latest`]
+/// releases each older queued sample before taking the next, copies only the newest one's valid
+/// nodes and edges, and returns the sample to the daemon at once.
+///
+/// A client that joins late receives the current graph from the service's history when the
+/// daemon next updates its connections (within ~100 ms), without a `graph_updated` event; so
+/// call [`Self::latest_if_newer`] after every [`Self::wait_for_update`], also when it timed out.
+#[derive(Debug)]
+pub struct GraphSubscriber {
+    prefix: String,
+    names: ServiceNames,
+    subscriber: Subscriber<IpcService, GraphSnapshot, ()>,
+    listener: Listener<IpcService>,
+    graph: Graph,
+    received: bool,
+    node: IoxNode<IpcService>,
+}
+
+impl GraphSubscriber {
+    /// Opens the daemon's `graph` and `graph_updated` under `prefix` as iceoryx2 node
+    /// `node_name`; fails with a "not serving" error ([`ClientError::is_not_serving`]) when no
+    /// daemon has created them.
+    pub fn open(prefix: &str, node_name: &str) -> Result<Self, ClientError> {
+        let node = create_node(prefix, ServiceKind::Graph, node_name)?;
+        let (subscriber, listener) = open_ports(&node, prefix)?;
+        Ok(Self::from_ports(prefix, node, subscriber, listener))
+    }
+
+    /// Like [`Self::open`], but while no daemon serves `prefix` retries every
+    /// [`OPEN_RETRY_INTERVAL`](crate::services::OPEN_RETRY_INTERVAL), up to `timeout`: for a
+    /// client started before the daemon.
+    pub fn open_wait(prefix: &str, node_name: &str, timeout: Duration) -> Result<Self, ClientError> {
+        let node = create_node(prefix, ServiceKind::Graph, node_name)?;
+        let (subscriber, listener) = retry_while_not_serving(timeout, || open_ports(&node, prefix))?;
+        Ok(Self::from_ports(prefix, node, subscriber, listener))
+    }
+
+    fn from_ports(
+        prefix: &str,
+        node: IoxNode<IpcService>,
+        subscriber: Subscriber<IpcService, GraphSnapshot, ()>,
+        listener: Listener<IpcService>,
+    ) -> Self {
+        Self {
+            prefix: prefix.to_owned(),
+            names: ServiceNames::new(prefix),
+            subscriber,
+            listener,
+            graph: Graph::new(),
+            received: false,
+            node,
+        }
+    }
+
+    /// The prefix served.
+    pub fn prefix(&self) -> &str {
+        &self.prefix
+    }
+
+    /// The service names under the prefix.
+    pub fn names(&self) -> &ServiceNames {
+        &self.names
+    }
+
+    /// The client's iceoryx2 node.
+    pub fn node(&self) -> &IoxNode<IpcService> {
+        &self.node
+    }
+
+    /// The `graph_updated` listener, to attach to a `WaitSet` with the planner's other inputs
+    /// (then call [`Self::latest_if_newer`] when it fires, after draining it with `try_wait`).
+    pub fn listener(&self) -> &Listener<IpcService> {
+        &self.listener
+    }
+
+    /// Waits up to `timeout` for a new graph; `true` when one is waiting (a `graph_updated`
+    /// event came, or a sample is already queued), `false` on timeout. A signal that interrupts
+    /// the wait (Ctrl-C under the planner's own handler) returns `Ok(false)` early, so the caller
+    /// can check its stop flag.
+    pub fn wait_for_update(&self, timeout: Duration) -> Result<bool, ClientError> {
+        let queued =
+            self.subscriber.has_samples().map_err(|e| self.error(Operation::Receive, ErrorCause::Connection(e)))?;
+        let wait = if queued { self.listener.try_wait(|_| {}) } else { self.listener.timed_wait(|_| {}, timeout) };
+        match wait {
+            Ok(count) => Ok(queued || count > 0),
+            Err(ListenerWaitError::InterruptSignal) => Ok(queued),
+            Err(e) => {
+                Err(ClientError::new(&self.prefix, ServiceKind::GraphUpdated, Operation::Wait, ErrorCause::Wait(e)))
+            }
+        }
+    }
+
+    /// Takes the newest queued sample, if any, into the owned graph; `true` when one was copied.
+    /// Older queued samples are released unread.
+    pub fn poll(&mut self) -> Result<bool, ClientError> {
+        let mut newest = None;
+        while self.subscriber.has_samples().map_err(|e| self.error(Operation::Receive, ErrorCause::Connection(e)))? {
+            // Release the older sample before borrowing the next (one borrowed sample at most).
+            drop(newest.take());
+            newest = self.subscriber.receive().map_err(|e| self.error(Operation::Receive, ErrorCause::Receive(e)))?;
+        }
+        let Some(sample) = newest else { return Ok(false) };
+        self.graph.copy_from(sample.payload()).map_err(|e| {
+            ClientError::new(&self.prefix, ServiceKind::Graph, Operation::Receive, ErrorCause::InvalidGraph(e))
+        })?;
+        self.received = true;
+        Ok(true)
+    }
+
+    /// The newest graph received so far ([`Self::poll`] first); `None` while the daemon has
+    /// published nothing this client could receive. A sample that breaks the contract (another
+    /// schema version) is an error naming the expected and the found version, and leaves the
+    /// previous graph in place.
+    pub fn latest(&mut self) -> Result<Option<&Graph>, ClientError> {
+        self.poll()?;
+        Ok(self.graph())
+    }
+
+    /// Like [`Self::latest`], but `None` also when the newest graph has version
+    /// `last_seen_version` (pass 0 before the first graph). Versions only grow while one daemon
+    /// runs; a daemon restarted on a fresh map starts again at 1, which counts as new too.
+    pub fn latest_if_newer(&mut self, last_seen_version: u64) -> Result<Option<&Graph>, ClientError> {
+        self.poll()?;
+        Ok(self.graph().filter(|g| g.version() != last_seen_version))
+    }
+
+    /// The graph last copied, without receiving.
+    pub fn graph(&self) -> Option<&Graph> {
+        self.received.then_some(&self.graph)
+    }
+
+    fn error(&self, operation: Operation, cause: ErrorCause) -> ClientError {
+        ClientError::new(&self.prefix, ServiceKind::Graph, operation, cause)
+    }
+}
+
+type GraphPorts = (Subscriber<IpcService, GraphSnapshot, ()>, Listener<IpcService>);
+
+fn open_ports(node: &IoxNode<IpcService>, prefix: &str) -> Result<GraphPorts, ClientError> {
+    let graph_error = |operation, cause| ClientError::new(prefix, ServiceKind::Graph, operation, cause);
+    let event_error = |operation, cause| ClientError::new(prefix, ServiceKind::GraphUpdated, operation, cause);
+
+    let name = service_name(prefix, ServiceKind::Graph)
+        .map_err(|e| graph_error(Operation::Open, ErrorCause::InvalidPrefix(e)))?;
+    let service = match node.service_builder(&name).publish_subscribe::<GraphSnapshot>().open() {
+        Ok(service) => service,
+        Err(PublishSubscribeOpenError::DoesNotExist) => {
+            return Err(graph_error(Operation::Open, ErrorCause::NotServing));
+        }
+        Err(e) => return Err(graph_error(Operation::Open, ErrorCause::OpenPublishSubscribe(e))),
+    };
+    let subscriber = service
+        .subscriber_builder()
+        .history_request(HISTORY_SIZE)
+        .create()
+        .map_err(|e| graph_error(Operation::CreateSubscriber, ErrorCause::CreateSubscriber(e)))?;
+
+    let name = service_name(prefix, ServiceKind::GraphUpdated)
+        .map_err(|e| event_error(Operation::Open, ErrorCause::InvalidPrefix(e)))?;
+    let event = match node.service_builder(&name).event().open() {
+        Ok(event) => event,
+        Err(EventOpenError::DoesNotExist) => return Err(event_error(Operation::Open, ErrorCause::NotServing)),
+        Err(e) => return Err(event_error(Operation::Open, ErrorCause::OpenEvent(e))),
+    };
+    let listener = event
+        .listener_builder()
+        .create()
+        .map_err(|e| event_error(Operation::CreateListener, ErrorCause::CreateListener(e)))?;
+    Ok((subscriber, listener))
+}

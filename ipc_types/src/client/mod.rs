@@ -1,0 +1,74 @@
+//! The client side of the op3dsg services, for planners, navigation stacks and tools:
+//!
+//! - [`GraphSubscriber`]: opens `<prefix>/graph` and `<prefix>/graph_updated` (waiting for the
+//!   daemon if it is not up yet), wakes on updates and copies the newest graph into an owned
+//!   [`Graph`] with typed views ([`NodeView`], [`EdgeView`]).
+//! - [`HealthSubscriber`]: reads `<prefix>/health` alone, so it works even when every graph
+//!   subscriber slot is taken.
+//! - [`PosePublisher`]: sends checked camera or base poses on `<prefix>/pose`.
+//!
+//! Every port uses the QoS of [`crate::services`]; clients never create the daemon's services.
+//! Each client owns one iceoryx2 node, created with signal handling disabled (a planner installs
+//! its own Ctrl-C handler; a signal interrupts [`GraphSubscriber::wait_for_update`], which then
+//! returns `Ok(false)`). Opening first removes the shared-memory leftovers of dead processes, so a
+//! client never waits on a daemon that was killed.
+
+mod error;
+mod graph;
+mod health;
+mod pose;
+mod view;
+
+use std::time::{Duration, Instant};
+
+use iceoryx2::node::Node as IoxNode;
+use iceoryx2::prelude::{NodeBuilder, NodeName, SignalHandlingMode};
+
+pub use error::{ClientError, ErrorCause, Operation};
+pub use graph::GraphSubscriber;
+pub use health::HealthSubscriber;
+pub use pose::{Pose, PosePublisher, PoseService, open_or_create_pose_service};
+pub use view::{EdgeView, Graph, NodeView, SnapshotError, UnknownAffordance, check_snapshot};
+
+use crate::services::{IpcService, OPEN_RETRY_INTERVAL, ServiceKind, validate_prefix};
+
+/// Checks the prefix and creates the client's node; errors name `service`, the one being opened.
+pub(crate) fn create_node(
+    prefix: &str,
+    service: ServiceKind,
+    node_name: &str,
+) -> Result<IoxNode<IpcService>, ClientError> {
+    let fail = |cause| ClientError::new(prefix, service, Operation::CreateNode, cause);
+    validate_prefix(prefix).map_err(|e| fail(ErrorCause::InvalidPrefix(e)))?;
+    let name = NodeName::new(node_name).map_err(|e| fail(ErrorCause::InvalidNodeName(e)))?;
+    let node = NodeBuilder::new()
+        .name(&name)
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<IpcService>()
+        .map_err(|e| fail(ErrorCause::Node(e)))?;
+    // Failures here are the daemon's to report (it logs them at start); a client loses nothing
+    // but a faster start when leftovers stay.
+    let _ = node.try_cleanup_dead_nodes();
+    Ok(node)
+}
+
+/// Calls `open` until it succeeds, fails with another error than "not serving", or `timeout`
+/// has passed; retries every [`OPEN_RETRY_INTERVAL`].
+pub(crate) fn retry_while_not_serving<T>(
+    timeout: Duration,
+    mut open: impl FnMut() -> Result<T, ClientError>,
+) -> Result<T, ClientError> {
+    let deadline = Instant::now() + timeout;
+    loop {
+        match open() {
+            Err(e) if e.is_not_serving() => {
+                let left = deadline.saturating_duration_since(Instant::now());
+                if left.is_zero() {
+                    return Err(e);
+                }
+                std::thread::sleep(OPEN_RETRY_INTERVAL.min(left));
+            }
+            result => return result,
+        }
+    }
+}

@@ -1,0 +1,586 @@
+//! The owned graph a client reads: [`Graph`], copied out of one [`GraphSnapshot`] into reused
+//! buffers, with its lookup indices and the typed read-only views [`NodeView`] and [`EdgeView`].
+
+use std::collections::HashMap;
+
+use crate::{
+    AFFORDANCES, Edge, EdgeKind, EdgeOrigin, GraphHeader, GraphSnapshot, MAX_EDGES, MAX_NODES, NO_NODE, Node, NodeKind,
+    SCHEMA_VERSION, affordance_bits, affordance_names, relation_phrase,
+};
+
+/// Index meaning "no node" in the per-edge and per-node index arrays.
+const NO_INDEX: u32 = u32::MAX;
+
+/// A snapshot that breaks the wire contract; names the offending field or entry.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SnapshotError {
+    /// The publisher wrote another wire-contract version.
+    SchemaVersion {
+        /// Version in the sample.
+        found: u32,
+        /// [`SCHEMA_VERSION`].
+        expected: u32,
+    },
+    /// A count in the header exceeds the array capacity.
+    CountTooLarge {
+        /// `node_count` or `edge_count`.
+        field: &'static str,
+        /// The count found.
+        value: u32,
+        /// The array capacity.
+        capacity: usize,
+    },
+    /// A node with an unknown kind value.
+    UnknownNodeKind {
+        /// Index in `nodes`.
+        index: usize,
+        /// Wire value.
+        value: u8,
+    },
+    /// An edge with an unknown kind value.
+    UnknownEdgeKind {
+        /// Index in `edges`.
+        index: usize,
+        /// Wire value.
+        value: u8,
+    },
+    /// An edge with an unknown origin value.
+    UnknownEdgeOrigin {
+        /// Index in `edges`.
+        index: usize,
+        /// Wire value.
+        value: u8,
+    },
+}
+
+impl core::fmt::Display for SnapshotError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::SchemaVersion { found, expected } => {
+                write!(f, "header.schema_version: found {found}, this build reads {expected}")
+            }
+            Self::CountTooLarge { field, value, capacity } => {
+                write!(f, "header.{field}: {value} exceeds the capacity {capacity}")
+            }
+            Self::UnknownNodeKind { index, value } => {
+                write!(f, "nodes[{index}].kind: unknown value {value} (0 object, 1 part)")
+            }
+            Self::UnknownEdgeKind { index, value } => {
+                write!(f, "edges[{index}].kind: unknown value {value} (0 spatial, 1 functional)")
+            }
+            Self::UnknownEdgeOrigin { index, value } => {
+                write!(f, "edges[{index}].origin: unknown value {value} (0..=3)")
+            }
+        }
+    }
+}
+
+impl std::error::Error for SnapshotError {}
+
+/// An affordance name that is not one of [`AFFORDANCES`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct UnknownAffordance;
+
+impl core::fmt::Display for UnknownAffordance {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "unknown affordance (canonical: {})", AFFORDANCES.join(", "))
+    }
+}
+
+impl std::error::Error for UnknownAffordance {}
+
+/// Checks a snapshot against the contract: schema version, counts within capacity, every valid
+/// node's kind and every valid edge's kind and origin.
+pub fn check_snapshot(snapshot: &GraphSnapshot) -> Result<(), SnapshotError> {
+    let header = &snapshot.header;
+    if header.schema_version != SCHEMA_VERSION {
+        return Err(SnapshotError::SchemaVersion { found: header.schema_version, expected: SCHEMA_VERSION });
+    }
+    if header.node_count as usize > MAX_NODES {
+        return Err(SnapshotError::CountTooLarge {
+            field: "node_count",
+            value: header.node_count,
+            capacity: MAX_NODES,
+        });
+    }
+    if header.edge_count as usize > MAX_EDGES {
+        return Err(SnapshotError::CountTooLarge {
+            field: "edge_count",
+            value: header.edge_count,
+            capacity: MAX_EDGES,
+        });
+    }
+    for (index, node) in snapshot.valid_nodes().iter().enumerate() {
+        if NodeKind::from_u8(node.kind).is_none() {
+            return Err(SnapshotError::UnknownNodeKind { index, value: node.kind });
+        }
+    }
+    for (index, edge) in snapshot.valid_edges().iter().enumerate() {
+        if EdgeKind::from_u8(edge.kind).is_none() {
+            return Err(SnapshotError::UnknownEdgeKind { index, value: edge.kind });
+        }
+        if EdgeOrigin::from_u8(edge.origin).is_none() {
+            return Err(SnapshotError::UnknownEdgeOrigin { index, value: edge.origin });
+        }
+    }
+    Ok(())
+}
+
+/// One version of the scene graph, owned by the client: the header, the valid nodes and edges
+/// copied out of a [`GraphSnapshot`], and indices built once per copy (id → node, node → parts,
+/// node → outgoing and incoming edges).
+///
+/// [`Graph::copy_from`] reuses every buffer, so once a graph of a given size has been copied,
+/// copying another of at most that size allocates nothing.
+#[derive(Clone, Default)]
+pub struct Graph {
+    header: GraphHeader,
+    nodes: Vec<Node>,
+    edges: Vec<Edge>,
+    index_of_id: HashMap<u32, u32>,
+    /// Per node: index of its parent node, or [`NO_INDEX`].
+    parent_index: Vec<u32>,
+    /// Per edge: index of its source / target node, or [`NO_INDEX`] when not in the graph.
+    source_index: Vec<u32>,
+    target_index: Vec<u32>,
+    /// Compressed adjacency: the items of node `i` are `items[start[i]..start[i + 1]]`.
+    parts: Adjacency,
+    outgoing: Adjacency,
+    incoming: Adjacency,
+    /// Scratch space of [`Adjacency::rebuild`].
+    cursor: Vec<u32>,
+}
+
+#[derive(Clone, Default)]
+struct Adjacency {
+    start: Vec<u32>,
+    items: Vec<u32>,
+}
+
+impl Adjacency {
+    /// Counting sort of `(bucket, item)` pairs into `node_count` buckets; items keep their order
+    /// within a bucket. Pairs whose bucket is [`NO_INDEX`] are left out.
+    fn rebuild(&mut self, node_count: usize, buckets: &[u32], cursor: &mut Vec<u32>) {
+        self.start.clear();
+        self.start.resize(node_count + 1, 0);
+        for &bucket in buckets.iter().filter(|b| **b != NO_INDEX) {
+            self.start[bucket as usize + 1] += 1;
+        }
+        for i in 0..node_count {
+            self.start[i + 1] += self.start[i];
+        }
+        self.items.clear();
+        self.items.resize(self.start[node_count] as usize, 0);
+        cursor.clear();
+        cursor.extend_from_slice(&self.start[..node_count]);
+        for (item, &bucket) in buckets.iter().enumerate().filter(|(_, b)| **b != NO_INDEX) {
+            let slot = &mut cursor[bucket as usize];
+            self.items[*slot as usize] = item as u32;
+            *slot += 1;
+        }
+    }
+
+    fn of(&self, index: u32) -> &[u32] {
+        let i = index as usize;
+        match (self.start.get(i), self.start.get(i + 1)) {
+            (Some(&a), Some(&b)) => &self.items[a as usize..b as usize],
+            _ => &[],
+        }
+    }
+}
+
+impl core::fmt::Debug for Graph {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Graph")
+            .field("version", &self.version())
+            .field("stamp_ns", &self.stamp_ns())
+            .field("nodes", &self.nodes.len())
+            .field("edges", &self.edges.len())
+            .field("capacity_exceeded", &self.capacity_exceeded())
+            .finish()
+    }
+}
+
+impl Graph {
+    /// An empty graph (version 0).
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// A graph copied out of `snapshot` (see [`Self::copy_from`]).
+    pub fn from_snapshot(snapshot: &GraphSnapshot) -> Result<Self, SnapshotError> {
+        let mut graph = Self::new();
+        graph.copy_from(snapshot)?;
+        Ok(graph)
+    }
+
+    /// Replaces this graph with the valid nodes and edges of `snapshot` and rebuilds the indices,
+    /// reusing the buffers. The snapshot is checked first ([`check_snapshot`]); on error the
+    /// graph is left as it was.
+    pub fn copy_from(&mut self, snapshot: &GraphSnapshot) -> Result<(), SnapshotError> {
+        check_snapshot(snapshot)?;
+        self.header = snapshot.header;
+        self.nodes.clear();
+        self.nodes.extend_from_slice(snapshot.valid_nodes());
+        self.edges.clear();
+        self.edges.extend_from_slice(snapshot.valid_edges());
+        self.rebuild_indices();
+        Ok(())
+    }
+
+    fn rebuild_indices(&mut self) {
+        let Self { nodes, edges, index_of_id, parent_index, source_index, target_index, cursor, .. } = self;
+        index_of_id.clear();
+        index_of_id.reserve(nodes.len());
+        for (i, node) in nodes.iter().enumerate() {
+            index_of_id.insert(node.id, i as u32);
+        }
+        let index = |id: u32| if id == NO_NODE { NO_INDEX } else { index_of_id.get(&id).copied().unwrap_or(NO_INDEX) };
+        parent_index.clear();
+        parent_index.extend(nodes.iter().map(|n| index(n.parent_id)));
+        source_index.clear();
+        source_index.extend(edges.iter().map(|e| index(e.source_id)));
+        target_index.clear();
+        target_index.extend(edges.iter().map(|e| index(e.target_id)));
+        let node_count = nodes.len();
+        self.parts.rebuild(node_count, &self.parent_index, cursor);
+        self.outgoing.rebuild(node_count, &self.source_index, cursor);
+        self.incoming.rebuild(node_count, &self.target_index, cursor);
+    }
+
+    /// Graph version: increases by one with every published change while one daemon runs
+    /// (0 for an empty graph).
+    pub fn version(&self) -> u64 {
+        self.header.graph_version
+    }
+
+    /// Stamp of the newest keyframe fused into this version, nanoseconds.
+    pub fn stamp_ns(&self) -> u64 {
+        self.header.stamp_ns
+    }
+
+    /// Wall-clock time the daemon wrote the sample, nanoseconds since the Unix epoch.
+    pub fn publish_time_ns(&self) -> u64 {
+        self.header.publish_time_ns
+    }
+
+    /// `true` when the daemon's map had more nodes or edges than a snapshot holds: this graph is
+    /// then the most recently seen part of it (see [`GraphHeader::capacity_exceeded`]).
+    pub fn capacity_exceeded(&self) -> bool {
+        self.header.capacity_exceeded != 0
+    }
+
+    /// The header as received (counts, totals beyond capacity, publish time).
+    pub fn header(&self) -> &GraphHeader {
+        &self.header
+    }
+
+    /// Number of nodes.
+    pub fn node_count(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// Number of edges.
+    pub fn edge_count(&self) -> usize {
+        self.edges.len()
+    }
+
+    /// The nodes as on the wire, sorted by id.
+    pub fn wire_nodes(&self) -> &[Node] {
+        &self.nodes
+    }
+
+    /// The edges as on the wire.
+    pub fn wire_edges(&self) -> &[Edge] {
+        &self.edges
+    }
+
+    /// Every node, in wire order (sorted by id).
+    pub fn nodes(&self) -> impl ExactSizeIterator<Item = NodeView<'_>> {
+        (0..self.nodes.len() as u32).map(|index| NodeView { graph: self, index })
+    }
+
+    /// The object nodes.
+    pub fn objects(&self) -> impl Iterator<Item = NodeView<'_>> {
+        self.nodes().filter(|n| n.kind() == NodeKind::Object)
+    }
+
+    /// The part nodes.
+    pub fn parts(&self) -> impl Iterator<Item = NodeView<'_>> {
+        self.nodes().filter(|n| n.kind() == NodeKind::Part)
+    }
+
+    /// Every edge, in wire order.
+    pub fn edges(&self) -> impl ExactSizeIterator<Item = EdgeView<'_>> {
+        (0..self.edges.len() as u32).map(|index| EdgeView { graph: self, index })
+    }
+
+    /// The node with this id.
+    pub fn node(&self, id: u32) -> Option<NodeView<'_>> {
+        self.index_of_id.get(&id).map(|&index| NodeView { graph: self, index })
+    }
+
+    /// The parts whose parent is `object_id` (empty for an unknown id).
+    pub fn parts_of(&self, object_id: u32) -> impl Iterator<Item = NodeView<'_>> {
+        self.related(object_id, &self.parts).map(|index| NodeView { graph: self, index })
+    }
+
+    /// The parent object of the part `part_id` (`None` for objects, unattached parts and unknown
+    /// ids).
+    pub fn parent_of(&self, part_id: u32) -> Option<NodeView<'_>> {
+        self.node(part_id).and_then(|n| n.parent())
+    }
+
+    /// The edges whose source is `id`.
+    pub fn edges_from(&self, id: u32) -> impl Iterator<Item = EdgeView<'_>> {
+        self.related(id, &self.outgoing).map(|index| EdgeView { graph: self, index })
+    }
+
+    /// The edges whose target is `id`.
+    pub fn edges_to(&self, id: u32) -> impl Iterator<Item = EdgeView<'_>> {
+        self.related(id, &self.incoming).map(|index| EdgeView { graph: self, index })
+    }
+
+    /// The nodes labelled exactly `label`.
+    pub fn find_by_label<'a>(&'a self, label: &'a str) -> impl Iterator<Item = NodeView<'a>> {
+        self.nodes().filter(move |n| n.label() == label)
+    }
+
+    /// The nodes whose label contains `text`, ASCII letters compared without case
+    /// (`"handle"` finds "Cabinet Handle" and "drawer handle").
+    pub fn find_by_label_containing<'a>(&'a self, text: &'a str) -> impl Iterator<Item = NodeView<'a>> {
+        self.nodes().filter(move |n| contains_ignore_ascii_case(n.label(), text))
+    }
+
+    /// The nodes that afford `name` (one of [`AFFORDANCES`]).
+    pub fn find_by_affordance(&self, name: &str) -> Result<impl Iterator<Item = NodeView<'_>>, UnknownAffordance> {
+        let bits = affordance_bits([name]).map_err(|_| UnknownAffordance)?;
+        Ok(self.find_by_affordance_bits(bits))
+    }
+
+    /// The nodes that afford every affordance in `bits` (a set over [`AFFORDANCES`], see
+    /// [`affordance_bits`]).
+    pub fn find_by_affordance_bits(&self, bits: u16) -> impl Iterator<Item = NodeView<'_>> {
+        self.nodes().filter(move |n| n.affordance_bits() & bits == bits)
+    }
+
+    fn related<'a>(&'a self, id: u32, adjacency: &'a Adjacency) -> impl Iterator<Item = u32> + 'a {
+        let items = self.index_of_id.get(&id).map(|&i| adjacency.of(i)).unwrap_or(&[]);
+        items.iter().copied()
+    }
+}
+
+fn contains_ignore_ascii_case(haystack: &str, needle: &str) -> bool {
+    let (haystack, needle) = (haystack.as_bytes(), needle.as_bytes());
+    needle.is_empty() || haystack.windows(needle.len()).any(|w| w.eq_ignore_ascii_case(needle))
+}
+
+/// One node of a [`Graph`], with typed accessors.
+#[derive(Clone, Copy)]
+pub struct NodeView<'a> {
+    graph: &'a Graph,
+    index: u32,
+}
+
+impl core::fmt::Debug for NodeView<'_> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("NodeView")
+            .field("id", &self.id())
+            .field("kind", &self.kind())
+            .field("label", &self.label())
+            .field("parent_id", &self.parent_id())
+            .finish()
+    }
+}
+
+impl<'a> NodeView<'a> {
+    /// The node as on the wire.
+    pub fn wire(&self) -> &'a Node {
+        &self.graph.nodes[self.index as usize]
+    }
+
+    /// Stable node id.
+    pub fn id(&self) -> u32 {
+        self.wire().id
+    }
+
+    /// Object or part.
+    pub fn kind(&self) -> NodeKind {
+        // Checked when the graph was copied (check_snapshot).
+        NodeKind::from_u8(self.wire().kind).unwrap_or_default()
+    }
+
+    /// `true` for an object node.
+    pub fn is_object(&self) -> bool {
+        self.kind() == NodeKind::Object
+    }
+
+    /// `true` for a part node.
+    pub fn is_part(&self) -> bool {
+        self.kind() == NodeKind::Part
+    }
+
+    /// The voted label.
+    pub fn label(&self) -> &'a str {
+        self.wire().label_str()
+    }
+
+    /// Confidence in [0, 1].
+    pub fn confidence(&self) -> f32 {
+        self.wire().confidence
+    }
+
+    /// Centre of the node's points, world frame, metres.
+    pub fn centre_m(&self) -> [f32; 3] {
+        self.wire().centre_m
+    }
+
+    /// Minimum corner of the axis-aligned box, world frame, metres.
+    pub fn box_min_m(&self) -> [f32; 3] {
+        self.wire().box_min_m
+    }
+
+    /// Maximum corner of the axis-aligned box, world frame, metres.
+    pub fn box_max_m(&self) -> [f32; 3] {
+        self.wire().box_max_m
+    }
+
+    /// Extent of the axis-aligned box along each world axis, metres.
+    pub fn size_m(&self) -> [f32; 3] {
+        let (min, max) = (self.box_min_m(), self.box_max_m());
+        [max[0] - min[0], max[1] - min[1], max[2] - min[2]]
+    }
+
+    /// Keyframe detections fused into this node.
+    pub fn observation_count(&self) -> u32 {
+        self.wire().observation_count
+    }
+
+    /// Stamp of the last keyframe that observed this node, nanoseconds.
+    pub fn last_seen_stamp_ns(&self) -> u64 {
+        self.wire().last_seen_stamp_ns
+    }
+
+    /// Bit set over [`AFFORDANCES`].
+    pub fn affordance_bits(&self) -> u16 {
+        self.wire().affordance_bits
+    }
+
+    /// Names of the node's affordances, in canonical order.
+    pub fn affordances(&self) -> impl Iterator<Item = &'static str> + use<> {
+        affordance_names(self.affordance_bits())
+    }
+
+    /// `true` when the node affords `name` (`false` for names outside [`AFFORDANCES`]).
+    pub fn has_affordance(&self, name: &str) -> bool {
+        affordance_bits([name]).is_ok_and(|bits| self.affordance_bits() & bits == bits)
+    }
+
+    /// Id of the parent object of a part (`None` for objects and unattached parts).
+    pub fn parent_id(&self) -> Option<u32> {
+        let id = self.wire().parent_id;
+        (id != NO_NODE).then_some(id)
+    }
+
+    /// The parent object of a part, when it is in this graph.
+    pub fn parent(&self) -> Option<NodeView<'a>> {
+        let index = self.graph.parent_index[self.index as usize];
+        (index != NO_INDEX).then_some(NodeView { graph: self.graph, index })
+    }
+
+    /// The parts attached to this node.
+    pub fn parts(&self) -> impl Iterator<Item = NodeView<'a>> + use<'a> {
+        let graph = self.graph;
+        graph.parts.of(self.index).iter().map(move |&index| NodeView { graph, index })
+    }
+
+    /// The edges whose source is this node.
+    pub fn edges_from(&self) -> impl Iterator<Item = EdgeView<'a>> + use<'a> {
+        let graph = self.graph;
+        graph.outgoing.of(self.index).iter().map(move |&index| EdgeView { graph, index })
+    }
+
+    /// The edges whose target is this node.
+    pub fn edges_to(&self) -> impl Iterator<Item = EdgeView<'a>> + use<'a> {
+        let graph = self.graph;
+        graph.incoming.of(self.index).iter().map(move |&index| EdgeView { graph, index })
+    }
+}
+
+/// One directed edge of a [`Graph`]: `source` relates to `target` as [`Self::phrase`] says.
+#[derive(Clone, Copy)]
+pub struct EdgeView<'a> {
+    graph: &'a Graph,
+    index: u32,
+}
+
+impl core::fmt::Debug for EdgeView<'_> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("EdgeView")
+            .field("source_id", &self.source_id())
+            .field("phrase", &self.phrase())
+            .field("target_id", &self.target_id())
+            .field("origin", &self.origin())
+            .finish()
+    }
+}
+
+impl<'a> EdgeView<'a> {
+    /// The edge as on the wire.
+    pub fn wire(&self) -> &'a Edge {
+        &self.graph.edges[self.index as usize]
+    }
+
+    /// Source node id.
+    pub fn source_id(&self) -> u32 {
+        self.wire().source_id
+    }
+
+    /// Target node id.
+    pub fn target_id(&self) -> u32 {
+        self.wire().target_id
+    }
+
+    /// The source node, when it is in this graph.
+    pub fn source(&self) -> Option<NodeView<'a>> {
+        let index = self.graph.source_index[self.index as usize];
+        (index != NO_INDEX).then_some(NodeView { graph: self.graph, index })
+    }
+
+    /// The target node, when it is in this graph.
+    pub fn target(&self) -> Option<NodeView<'a>> {
+        let index = self.graph.target_index[self.index as usize];
+        (index != NO_INDEX).then_some(NodeView { graph: self.graph, index })
+    }
+
+    /// Spatial or functional.
+    pub fn kind(&self) -> EdgeKind {
+        // Checked when the graph was copied (check_snapshot).
+        EdgeKind::from_u8(self.wire().kind).unwrap_or_default()
+    }
+
+    /// Where the edge came from.
+    pub fn origin(&self) -> EdgeOrigin {
+        // Checked when the graph was copied (check_snapshot).
+        EdgeOrigin::from_u8(self.wire().origin).unwrap_or_default()
+    }
+
+    /// Canonical relation id (see [`relation_phrase`](crate::relation_phrase)).
+    pub fn relation_id(&self) -> u16 {
+        self.wire().relation_id
+    }
+
+    /// The relation phrase ("part of", "pull to open or close", ...): the canonical phrase of
+    /// the relation id, or the phrase written in the sample for an id this build does not know.
+    pub fn phrase(&self) -> &'a str {
+        relation_phrase(self.relation_id()).unwrap_or_else(|| self.wire().phrase_str())
+    }
+
+    /// Confidence in [0, 1].
+    pub fn confidence(&self) -> f32 {
+        self.wire().confidence
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,201 @@
+//! Tests of the owned graph and its views, on snapshots built on the heap.
+
+use super::*;
+use crate::publish::boxed_snapshot;
+use crate::{relation_id, write_fixed_str};
+
+fn push_node(snapshot: &mut GraphSnapshot, id: u32, kind: NodeKind, parent_id: u32, label: &str, affordances: &[&str]) {
+    let i = snapshot.header.node_count as usize;
+    let node = &mut snapshot.nodes[i];
+    node.id = id;
+    node.parent_id = parent_id;
+    node.kind = kind as u8;
+    write_fixed_str(&mut node.label, label);
+    node.centre_m = [id as f32, 0.5, 1.0];
+    node.box_min_m = [id as f32 - 0.5, 0.0, 0.5];
+    node.box_max_m = [id as f32 + 0.5, 1.0, 1.25];
+    node.affordance_bits = affordance_bits(affordances.iter().copied()).expect("canonical affordances");
+    snapshot.header.node_count += 1;
+    match kind {
+        NodeKind::Object => snapshot.header.object_count += 1,
+        NodeKind::Part => snapshot.header.part_count += 1,
+    }
+}
+
+fn push_edge(snapshot: &mut GraphSnapshot, source_id: u32, target_id: u32, phrase: &str, origin: EdgeOrigin) {
+    let i = snapshot.header.edge_count as usize;
+    let (kind, relation) = relation_id(phrase).expect("canonical phrase");
+    let edge = &mut snapshot.edges[i];
+    *edge =
+        Edge { source_id, target_id, kind: kind as u8, origin: origin as u8, relation_id: relation, ..Edge::default() };
+    write_fixed_str(&mut edge.phrase, phrase);
+    snapshot.header.edge_count += 1;
+}
+
+/// A kitchen: a cabinet with two handles, a stove with a knob, a remote-less TV, an orphan
+/// button; part-of and functional edges.
+fn kitchen(version: u64) -> Box<GraphSnapshot> {
+    let mut s = boxed_snapshot();
+    s.header.schema_version = SCHEMA_VERSION;
+    s.header.graph_version = version;
+    s.header.stamp_ns = 1_000 + version;
+    push_node(&mut s, 1, NodeKind::Object, NO_NODE, "cabinet", &[]);
+    push_node(&mut s, 2, NodeKind::Part, 1, "Cabinet Handle", &["hook_pull"]);
+    push_node(&mut s, 3, NodeKind::Part, 1, "drawer handle", &["hook_pull", "pinch_pull"]);
+    push_node(&mut s, 10, NodeKind::Object, NO_NODE, "stove", &[]);
+    push_node(&mut s, 11, NodeKind::Part, 10, "knob", &["rotate"]);
+    push_node(&mut s, 20, NodeKind::Part, NO_NODE, "button", &["tip_push"]);
+    push_edge(&mut s, 2, 1, "part of", EdgeOrigin::Geometry);
+    push_edge(&mut s, 3, 1, "part of", EdgeOrigin::Geometry);
+    push_edge(&mut s, 11, 10, "part of", EdgeOrigin::Geometry);
+    push_edge(&mut s, 2, 1, "pull to open or close", EdgeOrigin::Knowledge);
+    push_edge(&mut s, 11, 10, "rotate to adjust the setting or temperature", EdgeOrigin::KnowledgeAndLlm);
+    push_edge(&mut s, 1, 10, "next to", EdgeOrigin::Geometry);
+    s
+}
+
+fn ids<'a>(nodes: impl Iterator<Item = NodeView<'a>>) -> Vec<u32> {
+    nodes.map(|n| n.id()).collect()
+}
+
+#[test]
+fn views_answer_the_planner_questions() {
+    let graph = Graph::from_snapshot(&kitchen(7)).expect("valid snapshot");
+    assert_eq!((graph.version(), graph.stamp_ns()), (7, 1_007));
+    assert_eq!((graph.node_count(), graph.edge_count()), (6, 6));
+    assert_eq!(ids(graph.objects()), [1, 10]);
+    assert_eq!(ids(graph.parts()), [2, 3, 11, 20]);
+    assert!(!graph.capacity_exceeded());
+
+    let handle = graph.node(2).expect("node 2");
+    assert_eq!((handle.kind(), handle.label(), handle.parent_id()), (NodeKind::Part, "Cabinet Handle", Some(1)));
+    assert!(handle.is_part() && !handle.is_object());
+    assert_eq!(handle.centre_m(), [2.0, 0.5, 1.0]);
+    assert_eq!(handle.size_m(), [1.0, 1.0, 0.75]);
+    assert_eq!(handle.affordances().collect::<Vec<_>>(), ["hook_pull"]);
+    assert!(handle.has_affordance("hook_pull") && !handle.has_affordance("rotate") && !handle.has_affordance("fly"));
+    assert_eq!(handle.parent().map(|p| p.label()), Some("cabinet"));
+    assert!(graph.node(99).is_none());
+
+    assert_eq!(ids(graph.parts_of(1)), [2, 3]);
+    assert_eq!(ids(graph.node(10).expect("stove").parts()), [11]);
+    assert_eq!(ids(graph.parts_of(2)), Vec::<u32>::new());
+    assert_eq!(ids(graph.parts_of(99)), Vec::<u32>::new());
+    assert_eq!(graph.parent_of(11).map(|p| p.id()), Some(10));
+    assert!(graph.parent_of(20).is_none(), "orphan part");
+    assert!(graph.parent_of(1).is_none(), "object");
+
+    let from_handle: Vec<_> = graph.edges_from(2).map(|e| (e.phrase(), e.target_id(), e.kind(), e.origin())).collect();
+    assert_eq!(
+        from_handle,
+        [
+            ("part of", 1, EdgeKind::Spatial, EdgeOrigin::Geometry),
+            ("pull to open or close", 1, EdgeKind::Functional, EdgeOrigin::Knowledge),
+        ]
+    );
+    let to_stove: Vec<_> = graph.edges_to(10).map(|e| (e.source_id(), e.phrase())).collect();
+    assert_eq!(to_stove, [(11, "part of"), (11, "rotate to adjust the setting or temperature"), (1, "next to")]);
+    let knob_edge = graph.node(11).expect("knob").edges_from().nth(1).expect("functional edge");
+    assert_eq!(knob_edge.origin(), EdgeOrigin::KnowledgeAndLlm);
+    assert_eq!(knob_edge.source().map(|n| n.label()), Some("knob"));
+    assert_eq!(knob_edge.target().map(|n| n.label()), Some("stove"));
+    assert_eq!(graph.edges_to(20).count(), 0);
+    assert_eq!(graph.edges_from(99).count(), 0);
+
+    assert_eq!(ids(graph.find_by_label("knob")), [11]);
+    assert_eq!(ids(graph.find_by_label("handle")), Vec::<u32>::new(), "exact match only");
+    assert_eq!(ids(graph.find_by_label_containing("HANDLE")), [2, 3]);
+    assert_eq!(ids(graph.find_by_label_containing("")), [1, 2, 3, 10, 11, 20]);
+    assert_eq!(ids(graph.find_by_affordance("hook_pull").expect("canonical")), [2, 3]);
+    assert_eq!(ids(graph.find_by_affordance("rotate").expect("canonical")), [11]);
+    assert_eq!(ids(graph.find_by_affordance("unplug").expect("canonical")), Vec::<u32>::new());
+    assert_eq!(graph.find_by_affordance("fly").map(|_| ()), Err(UnknownAffordance));
+    let both = affordance_bits(["hook_pull", "pinch_pull"]).expect("canonical");
+    assert_eq!(ids(graph.find_by_affordance_bits(both)), [3]);
+}
+
+#[test]
+fn copying_a_smaller_graph_replaces_everything() {
+    let mut graph = Graph::from_snapshot(&kitchen(1)).expect("valid");
+    let mut small = boxed_snapshot();
+    small.header.schema_version = SCHEMA_VERSION;
+    small.header.graph_version = 2;
+    push_node(&mut small, 10, NodeKind::Object, NO_NODE, "stove", &[]);
+    push_node(&mut small, 12, NodeKind::Part, 10, "knob", &["rotate"]);
+    push_edge(&mut small, 12, 10, "part of", EdgeOrigin::Geometry);
+    graph.copy_from(&small).expect("valid");
+    assert_eq!(graph.version(), 2);
+    assert_eq!(ids(graph.nodes()), [10, 12]);
+    assert!(graph.node(1).is_none() && graph.node(11).is_none(), "old ids gone");
+    assert_eq!(ids(graph.parts_of(10)), [12]);
+    assert_eq!(graph.edges_from(2).count(), 0);
+    assert_eq!(graph.edges_to(10).map(|e| e.source_id()).collect::<Vec<_>>(), [12]);
+}
+
+#[test]
+fn dangling_edges_and_parents_stay_visible_but_unresolved() {
+    let mut s = kitchen(1);
+    push_node(&mut s, 30, NodeKind::Part, 77, "switch", &[]);
+    push_edge(&mut s, 30, 77, "part of", EdgeOrigin::Geometry);
+    let graph = Graph::from_snapshot(&s).expect("valid");
+    let switch = graph.node(30).expect("switch");
+    assert_eq!((switch.parent_id(), switch.parent().map(|p| p.id())), (Some(77), None));
+    let edge = graph.edges_from(30).next().expect("edge to a node outside the graph");
+    assert!(edge.target().is_none());
+    assert_eq!(graph.edges_to(77).count(), 0);
+    assert_eq!(graph.edges().count(), 7);
+}
+
+#[test]
+fn contract_breaks_are_named_and_leave_the_graph_as_it_was() {
+    let mut graph = Graph::from_snapshot(&kitchen(5)).expect("valid");
+    let mut s = kitchen(6);
+    s.header.schema_version = SCHEMA_VERSION + 1;
+    let err = graph.copy_from(&s).expect_err("other schema");
+    assert_eq!(err, SnapshotError::SchemaVersion { found: SCHEMA_VERSION + 1, expected: SCHEMA_VERSION });
+    assert_eq!(
+        err.to_string(),
+        format!("header.schema_version: found {}, this build reads {SCHEMA_VERSION}", SCHEMA_VERSION + 1)
+    );
+    assert_eq!(graph.version(), 5, "unchanged");
+    assert_eq!(graph.node_count(), 6);
+
+    let mut s = kitchen(6);
+    s.nodes[1].kind = 9;
+    assert_eq!(graph.copy_from(&s), Err(SnapshotError::UnknownNodeKind { index: 1, value: 9 }));
+    let mut s = kitchen(6);
+    s.edges[0].origin = 7;
+    assert_eq!(graph.copy_from(&s).expect_err("origin").to_string(), "edges[0].origin: unknown value 7 (0..=3)");
+    let mut s = kitchen(6);
+    s.edges[2].kind = 3;
+    assert_eq!(graph.copy_from(&s), Err(SnapshotError::UnknownEdgeKind { index: 2, value: 3 }));
+    let mut s = kitchen(6);
+    s.header.node_count = MAX_NODES as u32 + 1;
+    assert_eq!(
+        graph.copy_from(&s),
+        Err(SnapshotError::CountTooLarge { field: "node_count", value: MAX_NODES as u32 + 1, capacity: MAX_NODES })
+    );
+    assert_eq!(graph.version(), 5, "still unchanged");
+    assert_eq!(ids(graph.parts_of(1)), [2, 3]);
+}
+
+#[test]
+fn an_empty_graph_answers_nothing() {
+    let graph = Graph::new();
+    assert_eq!((graph.version(), graph.node_count(), graph.edge_count()), (0, 0, 0));
+    assert!(graph.node(0).is_none());
+    assert_eq!(graph.parts_of(0).count() + graph.edges_from(0).count() + graph.edges_to(0).count(), 0);
+    let mut s = boxed_snapshot();
+    s.header.schema_version = SCHEMA_VERSION;
+    let graph = Graph::from_snapshot(&s).expect("empty but valid");
+    assert_eq!(graph.nodes().len(), 0);
+}
+
+#[test]
+fn unknown_relation_ids_fall_back_to_the_sample_phrase() {
+    let mut s = kitchen(1);
+    s.edges[5].relation_id = 60;
+    write_fixed_str(&mut s.edges[5].phrase, "leans against");
+    let graph = Graph::from_snapshot(&s).expect("valid");
+    assert_eq!(graph.edges().nth(5).map(|e| e.phrase()), Some("leans against"));
+}

@@ -1,0 +1,265 @@
+//! Service names, prefix rules and QoS of the op3dsg services: the one place the daemon and its
+//! clients take them from.
+//!
+//! | service                  | pattern           | payload           | QoS (fixed by the creator)                         |
+//! |--------------------------|-------------------|-------------------|----------------------------------------------------|
+//! | `<prefix>/graph`         | publish-subscribe | [`GraphSnapshot`] | history 1, safe overflow, buffer 2, borrow 1       |
+//! | `<prefix>/graph_updated` | event             | event id 0        | max event id 0                                     |
+//! | `<prefix>/health`        | publish-subscribe | [`Health`]        | history 1, safe overflow                           |
+//! | `<prefix>/pose`          | publish-subscribe | [`PoseStamped`]   | safe overflow, buffer 64, 4 publishers, 4 subscribers |
+//!
+//! The figures are the constants below ([`HISTORY_SIZE`], [`DEFAULT_GRAPH_SUBSCRIBER_BUFFER`],
+//! [`SUBSCRIBER_MAX_BORROWED_SAMPLES`], [`GRAPH_UPDATED_EVENT_ID`], [`EVENT_ID_MAX_VALUE`],
+//! [`DEFAULT_POSE_BUFFER`], ...); the daemon's profile may change the buffers and the number of
+//! subscribers.
+//!
+//! Who creates what: the daemon creates `graph`, `graph_updated` and `health` (subscriber and
+//! listener counts from its profile, [`DEFAULT_MAX_SUBSCRIBERS`] by default); clients only open
+//! them, so a client can never fix another QoS. `pose` is opened-or-created by both sides with
+//! the same QoS, because the navigation stack may well start first.
+//!
+//! - History 1: a client that starts after the daemon gets the current graph and health at once
+//!   (delivered when the daemon's publisher next updates its connections, every ~100 ms).
+//! - Safe overflow: a slow client never blocks the daemon; a full buffer drops its oldest sample,
+//!   and every graph sample is complete, so losing older ones loses nothing.
+//! - Borrow 1: a subscriber holds at most one 3.9 MiB graph sample at a time, which bounds the
+//!   shared memory the daemon maps to `max_subscribers * (buffer + 1) + history + 1` samples.
+//! - One event id: a listener scans its whole id range on each wake-up; the version is in the
+//!   sample, not in the event.
+
+use std::time::Duration;
+
+use iceoryx2::prelude::ServiceName;
+use iceoryx2::service::service_name::ServiceNameError;
+
+#[cfg(doc)]
+use crate::{GraphSnapshot, Health, PoseStamped};
+
+/// The iceoryx2 service flavour of every port: inter-process, and `Send` so a port may be built
+/// on one thread and used on another. It shares its resources with plain `ipc::Service` peers
+/// (C, C++, Python).
+pub type IpcService = iceoryx2::service::ipc_threadsafe::Service;
+
+/// Prefix of the services when a profile or a client names none.
+pub const DEFAULT_PREFIX: &str = "op3dsg";
+/// Longest accepted prefix (the longest service name, `<prefix>/graph_updated`, must stay far
+/// below iceoryx2's 255-byte limit).
+pub const MAX_PREFIX_LEN: usize = 128;
+
+/// History depth of `graph` and `health`: a late joiner gets the newest sample.
+pub const HISTORY_SIZE: usize = 1;
+/// `graph`, `health` and `pose` drop a full subscriber buffer's oldest sample instead of
+/// blocking the publisher.
+pub const SAFE_OVERFLOW: bool = true;
+/// Subscribers (and `graph_updated` listeners) per daemon service when the profile sets none.
+pub const DEFAULT_MAX_SUBSCRIBERS: usize = 8;
+/// Samples buffered per `graph` subscriber before the oldest is overwritten, when the profile
+/// sets none.
+pub const DEFAULT_GRAPH_SUBSCRIBER_BUFFER: usize = 2;
+/// Samples a `graph` subscriber may hold at once.
+pub const SUBSCRIBER_MAX_BORROWED_SAMPLES: usize = 1;
+/// Publishers of `graph`: the daemon.
+pub const GRAPH_MAX_PUBLISHERS: usize = 1;
+/// Samples the `graph` publisher loans at once (it fills one snapshot in place, then sends it).
+pub const GRAPH_PUBLISHER_MAX_LOANED_SAMPLES: usize = 1;
+/// The one event id of `graph_updated` (a wake-up; the version is in the sample).
+pub const GRAPH_UPDATED_EVENT_ID: usize = 0;
+/// Largest event id of `graph_updated`: the listener's scan per wake-up is this wide.
+pub const EVENT_ID_MAX_VALUE: usize = GRAPH_UPDATED_EVENT_ID;
+/// Publishers of `health`: the daemon.
+pub const HEALTH_MAX_PUBLISHERS: usize = 1;
+/// Buffer of the `pose` service when a client creates it before the daemon (the daemon's default).
+pub const DEFAULT_POSE_BUFFER: usize = 64;
+/// Publishers allowed on `pose` (navigation stack, tools, tests).
+pub const POSE_MAX_PUBLISHERS: usize = 4;
+/// Subscribers allowed on `pose` (the daemon, a recorder).
+pub const POSE_MAX_SUBSCRIBERS: usize = 4;
+/// Largest accepted deviation of a pose quaternion's norm from 1.
+pub const QUATERNION_NORM_TOLERANCE: f64 = 1e-3;
+/// How often a client started before the daemon retries opening its services.
+pub const OPEN_RETRY_INTERVAL: Duration = Duration::from_millis(100);
+
+/// One of the services under a prefix.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ServiceKind {
+    /// `<prefix>/graph`: [`GraphSnapshot`] publish-subscribe.
+    Graph,
+    /// `<prefix>/graph_updated`: event after each new graph sample.
+    GraphUpdated,
+    /// `<prefix>/health`: [`Health`] publish-subscribe.
+    Health,
+    /// `<prefix>/pose`: [`PoseStamped`] publish-subscribe (input to the daemon).
+    Pose,
+}
+
+impl ServiceKind {
+    /// Every service, in table order.
+    pub const ALL: [ServiceKind; 4] = [Self::Graph, Self::GraphUpdated, Self::Health, Self::Pose];
+
+    /// The name after `<prefix>/`.
+    pub fn suffix(self) -> &'static str {
+        match self {
+            Self::Graph => "graph",
+            Self::GraphUpdated => "graph_updated",
+            Self::Health => "health",
+            Self::Pose => "pose",
+        }
+    }
+
+    /// The full service name under `prefix` (a trailing `/` of the prefix is ignored).
+    pub fn name(self, prefix: &str) -> String {
+        format!("{}/{}", prefix.trim_end_matches('/'), self.suffix())
+    }
+}
+
+/// The service names for a prefix.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ServiceNames {
+    /// `<prefix>/graph`: [`GraphSnapshot`] publish-subscribe.
+    pub graph: String,
+    /// `<prefix>/graph_updated`: event after each new graph version.
+    pub graph_updated: String,
+    /// `<prefix>/health`: [`Health`] publish-subscribe.
+    pub health: String,
+    /// `<prefix>/pose`: [`PoseStamped`] publish-subscribe (input to the daemon).
+    pub pose: String,
+}
+
+impl ServiceNames {
+    /// Names under `prefix` (no trailing slash).
+    pub fn new(prefix: &str) -> Self {
+        Self {
+            graph: ServiceKind::Graph.name(prefix),
+            graph_updated: ServiceKind::GraphUpdated.name(prefix),
+            health: ServiceKind::Health.name(prefix),
+            pose: ServiceKind::Pose.name(prefix),
+        }
+    }
+
+    /// The name of one service.
+    pub fn get(&self, kind: ServiceKind) -> &str {
+        match kind {
+            ServiceKind::Graph => &self.graph,
+            ServiceKind::GraphUpdated => &self.graph_updated,
+            ServiceKind::Health => &self.health,
+            ServiceKind::Pose => &self.pose,
+        }
+    }
+}
+
+/// Why a prefix cannot prefix the service names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PrefixError {
+    /// The prefix is empty.
+    Empty,
+    /// The prefix is longer than [`MAX_PREFIX_LEN`].
+    TooLong {
+        /// Its length, bytes.
+        len: usize,
+    },
+    /// The prefix holds a character outside `A-Z a-z 0-9 _ - . /`.
+    InvalidCharacter {
+        /// The first such character.
+        character: char,
+    },
+    /// The prefix starts or ends with `/`, or holds `//`.
+    MisplacedSlash,
+    /// iceoryx2 refuses the resulting service names.
+    InvalidServiceName(ServiceNameError),
+}
+
+impl core::fmt::Display for PrefixError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Empty => write!(f, "must not be empty"),
+            Self::TooLong { len } => write!(f, "must be at most {MAX_PREFIX_LEN} bytes, found {len}"),
+            Self::InvalidCharacter { character } => {
+                write!(f, "invalid character {character:?} (allowed: A-Z a-z 0-9 _ - . /)")
+            }
+            Self::MisplacedSlash => write!(f, "must not start or end with '/' nor contain \"//\""),
+            Self::InvalidServiceName(e) => write!(f, "not a valid iceoryx2 service name fragment: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for PrefixError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            Self::InvalidServiceName(e) => Some(e),
+            _ => None,
+        }
+    }
+}
+
+/// Checks that `prefix` can prefix iceoryx2 service names: not empty, at most
+/// [`MAX_PREFIX_LEN`] bytes, ASCII letters, digits, `_`, `-`, `.` and inner `/` only.
+pub fn validate_prefix(prefix: &str) -> Result<(), PrefixError> {
+    if prefix.is_empty() {
+        return Err(PrefixError::Empty);
+    }
+    if prefix.len() > MAX_PREFIX_LEN {
+        return Err(PrefixError::TooLong { len: prefix.len() });
+    }
+    if let Some(character) = prefix.chars().find(|c| !(c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.' | '/')))
+    {
+        return Err(PrefixError::InvalidCharacter { character });
+    }
+    if prefix.starts_with('/') || prefix.ends_with('/') || prefix.contains("//") {
+        return Err(PrefixError::MisplacedSlash);
+    }
+    // The longest name; the others are then valid too.
+    ServiceName::new(&ServiceKind::GraphUpdated.name(prefix)).map_err(PrefixError::InvalidServiceName)?;
+    Ok(())
+}
+
+/// The iceoryx2 name of one service under a prefix checked with [`validate_prefix`].
+pub fn service_name(prefix: &str, kind: ServiceKind) -> Result<ServiceName, PrefixError> {
+    validate_prefix(prefix)?;
+    ServiceName::new(&kind.name(prefix)).map_err(PrefixError::InvalidServiceName)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_follow_the_prefix() {
+        let names = ServiceNames::new("lab/robot-1/");
+        assert_eq!(names.graph, "lab/robot-1/graph");
+        assert_eq!(names.graph_updated, "lab/robot-1/graph_updated");
+        assert_eq!(names.health, "lab/robot-1/health");
+        assert_eq!(names.pose, "lab/robot-1/pose");
+        for kind in ServiceKind::ALL {
+            assert_eq!(names.get(kind), kind.name("lab/robot-1"));
+        }
+    }
+
+    #[test]
+    fn prefix_rules_name_what_is_wrong() {
+        assert_eq!(validate_prefix(DEFAULT_PREFIX), Ok(()));
+        assert_eq!(validate_prefix("lab/robot-1.v2_a"), Ok(()));
+        assert_eq!(validate_prefix(""), Err(PrefixError::Empty));
+        assert_eq!(validate_prefix("op3dsg robot"), Err(PrefixError::InvalidCharacter { character: ' ' }));
+        assert_eq!(
+            validate_prefix("op3dsg robot").expect_err("space").to_string(),
+            "invalid character ' ' (allowed: A-Z a-z 0-9 _ - . /)"
+        );
+        for slashes in ["/abs", "trailing/", "a//b"] {
+            assert_eq!(validate_prefix(slashes), Err(PrefixError::MisplacedSlash), "{slashes}");
+        }
+        let long = "p".repeat(MAX_PREFIX_LEN + 1);
+        assert_eq!(validate_prefix(&long), Err(PrefixError::TooLong { len: MAX_PREFIX_LEN + 1 }));
+        assert_eq!(validate_prefix(&long[..MAX_PREFIX_LEN]), Ok(()));
+        assert_eq!(service_name("op3dsg", ServiceKind::Pose).map(|n| n.as_str().to_owned()), Ok("op3dsg/pose".into()));
+        assert_eq!(service_name("", ServiceKind::Pose).map(|_| ()), Err(PrefixError::Empty));
+    }
+
+    #[test]
+    fn qos_is_the_contract() {
+        // A change here changes what every deployed client and daemon agree on.
+        assert_eq!((HISTORY_SIZE, SUBSCRIBER_MAX_BORROWED_SAMPLES, GRAPH_MAX_PUBLISHERS), (1, 1, 1));
+        assert_eq!((GRAPH_UPDATED_EVENT_ID, EVENT_ID_MAX_VALUE), (0, 0));
+        assert_eq!((DEFAULT_POSE_BUFFER, POSE_MAX_PUBLISHERS, POSE_MAX_SUBSCRIBERS), (64, 4, 4));
+        assert_eq!((DEFAULT_MAX_SUBSCRIBERS, DEFAULT_GRAPH_SUBSCRIBER_BUFFER), (8, 2));
+    }
+}
