@@ -33,6 +33,11 @@
 //! # }
 //! ```
 //!
+//! Examples: `cargo run -p op3dsg-ipc-types --example planner -- --prefix op3dsg --versions 3`
+//! prints each new graph version with every part and its parent object;
+//! `cargo run -p op3dsg-ipc-types --example pose_publisher -- --seconds 10` sends a base driving a
+//! circle at 10 Hz.
+//!
 //! Conventions used by every type:
 //! - Units are part of field names: `_m` metres, `_ns` nanoseconds, `_us` microseconds, `_hz`.
 //! - Coordinates are in the `world` frame of the map (right-handed; which axis is up is the
@@ -62,6 +67,10 @@
 //! assert!(core::mem::size_of::<GraphSnapshot>() > 1 << 20);
 //! ```
 
+/// The iceoryx2 this crate is built on, for a planner that attaches
+/// [`GraphSubscriber::listener`] to its own `WaitSet` or sets iceoryx2's log level: using this
+/// path keeps both on the same version.
+pub use iceoryx2;
 pub use iceoryx2::prelude::{PlacementDefault, ZeroCopySend};
 
 pub mod client;
