@@ -13,6 +13,7 @@
 //! returns `Ok(false)`). Opening first removes the shared-memory leftovers of dead processes, so a
 //! client never waits on a daemon that was killed.
 
+mod check;
 mod error;
 mod graph;
 mod health;
@@ -24,11 +25,12 @@ use std::time::{Duration, Instant};
 use iceoryx2::node::Node as IoxNode;
 use iceoryx2::prelude::{NodeBuilder, NodeName, SignalHandlingMode};
 
+pub use check::{SnapshotError, check_snapshot};
 pub use error::{ClientError, ErrorCause, Operation};
 pub use graph::GraphSubscriber;
 pub use health::HealthSubscriber;
 pub use pose::{Pose, PosePublisher, PoseService, open_or_create_pose_service};
-pub use view::{EdgeView, Graph, NodeView, SnapshotError, UnknownAffordance, check_snapshot};
+pub use view::{EdgeView, Graph, NodeView, UnknownAffordance};
 
 use crate::services::{IpcService, OPEN_RETRY_INTERVAL, ServiceKind, validate_prefix};
 

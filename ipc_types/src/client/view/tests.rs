@@ -2,7 +2,7 @@
 
 use super::*;
 use crate::publish::boxed_snapshot;
-use crate::{relation_id, write_fixed_str};
+use crate::{MAX_NODES, SCHEMA_VERSION, relation_id, write_fixed_str};
 
 fn push_node(snapshot: &mut GraphSnapshot, id: u32, kind: NodeKind, parent_id: u32, label: &str, affordances: &[&str]) {
     let i = snapshot.header.node_count as usize;
