@@ -74,3 +74,18 @@ pub(crate) fn retry_while_not_serving<T>(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clients_can_move_to_another_thread() {
+        fn assert_send<T: Send>() {}
+        assert_send::<GraphSubscriber>();
+        assert_send::<HealthSubscriber>();
+        assert_send::<PosePublisher>();
+        assert_send::<Graph>();
+        assert_send::<ClientError>();
+    }
+}
