@@ -5,22 +5,16 @@
 //! `cargo bench -p op3dsg-drivers --bench replay` prints criterion's time per frame and a
 //! one-line ms/frame summary over the whole sequence.
 
-use std::path::Path;
-
 use criterion::{Criterion, criterion_group, criterion_main};
 use op3dsg_drivers::frame::Frame;
 use op3dsg_drivers::replay::{PlaybackMode, ReplayConfig, ReplaySource};
 use op3dsg_drivers::source::{FrameSource, SourceStatus};
 
 fn bench_replay(c: &mut Criterion) {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/rgbd/icl_livingroom1");
-    if !dir.join("rgb.txt").is_file() {
-        eprintln!("replay bench skipped: no recording at {}", dir.display());
-        return;
-    }
+    let Some(dir) = op3dsg_shared_data::shared_data("rgbd/icl_livingroom1") else { return };
     let config = ReplayConfig { mode: PlaybackMode::Fast, looping: true, ..ReplayConfig::new(dir) };
     let mut source = ReplaySource::new(&config).expect("the ICL sequence opens");
-    let mut frame = Frame::new(source.intrinsics(), false);
+    let mut frame = Frame::new(source.intrinsics());
 
     // Plain summary over one pass of the sequence.
     let count = source.frame_count();

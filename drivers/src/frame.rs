@@ -72,15 +72,13 @@ pub struct Frame {
     pub depth: Vec<u16>,
     /// Depth units per metre (1000 = millimetres).
     pub depth_units_per_m: f32,
-    /// Per-pixel instance id (synthetic source only; 0 = background / no instance).
-    pub instance_ids: Option<Vec<u16>>,
     /// `world_from_camera` when the source carries its own pose (synthetic, replay).
     pub world_from_camera: Option<Isometry>,
 }
 
 impl Frame {
     /// A zeroed frame with buffers sized for `intrinsics`.
-    pub fn new(intrinsics: Intrinsics, with_instance_ids: bool) -> Self {
+    pub fn new(intrinsics: Intrinsics) -> Self {
         let n = intrinsics.pixel_count();
         Self {
             seq: 0,
@@ -89,7 +87,6 @@ impl Frame {
             rgb: vec![0; n * 3],
             depth: vec![0; n],
             depth_units_per_m: 1000.0,
-            instance_ids: with_instance_ids.then(|| vec![0; n]),
             world_from_camera: None,
         }
     }
@@ -112,11 +109,11 @@ pub struct FramePool {
 
 impl FramePool {
     /// Allocates `capacity` frames for `intrinsics`.
-    pub fn new(capacity: usize, intrinsics: Intrinsics, with_instance_ids: bool) -> Self {
+    pub fn new(capacity: usize, intrinsics: Intrinsics) -> Self {
         let (free_tx, free_rx) = bounded(capacity);
         for _ in 0..capacity {
             // Cannot fail: the channel has exactly `capacity` slots.
-            let _ = free_tx.try_send(Box::new(Frame::new(intrinsics, with_instance_ids)));
+            let _ = free_tx.try_send(Box::new(Frame::new(intrinsics)));
         }
         Self { free_tx, free_rx, capacity }
     }
@@ -181,7 +178,7 @@ mod tests {
 
     #[test]
     fn pool_recycles_and_refuses_when_empty() {
-        let pool = FramePool::new(2, Intrinsics::d435i_640x480(), false);
+        let pool = FramePool::new(2, Intrinsics::d435i_640x480());
         let a = pool.try_take().unwrap();
         let _b = pool.try_take().unwrap();
         assert!(pool.try_take().is_none());

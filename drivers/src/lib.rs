@@ -5,22 +5,17 @@
 //! - [`source`]: the [`source::FrameSource`] trait every source implements.
 //! - [`replay`]: recorded RGB-D in the TUM RGB-D layout (`rgb.txt`, `depth.txt`,
 //!   `groundtruth.txt`, `camera.json`) with its poses; recorded-rate, fast or stepped playback.
-//! - [`synthetic`]: seeded procedural rooms with exact ground truth, a CPU ray-cast renderer
-//!   with a D435i-like depth noise model, and a robot-like camera path.
-//! - [`graph_json`]: the scene-graph JSON form shared by ground truth and published graphs.
+//! - [`graph_json`]: the scene-graph JSON form shared by published graphs and evaluation.
+//!
+//! The synthetic rooms (world, renderer, camera path) are the crate `op3dsg-synthetic` in
+//! `drivers/synthetic/`: their ground truth never travels in a [`frame::Frame`].
 //!
 //! ```
-//! use op3dsg_drivers::frame::{Frame, Intrinsics};
-//! use op3dsg_drivers::source::{FrameSource, SourceStatus};
-//! use op3dsg_drivers::synthetic::{RoomKind, SyntheticConfig, SyntheticSource};
+//! use op3dsg_drivers::frame::{FramePool, Intrinsics};
 //!
-//! let config = SyntheticConfig { room: RoomKind::Kitchen, seed: 1, frame_count: Some(2), ..Default::default() };
-//! let mut source = SyntheticSource::new(&config).unwrap();
-//! let mut frame = Frame::new(source.intrinsics(), true);
-//! assert_eq!(source.next_frame(&mut frame).unwrap(), SourceStatus::Frame);
-//! assert!(frame.world_from_camera.is_some());
-//! let ground_truth = source.scene().ground_truth();
-//! assert!(ground_truth.nodes.iter().any(|n| n.kind == "part"));
+//! let pool = FramePool::new(2, Intrinsics::d435i_640x480());
+//! let frame = pool.try_take().expect("a free frame");
+//! assert_eq!(frame.depth.len(), 640 * 480);
 //! ```
 
 pub mod frame;
@@ -28,4 +23,3 @@ pub mod graph_json;
 pub mod pose;
 pub mod replay;
 pub mod source;
-pub mod synthetic;

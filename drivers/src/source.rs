@@ -58,11 +58,6 @@ pub trait FrameSource: Send {
     /// Intrinsics of every frame this source delivers (fixed for the source's lifetime).
     fn intrinsics(&self) -> Intrinsics;
 
-    /// Whether frames carry `instance_ids` (only the synthetic source does).
-    fn has_instance_ids(&self) -> bool {
-        false
-    }
-
     /// Whether frames carry their own `world_from_camera`.
     fn has_poses(&self) -> bool {
         false

@@ -13,8 +13,8 @@ use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
-use op3dsg_daemon::ipc::GraphClient;
 use op3dsg_ipc_types::Health;
+use op3dsg_runtime::ipc::GraphClient;
 
 static NEXT: AtomicUsize = AtomicUsize::new(0);
 

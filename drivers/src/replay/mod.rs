@@ -33,7 +33,7 @@
 //! - **Images.** Colour is decoded straight into [`Frame::rgb`](crate::frame::Frame) (RGB8; RGBA
 //!   and grey are converted), depth into [`Frame::depth`](crate::frame::Frame) (u16) with
 //!   `depth_units_per_m` from the profile or `camera.json`. Both must match the intrinsics'
-//!   size. Real data has no instance ids: [`Frame::instance_ids`](crate::frame::Frame) is `None`.
+//!   size.
 //!   Files are read into a reused buffer and decoded in place; only the codecs' small internal
 //!   state is allocated per image.
 //! - **Sequence numbers** count delivered frames from 0, one by one, across loops; stamps keep
@@ -78,7 +78,7 @@
 //!
 //! let config = ReplayConfig { mode: PlaybackMode::Fast, ..ReplayConfig::new(PathBuf::from("data/icl_livingroom1")) };
 //! let mut source = ReplaySource::new(&config)?;
-//! let mut frame = Frame::new(source.intrinsics(), source.has_instance_ids());
+//! let mut frame = Frame::new(source.intrinsics());
 //! while source.next_frame(&mut frame)? == SourceStatus::Frame {
 //!     let world_from_camera = frame.world_from_camera.expect("ICL frames all have poses");
 //!     println!("frame {} at {} ns: camera at {:?}", frame.seq, frame.stamp_ns, world_from_camera.translation);

@@ -274,7 +274,6 @@ impl FrameSource for ReplaySource {
             frame.stamp_ns = stamp_ns;
             frame.intrinsics = self.intrinsics;
             frame.depth_units_per_m = self.depth_units_per_m;
-            frame.instance_ids = None;
             frame.world_from_camera = match entry_pose {
                 EntryPose::Known(pose) => Some(pose),
                 EntryPose::OutsideGroundTruth | EntryPose::Gap { .. } => None,

@@ -20,16 +20,11 @@ const ICL_FRAMES: usize = 211;
 /// Lines before the first frame line in each ICL index file (two comment lines).
 const ICL_HEADER_LINES: usize = 2;
 
-/// The shared ICL-NUIM sequence, or `None` (with a message) when `../shared` is not beside the
-/// repository.
+/// The shared ICL-NUIM sequence, or `None` (with a message on stderr) when `../shared` is not
+/// beside the repository; in CI its absence fails the test.
 fn icl_dir() -> Option<PathBuf> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/rgbd/icl_livingroom1");
-    if dir.join("rgb.txt").is_file() {
-        Some(dir)
-    } else {
-        eprintln!("skipping: the ICL-NUIM test sequence is not at {}", dir.display());
-        None
-    }
+    op3dsg_shared_data::shared_data("rgbd/icl_livingroom1/rgb.txt")?;
+    op3dsg_shared_data::shared_data("rgbd/icl_livingroom1")
 }
 
 fn fast(path: &Path) -> ReplayConfig {
@@ -45,13 +40,13 @@ fn skip(mut config: ReplayConfig) -> ReplayConfig {
 fn play(source: &mut ReplaySource) -> (Vec<Frame>, Option<SourceError>) {
     let mut frames = Vec::new();
     loop {
-        let mut frame = Frame::new(source.intrinsics(), source.has_instance_ids());
+        let mut frame = Frame::new(source.intrinsics());
         match source.next_frame(&mut frame) {
             Ok(SourceStatus::Frame) => frames.push(frame),
             Ok(SourceStatus::Pending) => {}
             Ok(SourceStatus::EndOfStream) => return (frames, None),
             Err(e) => {
-                let mut after = Frame::new(source.intrinsics(), false);
+                let mut after = Frame::new(source.intrinsics());
                 assert_eq!(
                     source.next_frame(&mut after).unwrap(),
                     SourceStatus::EndOfStream,
@@ -217,7 +212,7 @@ fn tiny_recording(n: usize) -> tempfile::TempDir {
 fn generated_recording_round_trips_pixels_poses_and_stamps() {
     let dir = tiny_recording(3);
     let mut source = ReplaySource::new(&fast(dir.path())).unwrap();
-    assert!(source.has_poses() && !source.has_instance_ids());
+    assert!(source.has_poses());
     assert_eq!(source.len_hint(), Some(3));
     let (frames, error) = play(&mut source);
     assert!(error.is_none());
@@ -229,7 +224,6 @@ fn generated_recording_round_trips_pixels_poses_and_stamps() {
         assert_eq!(frame.depth_units_per_m, 5000.0);
         assert!((frame.depth_m(0) - (1000 + k) as f32 / 5000.0).abs() < 1e-6);
         assert_eq!(frame.rgb[5], (5 + k) as u8);
-        assert!(frame.instance_ids.is_none());
         assert!((frame.world_from_camera.unwrap().translation.x - k as f64 * 0.1).abs() < 1e-12);
     }
 }
@@ -240,7 +234,7 @@ fn looping_keeps_seq_and_stamps_increasing() {
     let config = ReplayConfig { looping: true, ..fast(dir.path()) };
     let mut source = ReplaySource::new(&config).unwrap();
     assert_eq!(source.len_hint(), None);
-    let mut frame = Frame::new(source.intrinsics(), false);
+    let mut frame = Frame::new(source.intrinsics());
     let mut stamps = Vec::new();
     for expected_seq in 0..7u64 {
         assert_eq!(source.next_frame(&mut frame).unwrap(), SourceStatus::Frame);
@@ -259,7 +253,7 @@ fn stepped_mode_delivers_only_on_step() {
     let config = ReplayConfig { mode: PlaybackMode::Stepped, ..ReplayConfig::new(dir.path().to_path_buf()) };
     let mut source = ReplaySource::new(&config).unwrap();
     let step = source.step_control().expect("a stepped source has a step control");
-    let mut frame = Frame::new(source.intrinsics(), false);
+    let mut frame = Frame::new(source.intrinsics());
     assert_eq!(source.next_frame(&mut frame).unwrap(), SourceStatus::Pending);
     step.step(2);
     assert_eq!(source.next_frame(&mut frame).unwrap(), SourceStatus::Frame);
@@ -295,7 +289,7 @@ fn recorded_mode_returns_pending_across_a_long_pause() {
         edit_lines(&dir.path().join(index), |lines| lines[2] = lines[2].replacen("100.033333", "101.033333", 1));
     }
     let mut source = ReplaySource::new(&ReplayConfig::new(dir.path().to_path_buf())).unwrap();
-    let mut frame = Frame::new(source.intrinsics(), false);
+    let mut frame = Frame::new(source.intrinsics());
     assert_eq!(source.next_frame(&mut frame).unwrap(), SourceStatus::Frame);
     let mut pending = 0;
     loop {
@@ -388,7 +382,7 @@ fn icl_sequence_plays_every_frame_with_its_pose() {
     assert_eq!(source.unmatched_rgb(), 0);
     let k = source.intrinsics();
     assert_eq!((k.width, k.height, k.fx, k.cx), (640, 480, 525.0, 319.5));
-    let mut frame = Frame::new(k, source.has_instance_ids());
+    let mut frame = Frame::new(k);
     let started = Instant::now();
     let mut count = 0u64;
     let mut previous: Option<Isometry> = None;
@@ -404,7 +398,6 @@ fn icl_sequence_plays_every_frame_with_its_pose() {
         }
         previous = Some(pose);
         assert_eq!(frame.depth_units_per_m, 1000.0);
-        assert!(frame.instance_ids.is_none());
         let mut valid: Vec<u16> = frame.depth.iter().copied().filter(|d| *d > 0).collect();
         assert!(valid.len() > frame.depth.len() / 2, "frame {count}: most pixels have depth");
         let mid = valid.len() / 2;
@@ -425,7 +418,7 @@ fn icl_sequence_plays_every_frame_with_its_pose() {
 /// Frames `wanted` (ascending) of the ICL sequence.
 fn icl_frames(dir: &Path, wanted: &[u64]) -> Vec<Frame> {
     let mut source = ReplaySource::new(&fast(dir)).unwrap();
-    let mut frame = Frame::new(source.intrinsics(), false);
+    let mut frame = Frame::new(source.intrinsics());
     let mut out = Vec::new();
     while out.len() < wanted.len() && source.next_frame(&mut frame).unwrap() == SourceStatus::Frame {
         if wanted.contains(&frame.seq) {

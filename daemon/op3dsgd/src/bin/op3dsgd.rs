@@ -1,0 +1,168 @@
+//! `op3dsgd`: the op3dsg scene-graph daemon.
+//!
+//! Runs the pipeline described by a profile (the built-in synthetic kitchen when none is given)
+//! and serves the graph over iceoryx2 until SIGINT/SIGTERM, or until `--max-frames` frames /
+//! the end of a finite source with `--exit-at-end`.
+//!
+//! Exit codes: 0 clean stop, 1 runtime failure, 2 bad profile or arguments, 130 second signal.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+
+use clap::Parser;
+use op3dsg_runtime::config;
+use op3dsg_runtime::pipeline::Pipeline;
+use tracing::{error, info};
+
+#[derive(Debug, Parser)]
+#[command(name = "op3dsgd", version, about = "op3dsg daemon: live part-aware 3D scene graph served over iceoryx2")]
+struct Args {
+    /// Profile (TOML) overriding the built-in base (the synthetic kitchen). See profiles/.
+    #[arg(long, short = 'p', env = "OP3DSG_PROFILE")]
+    profile: Option<PathBuf>,
+
+    /// Override one profile value, TOML syntax: --set detector.workers=4 (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+
+    /// Stop after this many source frames and exit once the final graph is published.
+    #[arg(long)]
+    max_frames: Option<u64>,
+
+    /// Exit when a finite source ends (default: keep serving the last graph).
+    #[arg(long)]
+    exit_at_end: bool,
+
+    /// iceoryx2 service prefix (overrides ipc.prefix).
+    #[arg(long, env = "OP3DSG_PREFIX")]
+    prefix: Option<String>,
+
+    /// Print the effective profile (all layers merged) and exit.
+    #[arg(long)]
+    print_config: bool,
+
+    /// Log filter (tracing EnvFilter syntax), e.g. "info" or "op3dsg_runtime=debug".
+    #[arg(long, env = "OP3DSG_LOG", default_value = "info")]
+    log: String,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    let filter = tracing_subscriber::EnvFilter::try_new(&args.log).unwrap_or_else(|_| "info".into());
+    // Plain text when not on a terminal (journald, log files).
+    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    tracing_subscriber::fmt().with_env_filter(filter).with_ansi(ansi).with_writer(std::io::stderr).init();
+    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
+
+    let mut overrides = args.set.clone();
+    if let Some(n) = args.max_frames {
+        overrides.push(format!("run.max_frames={n}"));
+        overrides.push("run.exit_at_end=true".to_owned());
+    }
+    if args.exit_at_end {
+        overrides.push("run.exit_at_end=true".to_owned());
+    }
+    if let Some(prefix) = &args.prefix {
+        overrides.push(format!("ipc.prefix=\"{}\"", prefix.replace('"', "")));
+    }
+    let backends = op3dsg_sim::backends();
+    let loaded = match config::load_with(&backends, args.profile.as_deref(), &overrides) {
+        Ok(loaded) => loaded,
+        Err(e) => {
+            eprintln!("op3dsgd: bad profile: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    if args.print_config {
+        match toml::to_string_pretty(&loaded.effective) {
+            Ok(text) => {
+                println!("# layers: {}\n{text}", loaded.layers.join(" <- "));
+                return ExitCode::SUCCESS;
+            }
+            Err(e) => {
+                eprintln!("op3dsgd: cannot print the profile: {e}");
+                return ExitCode::FAILURE;
+            }
+        }
+    }
+
+    // First signal: orderly shutdown ladder. Second: exit at once.
+    let stop = Arc::new(AtomicBool::new(false));
+    let signals = Arc::new(AtomicU32::new(0));
+    {
+        let stop = stop.clone();
+        let signals = signals.clone();
+        if let Err(e) = ctrlc::set_handler(move || {
+            if signals.fetch_add(1, Ordering::SeqCst) == 0 {
+                stop.store(true, Ordering::SeqCst);
+            } else {
+                std::process::exit(130);
+            }
+        }) {
+            error!(error = %e, "cannot install the signal handler");
+            return ExitCode::FAILURE;
+        }
+    }
+
+    let profile = &loaded.profile;
+    info!(layers = %loaded.layers.join(" <- "), prefix = %profile.ipc.prefix, "op3dsgd starting");
+    if profile.text_encoder.enabled
+        && let Err(e) = check_text_encoder(profile)
+    {
+        error!("cannot start: text encoder: {e}");
+        return ExitCode::FAILURE;
+    }
+    let pipeline = match Pipeline::start(profile, &backends, stop.clone()) {
+        Ok(p) => p,
+        Err(e) => {
+            error!("cannot start: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    info!(prefix = %profile.ipc.prefix, "serving");
+    match pipeline.wait() {
+        Ok(summary) => {
+            info!(
+                frames = summary.frames,
+                keyframes = summary.keyframes,
+                graph_version = summary.graph_version,
+                map_nodes = summary.map_nodes,
+                map_mib = format!("{:.1}", op3dsg_runtime::stats::mib(summary.map_memory_bytes)),
+                elapsed_s = format!("{:.2}", summary.elapsed_s),
+                keyframes_per_s = format!("{:.1}", summary.keyframes_per_s()),
+                bad_data_skipped = summary.bad_data_skipped,
+                "stopped"
+            );
+            if summary.source_failed {
+                // The source logged its error when it stopped.
+                error!("the frame source stopped on bad data");
+                return ExitCode::FAILURE;
+            }
+            ExitCode::SUCCESS
+        }
+        Err(stuck) => {
+            error!(stages = ?stuck, "shutdown timed out");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Loads ONNX Runtime and the text encoder and embeds one label, so that a profile asking for
+/// the encoder stops at start-up, naming the missing file, rather than when a stage first needs
+/// it. The pipeline's stages take their own encoder when they use one (one per thread).
+fn check_text_encoder(profile: &config::Profile) -> Result<(), op3dsg_runtime::onnx::OnnxError> {
+    use op3dsg_runtime::onnx::{OnnxRuntime, text_encoder::TextEncoder};
+    let started = std::time::Instant::now();
+    let runtime = OnnxRuntime::init(&profile.onnx)?;
+    let mut encoder = TextEncoder::new(&runtime, &profile.text_encoder)?;
+    encoder.encode("chair")?;
+    info!(
+        model = %encoder.model_path().display(),
+        library = %runtime.library_path().display(),
+        load_ms = started.elapsed().as_millis() as u64,
+        "text encoder ready"
+    );
+    Ok(())
+}

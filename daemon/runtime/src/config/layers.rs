@@ -1,0 +1,289 @@
+//! Loading a profile: the built-in base, the `extends` chain, `--set` overrides, paths relative
+//! to the file that set them, the sections registered backends own, and errors that name the
+//! file and the field.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use super::{BASE_PROFILE, BASE_PROFILE_NAME, PATH_KEYS, Profile, ProfileError, YOLOX_DETECTOR};
+use crate::backend::Backends;
+use crate::pipeline::StartError;
+
+/// A loaded profile with where each value came from.
+#[derive(Debug, Clone)]
+pub struct LoadedProfile {
+    /// The typed, validated profile.
+    pub profile: Profile,
+    /// The merged TOML (for `--print-config`).
+    pub effective: toml::Table,
+    /// The files in layer order (base first).
+    pub layers: Vec<String>,
+}
+
+/// Loads the built-in base, the optional profile file (with its `extends` chain) and the
+/// `--set` overrides, then deserialises and validates, with `backends` checking their own
+/// sections and the kinds the profile names. A section under `[source]` or `[detector]` that no
+/// backend of `backends` owns is an error naming it.
+pub fn load_with(
+    backends: &Backends,
+    profile_path: Option<&Path>,
+    overrides: &[String],
+) -> Result<LoadedProfile, ProfileError> {
+    load_layers(Some(backends), profile_path, overrides)
+}
+
+/// [`load_with`] without a registry: only the runtime's own sections are checked; the
+/// sections of other backends are kept as they are (in [`Profile::sections`]) and the kinds are
+/// checked when the pipeline opens them. For tools and tests that use a profile's runtime
+/// settings; `op3dsgd` loads with its registry.
+pub fn load(profile_path: Option<&Path>, overrides: &[String]) -> Result<LoadedProfile, ProfileError> {
+    load_layers(None, profile_path, overrides)
+}
+
+fn load_layers(
+    backends: Option<&Backends>,
+    profile_path: Option<&Path>,
+    overrides: &[String],
+) -> Result<LoadedProfile, ProfileError> {
+    let mut layers: Vec<(String, toml::Table)> = Vec::new();
+    layers.push((BASE_PROFILE_NAME.to_owned(), parse_toml(BASE_PROFILE, BASE_PROFILE_NAME)?));
+    if let Some(path) = profile_path {
+        let mut chain = Vec::new();
+        collect_chain(path, &mut chain, 0)?;
+        chain.reverse();
+        layers.extend(chain);
+    }
+    if !overrides.is_empty() {
+        let mut table = toml::Table::new();
+        for set in overrides {
+            let (key, value) = set
+                .split_once('=')
+                .ok_or_else(|| ProfileError::new("--set", format!("'{set}': expected section.key=value")))?;
+            let value =
+                parse_value(value.trim()).map_err(|e| ProfileError::new("--set", format!("{}: {e}", key.trim())))?;
+            insert_dotted(&mut table, key.trim(), value)
+                .map_err(|e| ProfileError::new("--set", format!("{}: {e}", key.trim())))?;
+        }
+        layers.push(("--set".to_owned(), table));
+    }
+
+    let mut origins: BTreeMap<String, String> = BTreeMap::new();
+    let mut merged = toml::Table::new();
+    for (name, table) in &layers {
+        record_origins(table, "", name, &mut origins);
+        merge(&mut merged, table.clone());
+    }
+    merged.remove("extends");
+    let origin_of = |path: &str| -> String {
+        let mut p = path.to_owned();
+        loop {
+            if let Some(file) = origins.get(&p) {
+                return file.clone();
+            }
+            match p.rfind('.') {
+                Some(i) => p.truncate(i),
+                None => return layers.last().map(|(n, _)| n.clone()).unwrap_or_default(),
+            }
+        }
+    };
+
+    resolve_paths(&mut merged, &origin_of);
+    let named = |(path, msg): (String, String)| ProfileError::new(origin_of(&path), format!("{path}: {msg}"));
+    normalise_kinds(&mut merged);
+    let sections = take_backend_sections(&mut merged, backends).map_err(named)?;
+    let mut effective = merged.clone();
+    for (path, section) in &sections {
+        if let Some((group, name)) = path.split_once('.')
+            && let Some(toml::Value::Table(table)) = effective.get_mut(group)
+        {
+            table.insert(name.to_owned(), toml::Value::Table(section.clone()));
+        }
+    }
+
+    let mut profile: Profile = serde_path_to_error::deserialize(toml::Value::Table(merged)).map_err(|e| {
+        let path = e.path().to_string();
+        let inner = e.into_inner().to_string();
+        // The TOML deserialiser appends "in `path`" on its own line; the path is already named.
+        let message = inner.lines().next().unwrap_or("").trim().to_owned();
+        ProfileError::new(origin_of(&path), format!("{path}: {message}"))
+    })?;
+    profile.sections = sections;
+    profile.validate().map_err(named)?;
+    if let Some(backends) = backends {
+        check_kinds(&profile, backends).map_err(named)?;
+    }
+    Ok(LoadedProfile { profile, effective, layers: layers.into_iter().map(|(n, _)| n).collect() })
+}
+
+/// Sub-tables of `[source]` and `[detector]` that are the runtime's own typed sections.
+const RUNTIME_SECTIONS: [(&str, &[&str]); 2] = [("source", &["replay"]), ("detector", &["yolox", "open_vocab"])];
+
+/// `detector.kind = "onnx"` is the older name of `"yolox"`.
+fn normalise_kinds(merged: &mut toml::Table) {
+    if let Some(toml::Value::Table(detector)) = merged.get_mut("detector")
+        && detector.get("kind").and_then(toml::Value::as_str) == Some("onnx")
+    {
+        detector.insert("kind".to_owned(), toml::Value::String(YOLOX_DETECTOR.to_owned()));
+    }
+}
+
+/// Takes the sections of registered backends out of `merged` (which the typed profile would
+/// refuse as unknown fields), each checked and completed by its backend. Without a registry
+/// they are kept unchecked.
+fn take_backend_sections(
+    merged: &mut toml::Table,
+    backends: Option<&Backends>,
+) -> Result<BTreeMap<String, toml::Table>, (String, String)> {
+    let mut sections = BTreeMap::new();
+    for (group, runtime_own) in RUNTIME_SECTIONS {
+        let Some(toml::Value::Table(table)) = merged.get_mut(group) else { continue };
+        let names: Vec<String> = table
+            .iter()
+            .filter(|(name, value)| value.is_table() && !runtime_own.contains(&name.as_str()))
+            .map(|(name, _)| name.clone())
+            .collect();
+        for name in names {
+            let Some(toml::Value::Table(mut section)) = table.remove(&name) else { continue };
+            let path = format!("{group}.{name}");
+            if let Some(backends) = backends {
+                let checked = if group == "source" {
+                    backends.source(&name).map(|b| b.load_section(&mut section))
+                } else {
+                    backends.detector(&name).map(|b| b.load_section(&mut section))
+                };
+                match checked {
+                    Ok(result) => result.map_err(|(field, msg)| {
+                        (if field.is_empty() { path.clone() } else { format!("{path}.{field}") }, msg)
+                    })?,
+                    Err(_) => {
+                        let known = if group == "source" { backends.source_names() } else { backends.detector_names() };
+                        return Err((
+                            path,
+                            format!("no {group} backend \"{name}\" in this build (it has: {})", known.join(", ")),
+                        ));
+                    }
+                }
+            }
+            sections.insert(path, section);
+        }
+    }
+    Ok(sections)
+}
+
+/// The kinds the profile names exist in `backends`, and their cross-checks hold.
+fn check_kinds(profile: &Profile, backends: &Backends) -> Result<(), (String, String)> {
+    let to_pair = |e: StartError| match e {
+        StartError::Incompatible { field, reason } => (field.to_owned(), reason),
+        other => (String::new(), other.to_string()),
+    };
+    let source = backends.source(&profile.source.kind).map_err(to_pair)?;
+    let detector = backends.detector(&profile.detector.kind).map_err(to_pair)?;
+    source.validate(profile)?;
+    detector.validate(profile)
+}
+
+fn parse_toml(text: &str, name: &str) -> Result<toml::Table, ProfileError> {
+    text.parse::<toml::Table>().map_err(|e| ProfileError::new(name, e.to_string().trim().to_owned()))
+}
+
+fn collect_chain(path: &Path, chain: &mut Vec<(String, toml::Table)>, depth: usize) -> Result<(), ProfileError> {
+    let name = path.display().to_string();
+    if depth > 8 {
+        return Err(ProfileError::new(name, "extends: chain deeper than 8 files (a cycle?)"));
+    }
+    let text =
+        std::fs::read_to_string(path).map_err(|e| ProfileError::new(&name, format!("cannot read profile: {e}")))?;
+    let table = parse_toml(&text, &name)?;
+    let parent = match table.get("extends") {
+        None => None,
+        Some(toml::Value::String(s)) => Some(s.clone()),
+        Some(other) => {
+            return Err(ProfileError::new(
+                &name,
+                format!("extends: expected a file path string, found {}", other.type_str()),
+            ));
+        }
+    };
+    chain.push((name, table));
+    if let Some(parent) = parent {
+        let base_dir = path.parent().map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from("."));
+        collect_chain(&base_dir.join(parent), chain, depth + 1)?;
+    }
+    Ok(())
+}
+
+fn parse_value(text: &str) -> Result<toml::Value, String> {
+    // Parse as the right-hand side of a TOML assignment; a bare word is taken as a string.
+    match format!("v = {text}").parse::<toml::Table>() {
+        Ok(mut t) => t.remove("v").ok_or_else(|| "no value".to_owned()),
+        Err(_) if text.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '/' || c == '.') => {
+            Ok(toml::Value::String(text.to_owned()))
+        }
+        Err(e) => Err(format!("not a TOML value: {}", e.to_string().trim())),
+    }
+}
+
+fn insert_dotted(table: &mut toml::Table, key: &str, value: toml::Value) -> Result<(), String> {
+    let mut parts = key.split('.').peekable();
+    let mut current = table;
+    while let Some(part) = parts.next() {
+        if part.is_empty() {
+            return Err("empty key segment".to_owned());
+        }
+        if parts.peek().is_none() {
+            current.insert(part.to_owned(), value);
+            return Ok(());
+        }
+        let entry = current.entry(part.to_owned()).or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        current = entry.as_table_mut().ok_or_else(|| format!("{part} is not a table"))?;
+    }
+    Ok(())
+}
+
+/// Merges `from` into `into` key by key (tables recursively; other values replace): how profile
+/// layers and presets combine.
+pub fn merge(into: &mut toml::Table, from: toml::Table) {
+    for (key, value) in from {
+        match (into.get_mut(&key), value) {
+            (Some(toml::Value::Table(existing)), toml::Value::Table(incoming)) => merge(existing, incoming),
+            (_, value) => {
+                into.insert(key, value);
+            }
+        }
+    }
+}
+
+fn record_origins(table: &toml::Table, prefix: &str, file: &str, origins: &mut BTreeMap<String, String>) {
+    for (key, value) in table {
+        let path = if prefix.is_empty() { key.clone() } else { format!("{prefix}.{key}") };
+        origins.insert(path.clone(), file.to_owned());
+        if let toml::Value::Table(inner) = value {
+            record_origins(inner, &path, file, origins);
+        }
+    }
+}
+
+/// Joins each relative path of [`PATH_KEYS`] to the folder of the profile file that set it.
+fn resolve_paths(merged: &mut toml::Table, origin_of: &dyn Fn(&str) -> String) {
+    for key in PATH_KEYS {
+        let origin = origin_of(key);
+        if origin == BASE_PROFILE_NAME || origin == "--set" {
+            continue;
+        }
+        let mut value = Some(&mut *merged);
+        let mut parts = key.split('.').peekable();
+        while let (Some(part), Some(table)) = (parts.next(), value.take()) {
+            let entry = table.get_mut(part);
+            if parts.peek().is_none() {
+                if let Some(toml::Value::String(path)) = entry
+                    && Path::new(path.as_str()).is_relative()
+                {
+                    let dir = Path::new(&origin).parent().unwrap_or(Path::new(""));
+                    *path = dir.join(path.as_str()).display().to_string();
+                }
+                break;
+            }
+            value = entry.and_then(toml::Value::as_table_mut);
+        }
+    }
+}

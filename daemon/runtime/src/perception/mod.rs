@@ -1,0 +1,145 @@
+//! Perception: detectors behind one trait, the detections and masks they produce. Each
+//! detection worker owns one [`Detector`]; the backends that make them are in [`crate::backend`].
+
+use op3dsg_drivers::frame::Frame;
+use op3dsg_ipc_types::NodeKind;
+
+pub mod candidates;
+pub mod depth_mask;
+pub mod image_input;
+pub mod open_vocab;
+pub mod yolox;
+
+/// A binary mask over the detection's pixel box.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Mask {
+    /// Left column of the box (inclusive), pixels.
+    pub x0: u32,
+    /// Top row of the box (inclusive), pixels.
+    pub y0: u32,
+    /// Box width, pixels.
+    pub width: u32,
+    /// Box height, pixels.
+    pub height: u32,
+    /// Row-major, `width * height` entries, 1 = inside.
+    pub data: Vec<u8>,
+}
+
+impl Mask {
+    /// Number of pixels inside.
+    pub fn area(&self) -> usize {
+        self.data.iter().filter(|v| **v != 0).count()
+    }
+
+    /// Whether image pixel `(x, y)` is inside.
+    #[inline]
+    pub fn contains(&self, x: u32, y: u32) -> bool {
+        x >= self.x0
+            && y >= self.y0
+            && x < self.x0 + self.width
+            && y < self.y0 + self.height
+            && self.data[((y - self.y0) * self.width + (x - self.x0)) as usize] != 0
+    }
+
+    /// Image pixel indices (row-major over a `image_width`-wide image) inside the mask.
+    pub fn pixel_indices(&self, image_width: u32) -> impl Iterator<Item = usize> + '_ {
+        (0..self.height).flat_map(move |row| {
+            (0..self.width).filter_map(move |col| {
+                (self.data[(row * self.width + col) as usize] != 0)
+                    .then_some(((self.y0 + row) * image_width + self.x0 + col) as usize)
+            })
+        })
+    }
+}
+
+/// One detected instance in one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Detection {
+    /// Label as the detector names it (may be a synonym of the canonical label).
+    pub label: String,
+    /// Object or part.
+    pub kind: NodeKind,
+    /// Detector score in [0, 1].
+    pub score: f32,
+    /// Segmentation mask (its box is the detection box).
+    pub mask: Mask,
+    /// L2-normalised semantic feature when the detector provides one.
+    pub semantic_feature: Option<Vec<f32>>,
+}
+
+/// Greedy non-maximum suppression over `candidates` already sorted best first: each is kept
+/// unless `overlaps(kept, candidate)` holds for one kept before it; at most `max_kept`.
+pub fn greedy_suppress<T>(candidates: Vec<T>, max_kept: usize, overlaps: impl Fn(&T, &T) -> bool) -> Vec<T> {
+    let mut kept: Vec<T> = Vec::new();
+    for c in candidates {
+        if kept.len() == max_kept {
+            break;
+        }
+        if !kept.iter().any(|k| overlaps(k, &c)) {
+            kept.push(c);
+        }
+    }
+    kept
+}
+
+/// The range checks every model detector shares; errors are `path.field: message`.
+pub fn validate_detection_limits(
+    path: &str,
+    score_threshold: f32,
+    nms_iou_threshold: f32,
+    max_detections: usize,
+    intra_op_threads: usize,
+) -> Result<(), String> {
+    if !(score_threshold > 0.0 && score_threshold < 1.0) {
+        return Err(format!("{path}.score_threshold: must be within (0, 1), got {score_threshold}"));
+    }
+    if !(nms_iou_threshold > 0.0 && nms_iou_threshold <= 1.0) {
+        return Err(format!("{path}.nms_iou_threshold: must be within (0, 1], got {nms_iou_threshold}"));
+    }
+    if max_detections == 0 {
+        return Err(format!("{path}.max_detections: must be at least 1"));
+    }
+    if !(1..=64).contains(&intra_op_threads) {
+        return Err(format!("{path}.intra_op_threads: must be within [1, 64], got {intra_op_threads}"));
+    }
+    Ok(())
+}
+
+/// Dot product of two semantic features (the cosine when both are L2-normalised).
+#[inline]
+pub fn dot(a: &[f32], b: &[f32]) -> f32 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// L2-normalises a semantic feature in place (a zero vector stays zero).
+pub fn normalise(v: &mut [f32]) {
+    let norm = dot(v, v).sqrt();
+    if norm > 0.0 {
+        v.iter_mut().for_each(|x| *x /= norm);
+    }
+}
+
+/// Errors of a detector.
+#[derive(Debug, thiserror::Error)]
+pub enum DetectorError {
+    /// The frame lacks something this detector needs.
+    #[error("frame {seq}: {reason}")]
+    Frame {
+        /// Frame sequence number.
+        seq: u64,
+        /// What is missing.
+        reason: String,
+    },
+    /// The backend failed.
+    #[error("detector backend: {0}")]
+    Backend(String),
+}
+
+/// A detector: one instance per worker thread, so `detect` may keep scratch state.
+pub trait Detector: Send {
+    /// Detects instances in `frame`, replacing the contents of `out`.
+    fn detect(&mut self, frame: &Frame, out: &mut Vec<Detection>) -> Result<(), DetectorError>;
+
+    /// Name for logs and health (`oracle`, `yolox`).
+    fn name(&self) -> &str;
+}

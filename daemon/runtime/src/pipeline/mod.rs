@@ -1,0 +1,350 @@
+//! The daemon's pipeline: named threads connected by bounded queues.
+//!
+//! ```text
+//! capture ──[frames]──► keyframe gate ──[keyframes]──► detect/0..N-1 ──[detections]──► fusion ──[graph]──► publisher
+//!  source,                pose lookup,                  one Detector                    sole owner     iceoryx2: graph,
+//!  frame pool             motion gate                   per worker                      of the map     event, health;
+//!                           ▲                                                                          pose input
+//!                           └──────────────────────────── poses (from <prefix>/pose) ◄──────────────────┘
+//! ```
+//!
+//! Health reports one latency entry per stage: `capture`, `keyframe`, `detect/0..N-1`, `fusion`
+//! (one keyframe's integration), `prior` (prior graph + reasoner, once per published version, on
+//! the fusion thread), `publish`, and `end_to_end`: from the moment the source delivered a
+//! keyframe to the send of the first graph version holding it (queueing included).
+//!
+//! Workers take keyframes under a ticket lock, so every keyframe they take gets a gapless ticket;
+//! fusion applies results strictly in ticket order (a small reorder buffer), which keeps the map
+//! deterministic whatever the number of workers.
+//!
+//! With `reasoner.kind = "llm"` the fusion thread also owns the LLM refiner (thread `op3dsg-llm`,
+//! `crate::reasoner::llm`): it hands each prior graph over (latest wins) and picks up verified
+//! results without ever waiting; the refiner's counters are part of the health record.
+//!
+//! ## Shutdown ladder (SIGINT / SIGTERM, `run.max_frames`, or the end of a finite source)
+//! 1. The stop flag is set (or the source ends): capture stops reading, returns its frames to the
+//!    pool and closes the `frames` queue.
+//! 2. The keyframe gate drains `frames`, then closes `keyframes`.
+//! 3. Each worker finishes the keyframe it holds and exits; the last one closes `detections`.
+//! 4. Fusion applies every result it received, publishes the final graph into `graph` and exits
+//!    (stopping the LLM refiner, which abandons any request in flight).
+//! 5. The publisher sends that final graph and a last health record, then releases its iceoryx2
+//!    services. At the end of a finite source without `run.exit_at_end` it keeps serving instead
+//!    until a signal arrives.
+//!
+//! A stage that has not finished `run.shutdown_timeout_s` after the stop is named in the log and
+//! the daemon exits with an error; a second signal exits at once (see the `op3dsgd` binary).
+
+//!
+//! The stages' loops are in `stages.rs`, the counters behind `health` in `stats.rs`; what a
+//! keyframe goes through between the gate and a published graph is [`crate::keyframe_path`].
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::{Receiver, Sender};
+use op3dsg_drivers::frame::FramePool;
+use op3dsg_drivers::source::{SourceError, StepControl};
+use op3dsg_ipc_types::PoseStamped;
+use tracing::{debug, error, info};
+
+use crate::backend::{Backends, OpenedSource};
+use crate::config::{PoseSourceKind, Profile};
+use crate::fusion::Fusion;
+use crate::ipc::GraphServer;
+use crate::queue::queue;
+use crate::reasoner::{EnricherError, GraphEnricher};
+use crate::stats::StageStats;
+
+mod stages;
+mod stats;
+
+use stages::{CapturedFrame, DetectionBatch, GraphItem, KeyframeItem};
+pub use stats::{PipelineStats, RunSummary};
+
+/// Errors that stop the pipeline from starting.
+#[derive(Debug, thiserror::Error)]
+pub enum StartError {
+    /// The frame source could not be opened.
+    #[error("source: {0}")]
+    Source(#[from] SourceError),
+    /// The profile combines things that cannot work together.
+    #[error("{field}: {reason}")]
+    Incompatible {
+        /// Profile field.
+        field: &'static str,
+        /// Why.
+        reason: String,
+    },
+    /// The iceoryx2 services could not be created.
+    #[error("iceoryx2: {0}")]
+    Ipc(String),
+    /// A model or the ONNX Runtime could not be loaded (the message says what to run).
+    #[error("detector: {0}")]
+    Model(#[from] crate::onnx::OnnxError),
+    /// A thread could not be started.
+    #[error("thread {name}: {reason}")]
+    Thread {
+        /// Thread name.
+        name: String,
+        /// OS error.
+        reason: String,
+    },
+}
+
+/// A running pipeline.
+pub struct Pipeline {
+    stop: Arc<AtomicBool>,
+    step_control: Option<StepControl>,
+    stats: Arc<PipelineStats>,
+    finished_rx: Receiver<&'static str>,
+    running: Vec<&'static str>,
+    handles: Vec<std::thread::JoinHandle<()>>,
+    shutdown_timeout: Duration,
+}
+
+impl std::fmt::Debug for Pipeline {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Pipeline").field("running", &self.running).finish_non_exhaustive()
+    }
+}
+
+fn spawn_stage(
+    name: &'static str,
+    finished: &Sender<&'static str>,
+    body: impl FnOnce() + Send + 'static,
+) -> Result<std::thread::JoinHandle<()>, StartError> {
+    let finished = finished.clone();
+    std::thread::Builder::new()
+        .name(format!("op3dsg-{name}"))
+        .spawn(move || {
+            body();
+            let _ = finished.send(name);
+        })
+        .map_err(|e| StartError::Thread { name: name.to_owned(), reason: e.to_string() })
+}
+
+/// The map the profile asks for. The pipeline and the batch runner both construct their fusion
+/// here, so swapping the fusion implementation is this one line.
+pub fn make_fusion(profile: &Profile) -> Box<dyn Fusion> {
+    crate::fusion::build(&profile.fusion)
+}
+
+/// The prior graph + reasoner the profile asks for (`[reasoner]`), shared by the pipeline and
+/// the batch runner.
+pub fn make_enricher(profile: &Profile) -> Result<Option<GraphEnricher>, StartError> {
+    GraphEnricher::from_profile(profile).map_err(|e| match e {
+        EnricherError::Knowledge(e) => {
+            StartError::Incompatible { field: "reasoner.knowledge_dir", reason: e.to_string() }
+        }
+        EnricherError::Llm { field, reason } => StartError::Incompatible { field, reason },
+    })
+}
+
+impl Pipeline {
+    /// Opens the source and the iceoryx2 services and starts every stage, with the source and
+    /// detector `backends` the profile names. Returns once the services exist (the daemon may
+    /// then report ready).
+    pub fn start(profile: &Profile, backends: &Backends, stop: Arc<AtomicBool>) -> Result<Self, StartError> {
+        let (OpenedSource { mut source, .. }, detector_factory) = backends.open(profile)?;
+        if profile.pose.source == PoseSourceKind::Frame && !source.has_poses() {
+            return Err(StartError::Incompatible {
+                field: "pose.source",
+                reason: format!("{} carries no poses; use pose.source = \"ipc\"", source.describe()),
+            });
+        }
+        info!(source = %source.describe(), workers = profile.detector.workers, "starting pipeline");
+        let step_control = source.step_control();
+
+        let q = &profile.queues;
+        let (frames_tx, frames_rx, frames_stats) = queue::<CapturedFrame>("frames", q.frames, stop.clone());
+        let (kf_tx, kf_rx, kf_stats) = queue::<KeyframeItem>("keyframes", q.keyframes, stop.clone());
+        let (det_tx, det_rx, det_stats) = queue::<DetectionBatch>("detections", q.detections, stop.clone());
+        let (graph_tx, graph_rx, graph_stats) = queue::<GraphItem>("graph", q.graph, stop.clone());
+        let (pose_tx, pose_rx) = crossbeam_channel::bounded::<PoseStamped>(profile.pose.buffer_len);
+
+        let mut stages = vec![Arc::new(StageStats::new("capture")), Arc::new(StageStats::new("keyframe"))];
+        for i in 0..profile.detector.workers {
+            stages.push(Arc::new(StageStats::new(format!("detect/{i}"))));
+        }
+        stages.push(Arc::new(StageStats::new("fusion")));
+        stages.push(Arc::new(StageStats::new("prior")));
+        stages.push(Arc::new(StageStats::new("publish")));
+        // Not a thread: from a keyframe's capture to the send of the first graph holding it.
+        stages.push(Arc::new(StageStats::new("end_to_end")));
+        // Before the counters: the LLM refiner (if any) owns its own.
+        let enricher = make_enricher(profile)?;
+        let stats = Arc::new(PipelineStats {
+            started: Instant::now(),
+            frames_captured: AtomicU64::new(0),
+            frames_pool_exhausted: AtomicU64::new(0),
+            keyframes: AtomicU64::new(0),
+            frames_without_pose: AtomicU64::new(0),
+            poses_rejected: AtomicU64::new(0),
+            detections_fused: AtomicU64::new(0),
+            graph_version: AtomicU64::new(0),
+            map_node_count: AtomicU64::new(0),
+            map_memory_bytes: AtomicU64::new(0),
+            source_connected: AtomicBool::new(true),
+            source_finished: AtomicBool::new(false),
+            source_bad_data_skipped: AtomicU64::new(0),
+            source_failed: AtomicBool::new(false),
+            stages,
+            queues: vec![frames_stats, kf_stats, det_stats, graph_stats],
+            refiner: enricher.as_ref().and_then(GraphEnricher::refiner_stats).unwrap_or_default(),
+        });
+
+        let (finished_tx, finished_rx) = crossbeam_channel::unbounded::<&'static str>();
+        let mut handles = Vec::new();
+        let mut running = Vec::new();
+
+        // Publisher first: it owns the iceoryx2 services and must be up before anything runs.
+        let (ready_tx, ready_rx) = crossbeam_channel::bounded::<Result<(), String>>(1);
+        {
+            let ipc = profile.ipc.clone();
+            let stats = stats.clone();
+            let stop = stop.clone();
+            let health_period = Duration::from_millis(profile.health.period_ms);
+            let log_every = profile.health.log_every_periods;
+            let exit_at_end = profile.run.exit_at_end;
+            let pose_source = profile.pose.source;
+            handles.push(spawn_stage("publish", &finished_tx, move || {
+                let server = match GraphServer::open(&ipc, "op3dsgd") {
+                    Ok(server) => {
+                        let _ = ready_tx.send(Ok(()));
+                        server
+                    }
+                    Err(e) => {
+                        let _ = ready_tx.send(Err(e.to_string()));
+                        return;
+                    }
+                };
+                stages::publisher_loop(
+                    server,
+                    graph_rx,
+                    pose_tx,
+                    pose_source,
+                    &stats,
+                    &stop,
+                    health_period,
+                    log_every,
+                    exit_at_end,
+                );
+            })?);
+            running.push("publish");
+        }
+        match ready_rx.recv() {
+            Ok(Ok(())) => {}
+            Ok(Err(reason)) => return Err(StartError::Ipc(reason)),
+            Err(_) => return Err(StartError::Ipc("publisher thread ended during start-up".to_owned())),
+        }
+
+        // Fusion.
+        {
+            let stats = stats.clone();
+            let fusion = make_fusion(profile);
+            let min_interval = Duration::from_millis(profile.run.min_publish_interval_ms);
+            handles.push(spawn_stage("fusion", &finished_tx, move || {
+                stages::fusion_loop(fusion, enricher, det_rx, graph_tx, &stats, min_interval);
+            })?);
+            running.push("fusion");
+        }
+
+        // Detection workers share one ticketed receiver.
+        let tickets = Arc::new(Mutex::new((kf_rx, 0u64)));
+        for worker in 0..profile.detector.workers {
+            let detector = detector_factory(worker as u32);
+            let tickets = tickets.clone();
+            let det_tx = det_tx.clone();
+            let stats = stats.clone();
+            let name: &'static str = Box::leak(format!("detect-{worker}").into_boxed_str());
+            handles.push(spawn_stage(name, &finished_tx, move || {
+                stages::detect_loop(worker, detector, &tickets, &det_tx, &stats);
+            })?);
+            running.push(name);
+        }
+        drop(det_tx);
+
+        // Keyframe gate.
+        {
+            let stats = stats.clone();
+            let stop = stop.clone();
+            let config = profile.keyframe.clone();
+            let pose_config = profile.pose.clone();
+            handles.push(spawn_stage("keyframe", &finished_tx, move || {
+                stages::keyframe_loop(&config, &pose_config, frames_rx, kf_tx, pose_rx, &stats, &stop);
+            })?);
+            running.push("keyframe");
+        }
+
+        // Capture last, so every consumer is ready.
+        {
+            let stats = stats.clone();
+            let stop = stop.clone();
+            let pool = FramePool::new(profile.frame_pool_capacity(), source.intrinsics());
+            let rate_hz = profile.source.rate_hz;
+            let max_frames = profile.run.max_frames;
+            handles.push(spawn_stage("capture", &finished_tx, move || {
+                stages::capture_loop(source.as_mut(), &pool, frames_tx, rate_hz, max_frames, &stats, &stop);
+            })?);
+            running.push("capture");
+        }
+
+        Ok(Self {
+            stop,
+            step_control,
+            stats,
+            finished_rx,
+            running,
+            handles,
+            shutdown_timeout: Duration::from_secs_f64(profile.run.shutdown_timeout_s),
+        })
+    }
+
+    /// The handle that releases frames of a stepped source (`[source.replay] mode = "stepped"`):
+    /// each `step(n)` lets `n` more frames into the pipeline. `None` for other sources and modes.
+    pub fn step_control(&self) -> Option<&StepControl> {
+        self.step_control.as_ref()
+    }
+
+    /// Shared counters (for tests and the binary's summary).
+    pub fn stats(&self) -> &Arc<PipelineStats> {
+        &self.stats
+    }
+
+    /// Waits until every stage has ended: after the stop flag is set (signal), or by itself
+    /// when the source ended with `run.exit_at_end` / `run.max_frames`. Fails naming the stuck
+    /// stages when they do not end within the shutdown timeout after a stop.
+    pub fn wait(mut self) -> Result<RunSummary, Vec<&'static str>> {
+        let mut stop_seen_at: Option<Instant> = None;
+        while !self.running.is_empty() {
+            if let Ok(name) = self.finished_rx.recv_timeout(Duration::from_millis(50)) {
+                self.running.retain(|n| *n != name);
+                debug!(stage = name, "stage ended");
+                continue;
+            }
+            if self.stop.load(Ordering::Relaxed) {
+                let since = *stop_seen_at.get_or_insert_with(Instant::now);
+                if since.elapsed() > self.shutdown_timeout {
+                    error!(stages = ?self.running, "stages did not end within the shutdown timeout");
+                    return Err(self.running.clone());
+                }
+            }
+        }
+        for handle in self.handles.drain(..) {
+            let _ = handle.join();
+        }
+        let s = &self.stats;
+        Ok(RunSummary {
+            frames: s.frames_captured.load(Ordering::Relaxed),
+            keyframes: s.keyframes.load(Ordering::Relaxed),
+            graph_version: s.graph_version.load(Ordering::Relaxed),
+            map_nodes: s.map_node_count.load(Ordering::Relaxed),
+            map_memory_bytes: s.map_memory_bytes.load(Ordering::Relaxed),
+            elapsed_s: s.started.elapsed().as_secs_f64(),
+            bad_data_skipped: s.source_bad_data_skipped.load(Ordering::Relaxed),
+            source_failed: s.source_failed.load(Ordering::Relaxed),
+        })
+    }
+}

@@ -1,0 +1,516 @@
+//! The deterministic batch runner: source → keyframe gate → detector → fusion, synchronously on
+//! the calling thread, with no queues, no threads and no iceoryx2. For evaluation and tuning
+//! (`op3dsg fusion-eval`, `daemon/sim/tests/fusion_quality.rs`), not for serving.
+//!
+//! It opens the source and the detector with the backends the pipeline uses
+//! ([`crate::backends()`]), selects keyframes with the pipeline's [`KeyframeGate`], makes its
+//! map with [`make_fusion`] (or a fusion the caller passes), and takes every keyframe through
+//! the runtime's [`keyframe_path`] in order, so its final graph is the one the threaded pipeline
+//! publishes last when no frame is dropped (`block` queues, as in `profiles/sim-batch.toml`);
+//! `daemon/sim/tests/batch_determinism.rs` checks this.
+//!
+//! Besides the graph it counts, per ground-truth instance (synthetic sources only, read from
+//! the ground-truth side channel):
+//! - **visibility**: in how many keyframes the instance covers at least
+//!   [`VisibilityThresholds`] pixels of the instance-id image (what an ideal detector could see);
+//! - **detections**: in how many keyframes the oracle detector reported it (its
+//!   [`InstanceLog`]; several detections in one keyframe count once).
+//!
+//! ```no_run
+//! let mut profile = op3dsg_sim::load_profile(None, &[]).unwrap().profile;
+//! let mut synthetic = op3dsg_sim::backends::synthetic_config(&profile).unwrap();
+//! synthetic.frame_count = Some(300);
+//! op3dsg_sim::backends::set_synthetic_config(&mut profile, &synthetic);
+//! let run = op3dsg_sim::batch::run(&profile, &Default::default()).unwrap();
+//! println!("{} keyframes, {} nodes", run.keyframes, run.graph.nodes.len());
+//! ```
+
+use std::time::{Duration, Instant};
+
+use op3dsg_drivers::frame::Frame;
+use op3dsg_drivers::source::{SourceError, SourceStatus};
+use op3dsg_runtime::backend::OpenedSource;
+use op3dsg_runtime::config::{PoseSourceKind, Profile, REPLAY_SOURCE};
+use op3dsg_runtime::fusion::Fusion;
+use op3dsg_runtime::keyframe::{GateDecision, KeyframeGate};
+use op3dsg_runtime::keyframe_path::{self, Refinement};
+use op3dsg_runtime::perception::Detector;
+use op3dsg_runtime::pipeline::{StartError, make_enricher, make_fusion};
+use op3dsg_synthetic::{GroundTruth, InstanceKind, Scene};
+use tracing::warn;
+
+use crate::backends::{ORACLE_DETECTOR, OracleSetup, SYNTHETIC_SOURCE, ground_truth, synthetic_config};
+use crate::oracle::InstanceLog;
+
+/// How many pixels of `Frame::instance_ids` make a ground-truth instance count as visible in a
+/// keyframe.
+///
+/// The defaults: 30 px for parts is the oracle detector's own floor (`min_visible_px`), about a
+/// 3 cm knob seen from 3 m; 200 px for objects (a 14 x 14 px patch) leaves out slivers at the
+/// image border and through gaps, which no detector would report.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct VisibilityThresholds {
+    /// Minimum pixels of an object, pixels.
+    pub object_min_px: u32,
+    /// Minimum pixels of a part, pixels.
+    pub part_min_px: u32,
+}
+
+impl Default for VisibilityThresholds {
+    fn default() -> Self {
+        Self { object_min_px: 200, part_min_px: 30 }
+    }
+}
+
+/// Where the time of a batch run went (wall clock on the calling thread). With several fusions
+/// ([`run_with_fusions`]) `fusion` and `build_graph` are each run's own, the rest is shared.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct BatchTiming {
+    /// Reading frames from the source (rendering, for the synthetic source).
+    pub source: Duration,
+    /// The keyframe gate.
+    pub gate: Duration,
+    /// Detection on keyframes.
+    pub detect: Duration,
+    /// `Fusion::integrate` on keyframes.
+    pub fusion: Duration,
+    /// The final `Fusion::build_graph`, with the prior graph and reasoner (`[reasoner]`).
+    pub build_graph: Duration,
+    /// Counting ground-truth pixels and detections.
+    pub ground_truth: Duration,
+    /// The whole run, opening the source included.
+    pub total: Duration,
+}
+
+/// What a batch run produced.
+#[derive(Debug, Clone)]
+pub struct BatchRun {
+    /// The final graph. `version` is the number of keyframes that changed the map (at least 1,
+    /// like the pipeline, which publishes an empty graph rather than none); `stamp_ns` is the
+    /// newest keyframe's stamp.
+    pub graph: op3dsg_runtime::graph::SceneGraph,
+    /// The synthetic scene (ground truth), when the source has one.
+    pub scene: Option<Scene>,
+    /// Frames the source delivered.
+    pub frames: u64,
+    /// Keyframes fused.
+    pub keyframes: u64,
+    /// Frames dropped for lack of a pose.
+    pub frames_without_pose: u64,
+    /// Detections given to fusion (false positives included).
+    pub detections: u64,
+    /// Keyframes whose detection failed (fused empty, as the pipeline does).
+    pub detector_errors: u64,
+    /// Indexed by instance id (index 0 unused): keyframes in which the instance was visible
+    /// with at least the [`VisibilityThresholds`] pixels. Empty without ground truth.
+    pub visible_keyframes: Vec<u32>,
+    /// Indexed by instance id: keyframes in which the detector reported the instance. Empty
+    /// without ground truth.
+    pub detected_keyframes: Vec<u32>,
+    /// Nodes in the map at the end, confirmed or not (the graph holds the confirmed ones).
+    pub map_nodes: usize,
+    /// Heap bytes of the map at the end.
+    pub map_memory_bytes: usize,
+    /// Where the time went.
+    pub timing: BatchTiming,
+}
+
+impl BatchRun {
+    /// Keyframes per second over the whole run.
+    pub fn keyframes_per_s(&self) -> f64 {
+        self.keyframes as f64 / self.timing.total.as_secs_f64().max(1e-9)
+    }
+}
+
+/// Errors of a batch run.
+#[derive(Debug, thiserror::Error)]
+pub enum BatchError {
+    /// The source or detector could not be opened, or the profile cannot run in batch.
+    #[error(transparent)]
+    Start(#[from] StartError),
+    /// The source never ends.
+    #[error(
+        "the batch runner needs a finite source: set source.synthetic.frame_count (or run.max_frames) above 0, or \
+         turn source.replay.loop off"
+    )]
+    Unbounded,
+    /// The source failed mid-run. The pipeline retries; a batch run stops, because skipping a
+    /// frame would make the result depend on the failure.
+    #[error("source failed after {frames} frames: {error}")]
+    Source {
+        /// Frames delivered before the failure.
+        frames: u64,
+        /// What failed.
+        error: SourceError,
+    },
+}
+
+/// Runs `profile` with the fusion the pipeline would make ([`make_fusion`]).
+pub fn run(profile: &Profile, visibility: &VisibilityThresholds) -> Result<BatchRun, BatchError> {
+    run_with_fusion(profile, visibility, make_fusion(profile))
+}
+
+/// Runs `profile` with `fusion` instead of the profile's (ablations, alternative fusions).
+pub fn run_with_fusion(
+    profile: &Profile,
+    visibility: &VisibilityThresholds,
+    fusion: Box<dyn Fusion>,
+) -> Result<BatchRun, BatchError> {
+    let [run] = run_with_fusions(profile, visibility, [fusion])?;
+    Ok(run)
+}
+
+/// Runs `profile` once and feeds every keyframe with its detections to each of `fusions` in
+/// turn: one run per fusion, in order, identical but for `graph` and the fusion timings. An
+/// ablation costs one rendering and detection pass instead of one per variant, and every
+/// variant sees exactly the same input.
+pub fn run_with_fusions<const N: usize>(
+    profile: &Profile,
+    visibility: &VisibilityThresholds,
+    fusions: [Box<dyn Fusion>; N],
+) -> Result<[BatchRun; N], BatchError> {
+    let lane = Lane { detector: None, fusions: fusions.into() };
+    let runs = run_lanes(profile, visibility, vec![lane])?.pop().unwrap_or_default();
+    runs.try_into().map_err(|runs: Vec<BatchRun>| {
+        BatchError::Start(StartError::Incompatible {
+            field: "batch",
+            reason: format!("{} runs came back for {N} fusions", runs.len()),
+        })
+    })
+}
+
+/// One detector and the fusions its detections feed, for [`run_lanes`].
+pub struct Lane {
+    /// The profile whose `[detector]` this lane runs; `None`: the run's own.
+    pub detector: Option<Profile>,
+    /// Fusions fed with this detector's detections, in order.
+    pub fusions: Vec<Box<dyn Fusion>>,
+}
+
+impl std::fmt::Debug for Lane {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Lane")
+            .field("detector", &self.detector.as_ref().map(|p| p.detector.kind.clone()))
+            .field("fusions", &self.fusions.len())
+            .finish()
+    }
+}
+
+/// The detector `profile` makes for worker 0 over `source`, and, for the oracle, the log of the
+/// ground-truth instance behind each detection.
+fn make_detector(
+    profile: &Profile,
+    source: &OpenedSource,
+    truth: Option<&GroundTruth>,
+) -> Result<(Box<dyn Detector>, Option<InstanceLog>), BatchError> {
+    if profile.detector.kind == ORACLE_DETECTOR && truth.is_some() {
+        // The oracle the backend would make, with a log of where each detection came from.
+        let log = InstanceLog::new();
+        let detector = OracleSetup::new(profile, truth)?.detector(0).with_instance_log(log.clone());
+        return Ok((Box::new(detector), Some(log)));
+    }
+    let factory = crate::backends().detector(&profile.detector.kind)?.prepare(profile, source)?;
+    Ok((factory(0), None))
+}
+
+/// Runs `profile`'s source and keyframe gate once and feeds every keyframe to each lane: the
+/// lane's detector, then each of its fusions. One [`BatchRun`] per fusion, grouped by lane:
+/// variants that differ in detector or fusion see exactly the same keyframes, rendered once.
+///
+/// Sources that can preview a frame's pose
+/// ([`op3dsg_drivers::source::FrameSource::peek_pose`], the synthetic one)
+/// only produce the pixels of keyframes; the result is the same as producing every frame.
+pub fn run_lanes(
+    profile: &Profile,
+    visibility: &VisibilityThresholds,
+    mut lanes: Vec<Lane>,
+) -> Result<Vec<Vec<BatchRun>>, BatchError> {
+    let started = Instant::now();
+    let max_frames = profile.run.max_frames;
+    let unbounded = match profile.source.kind.as_str() {
+        SYNTHETIC_SOURCE => synthetic_config(profile)?.frame_count.is_none_or(|n| n == 0),
+        // A recording ends unless it loops.
+        REPLAY_SOURCE => profile.source.replay.as_ref().is_some_and(|r| r.looping),
+        _ => true,
+    };
+    if max_frames == 0 && unbounded {
+        return Err(BatchError::Unbounded);
+    }
+    let backends = crate::backends();
+    let mut opened = backends.source(&profile.source.kind)?.open(profile)?;
+    let truth = ground_truth(&opened);
+    let scene = truth.as_ref().map(|t| t.scene.clone());
+    let mut enricher = make_enricher(profile)?;
+    if let Some(enricher) = enricher.as_mut() {
+        enricher.set_synchronous(true);
+    }
+    // Batch runs await the LLM refiner (when configured): the longest one refresh can take.
+    let llm = &profile.reasoner.llm;
+    let llm_wait =
+        Duration::from_secs_f64((llm.request_timeout_s + llm.backoff_max_s) * f64::from(llm.max_retries + 1) + 1.0);
+    if profile.pose.source != PoseSourceKind::Frame {
+        return Err(StartError::Incompatible {
+            field: "pose.source",
+            reason: "the batch runner has no pose input; use \"frame\" with a source that carries poses".to_owned(),
+        }
+        .into());
+    }
+    if !opened.source.has_poses() {
+        return Err(StartError::Incompatible {
+            field: "pose.source",
+            reason: format!("{} carries no poses", opened.source.describe()),
+        }
+        .into());
+    }
+    let mut detectors = Vec::with_capacity(lanes.len());
+    let mut instance_logs = Vec::with_capacity(lanes.len());
+    for lane in &mut lanes {
+        let lane_profile = lane.detector.take();
+        let (detector, log) = make_detector(lane_profile.as_ref().unwrap_or(profile), &opened, truth.as_deref())?;
+        detectors.push(detector);
+        instance_logs.push(log);
+    }
+    let source = &mut opened.source;
+    let mut gate = KeyframeGate::new(&profile.keyframe, &profile.pose);
+    let mut frame = Frame::new(source.intrinsics());
+
+    // Ground-truth bookkeeping: per instance id, its kind's pixel threshold.
+    let id_count = scene.as_ref().map_or(0, |s| s.instances().iter().map(|i| usize::from(i.id)).max().unwrap_or(0) + 1);
+    let mut min_px = vec![u32::MAX; id_count];
+    if let Some(scene) = &scene {
+        for info in scene.instances() {
+            min_px[usize::from(info.id)] = match info.kind {
+                InstanceKind::Object => visibility.object_min_px,
+                InstanceKind::Part => visibility.part_min_px,
+            };
+        }
+    }
+    let lane_count = lanes.len();
+    let mut pixels = vec![0u32; id_count];
+    let mut detected_now = vec![false; id_count];
+    let mut visible_keyframes = vec![0u32; id_count];
+    let mut detected_keyframes = vec![vec![0u32; id_count]; lane_count];
+
+    let mut timing = BatchTiming::default();
+    let (mut frames, mut keyframes, mut frames_without_pose) = (0u64, 0u64, 0u64);
+    let mut detections_total = vec![0u64; lane_count];
+    let mut detector_errors = vec![0u64; lane_count];
+    let mut detect_time = vec![Duration::ZERO; lane_count];
+    let mut changed_keyframes: Vec<Vec<u64>> = lanes.iter().map(|l| vec![0; l.fusions.len()]).collect();
+    let mut fusion_time: Vec<Vec<Duration>> = lanes.iter().map(|l| vec![Duration::ZERO; l.fusions.len()]).collect();
+    let mut stamp_ns = 0u64;
+    let mut detections = Vec::new();
+    loop {
+        if max_frames > 0 && frames >= max_frames {
+            break;
+        }
+        let t = Instant::now();
+        // Preview the pose first where the source can: only keyframes are rendered.
+        let previewed = source.peek_pose(&mut frame);
+        let status = match previewed {
+            Some(status) => status,
+            None => source.next_frame(&mut frame).map_err(|error| BatchError::Source { frames, error })?,
+        };
+        timing.source += t.elapsed();
+        match status {
+            SourceStatus::Frame => frames += 1,
+            SourceStatus::Pending => {
+                std::thread::sleep(Duration::from_millis(1));
+                continue;
+            }
+            SourceStatus::EndOfStream => break,
+        }
+
+        let t = Instant::now();
+        let decision = gate.decide(&frame);
+        timing.gate += t.elapsed();
+        let world_from_camera = match decision {
+            GateDecision::NoPose => {
+                frames_without_pose += 1;
+                if previewed.is_some() {
+                    source.skip_frame();
+                }
+                continue;
+            }
+            GateDecision::Skip => {
+                if previewed.is_some() {
+                    source.skip_frame();
+                }
+                continue;
+            }
+            GateDecision::Keyframe(world_from_camera) => world_from_camera,
+        };
+        if previewed.is_some() {
+            let t = Instant::now();
+            let status = source.next_frame(&mut frame).map_err(|error| BatchError::Source { frames, error })?;
+            timing.source += t.elapsed();
+            if status != SourceStatus::Frame {
+                return Err(BatchError::Source {
+                    frames,
+                    error: SourceError::Frame { seq: frame.seq, reason: "previewed but not delivered".to_owned() },
+                });
+            }
+        }
+        keyframes += 1;
+        stamp_ns = stamp_ns.max(frame.stamp_ns);
+
+        if id_count > 0 {
+            let t = Instant::now();
+            let counted = truth.as_ref().and_then(|truth| {
+                truth.instance_ids.with_ids(&frame, |ids| {
+                    pixels.fill(0);
+                    for &id in ids {
+                        if let Some(count) = pixels.get_mut(usize::from(id)) {
+                            *count += 1;
+                        }
+                    }
+                })
+            });
+            if counted.is_some() {
+                for ((visible, count), min) in visible_keyframes.iter_mut().zip(&pixels).zip(&min_px) {
+                    *visible += u32::from(*count >= *min);
+                }
+            }
+            timing.ground_truth += t.elapsed();
+        }
+
+        for (lane_index, lane) in lanes.iter_mut().enumerate() {
+            let t = Instant::now();
+            if let Err(e) = keyframe_path::detect(detectors[lane_index].as_mut(), &frame, &mut detections) {
+                // As the pipeline does: the keyframe is fused empty.
+                warn!(frame_seq = frame.seq, error = %e, "detection failed; keyframe fused empty");
+                detector_errors[lane_index] += 1;
+            }
+            detect_time[lane_index] += t.elapsed();
+            for ((fusion, changed), time) in
+                lane.fusions.iter_mut().zip(&mut changed_keyframes[lane_index]).zip(&mut fusion_time[lane_index])
+            {
+                let t = Instant::now();
+                let fused = keyframe_path::fuse(fusion.as_mut(), &frame, &world_from_camera, &detections);
+                *time += t.elapsed();
+                *changed += u64::from(fused.changed());
+            }
+            detections_total[lane_index] += detections.len() as u64;
+            if let (true, Some(log)) = (id_count > 0, &instance_logs[lane_index]) {
+                let t = Instant::now();
+                detected_now.fill(false);
+                log.with(|instances| {
+                    for id in instances.iter().flatten() {
+                        if let Some(flag) = detected_now.get_mut(usize::from(*id)) {
+                            *flag = true;
+                        }
+                    }
+                });
+                for (count, now) in detected_keyframes[lane_index].iter_mut().zip(&detected_now) {
+                    *count += u32::from(*now);
+                }
+                timing.ground_truth += t.elapsed();
+            }
+        }
+    }
+
+    let mut out = Vec::with_capacity(lane_count);
+    for (lane_index, lane) in lanes.iter_mut().enumerate() {
+        let mut runs = Vec::with_capacity(lane.fusions.len());
+        for (i, fusion) in lane.fusions.iter_mut().enumerate() {
+            let t = Instant::now();
+            let mut graph =
+                keyframe_path::map_graph(fusion.as_ref(), changed_keyframes[lane_index][i].max(1), stamp_ns);
+            if let Some(enricher) = enricher.as_mut() {
+                keyframe_path::enrich(enricher, &mut graph, Refinement::Await(llm_wait));
+            }
+            let timing = BatchTiming {
+                detect: detect_time[lane_index],
+                fusion: fusion_time[lane_index][i],
+                build_graph: t.elapsed(),
+                total: started.elapsed(),
+                ..timing
+            };
+            runs.push(BatchRun {
+                graph,
+                scene: scene.clone(),
+                frames,
+                keyframes,
+                frames_without_pose,
+                detections: detections_total[lane_index],
+                detector_errors: detector_errors[lane_index],
+                visible_keyframes: visible_keyframes.clone(),
+                detected_keyframes: detected_keyframes[lane_index].clone(),
+                map_nodes: fusion.node_count(),
+                map_memory_bytes: fusion.memory_bytes(),
+                timing,
+            });
+        }
+        out.push(runs);
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn small_profile(frames: u64) -> Profile {
+        let mut profile = crate::load_profile(None, &[]).unwrap().profile;
+        let mut synthetic = synthetic_config(&profile).unwrap();
+        synthetic.frame_count = Some(frames);
+        synthetic.intrinsics =
+            op3dsg_drivers::frame::Intrinsics { width: 160, height: 120, fx: 153.75, fy: 153.75, cx: 80.0, cy: 60.0 };
+        crate::backends::set_synthetic_config(&mut profile, &synthetic);
+        profile
+    }
+
+    #[test]
+    fn an_unbounded_source_is_refused() {
+        let profile = crate::load_profile(None, &[]).unwrap().profile;
+        let error = run(&profile, &VisibilityThresholds::default()).unwrap_err();
+        assert!(matches!(error, BatchError::Unbounded), "{error}");
+        assert!(error.to_string().contains("set source.synthetic.frame_count"), "{error}");
+    }
+
+    #[test]
+    fn counts_are_consistent_and_runs_repeat_exactly() {
+        let profile = small_profile(40);
+        let a = run(&profile, &VisibilityThresholds::default()).unwrap();
+        let b = run(&profile, &VisibilityThresholds::default()).unwrap();
+        assert_eq!(a.graph, b.graph);
+        assert_eq!((a.frames, a.keyframes, a.detections), (b.frames, b.keyframes, b.detections));
+        assert_eq!(a.visible_keyframes, b.visible_keyframes);
+        assert_eq!(a.detected_keyframes, b.detected_keyframes);
+        assert_eq!(a.frames, 40);
+        assert!(a.keyframes >= 2 && a.keyframes < 40, "{} keyframes", a.keyframes);
+        let scene = a.scene.as_ref().unwrap();
+        assert_eq!(a.visible_keyframes.len(), scene.instances().len() + 1);
+        assert!(a.visible_keyframes.iter().all(|v| u64::from(*v) <= a.keyframes));
+        assert!(a.detected_keyframes.iter().any(|d| *d > 0));
+        // run.max_frames stops the source early, as in the pipeline.
+        let mut limited = profile.clone();
+        limited.run.max_frames = 10;
+        assert_eq!(run(&limited, &VisibilityThresholds::default()).unwrap().frames, 10);
+    }
+
+    #[test]
+    fn several_fusions_see_the_same_keyframes() {
+        let profile = small_profile(30);
+        let single = run(&profile, &VisibilityThresholds::default()).unwrap();
+        let both = run_with_fusions(
+            &profile,
+            &VisibilityThresholds::default(),
+            [make_fusion(&profile), make_fusion(&profile)],
+        )
+        .unwrap();
+        for r in &both {
+            assert_eq!(r.graph, single.graph);
+            assert_eq!((r.keyframes, r.detections), (single.keyframes, single.detections));
+        }
+    }
+
+    #[test]
+    fn lower_thresholds_see_more() {
+        let profile = small_profile(20);
+        let strict = run(&profile, &VisibilityThresholds { object_min_px: 2000, part_min_px: 2000 }).unwrap();
+        let loose = run(&profile, &VisibilityThresholds { object_min_px: 1, part_min_px: 1 }).unwrap();
+        let (s, l): (u32, u32) = (strict.visible_keyframes.iter().sum(), loose.visible_keyframes.iter().sum());
+        assert!(s < l, "strict {s} loose {l}");
+    }
+}

@@ -1,0 +1,28 @@
+//! # op3dsg simulation and evaluation
+//!
+//! Everything that needs ground truth, kept out of the runtime (`op3dsg-runtime`), which it
+//! builds on and never the other way round:
+//!
+//! | module | what |
+//! |---|---|
+//! | [`backends`] | the `synthetic` source and the `oracle` detector, registered with the runtime like any other backend; their profile sections |
+//! | [`oracle`] | the oracle detector: the synthetic renderer's instance ids (from the ground-truth side channel) with configurable noise |
+//! | [`batch`] | the deterministic single-thread runner: source → keyframe gate → the runtime's keyframe path, with ground-truth counts |
+//! | [`eval`] | scoring fused graphs against ground truth: the benchmark's recall protocol, fusion matching, the quality benchmark |
+//! | [`perf`] | `op3dsg bench perf`: pipeline, IPC and fusion-cost figures, JSON / Markdown / PNG |
+//! | [`workload`] | reproducible fusion workloads (real kitchen keyframes, maps of a chosen size) for benches |
+//!
+//! ```no_run
+//! let loaded = op3dsg_sim::load_profile(None, &["source.synthetic.frame_count=300".to_owned()]).unwrap();
+//! let run = op3dsg_sim::batch::run(&loaded.profile, &Default::default()).unwrap();
+//! println!("{} keyframes, {} nodes", run.keyframes, run.graph.nodes.len());
+//! ```
+
+pub mod backends;
+pub mod batch;
+pub mod eval;
+pub mod oracle;
+pub mod perf;
+pub mod workload;
+
+pub use backends::{backends, load_profile};

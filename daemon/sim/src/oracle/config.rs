@@ -1,0 +1,222 @@
+//! The oracle's configuration: the noise knobs ([`OracleConfig`], `[detector.oracle]`), where its
+//! semantic features come from ([`SemanticSource`]), the `clean` / `realistic` presets and the
+//! range checks.
+
+use op3dsg_runtime::perception::candidates::CandidateMode;
+use serde::{Deserialize, Serialize};
+
+/// Largest erosion / dilation radius `validate` accepts, pixels.
+const MAX_MORPH_RADIUS_PX: u32 = 32;
+/// Largest false-positive mean `validate` accepts, per frame.
+const MAX_FALSE_POSITIVES_PER_FRAME: f64 = 100.0;
+/// Length of the oracle's semantic features in both presets.
+pub(super) const SEMANTIC_DIM: usize = 64;
+/// Largest semantic feature length `validate` accepts.
+const MAX_SEMANTIC_DIM: usize = 4096;
+
+/// Noise knobs of the oracle detector (`[detector.oracle]` in the daemon config).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OracleConfig {
+    /// Probability that an object visible in the frame (with at least `min_visible_px` pixels) is
+    /// not detected, before the small / far boosts. Unitless, [0, 1].
+    pub object_miss_rate: f64,
+    /// Probability that a visible part is not detected, before the small / far boosts.
+    /// Unitless, [0, 1].
+    pub part_miss_rate: f64,
+    /// Visible-area threshold of the small-instance boost, pixels: an instance whose visible mask
+    /// has `area < small_area_px` pixels gets `small_miss_boost * (1 - area / small_area_px)`
+    /// added to its miss probability. 0 disables the boost.
+    pub small_area_px: u32,
+    /// Extra miss probability of a vanishingly small instance (see `small_area_px`).
+    /// Unitless, [0, 1].
+    pub small_miss_boost: f64,
+    /// Distance threshold of the far-instance boost, metres: an instance whose median valid depth
+    /// `d` exceeds it gets `far_miss_boost * min(1, (d - far_distance_m) / far_distance_m)` added
+    /// to its miss probability. Must be > 0.
+    pub far_distance_m: f64,
+    /// Extra miss probability of an instance at twice `far_distance_m` or beyond.
+    /// Unitless, [0, 1].
+    pub far_miss_boost: f64,
+    /// Instances with fewer visible pixels than this are never detected (a real detector cannot
+    /// see 3 pixels), pixels. At least 1.
+    pub min_visible_px: u32,
+    /// Probability that a detection's label is a synonym instead of the canonical label
+    /// (`cupboard` for `cabinet`; for a part, its own synonyms or its label with the parent's
+    /// label replaced by a parent synonym, `cupboard handle`). Instances without any synonym keep
+    /// their canonical label. Unitless, [0, 1].
+    pub synonym_rate: f64,
+    /// Per detection, the true mask may be eroded by a uniformly drawn `0..=mask_erode_px_max`
+    /// pixels (square structuring element), pixels.
+    pub mask_erode_px_max: u32,
+    /// Per detection, the true mask may be dilated by a uniformly drawn `0..=mask_dilate_px_max`
+    /// pixels (square structuring element; bleeds into neighbours and background), pixels.
+    /// When both maxima are non-zero, erosion and dilation are equally likely.
+    pub mask_dilate_px_max: u32,
+    /// Mean number of false positives per frame (Poisson). A false positive is an elliptic blob
+    /// at a random place, labelled with a random label of the scene, with no ground truth.
+    pub false_positives_per_frame: f64,
+    /// Mean score of true detections; scores are `clamp(N(score_mean, score_std), 0.05, 1)`.
+    /// Unitless, [0, 1].
+    pub score_mean: f64,
+    /// Standard deviation of the scores of true and false detections. Unitless, [0, 1].
+    pub score_std: f64,
+    /// Mean score of false positives (same spread and clamp as true detections).
+    /// Unitless, [0, 1].
+    pub false_positive_score_mean: f64,
+    /// Length of the semantic feature given with every detection (0 = none). The oracle's
+    /// stand-in for a detector's region embedding: a fixed pseudo-random unit vector per
+    /// canonical label (seeded by the label's text, so every run and every scene agree),
+    /// perturbed per detection by `semantic_noise` and re-normalised. Synonym labels keep the
+    /// canonical label's vector: the region looks the same whatever the detector calls it.
+    pub semantic_dim: usize,
+    /// Norm of the Gaussian perturbation of a detection's semantic feature relative to the unit
+    /// label vector (the expected cosine to the label vector is about `1 / sqrt(1 + noise²)`).
+    /// Unitless, [0, 2].
+    pub semantic_noise: f64,
+    /// Seed of the noise; the stream of a frame is seeded from `(seed, frame.seq)`.
+    pub seed: u64,
+    /// Which parts are reported: `all` (every visible part), `knowledge` (those the frame's
+    /// knowledge-guided prompt list asks for) or `generic` (those a fixed generic part
+    /// vocabulary finds). See the [oracle module docs](super).
+    pub part_prompts: CandidateMode,
+    /// Where semantic features come from: `label_vector` (pseudo-random per label,
+    /// `semantic_dim` long) or `text_encoder` (MiniLM embedding of the label, 384 long; needs
+    /// `[text_encoder] enabled = true`).
+    pub semantic_source: SemanticSource,
+}
+
+/// Where the oracle's semantic features come from (`detector.oracle.semantic_source`).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SemanticSource {
+    /// [`label_vector`](super::label_vector): a fixed pseudo-random unit vector per canonical label.
+    #[default]
+    LabelVector,
+    /// The text encoder's embedding of the canonical label.
+    TextEncoder,
+}
+
+impl Default for OracleConfig {
+    fn default() -> Self {
+        Self::realistic()
+    }
+}
+
+impl OracleConfig {
+    /// No noise at all: every instance with at least `min_visible_px` visible pixels is detected
+    /// with its canonical label, its exact mask and score 1.
+    pub fn clean() -> Self {
+        Self {
+            object_miss_rate: 0.0,
+            part_miss_rate: 0.0,
+            small_area_px: 0,
+            small_miss_boost: 0.0,
+            far_distance_m: 3.0,
+            far_miss_boost: 0.0,
+            min_visible_px: 30,
+            synonym_rate: 0.0,
+            mask_erode_px_max: 0,
+            mask_dilate_px_max: 0,
+            false_positives_per_frame: 0.0,
+            score_mean: 1.0,
+            score_std: 0.0,
+            false_positive_score_mean: 0.35,
+            semantic_dim: SEMANTIC_DIM,
+            semantic_noise: 0.0,
+            seed: 0,
+            part_prompts: CandidateMode::All,
+            semantic_source: SemanticSource::LabelVector,
+        }
+    }
+
+    /// Noise of a decent open-vocabulary detector on a 640x480 stream.
+    pub fn realistic() -> Self {
+        Self {
+            object_miss_rate: 0.05,
+            part_miss_rate: 0.12,
+            small_area_px: 400,
+            small_miss_boost: 0.4,
+            far_distance_m: 3.0,
+            far_miss_boost: 0.3,
+            min_visible_px: 30,
+            synonym_rate: 0.15,
+            mask_erode_px_max: 2,
+            mask_dilate_px_max: 2,
+            false_positives_per_frame: 0.3,
+            score_mean: 0.8,
+            score_std: 0.1,
+            false_positive_score_mean: 0.35,
+            semantic_dim: SEMANTIC_DIM,
+            semantic_noise: 0.3,
+            seed: 0,
+            part_prompts: CandidateMode::All,
+            semantic_source: SemanticSource::LabelVector,
+        }
+    }
+
+    /// The preset called `name` (`clean`, `realistic`).
+    pub fn preset(name: &str) -> Option<Self> {
+        match name {
+            "clean" => Some(Self::clean()),
+            "realistic" => Some(Self::realistic()),
+            _ => None,
+        }
+    }
+
+    /// Checks ranges; the error names the offending field prefixed with `path`
+    /// (`detector.oracle.part_miss_rate: must be within [0, 1], got 1.5`).
+    pub fn validate(&self, path: &str) -> Result<(), String> {
+        let field = |name: &str| if path.is_empty() { name.to_owned() } else { format!("{path}.{name}") };
+        let unit_interval = [
+            ("object_miss_rate", self.object_miss_rate),
+            ("part_miss_rate", self.part_miss_rate),
+            ("small_miss_boost", self.small_miss_boost),
+            ("far_miss_boost", self.far_miss_boost),
+            ("synonym_rate", self.synonym_rate),
+            ("score_mean", self.score_mean),
+            ("score_std", self.score_std),
+            ("false_positive_score_mean", self.false_positive_score_mean),
+        ];
+        for (name, value) in unit_interval {
+            if !(0.0..=1.0).contains(&value) {
+                return Err(format!("{}: must be within [0, 1], got {value}", field(name)));
+            }
+        }
+        if !(self.far_distance_m.is_finite() && self.far_distance_m > 0.0) {
+            return Err(format!(
+                "{}: must be a positive distance in metres, got {}",
+                field("far_distance_m"),
+                self.far_distance_m
+            ));
+        }
+        if self.semantic_dim > MAX_SEMANTIC_DIM {
+            return Err(format!(
+                "{}: must be at most {MAX_SEMANTIC_DIM}, got {}",
+                field("semantic_dim"),
+                self.semantic_dim
+            ));
+        }
+        if !(0.0..=2.0).contains(&self.semantic_noise) {
+            return Err(format!("{}: must be within [0, 2], got {}", field("semantic_noise"), self.semantic_noise));
+        }
+        if self.min_visible_px == 0 {
+            return Err(format!("{}: must be at least 1 pixel, got 0", field("min_visible_px")));
+        }
+        for (name, value) in
+            [("mask_erode_px_max", self.mask_erode_px_max), ("mask_dilate_px_max", self.mask_dilate_px_max)]
+        {
+            if value > MAX_MORPH_RADIUS_PX {
+                return Err(format!("{}: must be at most {MAX_MORPH_RADIUS_PX} pixels, got {value}", field(name)));
+            }
+        }
+        if !(0.0..=MAX_FALSE_POSITIVES_PER_FRAME).contains(&self.false_positives_per_frame) {
+            return Err(format!(
+                "{}: must be within [0, {MAX_FALSE_POSITIVES_PER_FRAME}], got {}",
+                field("false_positives_per_frame"),
+                self.false_positives_per_frame
+            ));
+        }
+        Ok(())
+    }
+}

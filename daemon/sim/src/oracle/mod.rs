@@ -1,0 +1,585 @@
+//! The oracle detector: turns the synthetic renderer's per-pixel instance-id image into
+//! detections with realistic, configurable noise (misses that grow for small and far instances,
+//! synonym labels, eroded or dilated masks, false positives, noisy scores), so fusion, the graph
+//! and evaluation run as if a real detector were in the loop.
+//!
+//! ## Ground truth
+//!
+//! The oracle reads ground truth only through the synthetic source's side channel, never from
+//! the [`Frame`] (which carries what a camera would and nothing more): the instance ids of a
+//! frame come from the [`InstanceIdChannel`] given with [`OracleDetector::with_instance_ids`],
+//! and a frame the channel has no ids for (no channel, another source, a copy of a frame) is a
+//! [`DetectorError::Frame`]. Which instance each detection came from is not part of the
+//! [`Detection`] either: an [`InstanceLog`] given with [`OracleDetector::with_instance_log`]
+//! holds, after each `detect`, the ground-truth instance of every output detection in order
+//! (`None` for false positives), for evaluation.
+//!
+//! The noise of a frame is a pure function of `(config, frame)`: the random stream is seeded from
+//! `hash(config.seed, frame.seq)`, so the output does not depend on which worker handles which
+//! frame, and different frames (hence different workers) draw uncorrelated noise.
+//!
+//! ## Prompt lists
+//!
+//! With `part_prompts = "knowledge"` or `"generic"` the oracle behaves like an open-vocabulary
+//! detector given a prompt list ([`op3dsg_runtime::perception::candidates`]): each frame's tags
+//! are the canonical labels of the objects visible in it (an ideal image tagger), the list is
+//! built from them, and a visible part is only reported when the list asks for it
+//! ([`match_part`]), under its own label or the prompt's text (`nightstand knob`, or `handle`
+//! with the generic vocabulary). Parts nothing asks for are missed. The random draws of a frame
+//! do not depend on the list, so two modes differ only by what the list does. With `"all"` (the
+//! default) every part is reported as before.
+//!
+//! ## Semantic features
+//!
+//! By default a detection's semantic feature is a fixed pseudo-random vector per canonical label
+//! ([`label_vector`], `semantic_dim` long) plus noise. With `semantic_source = "text_encoder"`
+//! it is the all-MiniLM-L6-v2 embedding of the canonical label (384 long, from the profile's
+//! `[onnx]` and `[text_encoder]`, which must be enabled) plus the same noise: labels that mean
+//! similar things then get similar features, as a real region embedding would.
+//!
+//! ## Files
+//!
+//! This file holds the detector; `config` its knobs and presets, `labels` the labels an
+//! instance may be given, `masks` the pixel work on the id image, `noise` the random draws.
+
+use std::sync::{Arc, Mutex, PoisonError};
+
+use op3dsg_drivers::frame::Frame;
+use op3dsg_ipc_types::NodeKind;
+use op3dsg_runtime::knowledge::{ObjectId, PartId};
+use op3dsg_runtime::perception::candidates::{CandidateMode, PartCandidates, PromptList, match_part};
+use op3dsg_runtime::perception::{Detection, Detector, DetectorError, Mask, normalise};
+use op3dsg_synthetic::{InstanceIdChannel, InstanceInfo};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
+
+mod config;
+mod labels;
+mod masks;
+mod noise;
+#[cfg(test)]
+mod tests;
+
+pub use config::{OracleConfig, SemanticSource};
+pub use labels::possible_labels;
+pub use noise::label_vector;
+
+use labels::{find_word, node_kind};
+use masks::{Morph, Stats, instance_mask, tighten};
+use noise::{draw_poisson, draw_score, frame_seed};
+
+/// Per-instance facts prepared once at construction.
+#[derive(Debug, Clone)]
+struct Prepared {
+    kind: NodeKind,
+    /// Index (into `instances`) of the parent, when it is known.
+    parent: Option<usize>,
+    /// Byte offset of the parent's label inside this part's label, at word boundaries.
+    parent_label_at: Option<usize>,
+    /// Part category of the label (set with a prompt list).
+    part_category: Option<PartId>,
+    /// Object category of the parent's label (set with a prompt list).
+    parent_category: Option<ObjectId>,
+    /// Normalised labels the detector may use for it (set with a prompt list).
+    accepted_labels: Vec<String>,
+}
+
+/// Sentinel of `OracleDetector::index_of_id` for ids that are no instance.
+const NO_INSTANCE: u32 = u32::MAX;
+
+/// Provenance of an oracle's detections: after each [`Detector::detect`] of the
+/// [`OracleDetector`] it was given to ([`OracleDetector::with_instance_log`]), the ground-truth
+/// instance id of each output detection, in the order of the output (`None` for a false
+/// positive). A failed `detect` leaves it empty. Cloning shares the log (the detector writes,
+/// evaluation reads); the buffer is reused, so writing it does not allocate once it has grown to
+/// the largest output.
+#[derive(Clone, Debug, Default)]
+pub struct InstanceLog(Arc<Mutex<Vec<Option<u16>>>>);
+
+impl InstanceLog {
+    /// An empty log.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// A copy of the instance ids of the last `detect`'s detections.
+    pub fn get(&self) -> Vec<Option<u16>> {
+        self.with(<[Option<u16>]>::to_vec)
+    }
+
+    /// Runs `read` on the instance ids of the last `detect`'s detections, without copying them.
+    pub fn with<R>(&self, read: impl FnOnce(&[Option<u16>]) -> R) -> R {
+        read(&self.0.lock().unwrap_or_else(PoisonError::into_inner))
+    }
+
+    /// Replaces the contents with `ids`, reusing the buffer.
+    fn set(&self, ids: &[Option<u16>]) {
+        let mut log = self.0.lock().unwrap_or_else(PoisonError::into_inner);
+        log.clear();
+        log.extend_from_slice(ids);
+    }
+}
+
+/// The oracle detector of the synthetic world (see the module docs).
+#[derive(Debug)]
+pub struct OracleDetector {
+    config: OracleConfig,
+    instances: Vec<InstanceInfo>,
+    prepared: Vec<Prepared>,
+    /// Instance index by id (65 536 entries, built once).
+    index_of_id: Vec<u32>,
+    /// Distinct labels of the scene with their kind (false-positive labels).
+    scene_labels: Vec<(String, NodeKind)>,
+    /// Per instance, the semantic vector of its canonical label (empty when `semantic_dim = 0`).
+    instance_vectors: Vec<Vec<f32>>,
+    /// Per scene label, its semantic vector.
+    scene_label_vectors: Vec<Vec<f32>>,
+    worker_index: u32,
+    /// Per-instance pixel statistics of the current frame (sized once).
+    stats: Vec<Stats>,
+    /// Valid depths of one instance, for its median (capacity grows to the image size once).
+    depth_scratch: Vec<u16>,
+    unknown_pixels_last: u64,
+    unknown_pixels_total: u64,
+    /// Prompt lists, when `part_prompts` is not `all`.
+    candidates: Option<Arc<PartCandidates>>,
+    /// The current frame's prompt list.
+    prompt_list: PromptList,
+    /// The current frame's tags (indices into `instances`).
+    tag_scratch: Vec<usize>,
+    /// Where the per-pixel instance ids of each frame come from (the synthetic source's side
+    /// channel).
+    instance_ids: Option<InstanceIdChannel>,
+    /// Where the ground-truth instance of each detection goes.
+    instance_log: Option<InstanceLog>,
+    /// The ground-truth instance of each detection of the current frame (`None`: false
+    /// positive), in output order; copied into `instance_log` (capacity grows once).
+    provenance: Vec<Option<u16>>,
+}
+
+impl OracleDetector {
+    /// A detector for the scene made of `instances`. `worker_index` is kept for logs only: the
+    /// noise of a frame depends on `(config.seed, frame.seq)` alone, so outputs do not depend on
+    /// which worker handles which frame.
+    pub fn new(config: OracleConfig, instances: Vec<InstanceInfo>, worker_index: u32) -> Self {
+        let mut index_of_id = vec![NO_INSTANCE; usize::from(u16::MAX) + 1];
+        for (index, info) in instances.iter().enumerate() {
+            // Id 0 is background; later duplicates lose to the first.
+            if info.id != 0 && index_of_id[usize::from(info.id)] == NO_INSTANCE {
+                index_of_id[usize::from(info.id)] = index as u32;
+            }
+        }
+        let prepared = instances
+            .iter()
+            .map(|info| {
+                let parent = info
+                    .parent
+                    .map(|id| index_of_id[usize::from(id)])
+                    .filter(|index| *index != NO_INSTANCE)
+                    .map(|index| index as usize);
+                let parent_label_at = parent.and_then(|p| find_word(&info.label, &instances[p].label));
+                Prepared {
+                    kind: node_kind(info.kind),
+                    parent,
+                    parent_label_at,
+                    part_category: None,
+                    parent_category: None,
+                    accepted_labels: Vec::new(),
+                }
+            })
+            .collect();
+        let mut scene_labels: Vec<(String, NodeKind)> = Vec::new();
+        for info in &instances {
+            if !scene_labels.iter().any(|(label, _)| *label == info.label) {
+                scene_labels.push((info.label.clone(), node_kind(info.kind)));
+            }
+        }
+        let stats = vec![Stats::EMPTY; instances.len()];
+        let dim = config.semantic_dim;
+        let instance_vectors = instances.iter().map(|info| label_vector(&info.label, dim)).collect();
+        let scene_label_vectors = scene_labels.iter().map(|(label, _)| label_vector(label, dim)).collect();
+        Self {
+            config,
+            instances,
+            prepared,
+            index_of_id,
+            scene_labels,
+            instance_vectors,
+            scene_label_vectors,
+            worker_index,
+            stats,
+            depth_scratch: Vec::new(),
+            unknown_pixels_last: 0,
+            unknown_pixels_total: 0,
+            candidates: None,
+            prompt_list: PromptList::default(),
+            tag_scratch: Vec::new(),
+            instance_ids: None,
+            instance_log: None,
+            provenance: Vec::new(),
+        }
+    }
+
+    /// Reads the per-pixel instance ids of each frame from `channel`, the synthetic source's
+    /// ground-truth side channel ([`op3dsg_synthetic::GroundTruth::instance_ids`]). Without it,
+    /// or for a frame the channel has no ids for, `detect` fails.
+    pub fn with_instance_ids(mut self, channel: InstanceIdChannel) -> Self {
+        self.instance_ids = Some(channel);
+        self
+    }
+
+    /// Records in `log`, after each `detect`, the ground-truth instance of each output detection
+    /// (see [`InstanceLog`]).
+    pub fn with_instance_log(mut self, log: InstanceLog) -> Self {
+        self.instance_log = Some(log);
+        self
+    }
+
+    /// Reports parts only when the frame's prompt list from `candidates` asks for them (see the
+    /// module docs); a [`CandidateMode::All`] list changes nothing.
+    pub fn with_candidates(mut self, candidates: Arc<PartCandidates>) -> Self {
+        if candidates.mode() == CandidateMode::All {
+            return self;
+        }
+        let kb = candidates.knowledge();
+        for (index, info) in self.instances.iter().enumerate() {
+            let prepared = &mut self.prepared[index];
+            if prepared.kind != NodeKind::Part {
+                continue;
+            }
+            prepared.part_category = kb.resolve(&info.label).and_then(|r| r.part());
+            prepared.parent_category = prepared.parent.and_then(|p| kb.object_category(&self.instances[p].label));
+            prepared.accepted_labels = possible_labels(&self.instances, info)
+                .iter()
+                .map(|l| op3dsg_runtime::knowledge::normalise(l))
+                .collect();
+        }
+        self.candidates = Some(candidates);
+        self
+    }
+
+    /// Uses `vectors` (canonical label → unit vector) as the semantic vectors of the labels it
+    /// has; other labels keep theirs. For the text encoder's label embeddings.
+    pub fn with_label_vectors(mut self, vectors: &std::collections::HashMap<String, Vec<f32>>) -> Self {
+        for (info, v) in self.instances.iter().zip(&mut self.instance_vectors) {
+            if let Some(embedding) = vectors.get(&info.label) {
+                v.clone_from(embedding);
+            }
+        }
+        for ((label, _), v) in self.scene_labels.iter().zip(&mut self.scene_label_vectors) {
+            if let Some(embedding) = vectors.get(label) {
+                v.clone_from(embedding);
+            }
+        }
+        self
+    }
+
+    /// Builds the frame's prompt list from the objects visible in it.
+    fn build_prompt_list(&mut self) {
+        let Some(candidates) = &self.candidates else { return };
+        self.tag_scratch.clear();
+        for (index, s) in self.stats.iter().enumerate() {
+            if s.count >= self.config.min_visible_px && self.prepared[index].kind == NodeKind::Object {
+                self.tag_scratch.push(index);
+            }
+        }
+        let tags: Vec<&str> = self.tag_scratch.iter().map(|&i| self.instances[i].label.as_str()).collect();
+        candidates.prompts(&tags, &mut self.prompt_list);
+    }
+
+    /// Whether the frame's prompt list asks for instance `index`, and under which label
+    /// (`Some(None)`: its own).
+    fn asked_for(&self, index: usize) -> Option<Option<&str>> {
+        let prepared = &self.prepared[index];
+        if self.candidates.is_none() || prepared.kind == NodeKind::Object {
+            return Some(None);
+        }
+        match_part(
+            &self.prompt_list,
+            &prepared.accepted_labels,
+            prepared.part_category,
+            prepared.parent_category,
+            &self.instances[index].label,
+        )
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &OracleConfig {
+        &self.config
+    }
+
+    /// The worker this detector belongs to.
+    pub fn worker_index(&self) -> u32 {
+        self.worker_index
+    }
+
+    /// Pixels of the last frame whose non-zero instance id is not among the known instances.
+    pub fn unknown_instance_pixels(&self) -> u64 {
+        self.unknown_pixels_last
+    }
+
+    /// Pixels with unknown instance ids over all frames so far.
+    pub fn unknown_instance_pixels_total(&self) -> u64 {
+        self.unknown_pixels_total
+    }
+
+    /// One pass over the id image: per-instance pixel counts and boxes, unknown-id pixels.
+    fn gather_stats(&mut self, ids: &[u16], width: u32) {
+        self.stats.fill(Stats::EMPTY);
+        let mut unknown = 0u64;
+        for (y, row) in ids.chunks_exact(width as usize).enumerate() {
+            let y = y as u32;
+            for (x, &id) in row.iter().enumerate() {
+                if id == 0 {
+                    continue;
+                }
+                let index = self.index_of_id[usize::from(id)];
+                if index == NO_INSTANCE {
+                    unknown += 1;
+                    continue;
+                }
+                let s = &mut self.stats[index as usize];
+                let x = x as u32;
+                s.count += 1;
+                s.x0 = s.x0.min(x);
+                s.x1 = s.x1.max(x);
+                s.y0 = s.y0.min(y);
+                s.y1 = s.y1.max(y);
+            }
+        }
+        self.unknown_pixels_last = unknown;
+        self.unknown_pixels_total += unknown;
+    }
+
+    /// Median valid depth of instance `id` over its box, metres; `None` without valid depth.
+    fn median_depth_m(&mut self, frame: &Frame, ids: &[u16], id: u16, s: Stats) -> Option<f64> {
+        let width = frame.intrinsics.width as usize;
+        self.depth_scratch.clear();
+        for y in s.y0..=s.y1 {
+            let span = y as usize * width + s.x0 as usize..=y as usize * width + s.x1 as usize;
+            let depths = ids[span.clone()].iter().zip(&frame.depth[span]);
+            self.depth_scratch.extend(depths.filter(|&(&i, &d)| i == id && d != 0).map(|(_, &d)| d));
+        }
+        if self.depth_scratch.is_empty() {
+            return None;
+        }
+        let mid = self.depth_scratch.len() / 2;
+        let (_, median, _) = self.depth_scratch.select_nth_unstable(mid);
+        Some(f64::from(*median) / f64::from(frame.depth_units_per_m))
+    }
+
+    /// Miss probability of instance `index` with pixel statistics `s`.
+    fn miss_probability(&mut self, frame: &Frame, ids: &[u16], index: usize, s: Stats) -> f64 {
+        let c = &self.config;
+        let mut p = match self.prepared[index].kind {
+            NodeKind::Object => c.object_miss_rate,
+            NodeKind::Part => c.part_miss_rate,
+        };
+        if c.small_area_px > 0 && s.count < c.small_area_px {
+            p += c.small_miss_boost * (1.0 - f64::from(s.count) / f64::from(c.small_area_px));
+        }
+        if c.far_miss_boost > 0.0 {
+            let far = c.far_distance_m;
+            if let Some(d) = self.median_depth_m(frame, ids, self.instances[index].id, s)
+                && d > far
+            {
+                p += self.config.far_miss_boost * ((d - far) / far).min(1.0);
+            }
+        }
+        p.clamp(0.0, 1.0)
+    }
+
+    /// The label of a detection of instance `index`: canonical, or with probability
+    /// `synonym_rate` one of its synonyms (own ones, and for parts the parent-based ones).
+    fn label(&self, index: usize, rng: &mut ChaCha8Rng) -> String {
+        let info = &self.instances[index];
+        if self.config.synonym_rate <= 0.0 || !rng.random_bool(self.config.synonym_rate) {
+            return info.label.clone();
+        }
+        let prepared = &self.prepared[index];
+        let parent = prepared.parent.zip(prepared.parent_label_at).map(|(p, at)| (&self.instances[p], at));
+        let own = info.synonyms.len();
+        let inherited = parent.map_or(0, |(p, _)| p.synonyms.len());
+        if own + inherited == 0 {
+            return info.label.clone();
+        }
+        let pick = rng.random_range(0..own + inherited);
+        if pick < own {
+            return info.synonyms[pick].clone();
+        }
+        match parent {
+            Some((p, at)) => {
+                let synonym = &p.synonyms[pick - own];
+                format!("{}{}{}", &info.label[..at], synonym, &info.label[at + p.label.len()..])
+            }
+            None => info.label.clone(),
+        }
+    }
+
+    /// Draws how the mask of a detection is perturbed.
+    fn draw_morph(&self, rng: &mut ChaCha8Rng) -> Option<Morph> {
+        let (erode, dilate) = (self.config.mask_erode_px_max, self.config.mask_dilate_px_max);
+        let morph = match (erode > 0, dilate > 0) {
+            (false, false) => return None,
+            (true, false) => Morph::Erode(rng.random_range(0..=erode)),
+            (false, true) => Morph::Dilate(rng.random_range(0..=dilate)),
+            (true, true) => {
+                if rng.random_bool(0.5) {
+                    Morph::Erode(rng.random_range(0..=erode))
+                } else {
+                    Morph::Dilate(rng.random_range(0..=dilate))
+                }
+            }
+        };
+        Some(morph)
+    }
+
+    /// A detection's semantic feature: the label vector plus noise, re-normalised.
+    fn semantic_feature(&self, base: &[f32], rng: &mut ChaCha8Rng) -> Option<Vec<f32>> {
+        if base.is_empty() {
+            return None;
+        }
+        let scale = (self.config.semantic_noise / (base.len() as f64).sqrt()) as f32;
+        if scale <= 0.0 {
+            return Some(base.to_vec());
+        }
+        let mut v: Vec<f32> = base.iter().map(|b| b + scale * rng.sample::<f32, _>(StandardNormal)).collect();
+        normalise(&mut v);
+        Some(v)
+    }
+
+    /// A false-positive blob: an ellipse at a random place, clipped to the image.
+    fn false_positive(&self, width: u32, height: u32, rng: &mut ChaCha8Rng) -> Option<Detection> {
+        if self.scene_labels.is_empty() || width == 0 || height == 0 {
+            return None;
+        }
+        let pick = rng.random_range(0..self.scene_labels.len());
+        let (label, kind) = &self.scene_labels[pick];
+        let short = width.min(height) as f64;
+        let r_min = (short / 40.0).max(2.0);
+        let r_max = (short / 8.0).max(r_min + 1.0);
+        let rx = rng.random_range(r_min..r_max);
+        let ry = rng.random_range(r_min..r_max);
+        let cx = rng.random_range(0.0..f64::from(width));
+        let cy = rng.random_range(0.0..f64::from(height));
+        let x0 = (cx - rx).floor().max(0.0) as u32;
+        let y0 = (cy - ry).floor().max(0.0) as u32;
+        let x1 = ((cx + rx).ceil() as u32).min(width - 1);
+        let y1 = ((cy + ry).ceil() as u32).min(height - 1);
+        let (w, h) = (x1 - x0 + 1, y1 - y0 + 1);
+        let mut data = vec![0u8; (w * h) as usize];
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                let dx = (f64::from(x) + 0.5 - cx) / rx;
+                let dy = (f64::from(y) + 0.5 - cy) / ry;
+                if dx * dx + dy * dy <= 1.0 {
+                    data[((y - y0) * w + (x - x0)) as usize] = 1;
+                }
+            }
+        }
+        let mask = tighten(Mask { x0, y0, width: w, height: h, data })?;
+        let score = draw_score(self.config.false_positive_score_mean, self.config.score_std, rng);
+        let semantic_feature = self.semantic_feature(&self.scene_label_vectors[pick], rng);
+        Some(Detection { label: label.clone(), kind: *kind, score, mask, semantic_feature })
+    }
+
+    /// [`Detector::detect`] on `frame` with its instance ids `ids`: fills `out`, and
+    /// `provenance` in step with it.
+    fn detect_with_ids(&mut self, frame: &Frame, ids: &[u16], out: &mut Vec<Detection>) -> Result<(), DetectorError> {
+        let (width, height) = (frame.intrinsics.width, frame.intrinsics.height);
+        let pixels = frame.intrinsics.pixel_count();
+        if ids.len() != pixels || frame.depth.len() != pixels {
+            return Err(DetectorError::Frame {
+                seq: frame.seq,
+                reason: format!(
+                    "instance id image has {} and depth image {} pixels, intrinsics say {width}x{height}",
+                    ids.len(),
+                    frame.depth.len()
+                ),
+            });
+        }
+        if pixels == 0 {
+            self.unknown_pixels_last = 0;
+            return Ok(());
+        }
+        self.gather_stats(ids, width);
+        self.build_prompt_list();
+        let mut rng = ChaCha8Rng::seed_from_u64(frame_seed(self.config.seed, frame.seq));
+
+        for index in 0..self.instances.len() {
+            let s = self.stats[index];
+            if s.count < self.config.min_visible_px {
+                continue;
+            }
+            let miss = self.miss_probability(frame, ids, index, s);
+            if miss > 0.0 && rng.random_bool(miss) {
+                continue;
+            }
+            let label = self.label(index, &mut rng);
+            let score = draw_score(self.config.score_mean, self.config.score_std, &mut rng);
+            let morph = self.draw_morph(&mut rng);
+            let id = self.instances[index].id;
+            // Erosion may swallow a thin instance whole: then the detector saw nothing.
+            let Some(mask) = instance_mask(ids, width, height, id, s, morph) else { continue };
+            let semantic_feature = self.semantic_feature(&self.instance_vectors[index], &mut rng);
+            // Decided after the draws, so the list changes nothing else in the frame.
+            let label = match self.asked_for(index) {
+                None => continue,
+                Some(None) => label,
+                Some(Some(prompt)) => prompt.to_owned(),
+            };
+            out.push(Detection { label, kind: self.prepared[index].kind, score, mask, semantic_feature });
+            self.provenance.push(Some(id));
+        }
+
+        if self.config.false_positives_per_frame > 0.0 {
+            let count = draw_poisson(self.config.false_positives_per_frame, &mut rng);
+            for _ in 0..count {
+                if let Some(detection) = self.false_positive(width, height, &mut rng) {
+                    out.push(detection);
+                    self.provenance.push(None);
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Detector for OracleDetector {
+    fn detect(&mut self, frame: &Frame, out: &mut Vec<Detection>) -> Result<(), DetectorError> {
+        out.clear();
+        self.provenance.clear();
+        // A handle of its own (an `Arc`), so the read below can borrow `self` mutably.
+        let result = match self.instance_ids.clone() {
+            None => Err(DetectorError::Frame {
+                seq: frame.seq,
+                reason: "no instance ids: the oracle detector was given no ground-truth channel (it only works \
+                         with the synthetic source's ground truth)"
+                    .into(),
+            }),
+            Some(channel) => {
+                channel.with_ids(frame, |ids| self.detect_with_ids(frame, ids, out)).unwrap_or_else(|| {
+                    Err(DetectorError::Frame {
+                        seq: frame.seq,
+                        reason: "no instance ids for this frame in the ground-truth channel: the oracle detector only \
+                             works with frames of the synthetic source whose ground truth it was given"
+                            .into(),
+                    })
+                })
+            }
+        };
+        if result.is_err() {
+            out.clear();
+            self.provenance.clear();
+        }
+        if let Some(log) = &self.instance_log {
+            log.set(&self.provenance);
+        }
+        result
+    }
+
+    fn name(&self) -> &str {
+        "oracle"
+    }
+}

@@ -1,0 +1,489 @@
+//! Graph publish → subscriber receive between two processes, next to raw iceoryx2 with a payload
+//! of the same size, for `op3dsg bench perf`.
+//!
+//! This process publishes; a child process of the same binary (`op3dsg --prefix P bench
+//! ipc-peer --pairs N`, see [`ipc_peer`]) subscribes. Services, under a private prefix:
+//!
+//! | service | what |
+//! |---|---|
+//! | `P/graph`, `P/graph_updated` | the daemon's own graph services ([`GraphServer`]) |
+//! | `P/bench/raw`, `P/bench/raw_updated` | a `[u8]` publish-subscribe service and its event |
+//! | `P/bench/ack` | event: the child took a message (or is ready) |
+//!
+//! Per graph size, messages alternate graph, raw, graph, raw, ...; the publisher sends the next
+//! one only after the child's acknowledgement, so no message waits behind another. The child waits
+//! on an iceoryx2 event listener for both kinds (as a planner waits on `graph_updated`).
+//!
+//! - **graph**: `t0` just before [`GraphServer::publish_graph`] (loan, initialise the whole
+//!   fixed-size sample, fill header, nodes and edges, send, notify); `t1` when
+//!   [`GraphClient::latest_graph`] returned the [`SceneGraph`] in the child.
+//! - **raw**: `t0` just before loaning a byte slice of the graph's filled size (header + nodes +
+//!   edges as they lie in the snapshot); copy a prepared buffer in, send, notify; `t1` after the
+//!   child received the sample and copied the bytes out.
+//!
+//! Both clocks are the system's wall clock (`CLOCK_REALTIME`, one clock for every process of the
+//! machine). The ratio graph / raw per percentile is the figure.
+
+use std::collections::HashMap;
+use std::io::Read as _;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context as _, anyhow, bail};
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::port::update_connections::UpdateConnections as _;
+use iceoryx2::prelude::Node;
+use op3dsg_ipc_types::{Edge, EdgeKind, EdgeOrigin, GraphHeader, GraphSnapshot, MAX_EDGES, MAX_NODES, NodeKind};
+use serde::{Deserialize, Serialize};
+
+use super::{Percentiles, PerfOptions};
+use op3dsg_runtime::graph::{GraphEdge, GraphNode, SceneGraph};
+use op3dsg_runtime::ipc::{GraphClient, GraphServer, IpcConfig, IpcService, create_node, service_name, wall_clock_ns};
+
+/// How long either side waits for the other before giving up.
+const PEER_TIMEOUT: Duration = Duration::from_secs(20);
+
+/// One graph size of the IPC measurement.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IpcRow {
+    /// Nodes in the graph.
+    pub nodes: usize,
+    /// Edges in the graph.
+    pub edges: usize,
+    /// Bytes the graph fills in the snapshot (header + nodes + edges): the raw payload size.
+    pub bytes: usize,
+    /// Graph publish → `SceneGraph` in the other process.
+    pub graph: Percentiles,
+    /// Raw iceoryx2 publish → bytes in the other process.
+    pub raw: Percentiles,
+    /// The publisher's share of `graph`: the `publish_graph` call alone.
+    pub graph_publish_call: Percentiles,
+    /// The publisher's share of `raw`: loan, copy, send, notify.
+    pub raw_publish_call: Percentiles,
+    /// The subscriber's share of `graph`: the `latest_graph` call that returned it (receive and
+    /// conversion to a `SceneGraph`).
+    pub graph_read_call: Percentiles,
+    /// `graph.p50_ms / raw.p50_ms`.
+    pub ratio_p50: f64,
+    /// `graph.p99_ms / raw.p99_ms`.
+    pub ratio_p99: f64,
+}
+
+/// The IPC section of the report.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IpcLatency {
+    /// How the subscriber waits.
+    pub wait: String,
+    /// Timed messages per size and kind.
+    pub messages: usize,
+    /// Untimed messages per size and kind before them.
+    pub warmup: usize,
+    /// Size of one `GraphSnapshot` sample (fixed, whatever the graph), bytes.
+    pub snapshot_bytes: usize,
+    /// One row per graph size.
+    pub rows: Vec<IpcRow>,
+}
+
+/// A graph of `nodes` nodes (three objects to one part, each part on the object before it) and
+/// two spatial edges per node (capped by the snapshot's capacity), labelled like real ones.
+pub fn synthetic_graph(nodes: usize, version: u64) -> SceneGraph {
+    const OBJECTS: [&str; 6] = ["cabinet", "refrigerator", "microwave", "sink", "stove", "drawer"];
+    const PARTS: [&str; 3] = ["handle", "knob", "button"];
+    let nodes = nodes.min(MAX_NODES);
+    let next_to = op3dsg_ipc_types::relation_id("next to").map_or(0, |(_, id)| id);
+    let mut graph = SceneGraph { version, stamp_ns: version, ..SceneGraph::default() };
+    let mut last_object = 0u32;
+    for i in 0..nodes as u32 {
+        let part = i % 4 == 3;
+        let centre = [(i % 100) as f32 * 0.5, (i / 100) as f32 * 0.5, 0.8];
+        let half = if part { 0.02 } else { 0.3 };
+        let label = if part {
+            format!("{} {}", OBJECTS[last_object as usize % OBJECTS.len()], PARTS[i as usize % PARTS.len()])
+        } else {
+            OBJECTS[i as usize % OBJECTS.len()].to_owned()
+        };
+        graph.nodes.push(GraphNode {
+            id: i,
+            kind: if part { NodeKind::Part } else { NodeKind::Object },
+            parent_id: part.then_some(last_object),
+            label,
+            confidence: 0.8,
+            centre_m: centre,
+            box_min_m: centre.map(|v| v - half),
+            box_max_m: centre.map(|v| v + half),
+            observation_count: 5,
+            affordance_bits: if part { 0b1 } else { 0 },
+            last_seen_stamp_ns: u64::from(i),
+        });
+        if !part {
+            last_object = i;
+        }
+    }
+    let n = nodes as u32;
+    for i in 0..n {
+        for step in [1, 7] {
+            if graph.edges.len() < MAX_EDGES && n > 1 {
+                graph.edges.push(GraphEdge {
+                    source_id: i,
+                    target_id: (i + step) % n,
+                    kind: EdgeKind::Spatial,
+                    relation_id: next_to,
+                    confidence: 0.9,
+                    origin: EdgeOrigin::Geometry,
+                });
+            }
+        }
+    }
+    graph
+}
+
+/// Bytes `graph` fills in a snapshot: the header and its nodes and edges.
+pub fn filled_bytes(graph: &SceneGraph) -> usize {
+    size_of::<GraphHeader>()
+        + graph.nodes.len().min(MAX_NODES) * size_of::<op3dsg_ipc_types::Node>()
+        + graph.edges.len().min(MAX_EDGES) * size_of::<Edge>()
+}
+
+struct BenchServices {
+    raw_name: String,
+    raw_updated_name: String,
+    ack_name: String,
+}
+
+impl BenchServices {
+    fn new(prefix: &str) -> Self {
+        Self {
+            raw_name: format!("{prefix}/bench/raw"),
+            raw_updated_name: format!("{prefix}/bench/raw_updated"),
+            ack_name: format!("{prefix}/bench/ack"),
+        }
+    }
+}
+
+/// What the child received: per kind, `(message id, receive wall clock ns)`.
+#[derive(Debug, Default, Serialize, Deserialize)]
+pub struct Receipts {
+    /// Graph messages (id = graph version).
+    pub graph: Vec<(u64, u64)>,
+    /// Per graph message, nanoseconds spent in the successful `GraphClient::latest_graph` call.
+    pub graph_read_ns: Vec<u64>,
+    /// Raw messages (id = the first 8 bytes, little endian).
+    pub raw: Vec<(u64, u64)>,
+}
+
+struct BenchPublisher {
+    server: GraphServer,
+    raw: Publisher<IpcService, [u8], ()>,
+    raw_updated: Notifier<IpcService>,
+    ack: Listener<IpcService>,
+    _node: Node<IpcService>,
+}
+
+impl BenchPublisher {
+    fn open(prefix: &str, max_bytes: usize) -> anyhow::Result<Self> {
+        let config = IpcConfig { prefix: prefix.to_owned(), max_subscribers: 2, ..IpcConfig::default() };
+        let server = GraphServer::open(&config, "op3dsg-bench-publisher").context("graph services")?;
+        let names = BenchServices::new(prefix);
+        let node = create_node("op3dsg-bench-raw")?;
+        let raw = node
+            .service_builder(&service_name(prefix, &names.raw_name)?)
+            .publish_subscribe::<[u8]>()
+            .max_publishers(1)
+            .max_subscribers(2)
+            .subscriber_max_buffer_size(2)
+            .history_size(0)
+            .enable_safe_overflow(true)
+            .create()
+            .map_err(|e| anyhow!("create service {}: {e:?}", names.raw_name))?
+            .publisher_builder()
+            .initial_max_slice_len(max_bytes)
+            .create()
+            .map_err(|e| anyhow!("create publisher on {}: {e:?}", names.raw_name))?;
+        let raw_updated = node
+            .service_builder(&service_name(prefix, &names.raw_updated_name)?)
+            .event()
+            .create()
+            .map_err(|e| anyhow!("create service {}: {e:?}", names.raw_updated_name))?
+            .notifier_builder()
+            .create()
+            .map_err(|e| anyhow!("create notifier on {}: {e:?}", names.raw_updated_name))?;
+        let ack = node
+            .service_builder(&service_name(prefix, &names.ack_name)?)
+            .event()
+            .create()
+            .map_err(|e| anyhow!("create service {}: {e:?}", names.ack_name))?
+            .listener_builder()
+            .create()
+            .map_err(|e| anyhow!("create listener on {}: {e:?}", names.ack_name))?;
+        Ok(Self { server, raw, raw_updated, ack, _node: node })
+    }
+
+    /// Waits for one acknowledgement from `child`.
+    fn wait_ack(&self, child: &mut Child, what: &str) -> anyhow::Result<()> {
+        let deadline = Instant::now() + PEER_TIMEOUT;
+        loop {
+            let count = self
+                .ack
+                .timed_wait(|_| {}, Duration::from_millis(100))
+                .map_err(|e| anyhow!("waiting for the subscriber's acknowledgement of {what}: {e:?}"))?;
+            if count > 0 {
+                return Ok(());
+            }
+            if let Some(status) = child.try_wait().context("checking the subscriber process")? {
+                bail!("the subscriber process exited ({status}) before acknowledging {what}");
+            }
+            if Instant::now() >= deadline {
+                bail!("no acknowledgement of {what} from the subscriber within {} s", PEER_TIMEOUT.as_secs());
+            }
+        }
+    }
+
+    fn send_raw(&mut self, payload: &[u8]) -> anyhow::Result<()> {
+        let sample = self.raw.loan_slice_uninit(payload.len()).map_err(|e| anyhow!("loan raw sample: {e:?}"))?;
+        sample.write_from_slice(payload).send().map_err(|e| anyhow!("send raw sample: {e:?}"))?;
+        self.raw_updated.notify().map_err(|e| anyhow!("notify raw: {e:?}"))?;
+        Ok(())
+    }
+}
+
+/// Kills the child on every early return.
+struct ChildGuard(Option<Child>);
+
+impl Drop for ChildGuard {
+    fn drop(&mut self) {
+        if let Some(child) = self.0.as_mut() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+}
+
+/// Measures graph and raw publish → receive latency for every size of `options.ipc_nodes`.
+pub fn ipc_latency(options: &PerfOptions) -> anyhow::Result<IpcLatency> {
+    let prefix = format!("op3dsg-bench-{}-ipc", std::process::id());
+    let graphs: Vec<SceneGraph> = options.ipc_nodes.iter().map(|&n| synthetic_graph(n, 0)).collect();
+    let max_bytes = graphs.iter().map(filled_bytes).max().unwrap_or(8).max(8);
+    let mut publisher = BenchPublisher::open(&prefix, max_bytes)?;
+    let per_size = options.ipc_warmup + options.ipc_messages;
+    let pairs = per_size * graphs.len();
+
+    let child = Command::new(&options.peer_exe)
+        .args(["--prefix", &prefix, "bench", "ipc-peer", "--pairs", &pairs.to_string()])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .with_context(|| format!("starting the subscriber process {}", options.peer_exe.display()))?;
+    let mut guard = ChildGuard(Some(child));
+    let child = guard.0.as_mut().ok_or_else(|| anyhow!("subscriber process missing"))?;
+    publisher.wait_ack(child, "start-up")?;
+    publisher.server.update_connections()?;
+    publisher.raw.update_connections().map_err(|e| anyhow!("update connections of the raw publisher: {e:?}"))?;
+
+    let mut graph_calls_ms: Vec<Vec<f64>> = vec![Vec::new(); graphs.len()];
+    let mut raw_calls_ms: Vec<Vec<f64>> = vec![Vec::new(); graphs.len()];
+    // id -> (size index, sent wall clock, timed)
+    let mut sent_graph: HashMap<u64, (usize, u64, bool)> = HashMap::new();
+    let mut sent_raw: HashMap<u64, (usize, u64, bool)> = HashMap::new();
+    let mut payload = vec![0u8; max_bytes];
+    for (i, b) in payload.iter_mut().enumerate() {
+        *b = (i % 251) as u8;
+    }
+    let mut id = 0u64;
+    for (size_index, graph) in graphs.iter().enumerate() {
+        let mut graph = graph.clone();
+        let bytes = filled_bytes(&graph);
+        for k in 0..per_size {
+            let timed = k >= options.ipc_warmup;
+            id += 1;
+            graph.version = id;
+            let t0 = wall_clock_ns();
+            let call = Instant::now();
+            publisher.server.publish_graph(&graph).context("publishing a graph")?;
+            let call_ms = call.elapsed().as_secs_f64() * 1e3;
+            sent_graph.insert(id, (size_index, t0, timed));
+            if timed {
+                graph_calls_ms[size_index].push(call_ms);
+            }
+            publisher.wait_ack(child, "a graph")?;
+
+            id += 1;
+            payload[..8].copy_from_slice(&id.to_le_bytes());
+            let t0 = wall_clock_ns();
+            let call = Instant::now();
+            publisher.send_raw(&payload[..bytes])?;
+            let call_ms = call.elapsed().as_secs_f64() * 1e3;
+            sent_raw.insert(id, (size_index, t0, timed));
+            if timed {
+                raw_calls_ms[size_index].push(call_ms);
+            }
+            publisher.wait_ack(child, "a raw sample")?;
+        }
+    }
+
+    let mut child = guard.0.take().ok_or_else(|| anyhow!("subscriber process missing"))?;
+    let mut out = String::new();
+    if let Some(mut stdout) = child.stdout.take() {
+        stdout.read_to_string(&mut out).context("reading the subscriber's receipts")?;
+    }
+    let status = child.wait().context("waiting for the subscriber process")?;
+    if !status.success() {
+        bail!("the subscriber process failed ({status})");
+    }
+    let receipts: Receipts = serde_json::from_str(out.trim()).context("parsing the subscriber's receipts")?;
+
+    let latencies = |sent: &HashMap<u64, (usize, u64, bool)>, received: &[(u64, u64)], what: &str| {
+        let mut per_size: Vec<Vec<f64>> = vec![Vec::new(); graphs.len()];
+        for &(id, t1) in received {
+            let Some(&(size, t0, timed)) = sent.get(&id) else {
+                bail!("the subscriber received {what} {id}, which was never sent");
+            };
+            if timed {
+                per_size[size].push(t1.saturating_sub(t0) as f64 / 1e6);
+            }
+        }
+        Ok(per_size)
+    };
+    let mut graph_ms = latencies(&sent_graph, &receipts.graph, "graph")?;
+    let mut read_ms: Vec<Vec<f64>> = vec![Vec::new(); graphs.len()];
+    for (&(id, _), &read_ns) in receipts.graph.iter().zip(&receipts.graph_read_ns) {
+        if let Some(&(size, _, true)) = sent_graph.get(&id) {
+            read_ms[size].push(read_ns as f64 / 1e6);
+        }
+    }
+    let mut raw_ms = latencies(&sent_raw, &receipts.raw, "raw sample")?;
+    let mut rows = Vec::new();
+    for (i, graph) in graphs.iter().enumerate() {
+        if graph_ms[i].len() != options.ipc_messages || raw_ms[i].len() != options.ipc_messages {
+            bail!(
+                "graphs of {} nodes: {} graphs and {} raw samples received of {} sent each",
+                graph.nodes.len(),
+                graph_ms[i].len(),
+                raw_ms[i].len(),
+                options.ipc_messages
+            );
+        }
+        let g = Percentiles::from_samples_ms(&mut graph_ms[i]);
+        let r = Percentiles::from_samples_ms(&mut raw_ms[i]);
+        rows.push(IpcRow {
+            nodes: graph.nodes.len(),
+            edges: graph.edges.len(),
+            bytes: filled_bytes(graph),
+            ratio_p50: g.p50_ms / r.p50_ms.max(1e-9),
+            ratio_p99: g.p99_ms / r.p99_ms.max(1e-9),
+            graph: g,
+            raw: r,
+            graph_publish_call: Percentiles::from_samples_ms(&mut graph_calls_ms[i]),
+            raw_publish_call: Percentiles::from_samples_ms(&mut raw_calls_ms[i]),
+            graph_read_call: Percentiles::from_samples_ms(&mut read_ms[i]),
+        });
+    }
+    Ok(IpcLatency {
+        wait: "iceoryx2 event listener (timed_wait), both kinds".to_owned(),
+        messages: options.ipc_messages,
+        warmup: options.ipc_warmup,
+        snapshot_bytes: size_of::<GraphSnapshot>(),
+        rows,
+    })
+}
+
+/// The subscriber process: opens the services under `prefix`, acknowledges start-up, then takes
+/// `pairs` graph + raw message pairs in turn, acknowledging each, and returns the receipts (the
+/// CLI prints them as JSON on standard output).
+pub fn ipc_peer(prefix: &str, pairs: usize) -> anyhow::Result<Receipts> {
+    let mut client = GraphClient::open_wait(prefix, "op3dsg-bench-subscriber", PEER_TIMEOUT)
+        .context("opening the graph services")?;
+    let names = BenchServices::new(prefix);
+    let node = create_node("op3dsg-bench-subscriber-raw")?;
+    let raw: Subscriber<IpcService, [u8], ()> = node
+        .service_builder(&service_name(prefix, &names.raw_name)?)
+        .publish_subscribe::<[u8]>()
+        .open()
+        .map_err(|e| anyhow!("open service {}: {e:?}", names.raw_name))?
+        .subscriber_builder()
+        .create()
+        .map_err(|e| anyhow!("create subscriber on {}: {e:?}", names.raw_name))?;
+    let raw_updated = node
+        .service_builder(&service_name(prefix, &names.raw_updated_name)?)
+        .event()
+        .open()
+        .map_err(|e| anyhow!("open service {}: {e:?}", names.raw_updated_name))?
+        .listener_builder()
+        .create()
+        .map_err(|e| anyhow!("create listener on {}: {e:?}", names.raw_updated_name))?;
+    let ack = node
+        .service_builder(&service_name(prefix, &names.ack_name)?)
+        .event()
+        .open()
+        .map_err(|e| anyhow!("open service {}: {e:?}", names.ack_name))?
+        .notifier_builder()
+        .create()
+        .map_err(|e| anyhow!("create notifier on {}: {e:?}", names.ack_name))?;
+    let acknowledge = || ack.notify().map(|_| ()).map_err(|e| anyhow!("notify {}: {e:?}", names.ack_name));
+    acknowledge()?;
+
+    let mut receipts = Receipts {
+        graph: Vec::with_capacity(pairs),
+        graph_read_ns: Vec::with_capacity(pairs),
+        raw: Vec::with_capacity(pairs),
+    };
+    let mut copy: Vec<u8> = Vec::new();
+    for _ in 0..pairs {
+        let deadline = Instant::now() + PEER_TIMEOUT;
+        let graph = loop {
+            if client.wait_for_update(Duration::from_millis(100)).context("waiting for a graph")? {
+                let read = Instant::now();
+                if let Some(graph) = client.latest_graph().context("reading a graph")? {
+                    receipts.graph_read_ns.push(read.elapsed().as_nanos() as u64);
+                    break graph;
+                }
+            }
+            if Instant::now() >= deadline {
+                bail!("no graph within {} s", PEER_TIMEOUT.as_secs());
+            }
+        };
+        receipts.graph.push((graph.version, wall_clock_ns()));
+        acknowledge()?;
+
+        let id = loop {
+            let woken = raw_updated
+                .timed_wait(|_| {}, Duration::from_millis(100))
+                .map_err(|e| anyhow!("waiting on {}: {e:?}", names.raw_updated_name))?;
+            if woken > 0
+                && let Some(sample) = raw.receive().map_err(|e| anyhow!("receive on {}: {e:?}", names.raw_name))?
+            {
+                copy.clear();
+                copy.extend_from_slice(sample.payload());
+                let mut id = [0u8; 8];
+                id.copy_from_slice(copy.get(..8).ok_or_else(|| anyhow!("raw sample shorter than 8 bytes"))?);
+                break u64::from_le_bytes(id);
+            }
+            if Instant::now() >= deadline {
+                bail!("no raw sample within {} s", PEER_TIMEOUT.as_secs());
+            }
+        };
+        receipts.raw.push((id, wall_clock_ns()));
+        acknowledge()?;
+    }
+    Ok(receipts)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn synthetic_graph_has_the_asked_size_and_valid_edges() {
+        let g = synthetic_graph(2_000, 3);
+        assert_eq!(g.nodes.len(), 2_000);
+        assert_eq!(g.edges.len(), 4_000);
+        assert_eq!(g.part_count(), 500);
+        assert!(g.edges.iter().all(|e| (e.source_id as usize) < 2_000 && (e.target_id as usize) < 2_000));
+        assert!(g.nodes.iter().filter(|n| n.kind == NodeKind::Part).all(|n| n.parent_id.is_some()));
+        assert_eq!(filled_bytes(&g), size_of::<GraphHeader>() + 2_000 * 120 + 4_000 * 64);
+        assert_eq!(synthetic_graph(MAX_NODES + 10, 1).nodes.len(), MAX_NODES);
+    }
+}

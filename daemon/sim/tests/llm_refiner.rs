@@ -1,0 +1,553 @@
+//! The LLM refiner against a chat-completions server on 127.0.0.1 in this process (axum):
+//! good answers are applied; malformed JSON, unknown node ids, wrong kinds, non-canonical
+//! labels, a 500, a 429 with Retry-After and a 30-second stall are each handled and counted;
+//! during the stall the pipeline keeps producing frames and graph versions; the API key never
+//! appears in logs, prompts or published data.
+
+// The server and helpers below are test code outside `#[test]` functions: a failed unwrap is a
+// failed test.
+#![allow(clippy::unwrap_used)]
+
+use std::io::Write as _;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::{Duration, Instant};
+
+use axum::Router;
+use axum::extract::State;
+use axum::http::{HeaderMap, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::routing::post;
+use op3dsg_ipc_types::{EdgeKind, EdgeOrigin, NodeKind, affordance_names, relation_phrase};
+use op3dsg_runtime::graph::{GraphNode, SceneGraph};
+use op3dsg_runtime::pipeline::Pipeline;
+use op3dsg_runtime::reasoner::GraphEnricher;
+use op3dsg_runtime::reasoner::llm::gate::Rejection;
+use op3dsg_runtime::reasoner::llm::{RefinerState, RefinerStats};
+use serde_json::{Value, json};
+
+/// Watchdog of each wait (not a speed requirement).
+const WATCHDOG: Duration = Duration::from_secs(90);
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Mode {
+    Good,
+    Malformed,
+    UnknownIds,
+    WrongKinds,
+    NonCanonical,
+    /// This status for the next `n` requests, then good answers.
+    Status {
+        status: u16,
+        retry_after_s: Option<u32>,
+        n: u32,
+    },
+    /// Answers after 30 s.
+    Stall,
+}
+
+#[derive(Debug, Clone)]
+struct Recorded {
+    at: Instant,
+    agent: String,
+    body: String,
+    authorization: Option<String>,
+}
+
+#[derive(Debug)]
+struct ServerState {
+    mode: Mode,
+    requests: Vec<Recorded>,
+}
+
+type Shared = Arc<Mutex<ServerState>>;
+
+/// A chat-completions server on 127.0.0.1:0 with its own runtime.
+struct TestServer {
+    state: Shared,
+    base_url: String,
+    _runtime: tokio::runtime::Runtime,
+}
+
+impl TestServer {
+    fn start(mode: Mode) -> Self {
+        let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build().unwrap();
+        let state: Shared = Arc::new(Mutex::new(ServerState { mode, requests: Vec::new() }));
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        listener.set_nonblocking(true).unwrap();
+        let base_url = format!("http://{}/v1", listener.local_addr().unwrap());
+        let app = Router::new().route("/v1/chat/completions", post(handle)).with_state(state.clone());
+        runtime.spawn(async move {
+            let listener = tokio::net::TcpListener::from_std(listener).unwrap();
+            axum::serve(listener, app).await.unwrap();
+        });
+        Self { state, base_url, _runtime: runtime }
+    }
+    fn set_mode(&self, mode: Mode) {
+        self.state.lock().unwrap().mode = mode;
+    }
+    fn requests(&self) -> Vec<Recorded> {
+        self.state.lock().unwrap().requests.clone()
+    }
+}
+
+async fn handle(State(state): State<Shared>, headers: HeaderMap, body: String) -> Response {
+    let request: Value = serde_json::from_str(&body).unwrap_or(Value::Null);
+    let agent = request["response_format"]["json_schema"]["name"].as_str().unwrap_or("?").to_owned();
+    let mode = {
+        let mut s = state.lock().unwrap();
+        s.requests.push(Recorded {
+            at: Instant::now(),
+            agent: agent.clone(),
+            body: body.clone(),
+            authorization: headers.get("authorization").and_then(|v| v.to_str().ok()).map(str::to_owned),
+        });
+        let mode = s.mode;
+        if let Mode::Status { status, retry_after_s, n } = mode {
+            s.mode = if n > 1 { Mode::Status { status, retry_after_s, n: n - 1 } } else { Mode::Good };
+        }
+        mode
+    };
+    match mode {
+        Mode::Status { status, retry_after_s, .. } => {
+            let mut response = (StatusCode::from_u16(status).unwrap(), "try later").into_response();
+            if let Some(s) = retry_after_s {
+                response.headers_mut().insert("retry-after", s.to_string().parse().unwrap());
+            }
+            return response;
+        }
+        Mode::Stall => tokio::time::sleep(Duration::from_secs(30)).await,
+        _ => {}
+    }
+    let user: Value = serde_json::from_str(request["messages"][1]["content"].as_str().unwrap_or("null")).unwrap();
+    let content = answer(&agent, &user, mode);
+    let completion = json!({
+        "id": "chatcmpl-test",
+        "object": "chat.completion",
+        "model": request["model"],
+        "choices": [{"index": 0, "message": {"role": "assistant", "content": content}, "finish_reason": "stop"}],
+        "usage": {"prompt_tokens": 1, "completion_tokens": 1, "total_tokens": 2}
+    });
+    (StatusCode::OK, [("content-type", "application/json")], completion.to_string()).into_response()
+}
+
+/// The model's answer: built from the prompt's own data, then spoiled as `mode` asks.
+fn answer(agent: &str, user: &Value, mode: Mode) -> String {
+    if mode == Mode::Malformed {
+        return "Here are the relations: {relations: [handle -> cabinet]}".to_owned();
+    }
+    let id_shift = if mode == Mode::UnknownIds { 100_000 } else { 0 };
+    let relation = |canonical: &'static str| if mode == Mode::NonCanonical { "opens it by yanking" } else { canonical };
+    let id = |v: &Value| v["id"].as_u64().unwrap() + id_shift;
+    let answer = match agent {
+        "local_relations" => {
+            let mut items = Vec::new();
+            for pair in user["part_of_pairs"].as_array().unwrap() {
+                let (part, object) = (&pair["part"], &pair["object"]);
+                let (part_id, object_id) =
+                    if mode == Mode::WrongKinds { (id(object), id(part)) } else { (id(part), id(object)) };
+                let label = part["label"].as_str().unwrap();
+                if label.ends_with("handle") {
+                    items.push(json!({"part_id": part_id, "object_id": object_id, "relation": relation("pull to open or close"), "confidence": 0.9}));
+                    items.push(json!({"part_id": part_id, "object_id": object_id, "relation": relation("push or press to open"), "confidence": 0.6}));
+                } else if label.ends_with("knob") {
+                    items.push(json!({"part_id": part_id, "object_id": object_id, "relation": relation("rotate to adjust the setting or temperature"), "confidence": 0.8}));
+                }
+            }
+            json!({"relations": items})
+        }
+        "remote_relations" => {
+            let mut items = Vec::new();
+            for source in user["sources"].as_array().unwrap() {
+                let source_id = id(&source["source"]);
+                let target_id = if mode == Mode::WrongKinds { source_id } else { id(&source["candidate_targets"][0]) };
+                items.push(json!({"source_id": source_id, "target_id": target_id, "relation": relation("remote to control"), "confidence": 0.9}));
+            }
+            json!({"relations": items})
+        }
+        _ => {
+            let mut items = Vec::new();
+            for node in user["nodes"].as_array().unwrap() {
+                let label = node["label"].as_str().unwrap();
+                let names: Vec<&str> = if mode == Mode::NonCanonical {
+                    vec!["yank"]
+                } else if label.ends_with("handle") {
+                    vec!["hook_pull", "pinch pull"]
+                } else if label.ends_with("knob") {
+                    vec!["rotate"]
+                } else {
+                    continue;
+                };
+                items.push(json!({"node_id": id(node), "affordances": names, "confidence": 0.8}));
+            }
+            json!({"affordances": items})
+        }
+    };
+    answer.to_string()
+}
+
+fn node(id: u32, label: &str, kind: NodeKind, parent: Option<u32>, min: [f32; 3], max: [f32; 3]) -> GraphNode {
+    GraphNode {
+        id,
+        kind,
+        parent_id: parent,
+        label: label.to_owned(),
+        confidence: 0.9,
+        centre_m: std::array::from_fn(|i| (min[i] + max[i]) * 0.5),
+        box_min_m: min,
+        box_max_m: max,
+        observation_count: 5,
+        affordance_bits: 0,
+        last_seen_stamp_ns: 0,
+    }
+}
+
+/// A kitchen corner as fusion would hand it over (part-of edges included).
+fn corner() -> SceneGraph {
+    let mut graph = SceneGraph {
+        version: 12,
+        stamp_ns: 0,
+        nodes: vec![
+            node(1, "cabinet", NodeKind::Object, None, [0.0, 0.0, 0.0], [0.6, 0.6, 0.9]),
+            node(2, "stove", NodeKind::Object, None, [1.0, 0.0, 0.0], [1.6, 0.6, 0.9]),
+            node(3, "tv", NodeKind::Object, None, [3.0, 2.0, 1.0], [4.0, 2.1, 1.6]),
+            node(4, "remote control", NodeKind::Object, None, [3.2, 0.5, 0.5], [3.35, 0.55, 0.53]),
+            node(5, "cabinet handle", NodeKind::Part, Some(1), [0.3, -0.03, 0.5], [0.4, 0.0, 0.52]),
+            node(6, "stove knob", NodeKind::Part, Some(2), [1.2, -0.03, 0.8], [1.24, 0.0, 0.84]),
+        ],
+        edges: Vec::new(),
+    };
+    for (part, object) in [(5, 1), (6, 2)] {
+        graph.edges.push(op3dsg_runtime::graph::GraphEdge {
+            source_id: part,
+            target_id: object,
+            kind: EdgeKind::Spatial,
+            relation_id: 0,
+            confidence: 0.9,
+            origin: EdgeOrigin::Geometry,
+        });
+    }
+    graph
+}
+
+fn overrides(server: &TestServer, extra: &[&str]) -> Vec<String> {
+    let mut o = vec![
+        "reasoner.kind=\"llm\"".to_owned(),
+        format!("reasoner.llm.base_url={:?}", server.base_url),
+        "reasoner.llm.model=\"test-model\"".to_owned(),
+        "reasoner.llm.api_key_env=\"\"".to_owned(),
+        "reasoner.llm.request_timeout_s=2.0".to_owned(),
+        "reasoner.llm.max_retries=1".to_owned(),
+        "reasoner.llm.backoff_initial_s=0.01".to_owned(),
+        "reasoner.llm.backoff_max_s=3.0".to_owned(),
+        "reasoner.llm.breaker_failures=100".to_owned(),
+    ];
+    o.extend(extra.iter().map(|s| (*s).to_owned()));
+    o
+}
+
+fn enricher(overrides: &[String]) -> (GraphEnricher, Arc<RefinerStats>) {
+    let profile = op3dsg_sim::load_profile(None, overrides).expect("profile").profile;
+    let mut enricher = GraphEnricher::from_profile(&profile).expect("enricher").expect("kind = llm");
+    enricher.set_synchronous(true);
+    let stats = enricher.refiner_stats().expect("refiner");
+    (enricher, stats)
+}
+
+/// Enriches the corner and refines it once; the graph.
+fn refine(enricher: &mut GraphEnricher) -> SceneGraph {
+    let mut graph = corner();
+    let prior = enricher.enrich(&mut graph);
+    assert!(enricher.refine_now(&mut graph, prior, Duration::from_secs(30)), "a result arrives");
+    graph
+}
+
+fn functional(graph: &SceneGraph) -> Vec<(u32, u32, &'static str, EdgeOrigin)> {
+    let mut edges: Vec<_> = graph
+        .edges
+        .iter()
+        .filter(|e| e.kind == EdgeKind::Functional)
+        .map(|e| (e.source_id, e.target_id, relation_phrase(e.relation_id).unwrap(), e.origin))
+        .collect();
+    edges.sort_by_key(|e| (e.0, e.1, e.2));
+    edges
+}
+
+#[test]
+fn good_answers_are_applied_with_their_origin() {
+    let server = TestServer::start(Mode::Good);
+    let (mut enricher, stats) = enricher(&overrides(&server, &[]));
+    let graph = refine(&mut enricher);
+    assert_eq!(
+        functional(&graph),
+        [
+            (4, 3, "remote to control", EdgeOrigin::KnowledgeAndLlm),
+            (5, 1, "pull to open or close", EdgeOrigin::KnowledgeAndLlm),
+            (5, 1, "push or press to open", EdgeOrigin::Llm),
+            (6, 2, "rotate to adjust the setting or temperature", EdgeOrigin::KnowledgeAndLlm),
+        ]
+    );
+    let handle = graph.nodes.iter().find(|n| n.id == 5).unwrap();
+    assert_eq!(affordance_names(handle.affordance_bits).collect::<Vec<_>>(), ["hook_pull", "pinch_pull"]);
+    // One prompt per agent for this refresh, never one per pair.
+    let mut agents: Vec<String> = server.requests().into_iter().map(|r| r.agent).collect();
+    agents.sort();
+    assert_eq!(agents, ["affordances", "local_relations", "remote_relations"]);
+    assert_eq!(stats.calls.load(Ordering::Relaxed), 3);
+    assert_eq!(stats.accepted.load(Ordering::Relaxed), 6);
+    assert_eq!(stats.health().rejections, [0; 8]);
+    assert_eq!(stats.last_graph_version.load(Ordering::Relaxed), 12);
+}
+
+#[test]
+fn bad_answers_are_rejected_and_counted_by_reason() {
+    let server = TestServer::start(Mode::Malformed);
+    let (mut enricher, stats) = enricher(&overrides(&server, &[]));
+    let only_knowledge = |graph: &SceneGraph| {
+        assert!(graph.edges.iter().all(|e| e.origin == EdgeOrigin::Knowledge || e.origin == EdgeOrigin::Geometry));
+        let handle = graph.nodes.iter().find(|n| n.id == 5).unwrap();
+        assert_eq!(affordance_names(handle.affordance_bits).collect::<Vec<_>>(), ["hook_pull"]);
+    };
+    only_knowledge(&refine(&mut enricher));
+    assert_eq!(stats.rejections(Rejection::Malformed), 3, "one per agent's answer");
+
+    server.set_mode(Mode::UnknownIds);
+    only_knowledge(&refine(&mut enricher));
+    assert_eq!(stats.rejections(Rejection::UnknownNode), 3 + 1 + 2);
+
+    server.set_mode(Mode::WrongKinds);
+    let graph = refine(&mut enricher);
+    assert!(!graph.edges.iter().any(|e| e.kind == EdgeKind::Functional && e.origin == EdgeOrigin::Llm));
+    assert_eq!(stats.rejections(Rejection::WrongKind), 3 + 1);
+
+    server.set_mode(Mode::NonCanonical);
+    only_knowledge(&refine(&mut enricher));
+    // Three local items, one remote, one affordance label for each of the six nodes.
+    assert_eq!(stats.rejections(Rejection::NonCanonical), 3 + 1 + 6);
+    assert_eq!(stats.failures.load(Ordering::Relaxed), 0, "answered calls are no failures");
+}
+
+#[test]
+fn a_500_is_retried_then_counted_and_the_breaker_opens() {
+    let server = TestServer::start(Mode::Status { status: 500, retry_after_s: None, n: 1000 });
+    let (mut enricher, stats) = enricher(&overrides(&server, &["reasoner.llm.breaker_failures=3"]));
+    let mut graph = corner();
+    let prior = enricher.enrich(&mut graph);
+    assert!(enricher.refine_now(&mut graph, prior.clone(), Duration::from_secs(30)), "an empty result arrives");
+    assert!(graph.edges.iter().all(|e| e.origin != EdgeOrigin::Llm));
+    // Three agents, each tried twice (max_retries = 1).
+    assert_eq!(stats.calls.load(Ordering::Relaxed), 6);
+    assert_eq!(stats.failures.load(Ordering::Relaxed), 6);
+    assert!(stats.breaker_open());
+    assert_eq!(stats.state(), RefinerState::BreakerOpen as u8);
+    // While the breaker is open, refreshes send nothing.
+    assert!(enricher.refine_now(&mut graph, prior, Duration::from_secs(30)));
+    assert_eq!(server.requests().len(), 6);
+}
+
+#[test]
+fn a_429_waits_for_retry_after_then_succeeds() {
+    let server = TestServer::start(Mode::Status { status: 429, retry_after_s: Some(1), n: 1 });
+    let (mut enricher, stats) = enricher(&overrides(&server, &["reasoner.llm.max_concurrent_calls=1"]));
+    let graph = refine(&mut enricher);
+    assert_eq!(stats.rate_limited.load(Ordering::Relaxed), 1);
+    assert_eq!(stats.failures.load(Ordering::Relaxed), 1);
+    assert_eq!(stats.calls.load(Ordering::Relaxed), 4, "three agents and one retry");
+    assert!(functional(&graph).iter().any(|e| e.3 == EdgeOrigin::Llm), "the retried answers were applied");
+    // The retry of the rate-limited agent came no sooner than Retry-After (backoff is 10 ms).
+    let requests = server.requests();
+    let first = &requests[0];
+    let retry = requests.iter().skip(1).find(|r| r.agent == first.agent).expect("a retry");
+    assert!(retry.at.duration_since(first.at) >= Duration::from_millis(950), "{:?}", retry.at - first.at);
+}
+
+#[test]
+fn a_stalled_server_times_out_while_the_pipeline_keeps_going() {
+    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
+    let server = TestServer::start(Mode::Stall);
+    let prefix = format!("op3dsg-test-llm-stall-{}", std::process::id());
+    let profile = op3dsg_sim::load_profile(
+        None,
+        &overrides(
+            &server,
+            &[
+                &format!("ipc.prefix={prefix:?}"),
+                "reasoner.llm.request_timeout_s=10.0",
+                "reasoner.llm.max_retries=0",
+                "reasoner.llm.refresh_min_changed_nodes=1",
+                "reasoner.llm.refresh_period_s=0.5",
+            ],
+        ),
+    )
+    .expect("profile")
+    .profile;
+    let stop = Arc::new(AtomicBool::new(false));
+    let pipeline = Pipeline::start(&profile, &op3dsg_sim::backends(), stop.clone()).expect("pipeline starts");
+    let stats = pipeline.stats().clone();
+    let wait = |what: &str, done: &dyn Fn() -> bool| {
+        let deadline = Instant::now() + WATCHDOG;
+        while !done() {
+            assert!(Instant::now() < deadline, "timed out waiting for {what}");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    };
+    wait("a stalled request", &|| !server.requests().is_empty());
+    let frames = stats.frames_captured.load(Ordering::Relaxed);
+    let version = stats.graph_version.load(Ordering::Relaxed);
+    // While the server sits on the request, frames and graph versions keep coming.
+    let timed_out = || stats.refiner.timeouts.load(Ordering::Relaxed) > 0;
+    wait("frames and graph versions during the stall", &|| {
+        timed_out()
+            || stats.frames_captured.load(Ordering::Relaxed) > frames + 5
+                && stats.graph_version.load(Ordering::Relaxed) > version + 1
+    });
+    assert_eq!(stats.refiner.timeouts.load(Ordering::Relaxed), 0, "the counters rose before the timeout");
+    wait("the timeout", &|| stats.refiner.timeouts.load(Ordering::Relaxed) >= 1);
+    let health = stats.health();
+    assert!(health.refiner.timeouts >= 1 && health.refiner.failures >= 1 && health.refiner.calls >= 1);
+    stop.store(true, Ordering::SeqCst);
+    let summary = pipeline.wait().expect("orderly shutdown with a request in flight");
+    assert!(summary.graph_version > version);
+}
+
+/// Everything the crate logs, for the key test (this test binary's global subscriber).
+fn captured_logs() -> &'static Mutex<Vec<u8>> {
+    static LOGS: OnceLock<&'static Mutex<Vec<u8>>> = OnceLock::new();
+    LOGS.get_or_init(|| {
+        let logs: &'static Mutex<Vec<u8>> = Box::leak(Box::new(Mutex::new(Vec::new())));
+        struct Sink(&'static Mutex<Vec<u8>>);
+        impl std::io::Write for Sink {
+            fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+                self.0.lock().unwrap().extend_from_slice(buf);
+                Ok(buf.len())
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                Ok(())
+            }
+        }
+        let subscriber = tracing_subscriber::fmt()
+            .with_max_level(tracing::Level::TRACE)
+            .with_ansi(false)
+            .with_writer(move || Sink(logs))
+            .finish();
+        tracing::subscriber::set_global_default(subscriber).expect("one subscriber");
+        logs
+    })
+}
+
+#[test]
+fn the_api_key_never_appears_in_logs_prompts_or_published_data() {
+    let logs = captured_logs();
+    const KEY: &str = "sk-op3dsg-test-9f2c4e7a1b";
+    let dir = tempfile::tempdir().unwrap();
+    let key_file = dir.path().join("llm.key");
+    let mut f = std::fs::File::create(&key_file).unwrap();
+    writeln!(f, "{KEY}").unwrap();
+    let server = TestServer::start(Mode::Status { status: 500, retry_after_s: None, n: 1 });
+    let mut o = overrides(&server, &[]);
+    o.push(format!("reasoner.llm.api_key_file={:?}", key_file.display().to_string()));
+    let profile = op3dsg_sim::load_profile(None, &o).expect("profile").profile;
+    let (mut enricher, stats) = enricher(&o);
+    let graph = refine(&mut enricher);
+    assert!(functional(&graph).iter().any(|e| e.3 == EdgeOrigin::Llm));
+    let requests = server.requests();
+    assert!(requests.len() >= 3);
+    for r in &requests {
+        assert_eq!(r.authorization.as_deref(), Some(format!("Bearer {KEY}").as_str()), "the key is sent");
+        assert!(!r.body.contains(KEY), "the key is in a prompt");
+    }
+    let logs = String::from_utf8_lossy(&logs.lock().unwrap()).into_owned();
+    assert!(logs.contains("LLM call failed"), "failures were logged: {logs}");
+    assert!(!logs.contains(KEY), "the key is in the logs");
+    let published = serde_json::to_string(&graph.to_json("test")).unwrap();
+    assert!(!published.contains(KEY));
+    let health = op3dsg_runtime::ipc::HealthReport::from(&op3dsg_ipc_types::Health {
+        refiner: stats.health(),
+        ..op3dsg_ipc_types::Health::default()
+    });
+    assert!(!serde_json::to_string(&health).unwrap().contains(KEY));
+    assert!(!format!("{enricher:?} {profile:?}").contains(KEY));
+    assert!(!toml::to_string(&profile).unwrap().contains(KEY), "--print-config shows the path only");
+}
+
+#[test]
+fn batch_runs_await_the_refiner_on_the_synthetic_kitchen() {
+    let server = TestServer::start(Mode::Good);
+    let mut o = overrides(&server, &[]);
+    o.push("source.synthetic.frame_count=300".to_owned());
+    let profile = op3dsg_sim::load_profile(None, &o).expect("profile").profile;
+    let run = op3dsg_sim::batch::run(&profile, &op3dsg_sim::batch::VisibilityThresholds::default()).expect("batch run");
+    let graph = &run.graph;
+    let label = |id: u32| graph.nodes.iter().find(|n| n.id == id).map_or("?", |n| n.label.as_str());
+    let mut agreeing = 0;
+    let mut llm_only = 0;
+    for e in graph.edges.iter().filter(|e| e.kind == EdgeKind::Functional) {
+        match (e.origin, relation_phrase(e.relation_id).unwrap()) {
+            (EdgeOrigin::KnowledgeAndLlm, "pull to open or close") => {
+                assert!(label(e.source_id).ends_with("handle"));
+                agreeing += 1;
+            }
+            (EdgeOrigin::Llm, "push or press to open") => llm_only += 1,
+            _ => {}
+        }
+    }
+    // Every handle the server saw gets its LLM-only edge; those knowledge agrees with are K+L.
+    assert!(agreeing >= 2 && llm_only >= agreeing, "{agreeing} agreeing, {llm_only} from the LLM alone");
+    let mut agents: Vec<String> = server.requests().into_iter().map(|r| r.agent).collect();
+    agents.sort();
+    // One refresh for the one graph; this short run has no remotable source with a candidate
+    // target other than its own parent, so the remote agent had nothing to ask.
+    assert_eq!(agents, ["affordances", "local_relations"], "one prompt per agent");
+}
+
+#[test]
+fn the_pipeline_publishes_verified_llm_edges_and_the_refiner_health() {
+    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
+    let server = TestServer::start(Mode::Good);
+    let prefix = format!("op3dsg-test-llm-good-{}", std::process::id());
+    let extra = [&*format!("ipc.prefix={prefix:?}"), "health.period_ms=100"];
+    let profile = op3dsg_sim::load_profile(None, &overrides(&server, &extra)).expect("profile").profile;
+    let stop = Arc::new(AtomicBool::new(false));
+    let pipeline = Pipeline::start(&profile, &op3dsg_sim::backends(), stop.clone()).expect("pipeline starts");
+    let mut client = op3dsg_runtime::ipc::GraphClient::open_wait(&prefix, "llm-test-client", Duration::from_secs(10))
+        .expect("the daemon serves");
+    let deadline = Instant::now() + WATCHDOG;
+    let (mut llm_edge, mut refiner_health) = (false, None);
+    while !(llm_edge && refiner_health.is_some()) {
+        assert!(Instant::now() < deadline, "timed out waiting for published LLM edges (llm {llm_edge})");
+        if let Some(graph) = client.latest_graph().expect("graph") {
+            llm_edge |= graph.edges.iter().any(|e| e.kind == EdgeKind::Functional && e.origin == EdgeOrigin::Llm);
+        }
+        if let Some(h) = client.latest_health().expect("health")
+            && h.refiner.accepted > 0
+        {
+            refiner_health = Some(h.refiner);
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let refiner = refiner_health.unwrap();
+    assert!(refiner.calls >= 2 && refiner.failures == 0 && refiner.last_graph_version > 0, "{refiner:?}");
+    assert_eq!(refiner.rejections, [0; 8]);
+    stop.store(true, Ordering::SeqCst);
+    pipeline.wait().expect("orderly shutdown");
+}
+
+/// The nearest canonical phrase by MiniLM similarity (needs `.models/`, like
+/// `tests/text_encoder.rs`; never skips).
+#[test]
+fn paraphrased_labels_map_to_the_nearest_canonical_phrase_with_the_text_encoder() {
+    use op3dsg_runtime::onnx::text_encoder::{TextEncoder, TextEncoderConfig};
+    use op3dsg_runtime::onnx::{OnnxConfig, OnnxRuntime};
+    use op3dsg_runtime::reasoner::llm::gate::LabelMapper;
+    let runtime = OnnxRuntime::init(&OnnxConfig::default()).expect("ONNX Runtime (run scripts/setup-models.sh)");
+    let encoder = TextEncoder::new(&runtime, &TextEncoderConfig { enabled: true, ..TextEncoderConfig::default() })
+        .expect("MiniLM (run scripts/setup-models.sh)");
+    let mut mapper = LabelMapper::new(Some(Box::new(encoder)), 0.8);
+    let id = |phrase: &str| op3dsg_ipc_types::relation_id(phrase).unwrap().1;
+    assert_eq!(mapper.relation("pull to open or shut"), Some(id("pull to open or close")));
+    assert_eq!(mapper.relation("turn on and turn off"), Some(id("turn on or turn off")));
+    assert_eq!(mapper.relation("sing a song"), None);
+    assert_eq!(mapper.affordance("hook pulling"), Some(3));
+    let mut plain = LabelMapper::new(None, 0.8);
+    assert_eq!(plain.relation("pull to open or shut"), None, "no encoder: rejected");
+}
