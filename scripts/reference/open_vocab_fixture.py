@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Writes daemon/tests/data/open_vocab_fixture.onnx: a tiny ONNX graph with the input and
-output contract of an open-vocabulary detector (daemon/src/perception/open_vocab.rs), whose
+output contract of an open-vocabulary detector (daemon/runtime/src/perception/open_vocab.rs), whose
 answers are known, for the adapter's tests.
 
     pip install --target /tmp/onnxpy onnx==1.17.0 numpy

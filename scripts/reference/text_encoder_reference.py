@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
-"""Reference values for the Rust text encoder (daemon/src/onnx/text_encoder.rs).
+"""Reference values for the Rust text encoder (daemon/runtime/src/onnx/text_encoder.rs).
 
 Runs the same files the daemon uses (.models/, from ./scripts/setup-models.sh) through
 onnxruntime's Python API: all-MiniLM-L6-v2 int8, tokenizer.json with padding to the longest
 label in the batch and truncation to 128 tokens, mean pooling with the attention mask, L2
 normalisation. Prints the cosine similarities the Rust tests assert, the first embedding values
 of one label, and per-label times for 1, 16 and 64 labels per call (compare with
-`cargo bench -p op3dsg-daemon --bench text_encoder`).
+`cargo bench -p op3dsg-runtime --bench text_encoder`).
 
 Not part of the build or of CI. Needs the Python packages outside the system, e.g.:
 

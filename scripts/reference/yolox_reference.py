@@ -2,7 +2,7 @@
 """Reference for daemon/tests/yolox.rs: YOLOX-nano with onnxruntime's Python API.
 
 Runs the model on one ICL-NUIM frame with exactly the letterbox of
-daemon/src/perception/yolox.rs (float32 bilinear with half-pixel centres, rounded, BGR,
+daemon/runtime/src/perception/yolox.rs (float32 bilinear with half-pixel centres, rounded, BGR,
 top-left, pad 114), decodes the grids, thresholds obj * cls, suppresses per class, and prints
 the final boxes and a few raw output values in a form pasted into the Rust test. Also times
 the per-frame inference (session.run only, one intra-op thread, like the Rust bench).

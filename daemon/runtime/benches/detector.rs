@@ -10,7 +10,7 @@
 //!   (e.g. `env PYTHONPATH=/tmp/ortpy python3`), onnxruntime's Python API timed on the very same
 //!   pixels in the same run, between two Rust timings, and the speed ratio.
 //!
-//! `cargo bench -p op3dsg-daemon --bench detector` (needs `.models/` from
+//! `cargo bench -p op3dsg-runtime --bench detector` (needs `.models/` from
 //! `./scripts/setup-models.sh` and the shared development data; prints why and does nothing
 //! without them).
 

@@ -2,7 +2,7 @@
 //! reasoner for a graph of 2,000 nodes (1,500 objects over a 30 m x 30 m floor, 500 parts on
 //! them), on one thread. Issue 4's target for the prior-graph rebuild is 2 ms.
 //!
-//! `taskset -c 0 cargo bench -p op3dsg-daemon --bench prior` prints the median and p99 of 200
+//! `taskset -c 0 cargo bench -p op3dsg-runtime --bench prior` prints the median and p99 of 200
 //! timed runs of each stage (the rebuild both one-off and with the reused `PriorBuilder` the
 //! fusion thread keeps); criterion's own report follows.
 

@@ -3,7 +3,7 @@
 //! throughput is in labels, so its "elem/s" is labels per second; the per-label time is printed
 //! after each group. Needs `.models/` (`./scripts/setup-models.sh`).
 //!
-//! `cargo bench -p op3dsg-daemon --bench text_encoder`
+//! `cargo bench -p op3dsg-runtime --bench text_encoder`
 //! (compare: `scripts/reference/text_encoder_reference.py`, onnxruntime's Python API on the
 //! same labels and thread count)
 

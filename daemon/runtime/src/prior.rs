@@ -29,7 +29,7 @@
 //!
 //! # Part of
 //!
-//! Fusion sets each part's parent (`fusion::paper::attach_parts`: among objects whose box,
+//! Fusion sets each part's parent (`fusion::multiview::attach_parts`: among objects whose box,
 //! grown by a margin, contains the part's centre, the one whose label is contained in the part's
 //! label — "cabinet handle" → cabinet — else the nearest by surface distance; one object per
 //! part). The prior graph keeps those parents and their `part of` edges as they are.

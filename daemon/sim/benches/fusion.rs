@@ -1,7 +1,7 @@
 //! One fusion step — 40 detections (objects and parts) of a real 640x480 kitchen keyframe — into
 //! maps of about 100, 2,000 and 20,000 nodes, on one thread.
 //!
-//! `taskset -c 0 cargo bench -p op3dsg-daemon --bench fusion` prints, per map size, the median
+//! `taskset -c 0 cargo bench -p op3dsg-sim --bench fusion` prints, per map size, the median
 //! and p99 of 500 timed steps, the heap allocations per step after warm-up (counted by a global
 //! allocator), and the ratio of the 20,000-node step to the 100-node step; criterion's own
 //! report follows.
@@ -11,7 +11,7 @@ use std::time::Instant;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use op3dsg_ipc_types::NodeKind;
-use op3dsg_runtime::fusion::paper::PaperFusion;
+use op3dsg_runtime::fusion::multiview::MultiViewFusion;
 use op3dsg_runtime::fusion::{Fusion, FusionConfig};
 use op3dsg_sim::oracle::OracleConfig;
 use op3dsg_sim::workload::Workload;
@@ -48,7 +48,7 @@ fn bench_fusion(c: &mut Criterion) {
     let mut group = c.benchmark_group("fusion step, 40 detections");
     group.sample_size(50);
     for target in SIZES {
-        let mut fusion = PaperFusion::new(config());
+        let mut fusion = MultiViewFusion::new(config());
         let copies = workload.fill_map(&mut fusion, target, 1000);
         // Warm-up past the pruning horizon (30 keyframes) of the fill's stale candidates.
         for _ in 0..50 {

@@ -4,7 +4,7 @@
 use std::alloc::System;
 
 use op3dsg_runtime::fusion::Fusion;
-use op3dsg_runtime::fusion::paper::PaperFusion;
+use op3dsg_runtime::fusion::multiview::MultiViewFusion;
 use op3dsg_sim::oracle::OracleConfig;
 use op3dsg_sim::workload::Workload;
 use stats_alloc::{INSTRUMENTED_SYSTEM, Region, StatsAlloc};
@@ -18,7 +18,7 @@ fn a_warm_fusion_step_allocates_nothing() {
     let workload = Workload::kitchen(3, 8, 45, OracleConfig::realistic());
     let step = workload.step(40);
     assert!(step.detections.len() >= 10, "a busy keyframe: {} detections", step.detections.len());
-    let mut fusion = PaperFusion::new(config);
+    let mut fusion = MultiViewFusion::new(config);
     let copies = workload.fill_map(&mut fusion, 300, 20);
     assert!(fusion.node_count() >= 100, "{} nodes from {copies} copies", fusion.node_count());
     // Warm-up: scratch buffers and the touched nodes reach their working sizes, and candidates of

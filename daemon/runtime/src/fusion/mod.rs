@@ -1,7 +1,7 @@
 //! Multi-view fusion: detections of each keyframe become 3D nodes of one map.
 //!
 //! The fusion thread is the only owner of the map ([`Fusion`]); other threads see it only
-//! through the [`crate::graph::SceneGraph`] snapshots it builds. [`paper::PaperFusion`] is the
+//! through the [`crate::graph::SceneGraph`] snapshots it builds. [`multiview::MultiViewFusion`] is the
 //! method of the OP3DSG paper (geometry, semantics and, for parts, colour distribution); its
 //! module documents every formula and choice.
 
@@ -13,13 +13,13 @@ use crate::graph::SceneGraph;
 use crate::perception::Detection;
 
 pub mod colour;
-pub mod paper;
+pub mod multiview;
 
 use colour::ColourParams;
 
 /// `[fusion]`. Defaults (the built-in profile) follow the paper where it gives a value
 /// (`w_p = 0.4`, `τ_S = 0.1`, `τ_V = 0.9`, colour weights `(0.2, 0.4, 0.4)`); the rest are this
-/// project's choices, documented in [`paper`].
+/// project's choices, documented in [`multiview`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FusionConfig {
@@ -209,5 +209,5 @@ pub trait Fusion: Send {
 
 /// The fusion the profile asks for.
 pub fn build(config: &FusionConfig) -> Box<dyn Fusion> {
-    Box::new(paper::PaperFusion::new(config.clone()))
+    Box::new(multiview::MultiViewFusion::new(config.clone()))
 }

@@ -14,7 +14,7 @@
 //! them in one batch (padded to the longest). Cost on the development machine (2 shared cores,
 //! one intra-op thread, release): about 2.0-2.2 ms for a single label, 1.1-1.8 ms per label in
 //! batches of 16 to 64 (the same as onnxruntime's Python API on the same input); 64 cache hits
-//! take about 6 µs (`cargo bench -p op3dsg-daemon --bench text_encoder`).
+//! take about 6 µs (`cargo bench -p op3dsg-runtime --bench text_encoder`).
 //!
 //! **Ownership.** `ort`'s `Session::run` takes `&mut self`, and so do all encoding methods here:
 //! a [`TextEncoder`] belongs to one thread at a time. It is `Send` (build it on one thread, move

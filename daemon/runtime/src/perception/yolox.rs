@@ -31,7 +31,7 @@
 //! labels).
 //!
 //! Cost (`OP3DSG_REFERENCE_PYTHON="env PYTHONPATH=/tmp/ortpy python3" cargo bench -p
-//! op3dsg-daemon --bench detector`, development machine, 2 cores, load 1.3-1.9, one intra-op
+//! op3dsg-runtime --bench detector`, development machine, 2 cores, load 1.3-1.9, one intra-op
 //! thread): inference 14.6 ms per frame median (letterbox 1.7 ms of it); `session.run`
 //! 12.85 ms vs 12.74 ms for onnxruntime's Python API on the same pixels in the same run, i.e.
 //! 0.99 x its speed (1.01 x in an earlier run); whole detector (masks from depth included)
