@@ -19,6 +19,13 @@ echo "== models =="
 export RUST_BACKTRACE=1
 export OP3DSG_LOG="${OP3DSG_LOG:-warn}"
 
+# What review used to check by hand: formatting and lints (warnings are errors), before any
+# test runs (clippy type-checks the dependencies without generating code, a few minutes once).
+echo "== fmt =="
+cargo fmt --all -- --check
+echo "== clippy =="
+cargo clippy --workspace --all-targets --locked -- -D warnings
+
 echo "== build (debug, all targets) =="
 cargo build --workspace --all-targets --locked
 
