@@ -322,7 +322,7 @@ mod tests {
         let err = load_profile(None, &["source.synthetic.frame_rate_hz=0".to_owned()]).unwrap_err();
         assert_eq!(err.to_string(), "--set: source.synthetic.frame_rate_hz: must be within (0, 1000], got 0");
         let err = load_profile(None, &["source.synthetic.sead=3".to_owned()]).unwrap_err();
-        assert!(err.message.starts_with("source.synthetic: unknown field `sead`"), "{err}");
+        assert!(err.message.starts_with("source.synthetic.sead: unknown field `sead`"), "{err}");
     }
 
     #[test]
