@@ -1,5 +1,5 @@
 //! The scene: instances (ground-truth nodes), the primitives that render them, materials, and
-//! the ground-truth graph.
+//! the ground-truth graph. The room catalog builds scenes ([`Scene::generate`], in `catalog`).
 //!
 //! Geometry is deliberately simple: axis-aligned boxes and axis-aligned cylinders. Furniture
 //! stands against the (axis-aligned) walls, so every face is axis-aligned and the tight world
@@ -232,11 +232,6 @@ pub struct Scene {
 }
 
 impl Scene {
-    /// Generates the room `room` from `seed` (deterministic).
-    pub fn generate(room: RoomKind, seed: u64) -> Scene {
-        super::catalog::generate(room, seed)
-    }
-
     /// Room type.
     pub fn room(&self) -> RoomKind {
         self.room
