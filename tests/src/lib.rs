@@ -5,16 +5,19 @@
 //!
 //! ```no_run
 //! let daemon = op3dsg_tests::Daemon::start("op3dsg-doc", &["--set", "source.rate_hz=60"]);
-//! let mut client = daemon.client("doc-client");
+//! let mut graphs = daemon.graph_subscriber("doc-graphs");
+//! let mut health = daemon.health_subscriber("doc-health");
 //! ```
+//!
+//! The subscribers are the planner client library's (`op3dsg_ipc_types::client`), so these
+//! tests read the daemon exactly as a planner does.
 
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
-use op3dsg_ipc_types::Health;
-use op3dsg_runtime::ipc::GraphClient;
+use op3dsg_ipc_types::{GraphSubscriber, Health, HealthSubscriber};
 
 static NEXT: AtomicUsize = AtomicUsize::new(0);
 
@@ -57,9 +60,15 @@ impl Daemon {
         Self { child, prefix: prefix.to_owned() }
     }
 
-    /// A graph client on this daemon's services, waiting up to 30 s for them.
-    pub fn client(&self, node: &str) -> GraphClient {
-        GraphClient::open_wait(&self.prefix, node, Duration::from_secs(30)).expect("daemon services appear")
+    /// A graph subscriber (`graph` and `graph_updated`) on this daemon's services, waiting up to
+    /// 30 s for them.
+    pub fn graph_subscriber(&self, node: &str) -> GraphSubscriber {
+        GraphSubscriber::open_wait(&self.prefix, node, Duration::from_secs(30)).expect("daemon graph services appear")
+    }
+
+    /// A health subscriber on this daemon's `health` service, waiting up to 30 s for it.
+    pub fn health_subscriber(&self, node: &str) -> HealthSubscriber {
+        HealthSubscriber::open_wait(&self.prefix, node, Duration::from_secs(30)).expect("daemon health service appears")
     }
 
     /// Sends SIGKILL and reaps the process.
@@ -89,9 +98,9 @@ pub fn wait_for<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<
     }
 }
 
-/// The next health record with `frames_captured` above `above`.
-pub fn health_with_frames_above(client: &mut GraphClient, above: u64, timeout: Duration) -> Health {
+/// The newest health record once its `frames_captured` is above `above`.
+pub fn health_with_frames_above(health: &mut HealthSubscriber, above: u64, timeout: Duration) -> Health {
     wait_for(&format!("health with frames_captured > {above}"), timeout, || {
-        client.latest_health().ok().flatten().filter(|h| h.frames_captured > above)
+        health.latest().ok().flatten().filter(|h| h.frames_captured > above)
     })
 }

@@ -11,14 +11,14 @@ const FAST: &[&str] = &["--set", "source.rate_hz=60", "--set", "health.period_ms
 fn subscriber_sees_graph_versions_increase() {
     let prefix = unique_prefix("versions");
     let daemon = Daemon::start(&prefix, FAST);
-    let mut client = daemon.client("versions-client");
-    let first = wait_for("a first graph", Duration::from_secs(60), || client.latest_graph().ok().flatten());
+    let mut graphs = daemon.graph_subscriber("versions-client");
+    let first = wait_for("a first graph", Duration::from_secs(60), || graphs.latest().ok().flatten().cloned());
     let later = wait_for("a later graph version", Duration::from_secs(60), || {
-        client.latest_graph().ok().flatten().filter(|g| g.version > first.version + 2)
+        graphs.latest().ok().flatten().filter(|g| g.version() > first.version() + 2).cloned()
     });
-    assert!(later.version > first.version);
-    assert!(later.nodes.len() >= first.nodes.len(), "the kitchen map only grows while exploring");
-    assert!(later.nodes.iter().any(|n| n.kind == op3dsg_ipc_types::NodeKind::Object));
+    assert!(later.version() > first.version());
+    assert!(later.node_count() >= first.node_count(), "the kitchen map only grows while exploring");
+    assert!(later.nodes().any(|n| n.kind() == op3dsg_ipc_types::NodeKind::Object));
 }
 
 #[test]
@@ -29,11 +29,11 @@ fn late_subscriber_gets_the_current_graph_at_once() {
         &prefix,
         &["--set", "source.rate_hz=0", "--set", "run.max_frames=120", "--set", "health.period_ms=100"],
     );
-    let mut early = daemon.client("late-early");
+    let mut early = daemon.health_subscriber("late-early");
     // Settled: the source has ended and the graph version no longer changes between two records.
     let mut previous = None;
     let final_version = wait_for("the map to settle", Duration::from_secs(120), || {
-        let h = early.latest_health().ok().flatten()?;
+        let h = early.latest().ok().flatten()?;
         if h.frames_captured < 120 || h.source_connected != 0 {
             return None;
         }
@@ -43,10 +43,10 @@ fn late_subscriber_gets_the_current_graph_at_once() {
         settled.then_some(h.graph_version)
     });
     // A subscriber attaching now, with nothing new being published, gets the current graph at once.
-    let mut late = daemon.client("late-late");
-    let graph = wait_for("the history sample", Duration::from_secs(2), || late.latest_graph().ok().flatten());
-    assert_eq!(graph.version, final_version);
-    assert!(!graph.nodes.is_empty());
+    let mut late = daemon.graph_subscriber("late-late");
+    let graph = wait_for("the history sample", Duration::from_secs(2), || late.latest().ok().flatten().cloned());
+    assert_eq!(graph.version(), final_version);
+    assert!(graph.node_count() > 0);
 }
 
 #[test]
@@ -54,8 +54,8 @@ fn a_subscriber_that_never_reads_does_not_hold_the_daemon_back() {
     let prefix = unique_prefix("stalled");
     let daemon = Daemon::start(&prefix, FAST);
     // This client subscribes to the graph and never reads it; its buffer fills at once.
-    let _stalled = daemon.client("stalled-reader");
-    let mut watcher = daemon.client("stalled-watcher");
+    let _stalled = daemon.graph_subscriber("stalled-reader");
+    let mut watcher = daemon.health_subscriber("stalled-watcher");
     let first = health_with_frames_above(&mut watcher, 0, Duration::from_secs(60));
     let later = health_with_frames_above(&mut watcher, first.frames_captured + 60, Duration::from_secs(60));
     assert!(later.graph_version > first.graph_version, "graph versions keep coming");
@@ -65,17 +65,20 @@ fn a_subscriber_that_never_reads_does_not_hold_the_daemon_back() {
 fn restarted_daemon_serves_again_after_kill_9() {
     let prefix = unique_prefix("restart");
     let mut daemon = Daemon::start(&prefix, FAST);
-    let mut client = daemon.client("restart-client-1");
-    wait_for("a graph from the first daemon", Duration::from_secs(60), || client.latest_graph().ok().flatten());
-    drop(client);
+    let mut graphs = daemon.graph_subscriber("restart-client-1");
+    wait_for("a graph from the first daemon", Duration::from_secs(60), || {
+        graphs.latest().ok().flatten().map(|g| g.version())
+    });
+    drop(graphs);
     daemon.kill_9();
 
     let second = Daemon::start(&prefix, FAST);
-    let mut client = second.client("restart-client-2");
-    let first_health = health_with_frames_above(&mut client, 0, Duration::from_secs(60));
-    health_with_frames_above(&mut client, first_health.frames_captured + 10, Duration::from_secs(60));
-    let graph = wait_for("a graph from the restarted daemon", Duration::from_secs(60), || {
-        client.latest_graph().ok().flatten().filter(|g| !g.nodes.is_empty())
+    let mut graphs = second.graph_subscriber("restart-client-2");
+    let mut health = second.health_subscriber("restart-health-2");
+    let first_health = health_with_frames_above(&mut health, 0, Duration::from_secs(60));
+    health_with_frames_above(&mut health, first_health.frames_captured + 10, Duration::from_secs(60));
+    let version = wait_for("a graph from the restarted daemon", Duration::from_secs(60), || {
+        graphs.latest().ok().flatten().filter(|g| g.node_count() > 0).map(|g| g.version())
     });
-    assert!(graph.version >= 1);
+    assert!(version >= 1);
 }

@@ -1,19 +1,21 @@
-//! Real shared-memory tests of the service layer: a [`GraphServer`] in this process, clients in
-//! this process and in a separately spawned `op3dsg` CLI process.
+//! Real shared-memory tests of the service layer: a [`GraphServer`] in this process, the planner
+//! client library (`op3dsg_ipc_types::client`) in this process and in a separately spawned
+//! `op3dsg` CLI process.
 
 use std::process::{Command, Output, Stdio};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
-use glam::{DQuat, DVec3};
+use glam::DQuat;
 use op3dsg_drivers::graph_json::GraphJson;
-use op3dsg_drivers::pose::Isometry;
+use op3dsg_ipc_types::client::open_or_create_pose_service;
+use op3dsg_ipc_types::services::DEFAULT_POSE_BUFFER;
 use op3dsg_ipc_types::{
-    EdgeKind, EdgeOrigin, Health, NodeKind, PoseKind, PoseStamped, QueueHealth, StageHealth, relation_id,
-    write_fixed_str,
+    EdgeKind, EdgeOrigin, GraphSubscriber, Health, NodeKind, Pose, PoseKind, PosePublisher, PoseStamped, QueueHealth,
+    StageHealth, relation_id, write_fixed_str,
 };
 use op3dsg_runtime::graph::{GraphEdge, GraphNode, SceneGraph};
-use op3dsg_runtime::ipc::{GraphClient, GraphServer, HealthReport, IpcConfig, PosePublisher};
+use op3dsg_runtime::ipc::{GraphServer, HealthReport, IpcConfig, graph_to_scene_graph};
 
 static NEXT: AtomicUsize = AtomicUsize::new(0);
 
@@ -201,11 +203,12 @@ fn in_process_client_gets_history_updates_and_poses() {
 
     // A client that joins late gets version 1 from the history once the server updates its
     // connections.
-    let mut client = GraphClient::open(&prefix, "op3dsg-test-client").expect("open client");
+    let mut graphs = GraphSubscriber::open(&prefix, "op3dsg-test-client").expect("open client");
     server.update_connections().expect("update connections");
-    let graph = client.latest_graph().expect("read").expect("history sample");
+    let graph = graphs.latest_if_newer(0).expect("read").map(graph_to_scene_graph).expect("history sample");
     assert_eq!(graph, cabinet_graph(1));
-    assert_eq!(client.latest_graph().expect("read"), None, "nothing new");
+    assert!(!graphs.poll().expect("read"), "nothing new");
+    assert!(graphs.latest_if_newer(1).expect("read").is_none(), "nothing newer than version 1");
     assert!(server.subscriber_count() >= 1);
 
     // Newer versions: the event fires and the newest sample wins.
@@ -215,30 +218,40 @@ fn in_process_client_gets_history_updates_and_poses() {
         server.publish_graph(&cabinet_graph(version)).expect("publish");
         publish_ns.push(t.elapsed());
     }
-    assert!(client.wait_for_update(Duration::from_secs(5)).expect("wait"));
+    assert!(graphs.wait_for_update(Duration::from_secs(5)).expect("wait"));
     let received_at = op3dsg_runtime::ipc::wall_clock_ns();
-    let graph = client.latest_graph().expect("read").expect("new sample");
-    assert_eq!(graph.version, 4);
-    let header = client.last_header().expect("header");
-    assert_eq!(header.capacity_exceeded, 0);
+    let graph = graphs.latest_if_newer(1).expect("read").expect("new sample");
+    assert_eq!(graph.version(), 4);
+    assert!(!graph.capacity_exceeded());
     eprintln!(
         "publish_graph (loan + in-place init + fill + send + notify) took {publish_ns:?}; \
          publish-to-read latency {} us",
-        received_at.saturating_sub(header.publish_time_ns) / 1000
+        received_at.saturating_sub(graph.publish_time_ns()) / 1000
     );
-    assert!(!client.wait_for_update(Duration::from_millis(20)).expect("wait"), "no event pending");
+    assert!(!graphs.wait_for_update(Duration::from_millis(20)).expect("wait"), "no event pending");
 
-    // Poses: valid ones arrive, a bad quaternion is counted.
-    let mut poses = PosePublisher::open(&prefix, "op3dsg-test-nav").expect("open pose publisher");
-    let pose = Isometry::new(DQuat::from_rotation_z(0.5), DVec3::new(1.0, 2.0, 0.3));
+    // Poses: valid ones arrive; the client refuses a bad quaternion, and one sent past it on a
+    // raw iceoryx2 publisher is dropped and counted by the daemon.
+    let poses = PosePublisher::open(&prefix, "op3dsg-test-nav").expect("open pose publisher");
+    let q = DQuat::from_rotation_z(0.5);
+    let pose = Pose::new([1.0, 2.0, 0.3], [q.x, q.y, q.z, q.w]);
     poses.publish(10, PoseKind::WorldFromCamera, &pose, "camera_color_optical_frame").expect("send pose");
     poses.publish(20, PoseKind::WorldFromBase, &pose, "base_link").expect("send pose");
-    let bad = Isometry { rotation: DQuat::from_xyzw(0.0, 0.0, 0.0, 2.0), translation: DVec3::ZERO };
-    poses.publish(30, PoseKind::WorldFromCamera, &bad, "base_link").expect("send pose");
+    let bad = Pose::new([0.0; 3], [0.0, 0.0, 0.0, 2.0]);
+    assert!(poses.publish(30, PoseKind::WorldFromCamera, &bad, "base_link").is_err(), "client refuses norm 2");
     assert!(poses.publish(40, PoseKind::WorldFromCamera, &pose, &"x".repeat(40)).is_err(), "frame id too long");
+    let raw_node = op3dsg_runtime::ipc::create_node("op3dsg-test-raw-nav").expect("node");
+    let raw_poses = open_or_create_pose_service(&raw_node, &prefix, DEFAULT_POSE_BUFFER)
+        .expect("open pose service")
+        .factory
+        .publisher_builder()
+        .create()
+        .expect("raw pose publisher");
+    let bad = PoseStamped { stamp_ns: 30, rotation_xyzw: [0.0, 0.0, 0.0, 2.0], ..PoseStamped::default() };
+    raw_poses.send_copy(bad).expect("send raw pose");
     let mut out: Vec<PoseStamped> = Vec::new();
     let deadline = Instant::now() + Duration::from_secs(5);
-    while out.len() < 2 && Instant::now() < deadline {
+    while (out.len() < 2 || server.invalid_pose_count() < 1) && Instant::now() < deadline {
         server.poll_poses(&mut out).expect("poll poses");
         std::thread::sleep(Duration::from_millis(5));
     }
@@ -256,7 +269,7 @@ fn client_started_before_the_daemon_waits_for_it() {
     let waiter = std::thread::Builder::new()
         .name("early-client".into())
         .spawn(move || {
-            GraphClient::open_wait(&waiting_prefix, "op3dsg-test-early", Duration::from_secs(10)).map(|_| ())
+            GraphSubscriber::open_wait(&waiting_prefix, "op3dsg-test-early", Duration::from_secs(10)).map(|_| ())
         })
         .expect("spawn");
     std::thread::sleep(Duration::from_millis(300));

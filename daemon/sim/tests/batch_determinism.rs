@@ -8,8 +8,9 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use op3dsg_ipc_types::GraphSubscriber;
 use op3dsg_runtime::graph::SceneGraph;
-use op3dsg_runtime::ipc::GraphClient;
+use op3dsg_runtime::ipc::graph_to_scene_graph;
 use op3dsg_runtime::pipeline::Pipeline;
 use op3dsg_sim::batch;
 
@@ -35,15 +36,16 @@ fn batch_runner_makes_the_threaded_pipelines_graph() {
 
     let stop = Arc::new(AtomicBool::new(false));
     let pipeline = Pipeline::start(&profile, &op3dsg_sim::backends(), stop.clone()).expect("pipeline starts");
-    let mut client = GraphClient::open_wait(&prefix, "batch-determinism", Duration::from_secs(30)).expect("client");
+    let mut graphs =
+        GraphSubscriber::open_wait(&prefix, "batch-determinism", Duration::from_secs(30)).expect("graph subscriber");
     let stats = pipeline.stats().clone();
     let deadline = Instant::now() + Duration::from_secs(120);
     let mut latest: Option<SceneGraph> = None;
     let mut settled_since: Option<(u64, Instant)> = None;
     let pipeline_graph = loop {
         assert!(Instant::now() < deadline, "the pipeline did not finish within 120 s");
-        if let Some(graph) = client.latest_graph().expect("read graph") {
-            latest = Some(graph);
+        if let Some(graph) = graphs.latest_if_newer(latest.as_ref().map_or(0, |g| g.version)).expect("read graph") {
+            latest = Some(graph_to_scene_graph(graph));
         }
         let version = stats.graph_version.load(Ordering::Relaxed);
         let drained = stats.source_finished.load(Ordering::Relaxed)

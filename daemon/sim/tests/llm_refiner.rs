@@ -509,16 +509,18 @@ fn the_pipeline_publishes_verified_llm_edges_and_the_refiner_health() {
     let profile = op3dsg_sim::load_profile(None, &overrides(&server, &extra)).expect("profile").profile;
     let stop = Arc::new(AtomicBool::new(false));
     let pipeline = Pipeline::start(&profile, &op3dsg_sim::backends(), stop.clone()).expect("pipeline starts");
-    let mut client = op3dsg_runtime::ipc::GraphClient::open_wait(&prefix, "llm-test-client", Duration::from_secs(10))
+    let mut graphs = op3dsg_ipc_types::GraphSubscriber::open_wait(&prefix, "llm-test-client", Duration::from_secs(10))
         .expect("the daemon serves");
+    let mut health = op3dsg_ipc_types::HealthSubscriber::open_wait(&prefix, "llm-test-health", Duration::from_secs(10))
+        .expect("the daemon serves health");
     let deadline = Instant::now() + WATCHDOG;
     let (mut llm_edge, mut refiner_health) = (false, None);
     while !(llm_edge && refiner_health.is_some()) {
         assert!(Instant::now() < deadline, "timed out waiting for published LLM edges (llm {llm_edge})");
-        if let Some(graph) = client.latest_graph().expect("graph") {
-            llm_edge |= graph.edges.iter().any(|e| e.kind == EdgeKind::Functional && e.origin == EdgeOrigin::Llm);
+        if let Some(graph) = graphs.latest().expect("graph") {
+            llm_edge |= graph.edges().any(|e| e.kind() == EdgeKind::Functional && e.origin() == EdgeOrigin::Llm);
         }
-        if let Some(h) = client.latest_health().expect("health")
+        if let Some(h) = health.latest().expect("health")
             && h.refiner.accepted > 0
         {
             refiner_health = Some(h.refiner);

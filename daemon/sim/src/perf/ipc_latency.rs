@@ -15,8 +15,9 @@
 //! on an iceoryx2 event listener for both kinds (as a planner waits on `graph_updated`).
 //!
 //! - **graph**: `t0` just before [`GraphServer::publish_graph`] (loan, initialise the whole
-//!   fixed-size sample, fill header, nodes and edges, send, notify); `t1` when
-//!   [`GraphClient::latest_graph`] returned the [`SceneGraph`] in the child.
+//!   fixed-size sample, fill header, nodes and edges, send, notify); `t1` when the planner client
+//!   library's [`GraphSubscriber::latest_if_newer`] returned the owned [`Graph`] in the child
+//!   (newest sample received, its valid nodes and edges copied out, the lookup indices built).
 //! - **raw**: `t0` just before loaning a byte slice of the graph's filled size (header + nodes +
 //!   edges as they lie in the snapshot); copy a prepared buffer in, send, notify; `t1` after the
 //!   child received the sample and copied the bytes out.
@@ -36,12 +37,16 @@ use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections as _;
 use iceoryx2::prelude::Node;
-use op3dsg_ipc_types::{Edge, EdgeKind, EdgeOrigin, GraphHeader, GraphSnapshot, MAX_EDGES, MAX_NODES, NodeKind};
+#[cfg(doc)]
+use op3dsg_ipc_types::Graph;
+use op3dsg_ipc_types::{
+    Edge, EdgeKind, EdgeOrigin, GraphHeader, GraphSnapshot, GraphSubscriber, MAX_EDGES, MAX_NODES, NodeKind,
+};
 use serde::{Deserialize, Serialize};
 
 use super::{Percentiles, PerfOptions};
 use op3dsg_runtime::graph::{GraphEdge, GraphNode, SceneGraph};
-use op3dsg_runtime::ipc::{GraphClient, GraphServer, IpcConfig, IpcService, create_node, service_name, wall_clock_ns};
+use op3dsg_runtime::ipc::{GraphServer, IpcConfig, IpcService, create_node, service_name, wall_clock_ns};
 
 /// How long either side waits for the other before giving up.
 const PEER_TIMEOUT: Duration = Duration::from_secs(20);
@@ -55,7 +60,7 @@ pub struct IpcRow {
     pub edges: usize,
     /// Bytes the graph fills in the snapshot (header + nodes + edges): the raw payload size.
     pub bytes: usize,
-    /// Graph publish → `SceneGraph` in the other process.
+    /// Graph publish → owned client `Graph` in the other process.
     pub graph: Percentiles,
     /// Raw iceoryx2 publish → bytes in the other process.
     pub raw: Percentiles,
@@ -63,8 +68,8 @@ pub struct IpcRow {
     pub graph_publish_call: Percentiles,
     /// The publisher's share of `raw`: loan, copy, send, notify.
     pub raw_publish_call: Percentiles,
-    /// The subscriber's share of `graph`: the `latest_graph` call that returned it (receive and
-    /// conversion to a `SceneGraph`).
+    /// The subscriber's share of `graph`: the `GraphSubscriber::latest_if_newer` call that
+    /// returned it (receive and copy into the owned `Graph`).
     pub graph_read_call: Percentiles,
     /// `graph.p50_ms / raw.p50_ms`.
     pub ratio_p50: f64,
@@ -168,7 +173,8 @@ impl BenchServices {
 pub struct Receipts {
     /// Graph messages (id = graph version).
     pub graph: Vec<(u64, u64)>,
-    /// Per graph message, nanoseconds spent in the successful `GraphClient::latest_graph` call.
+    /// Per graph message, nanoseconds spent in the successful `GraphSubscriber::latest_if_newer`
+    /// call.
     pub graph_read_ns: Vec<u64>,
     /// Raw messages (id = the first 8 bytes, little endian).
     pub raw: Vec<(u64, u64)>,
@@ -394,7 +400,7 @@ pub fn ipc_latency(options: &PerfOptions) -> anyhow::Result<IpcLatency> {
 /// `pairs` graph + raw message pairs in turn, acknowledging each, and returns the receipts (the
 /// CLI prints them as JSON on standard output).
 pub fn ipc_peer(prefix: &str, pairs: usize) -> anyhow::Result<Receipts> {
-    let mut client = GraphClient::open_wait(prefix, "op3dsg-bench-subscriber", PEER_TIMEOUT)
+    let mut graphs = GraphSubscriber::open_wait(prefix, "op3dsg-bench-subscriber", PEER_TIMEOUT)
         .context("opening the graph services")?;
     let names = BenchServices::new(prefix);
     let node = create_node("op3dsg-bench-subscriber-raw")?;
@@ -431,21 +437,23 @@ pub fn ipc_peer(prefix: &str, pairs: usize) -> anyhow::Result<Receipts> {
         raw: Vec::with_capacity(pairs),
     };
     let mut copy: Vec<u8> = Vec::new();
+    let mut last_version = 0;
     for _ in 0..pairs {
         let deadline = Instant::now() + PEER_TIMEOUT;
-        let graph = loop {
-            if client.wait_for_update(Duration::from_millis(100)).context("waiting for a graph")? {
+        let version = loop {
+            if graphs.wait_for_update(Duration::from_millis(100)).context("waiting for a graph")? {
                 let read = Instant::now();
-                if let Some(graph) = client.latest_graph().context("reading a graph")? {
+                if let Some(graph) = graphs.latest_if_newer(last_version).context("reading a graph")? {
                     receipts.graph_read_ns.push(read.elapsed().as_nanos() as u64);
-                    break graph;
+                    break graph.version();
                 }
             }
             if Instant::now() >= deadline {
                 bail!("no graph within {} s", PEER_TIMEOUT.as_secs());
             }
         };
-        receipts.graph.push((graph.version, wall_clock_ns()));
+        last_version = version;
+        receipts.graph.push((version, wall_clock_ns()));
         acknowledge()?;
 
         let id = loop {

@@ -334,8 +334,9 @@ fn ipc_markdown(s: &mut String, ipc: &IpcLatency) {
         "**IPC**: publish → receive in another process, {} timed messages per row after {} warm-up \
          ones, graph and raw interleaved; the subscriber waits on an iceoryx2 event listener for \
          both. Graph: `GraphServer::publish_graph` (loan, initialise the {:.1} MiB sample, fill, \
-         send, notify) to `GraphClient::latest_graph` returning the `SceneGraph`. Raw: loan a byte \
-         slice of the graph's filled size, copy, send, notify; receive, copy out.\n",
+         send, notify) to the client library's `GraphSubscriber::latest_if_newer` returning the \
+         owned `Graph`. Raw: loan a byte slice of the graph's filled size, copy, send, notify; \
+         receive, copy out.\n",
         ipc.messages,
         ipc.warmup,
         op3dsg_runtime::stats::mib(ipc.snapshot_bytes as u64)
@@ -366,7 +367,7 @@ fn ipc_markdown(s: &mut String, ipc: &IpcLatency) {
     let _ = writeln!(
         s,
         "\nPublish call: the publisher's call alone, notify included; graph read call: the \
-         subscriber's `latest_graph` (receive and conversion to a `SceneGraph`); the rest is the \
+         subscriber's `latest_if_newer` (receive and copy into the owned `Graph`); the rest is the \
          wake-up. With few cores the woken subscriber may run before the notify returns, so for \
          large payloads the publish call can include the subscriber's work too.\n"
     );

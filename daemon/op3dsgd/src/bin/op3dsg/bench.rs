@@ -1,0 +1,141 @@
+//! `op3dsg bench`: `perf` (the pipeline, IPC and fusion-cost benchmark of `op3dsg_sim::perf`),
+//! its hidden subscriber process `ipc-peer`, and `quality` (the synthetic quality benchmark).
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+
+use super::{PerfArgs, write_output};
+use crate::eval::load_text_encoder;
+
+/// `op3dsg bench perf`.
+pub(super) fn perf(args: PerfArgs) -> Result<()> {
+    use op3dsg_sim::perf;
+    if !(args.live_rate_hz.is_finite() && args.live_rate_hz >= 0.0) {
+        bail!("--live-rate-hz {}: must be 0 or a positive rate", args.live_rate_hz);
+    }
+    let (ipc_nodes, fusion_sizes) = (args.ipc_nodes.0, args.fusion_sizes.0);
+    if let Some(&n) = ipc_nodes.iter().find(|&&n| n == 0 || n > op3dsg_ipc_types::MAX_NODES) {
+        bail!("--ipc-nodes {n}: each size must be between 1 and {}", op3dsg_ipc_types::MAX_NODES);
+    }
+    if let Some(&n) = fusion_sizes.iter().find(|&&n| n == 0) {
+        bail!("--fusion-sizes {n}: each size must be at least 1");
+    }
+    if args.plot.is_some() && fusion_sizes.is_empty() {
+        bail!("--plot needs the fusion curve: give --fusion-sizes");
+    }
+    let options = perf::PerfOptions {
+        frames: args.frames,
+        profile: args.profile,
+        overrides: args.overrides,
+        live_rate_hz: args.live_rate_hz,
+        rss_period: Duration::from_millis(args.rss_period_ms),
+        ipc_nodes,
+        ipc_messages: args.ipc_messages as usize,
+        ipc_warmup: args.ipc_warmup,
+        peer_exe: std::env::current_exe().context("finding this executable (the IPC subscriber)")?,
+        fusion_sizes,
+        fusion_steps: args.fusion_steps as usize,
+        fusion_keyframes: args.fusion_keyframes as usize,
+        command: command_line(),
+    };
+    let report = perf::run(&options)?;
+    if let Some(path) = &args.plot
+        && let Some(curve) = &report.fusion
+    {
+        perf::fusion_curve::plot_png(curve, path)?;
+    }
+    let plot_link = args.plot.as_ref().map(|p| p.display().to_string());
+    let markdown = report.to_markdown(plot_link.as_deref());
+    write_output(None, &markdown)?;
+    if let Some(path) = &args.markdown {
+        write_output(Some(path), &markdown)?;
+    }
+    if let Some(path) = &args.json {
+        report.write_json(path)?;
+    }
+    Ok(())
+}
+
+/// The command line as typed, program name shortened to `op3dsg`.
+fn command_line() -> String {
+    let mut words = vec!["op3dsg".to_owned()];
+    words.extend(std::env::args().skip(1).map(|a| {
+        if a.is_empty() || a.contains(|c: char| c.is_whitespace() || c == '"' || c == '\'') {
+            format!("'{a}'")
+        } else {
+            a
+        }
+    }));
+    words.join(" ")
+}
+
+/// `op3dsg bench ipc-peer`: the subscriber process of `bench perf`'s IPC measurement; prints its
+/// receipts as one JSON line.
+pub(super) fn ipc_peer(prefix: &str, pairs: usize) -> Result<()> {
+    let receipts = op3dsg_sim::perf::ipc_peer(prefix, pairs)?;
+    let mut text = serde_json::to_string(&receipts).context("serialising the receipts")?;
+    text.push('\n');
+    write_output(None, &text)
+}
+
+/// `op3dsg bench quality`.
+pub(super) fn quality(
+    profile_path: Option<&Path>,
+    overrides: &[String],
+    scenes: usize,
+    threads: usize,
+    json: Option<&Path>,
+    markdown: Option<&Path>,
+    check: bool,
+) -> Result<()> {
+    use op3dsg_sim::eval::benchmark;
+    let started = Instant::now();
+    let loaded = op3dsg_sim::load_profile(profile_path, overrides).map_err(|e| anyhow::anyhow!("bad profile: {e}"))?;
+    let mut encoder = load_text_encoder(profile_path)?;
+    let bar = indicatif::ProgressBar::new(scenes as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} scenes {msg}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    let progress = |scene: &str| {
+        bar.set_message(scene.to_owned());
+        bar.inc(1);
+    };
+    let runs = benchmark::run_scenes(&loaded.profile, scenes, threads, &progress).map_err(|e| anyhow::anyhow!(e))?;
+    bar.finish_and_clear();
+    let report = benchmark::score(&runs, &mut encoder).map_err(|e| anyhow::anyhow!("scoring: {e}"))?;
+    let wall_s = started.elapsed().as_secs_f64();
+    let frames = op3dsg_sim::backends::synthetic_config(&loaded.profile)?.frame_count.unwrap_or(0);
+    let mut text = format!(
+        "{} scenes x {frames} frames ({} keyframes), {threads} threads, {:.1} s\n",
+        report.scenes.len(),
+        report.keyframes,
+        wall_s
+    );
+    text.push_str(&benchmark::text(&report));
+    write_output(None, &text)?;
+    if let Some(path) = json {
+        #[derive(serde::Serialize)]
+        struct Out<'a> {
+            overrides: &'a [String],
+            frames: u64,
+            threads: usize,
+            wall_s: f64,
+            report: &'a benchmark::QualityReport,
+        }
+        let mut out = serde_json::to_string_pretty(&Out { overrides, frames, threads, wall_s, report: &report })
+            .context("serialising the report")?;
+        out.push('\n');
+        write_output(Some(path), &out)?;
+    }
+    if let Some(path) = markdown {
+        write_output(Some(path), &benchmark::markdown(&report))?;
+    }
+    if check && !benchmark::missed_targets(&report).is_empty() {
+        bail!("quality targets missed");
+    }
+    Ok(())
+}

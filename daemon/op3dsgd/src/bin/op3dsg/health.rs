@@ -1,0 +1,112 @@
+//! `op3dsg health`: the daemon's latest health record, read with the client library's
+//! [`HealthSubscriber`] (the `health` service alone, so it works when every graph subscriber
+//! slot is taken), as text or as [`HealthReport`] JSON.
+
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use op3dsg_ipc_types::HealthSubscriber;
+use op3dsg_runtime::ipc::HealthReport;
+
+use super::{node_name, poll_until, write_output};
+
+/// `op3dsg health`: waits up to `timeout` for the daemon and a record, then prints it.
+pub(super) fn health(prefix: &str, json: bool, timeout: Duration) -> Result<()> {
+    let deadline = Instant::now() + timeout;
+    let mut healths = HealthSubscriber::open_wait(prefix, &node_name(), timeout).with_context(|| {
+        format!("connecting to op3dsgd under prefix '{prefix}' (waited {:.1} s)", timeout.as_secs_f64())
+    })?;
+    let remaining = deadline.saturating_duration_since(Instant::now());
+    let Some(record) =
+        poll_until(remaining, || healths.latest()).with_context(|| format!("reading service {prefix}/health"))?
+    else {
+        bail!("no health record received on service {prefix}/health within {:.1} s", timeout.as_secs_f64());
+    };
+    let report = HealthReport::from(&record);
+    let text = if json {
+        let mut text = serde_json::to_string_pretty(&report).context("serialising the health JSON")?;
+        text.push('\n');
+        text
+    } else {
+        health_text(&report)
+    };
+    write_output(None, &text)
+}
+
+fn health_text(h: &HealthReport) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "uptime {:.1} s  source {}  graph version {}  map nodes {} ({:.1} MiB)",
+        h.uptime_s,
+        if h.source_connected { "connected" } else { "disconnected" },
+        h.graph_version,
+        h.map_node_count,
+        op3dsg_runtime::stats::mib(h.map_memory_bytes)
+    );
+    let _ = writeln!(
+        s,
+        "frames {}  keyframes {}  without pose {}  detections fused {}",
+        h.frames_captured, h.keyframes, h.frames_without_pose, h.detections_fused
+    );
+    let _ = writeln!(
+        s,
+        "{:<16} {:>10} {:>9} {:>10} {:>10} {:>7}",
+        "stage", "processed", "rate_hz", "p50_us", "p99_us", "errors"
+    );
+    for st in &h.stages {
+        let _ = writeln!(
+            s,
+            "{:<16} {:>10} {:>9.2} {:>10.0} {:>10.0} {:>7}",
+            st.name, st.processed, st.rate_hz, st.latency_p50_us, st.latency_p99_us, st.errors
+        );
+    }
+    let _ = writeln!(s, "{:<16} {:>7} {:>9} {:>10} {:>10}", "queue", "depth", "capacity", "dropped", "pushed");
+    for q in &h.queues {
+        let _ = writeln!(s, "{:<16} {:>7} {:>9} {:>10} {:>10}", q.name, q.depth, q.capacity, q.dropped, q.pushed);
+    }
+    let r = &h.refiner;
+    if r.state != "off" {
+        let _ = writeln!(
+            s,
+            "llm refiner {}{}  refreshes {}  calls {}  failures {} (timeouts {}, 429 {})  accepted {}  last latency {:.0} ms  last graph version {}",
+            r.state,
+            if r.breaker_open { " (breaker open)" } else { "" },
+            r.refreshes,
+            r.calls,
+            r.failures,
+            r.timeouts,
+            r.rate_limited,
+            r.accepted,
+            f64::from(r.last_latency_us) / 1000.0,
+            r.last_graph_version
+        );
+        let rejections: Vec<String> = r.rejections.iter().map(|(k, v)| format!("{k} {v}")).collect();
+        let _ = writeln!(s, "llm rejections  {}", rejections.join("  "));
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use op3dsg_ipc_types::Health;
+
+    use super::*;
+
+    #[test]
+    fn health_text_shows_the_llm_refiner_only_when_configured() {
+        let mut health = Health::default();
+        assert!(!health_text(&HealthReport::from(&health)).contains("llm"));
+        health.refiner.state = 4;
+        health.refiner.breaker_open = 1;
+        health.refiner.calls = 6;
+        health.refiner.failures = 6;
+        health.refiner.rejections[1] = 2;
+        let text = health_text(&HealthReport::from(&health));
+        assert!(text.contains("llm refiner breaker_open (breaker open)  refreshes 0  calls 6  failures 6"), "{text}");
+        assert!(text.contains("unknown_node 2"), "{text}");
+        let json = serde_json::to_value(HealthReport::from(&health)).unwrap();
+        assert_eq!(json["refiner"]["rejections"]["unknown_node"], 2);
+    }
+}

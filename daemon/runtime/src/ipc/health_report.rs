@@ -1,0 +1,195 @@
+//! [`HealthReport`]: a [`Health`] record in owned, serialisable form with its stages, queues and
+//! LLM refiner ([`StageReport`], [`QueueReport`], [`RefinerReport`]), as `op3dsg health --json`
+//! prints it.
+
+use op3dsg_ipc_types::Health;
+use serde::{Deserialize, Serialize};
+
+/// A [`Health`] record in owned, serialisable form (`op3dsg health --json`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HealthReport {
+    /// Wire-contract version of the record.
+    pub schema_version: u32,
+    /// Wall-clock time of the record, nanoseconds since the Unix epoch.
+    pub stamp_ns: u64,
+    /// Seconds since the daemon started.
+    pub uptime_s: f64,
+    /// Frames delivered by the source since start.
+    pub frames_captured: u64,
+    /// Frames accepted by the keyframe gate.
+    pub keyframes: u64,
+    /// Frames dropped for lack of a pose.
+    pub frames_without_pose: u64,
+    /// Detections fused since start.
+    pub detections_fused: u64,
+    /// Current graph version.
+    pub graph_version: u64,
+    /// Nodes in the map (confirmed and pending).
+    pub map_node_count: u32,
+    /// Heap bytes the fusion map holds.
+    #[serde(default)]
+    pub map_memory_bytes: u64,
+    /// Whether the frame source delivers.
+    pub source_connected: bool,
+    /// Per-stage figures.
+    pub stages: Vec<StageReport>,
+    /// Per-queue figures.
+    pub queues: Vec<QueueReport>,
+    /// The LLM refiner.
+    #[serde(default)]
+    pub refiner: RefinerReport,
+}
+
+/// The LLM refiner in a [`HealthReport`] (see `op3dsg_ipc_types::RefinerHealth`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RefinerReport {
+    /// State (`off`, `idle`, `calling`, `backoff`, `breaker_open`, `budget_exhausted`).
+    pub state: String,
+    /// Whether the circuit breaker is open.
+    pub breaker_open: bool,
+    /// Refreshes started.
+    pub refreshes: u64,
+    /// HTTP requests sent, retries included.
+    pub calls: u64,
+    /// Requests that failed.
+    pub failures: u64,
+    /// Of `failures`: timeouts.
+    pub timeouts: u64,
+    /// Of `failures`: 429 answers.
+    pub rate_limited: u64,
+    /// Items that passed the verification gate.
+    pub accepted: u64,
+    /// Rejections by reason (`malformed`, `unknown_node`, `wrong_kind`, `non_canonical`, `stale`).
+    pub rejections: std::collections::BTreeMap<String, u64>,
+    /// Latency of the last call, microseconds.
+    pub last_latency_us: u32,
+    /// Graph version of the last verified result.
+    pub last_graph_version: u64,
+}
+
+impl From<&op3dsg_ipc_types::RefinerHealth> for RefinerReport {
+    fn from(r: &op3dsg_ipc_types::RefinerHealth) -> Self {
+        Self {
+            state: op3dsg_ipc_types::REFINER_STATES.get(r.state as usize).copied().unwrap_or("unknown").to_owned(),
+            breaker_open: r.breaker_open != 0,
+            refreshes: r.refreshes,
+            calls: r.calls,
+            failures: r.failures,
+            timeouts: r.timeouts,
+            rate_limited: r.rate_limited,
+            accepted: r.accepted,
+            rejections: op3dsg_ipc_types::REFINER_REJECTIONS
+                .iter()
+                .zip(r.rejections)
+                .map(|(name, n)| ((*name).to_owned(), n))
+                .collect(),
+            last_latency_us: r.last_latency_us,
+            last_graph_version: r.last_graph_version,
+        }
+    }
+}
+
+/// One stage of a [`HealthReport`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StageReport {
+    /// Stage name.
+    pub name: String,
+    /// Items processed since start.
+    pub processed: u64,
+    /// Items per second over the last period.
+    pub rate_hz: f32,
+    /// Median latency, microseconds.
+    pub latency_p50_us: f32,
+    /// 99th percentile latency, microseconds.
+    pub latency_p99_us: f32,
+    /// Errors since start.
+    pub errors: u32,
+}
+
+/// One queue of a [`HealthReport`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct QueueReport {
+    /// Queue name.
+    pub name: String,
+    /// Items waiting now.
+    pub depth: u32,
+    /// Capacity.
+    pub capacity: u32,
+    /// Items dropped since start.
+    pub dropped: u64,
+    /// Items pushed since start.
+    pub pushed: u64,
+}
+
+impl From<&Health> for HealthReport {
+    fn from(h: &Health) -> Self {
+        Self {
+            schema_version: h.schema_version,
+            stamp_ns: h.stamp_ns,
+            uptime_s: h.uptime_ns as f64 * 1e-9,
+            frames_captured: h.frames_captured,
+            keyframes: h.keyframes,
+            frames_without_pose: h.frames_without_pose,
+            detections_fused: h.detections_fused,
+            graph_version: h.graph_version,
+            map_node_count: h.map_node_count,
+            map_memory_bytes: h.map_memory_bytes,
+            source_connected: h.source_connected != 0,
+            stages: h
+                .valid_stages()
+                .iter()
+                .map(|s| StageReport {
+                    name: op3dsg_ipc_types::fixed_str(&s.name).to_owned(),
+                    processed: s.processed,
+                    rate_hz: s.rate_hz,
+                    latency_p50_us: s.latency_p50_us,
+                    latency_p99_us: s.latency_p99_us,
+                    errors: s.errors,
+                })
+                .collect(),
+            queues: h
+                .valid_queues()
+                .iter()
+                .map(|q| QueueReport {
+                    name: op3dsg_ipc_types::fixed_str(&q.name).to_owned(),
+                    depth: q.depth,
+                    capacity: q.capacity,
+                    dropped: q.dropped,
+                    pushed: q.pushed,
+                })
+                .collect(),
+            refiner: RefinerReport::from(&h.refiner),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn report_names_stages_queues_and_refiner_fields_and_round_trips() {
+        let mut health =
+            Health { schema_version: op3dsg_ipc_types::SCHEMA_VERSION, uptime_ns: 2_500_000_000, ..Health::default() };
+        health.stage_count = 1;
+        op3dsg_ipc_types::write_fixed_str(&mut health.stages[0].name, "fusion");
+        health.stages[0].processed = 4;
+        health.queue_count = 1;
+        op3dsg_ipc_types::write_fixed_str(&mut health.queues[0].name, "frames");
+        health.queues[0].dropped = 3;
+        health.refiner.rejections[1] = 2;
+        let report = HealthReport::from(&health);
+        assert_eq!(report.uptime_s, 2.5);
+        assert_eq!((report.stages[0].name.as_str(), report.stages[0].processed), ("fusion", 4));
+        assert_eq!((report.queues[0].name.as_str(), report.queues[0].dropped), ("frames", 3));
+        assert_eq!(report.refiner.state, "off");
+        assert_eq!(report.refiner.rejections.get("unknown_node"), Some(&2));
+        let json = serde_json::to_string(&report).expect("serialise");
+        let back: HealthReport = serde_json::from_str(&json).expect("parse");
+        assert_eq!(back, report);
+    }
+}

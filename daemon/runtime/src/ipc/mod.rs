@@ -1,0 +1,258 @@
+//! # The iceoryx2 service layer: config, errors and node helpers; codec, server, health report below
+//!
+//! `op3dsgd` serves its scene graph to planners over iceoryx2 0.10 shared memory. All services
+//! live under a configurable prefix (default `op3dsg`, see [`IpcConfig::prefix`]); the payload
+//! types and their layouts are the wire contract in [`op3dsg_ipc_types`], and the service names,
+//! QoS figures, event id, prefix rules, pose checks and the `pose` open-or-create rule are taken
+//! from [`op3dsg_ipc_types::services`] and its client, which planners use too.
+//!
+//! | module | what |
+//! |---|---|
+//! | this one | [`IpcConfig`], [`IpcError`], the iceoryx2 node helpers |
+//! | [`codec`] | [`SceneGraph`](crate::graph::SceneGraph) ⇄ [`GraphSnapshot`](op3dsg_ipc_types::GraphSnapshot): [`fill_snapshot`], [`snapshot_to_scene_graph`], [`graph_to_scene_graph`] |
+//! | [`server`] | [`GraphServer`]: graph, `graph_updated`, health, pose input |
+//! | [`health_report`] | [`HealthReport`]: the serialisable form of a health record (`op3dsg health --json`) |
+//!
+//! ## Services and QoS
+//!
+//! | service                  | pattern           | payload         | QoS (fixed by the creator)                       |
+//! |--------------------------|-------------------|-----------------|--------------------------------------------------|
+//! | `<prefix>/graph`         | publish-subscribe | `GraphSnapshot` | history 1, safe overflow, buffer 2, borrow 1     |
+//! | `<prefix>/graph_updated` | event             | event id 0      | max event id 0                                   |
+//! | `<prefix>/health`        | publish-subscribe | `Health`        | history 1, safe overflow                         |
+//! | `<prefix>/pose`          | publish-subscribe | `PoseStamped`   | safe overflow, buffer 64 (input to the daemon)   |
+//!
+//! ## Why this QoS
+//! - **History 1**: a planner that starts (or restarts) after the daemon receives the current
+//!   graph and health at once instead of waiting for the next change; the graph may not change for
+//!   a long time in a static room. iceoryx2 delivers the history from the *publisher* side when it
+//!   next updates its connections, so the daemon's publisher thread calls
+//!   [`GraphServer::update_connections`] whenever it wakes (at least every ~100 ms).
+//! - **Safe overflow**: a slow or stuck planner must never block or slow the daemon. With safe
+//!   overflow a full subscriber buffer drops its *oldest* sample, so a reader always finds the
+//!   newest versions; each sample is a complete, self-consistent graph, so losing older ones loses
+//!   nothing. The daemon never uses a blocking backpressure strategy.
+//! - **Event**: the graph changes irregularly (per keyframe fusion, not per frame). Instead of
+//!   polling the 3.9 MiB sample, a planner waits on a listener of `<prefix>/graph_updated`
+//!   (or attaches it to a `WaitSet` with its other inputs) and reads the graph when woken; the
+//!   version is in the sample's header. The event carries no data (one id, 0): a listener
+//!   scans its whole id range on every wake-up, and a range of 2^16 ids (the version's low bits,
+//!   as an earlier contract had it) cost about 0.3 ms per delivery (`op3dsg bench perf`).
+//! - The snapshot is large: it is loaned from the publisher's data segment and filled in place,
+//!   never built on the stack. A subscriber borrows at most one sample at a time (the service is
+//!   created with `subscriber_max_borrowed_samples = 1`), which keeps the shared memory the
+//!   daemon maps to `max_subscribers * (buffer + 1) + history + 1` samples (26 samples, about
+//!   100 MiB, with the defaults).
+//!
+//! Who creates what: the daemon creates `graph`, `graph_updated` and `health` (or opens them if a
+//! previous instance's survivors still hold them, stating its QoS as minimums); clients only open
+//! them, so a client cannot fix a different QoS, and a client started before the daemon waits
+//! ([`op3dsg_ipc_types::GraphSubscriber::open_wait`]). `pose` is opened-or-created by both sides with the same QoS,
+//! because the navigation stack may well start first.
+//!
+//! ## Subscribing from Python
+//! ```python
+//! import ctypes, iceoryx2 as iox2          # pip install iceoryx2==0.10.0
+//! class Node(ctypes.Structure):            # mirror field by field, see op3dsg_ipc_types
+//!     _fields_ = [("id", ctypes.c_uint32), ("parent_id", ctypes.c_uint32), ...]
+//!     @staticmethod
+//!     def type_name() -> str: return "op3dsg::Node"
+//! class GraphSnapshot(ctypes.Structure):
+//!     _fields_ = [("header", GraphHeader), ("nodes", Node * 16384), ("edges", Edge * 32768)]
+//!     @staticmethod
+//!     def type_name() -> str: return "op3dsg::GraphSnapshot"
+//! node = iox2.NodeBuilder.new().create(iox2.ServiceType.Ipc)
+//! service = (node.service_builder(iox2.ServiceName.new("op3dsg/graph"))
+//!            .publish_subscribe(GraphSnapshot).open())
+//! subscriber = service.subscriber_builder().create()
+//! sample = subscriber.receive()            # None until the daemon has published
+//! if sample is not None:
+//!     graph = sample.payload().contents    # check graph.header.schema_version == 1 first
+//! ```
+//! The `type_name()` strings must match exactly (`op3dsg::GraphSnapshot`, `op3dsg::Health`,
+//! `op3dsg::PoseStamped`), or opening fails with incompatible types.
+//!
+//! ## Stale resources
+//! A daemon killed with `SIGKILL` leaves its node and ports behind in shared memory; the node is
+//! then `Dead`. [`GraphServer::open`] (and, harmlessly, every client) first removes the stale
+//! resources of all dead nodes (`Node::try_cleanup_dead_nodes`), so a restarted daemon can create
+//! its services again and clients do not wait on a publisher that no longer exists
+//! ([`IpcConfig::cleanup_dead_nodes_at_start`]).
+//!
+//! iceoryx2 nodes are created with signal handling disabled: the daemon and the CLI install
+//! their own Ctrl-C handlers.
+
+pub mod codec;
+pub mod health_report;
+pub mod server;
+
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use iceoryx2::prelude::{Node, NodeBuilder, NodeName, ServiceName, SignalHandlingMode};
+pub use op3dsg_ipc_types::SnapshotError;
+/// The iceoryx2 service flavour of every port here (see [`op3dsg_ipc_types::services::IpcService`]):
+/// inter-process, and `Send` so the daemon may build its [`GraphServer`] on one thread and hand
+/// it to the publisher thread.
+pub use op3dsg_ipc_types::services::IpcService;
+use op3dsg_ipc_types::services::{
+    DEFAULT_GRAPH_SUBSCRIBER_BUFFER, DEFAULT_MAX_SUBSCRIBERS, DEFAULT_POSE_BUFFER, DEFAULT_PREFIX, validate_prefix,
+};
+use serde::{Deserialize, Serialize};
+
+pub use codec::{PublishReport, fill_snapshot, graph_to_scene_graph, snapshot_to_scene_graph};
+pub use health_report::{HealthReport, QueueReport, RefinerReport, StageReport};
+pub use server::GraphServer;
+
+/// Settings of the iceoryx2 services (the `[ipc]` table of a profile).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct IpcConfig {
+    /// Service name prefix: services are `<prefix>/graph`, `<prefix>/health`, ...
+    pub prefix: String,
+    /// Most subscribers per published service (each costs shared memory, see the module docs).
+    pub max_subscribers: usize,
+    /// Samples buffered per subscriber of `graph` before the oldest is overwritten.
+    pub subscriber_buffer: usize,
+    /// Poses buffered for the daemon on `pose` between two polls.
+    pub pose_buffer: usize,
+    /// Remove the shared-memory leftovers of dead processes when the daemon starts.
+    pub cleanup_dead_nodes_at_start: bool,
+}
+
+impl Default for IpcConfig {
+    fn default() -> Self {
+        Self {
+            prefix: DEFAULT_PREFIX.to_owned(),
+            max_subscribers: DEFAULT_MAX_SUBSCRIBERS,
+            subscriber_buffer: DEFAULT_GRAPH_SUBSCRIBER_BUFFER,
+            pose_buffer: DEFAULT_POSE_BUFFER,
+            cleanup_dead_nodes_at_start: true,
+        }
+    }
+}
+
+impl IpcConfig {
+    /// Checks every field; the message names the field as `<path>.<field>`. The prefix rules are
+    /// [`op3dsg_ipc_types::validate_prefix`]'s.
+    pub fn validate(&self, path: &str) -> Result<(), String> {
+        validate_prefix(&self.prefix).map_err(|e| format!("{path}.prefix: {e}"))?;
+        let ranges = [
+            ("max_subscribers", self.max_subscribers, 64),
+            ("subscriber_buffer", self.subscriber_buffer, 16),
+            ("pose_buffer", self.pose_buffer, 4096),
+        ];
+        for (field, value, max) in ranges {
+            if !(1..=max).contains(&value) {
+                return Err(format!("{path}.{field}: must be between 1 and {max}, found {value}"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Failures of the service layer; each names the service (or prefix, or node) and the operation.
+#[derive(Debug, thiserror::Error)]
+pub enum IpcError {
+    /// The prefix cannot form service names.
+    #[error("invalid service prefix '{prefix}': {reason}")]
+    InvalidPrefix {
+        /// The prefix given.
+        prefix: String,
+        /// Why it is invalid.
+        reason: String,
+    },
+    /// The iceoryx2 node could not be created.
+    #[error("cannot create iceoryx2 node '{node}': {reason}")]
+    Node {
+        /// Node name.
+        node: String,
+        /// iceoryx2's reason.
+        reason: String,
+    },
+    /// An iceoryx2 operation on a service failed.
+    #[error("{operation} on service {service}: {reason}")]
+    Service {
+        /// Full service name.
+        service: String,
+        /// What was attempted ("open or create", "loan", "send", "notify", ...).
+        operation: &'static str,
+        /// iceoryx2's reason.
+        reason: String,
+    },
+}
+
+/// An [`IpcError::Service`] for `operation` on `service`, with iceoryx2's reason.
+pub fn service_err(service: &str, operation: &'static str, reason: impl std::fmt::Debug) -> IpcError {
+    IpcError::Service { service: service.to_owned(), operation, reason: format!("{reason:?}") }
+}
+
+/// The iceoryx2 name `full` of a service under `prefix`, after checking the prefix
+/// ([`op3dsg_ipc_types::validate_prefix`]). For services outside the contract (benchmarks); the
+/// contract's own are [`op3dsg_ipc_types::services::service_name`].
+pub fn service_name(prefix: &str, full: &str) -> Result<ServiceName, IpcError> {
+    validate_prefix(prefix)
+        .map_err(|e| IpcError::InvalidPrefix { prefix: prefix.to_owned(), reason: e.to_string() })?;
+    ServiceName::new(full)
+        .map_err(|e| IpcError::InvalidPrefix { prefix: prefix.to_owned(), reason: format!("{full}: {e:?}") })
+}
+
+/// An iceoryx2 node named `node_name`, with signal handling disabled (the daemon and the CLI
+/// install their own Ctrl-C handlers).
+pub fn create_node(node_name: &str) -> Result<Node<IpcService>, IpcError> {
+    let name = NodeName::new(node_name)
+        .map_err(|e| IpcError::Node { node: node_name.to_owned(), reason: format!("invalid name: {e:?}") })?;
+    NodeBuilder::new()
+        .name(&name)
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<IpcService>()
+        .map_err(|e| IpcError::Node { node: node_name.to_owned(), reason: format!("{e:?}") })
+}
+
+/// Removes the resources of dead nodes; returns how many were cleaned.
+fn cleanup_dead_nodes(node: &Node<IpcService>) -> u64 {
+    let state = node.try_cleanup_dead_nodes();
+    if state.failed_cleanups > 0 {
+        tracing::warn!(
+            cleaned = state.cleanups,
+            failed = state.failed_cleanups,
+            "could not remove the shared-memory leftovers of some dead iceoryx2 nodes (permissions?)"
+        );
+    }
+    state.cleanups
+}
+
+/// Nanoseconds since the Unix epoch (0 if the clock is before 1970).
+pub fn wall_clock_ns() -> u64 {
+    SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn config_validation_names_the_field() {
+        let mut c = IpcConfig::default();
+        assert_eq!(c.validate("ipc"), Ok(()));
+        c.prefix.clear();
+        assert_eq!(c.validate("ipc").expect_err("empty"), "ipc.prefix: must not be empty");
+        c.prefix = "op3dsg robot".into();
+        assert!(c.validate("ipc").expect_err("space").starts_with("ipc.prefix: invalid character ' '"));
+        c.prefix = "/abs".into();
+        assert!(c.validate("ipc").is_err());
+        c.prefix = "lab/robot-1".into();
+        assert_eq!(c.validate("ipc"), Ok(()));
+        c.subscriber_buffer = 0;
+        assert_eq!(c.validate("ipc").expect_err("zero"), "ipc.subscriber_buffer: must be between 1 and 16, found 0");
+        let parsed: Result<IpcConfig, _> = toml::from_str("prefix = \"x\"\nbogus = 1\n");
+        assert!(parsed.is_err());
+        let parsed: IpcConfig = toml::from_str("prefix = \"x\"\n").expect("partial table");
+        assert_eq!(parsed.max_subscribers, 8);
+    }
+
+    #[test]
+    fn defaults_are_the_contracts() {
+        let c = IpcConfig::default();
+        assert_eq!((c.prefix.as_str(), c.max_subscribers, c.subscriber_buffer, c.pose_buffer), ("op3dsg", 8, 2, 64));
+    }
+}

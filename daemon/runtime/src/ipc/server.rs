@@ -1,0 +1,221 @@
+//! [`GraphServer`]: the daemon's side of the services. It creates `graph`, `graph_updated` and
+//! `health` with the contract's QoS, publishes graphs (filled in place in loaned samples) and
+//! health records, and receives and checks poses on `pose`.
+
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::port::update_connections::UpdateConnections;
+use iceoryx2::prelude::{EventId, Node};
+use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
+use op3dsg_ipc_types::client::open_or_create_pose_service;
+use op3dsg_ipc_types::publish::loan_snapshot;
+use op3dsg_ipc_types::services::{
+    EVENT_ID_MAX_VALUE, GRAPH_MAX_PUBLISHERS, GRAPH_PUBLISHER_MAX_LOANED_SAMPLES, GRAPH_UPDATED_EVENT_ID,
+    HEALTH_MAX_PUBLISHERS, HISTORY_SIZE, SAFE_OVERFLOW, SUBSCRIBER_MAX_BORROWED_SAMPLES,
+};
+use op3dsg_ipc_types::{ClientError, GraphSnapshot, Health, PoseStamped, ServiceNames, check_pose};
+
+use super::{IpcConfig, IpcError, IpcService, PublishReport, cleanup_dead_nodes, create_node, fill_snapshot};
+use super::{service_err, service_name, wall_clock_ns};
+use crate::graph::SceneGraph;
+
+/// The daemon's side: publishes graph and health, receives poses.
+#[derive(Debug)]
+pub struct GraphServer {
+    names: ServiceNames,
+    graph_service: PortFactory<IpcService, GraphSnapshot, ()>,
+    graph_publisher: Publisher<IpcService, GraphSnapshot, ()>,
+    notifier: Notifier<IpcService>,
+    health_publisher: Publisher<IpcService, Health, ()>,
+    pose_subscriber: Subscriber<IpcService, PoseStamped, ()>,
+    invalid_poses: u64,
+    dead_nodes_cleaned: u64,
+    node: Node<IpcService>,
+}
+
+impl GraphServer {
+    /// Creates (or reopens) the daemon's services under `config.prefix`, after removing the
+    /// leftovers of dead processes when `config.cleanup_dead_nodes_at_start` is set.
+    pub fn open(config: &IpcConfig, node_name: &str) -> Result<Self, IpcError> {
+        config.validate("ipc").map_err(|reason| IpcError::InvalidPrefix { prefix: config.prefix.clone(), reason })?;
+        let names = ServiceNames::new(&config.prefix);
+        let node = create_node(node_name)?;
+        let dead_nodes_cleaned = if config.cleanup_dead_nodes_at_start { cleanup_dead_nodes(&node) } else { 0 };
+        tracing::info!(dead_nodes_cleaned, prefix = %config.prefix, "iceoryx2 stale-resource cleanup done");
+
+        let name = service_name(&config.prefix, &names.graph)?;
+        let graph_service = node
+            .service_builder(&name)
+            .publish_subscribe::<GraphSnapshot>()
+            .history_size(HISTORY_SIZE)
+            .enable_safe_overflow(SAFE_OVERFLOW)
+            .subscriber_max_buffer_size(config.subscriber_buffer)
+            .subscriber_max_borrowed_samples(SUBSCRIBER_MAX_BORROWED_SAMPLES)
+            .max_subscribers(config.max_subscribers)
+            .max_publishers(GRAPH_MAX_PUBLISHERS)
+            .open_or_create()
+            .map_err(|e| service_err(&names.graph, "open or create", e))?;
+        let graph_publisher = graph_service
+            .publisher_builder()
+            .max_loaned_samples(GRAPH_PUBLISHER_MAX_LOANED_SAMPLES)
+            .create()
+            .map_err(|e| service_err(&names.graph, "create publisher", e))?;
+
+        let name = service_name(&config.prefix, &names.graph_updated)?;
+        let event = node
+            .service_builder(&name)
+            .event()
+            .event_id_max_value(EVENT_ID_MAX_VALUE)
+            .max_listeners(config.max_subscribers)
+            .open_or_create()
+            .map_err(|e| service_err(&names.graph_updated, "open or create", e))?;
+        let notifier =
+            event.notifier_builder().create().map_err(|e| service_err(&names.graph_updated, "create notifier", e))?;
+
+        let name = service_name(&config.prefix, &names.health)?;
+        let health_service = node
+            .service_builder(&name)
+            .publish_subscribe::<Health>()
+            .history_size(HISTORY_SIZE)
+            .enable_safe_overflow(SAFE_OVERFLOW)
+            .max_subscribers(config.max_subscribers)
+            .max_publishers(HEALTH_MAX_PUBLISHERS)
+            .open_or_create()
+            .map_err(|e| service_err(&names.health, "open or create", e))?;
+        let health_publisher = health_service
+            .publisher_builder()
+            .create()
+            .map_err(|e| service_err(&names.health, "create publisher", e))?;
+
+        let pose_subscriber = open_pose_subscriber(&node, &config.prefix, &names.pose, config.pose_buffer)?;
+        tracing::info!(prefix = %config.prefix, "serving the scene graph over iceoryx2");
+        Ok(Self {
+            names,
+            graph_service,
+            graph_publisher,
+            notifier,
+            health_publisher,
+            pose_subscriber,
+            invalid_poses: 0,
+            dead_nodes_cleaned,
+            node,
+        })
+    }
+
+    /// The service names served.
+    pub fn names(&self) -> &ServiceNames {
+        &self.names
+    }
+
+    /// Dead nodes whose resources were removed at start.
+    pub fn dead_nodes_cleaned(&self) -> u64 {
+        self.dead_nodes_cleaned
+    }
+
+    /// The iceoryx2 node (for a `WaitSet` or `node.wait`).
+    pub fn node(&self) -> &Node<IpcService> {
+        &self.node
+    }
+
+    /// Subscribers connected to `graph` now.
+    pub fn subscriber_count(&self) -> usize {
+        use iceoryx2::service::port_factory::PortFactory as _;
+        self.graph_service.dynamic_config().number_of_subscribers()
+    }
+
+    /// Connects subscribers that joined since the last call and hands them the history (the
+    /// newest graph and health). iceoryx2 does this from the publisher side only, so the publisher
+    /// thread must call this regularly (every ~100 ms) and not just on graph changes.
+    pub fn update_connections(&self) -> Result<(), IpcError> {
+        self.graph_publisher
+            .update_connections()
+            .map_err(|e| service_err(&self.names.graph, "update connections", e))?;
+        self.health_publisher.update_connections().map_err(|e| service_err(&self.names.health, "update connections", e))
+    }
+
+    /// Publishes `graph` (written in place into a loaned sample), then notifies `graph_updated`
+    /// (event id [`GRAPH_UPDATED_EVENT_ID`]).
+    pub fn publish_graph(&mut self, graph: &SceneGraph) -> Result<PublishReport, IpcError> {
+        let mut sample = loan_snapshot(&self.graph_publisher).map_err(|e| service_err(&self.names.graph, "loan", e))?;
+        let report = fill_snapshot(graph, sample.payload_mut());
+        sample.payload_mut().header.publish_time_ns = wall_clock_ns();
+        sample.send().map_err(|e| service_err(&self.names.graph, "send", e))?;
+        self.notifier
+            .notify_with_custom_event_id(EventId::new(GRAPH_UPDATED_EVENT_ID))
+            .map_err(|e| service_err(&self.names.graph_updated, "notify", e))?;
+        if report.truncated {
+            tracing::warn!(
+                nodes = report.total_nodes,
+                edges = report.total_edges,
+                published_nodes = report.nodes_written,
+                published_edges = report.edges_written,
+                "graph exceeds the snapshot capacity; published the most recently seen part"
+            );
+        }
+        Ok(report)
+    }
+
+    /// Publishes a health record.
+    pub fn publish_health(&mut self, health: &Health) -> Result<(), IpcError> {
+        self.health_publisher.send_copy(*health).map(|_| ()).map_err(|e| service_err(&self.names.health, "send", e))
+    }
+
+    /// Moves every received pose into `out`; poses that fail [`check_pose`] (an unknown kind, a
+    /// non-finite translation or rotation, or a quaternion whose norm is off by more than
+    /// [`QUATERNION_NORM_TOLERANCE`](op3dsg_ipc_types::services::QUATERNION_NORM_TOLERANCE))
+    /// are dropped and counted ([`Self::invalid_pose_count`]). Returns the number of poses
+    /// appended.
+    pub fn poll_poses(&mut self, out: &mut Vec<PoseStamped>) -> Result<usize, IpcError> {
+        let mut accepted = 0;
+        while let Some(sample) =
+            self.pose_subscriber.receive().map_err(|e| service_err(&self.names.pose, "receive", e))?
+        {
+            let pose = *sample.payload();
+            match check_pose(&pose) {
+                Ok(()) => {
+                    out.push(pose);
+                    accepted += 1;
+                }
+                Err(reason) => {
+                    self.invalid_poses += 1;
+                    if self.invalid_poses.is_power_of_two() {
+                        tracing::warn!(service = %self.names.pose, invalid = self.invalid_poses, "dropped pose: {reason}");
+                    }
+                }
+            }
+        }
+        Ok(accepted)
+    }
+
+    /// Poses dropped as invalid since start.
+    pub fn invalid_pose_count(&self) -> u64 {
+        self.invalid_poses
+    }
+}
+
+/// Opens (or creates) `pose` for the daemon with the rule both sides share
+/// ([`open_or_create_pose_service`]). If a client created it with a smaller buffer than
+/// requested, the daemon still opens it (with the client's buffer) rather than refusing to start.
+fn open_pose_subscriber(
+    node: &Node<IpcService>,
+    prefix: &str,
+    service: &str,
+    buffer: usize,
+) -> Result<Subscriber<IpcService, PoseStamped, ()>, IpcError> {
+    let pose_service = open_or_create_pose_service(node, prefix, buffer).map_err(|e| pose_err(service, &e))?;
+    if pose_service.smaller_buffer {
+        tracing::warn!(service, buffer, "pose service exists with a smaller buffer than configured; using it");
+    }
+    pose_service.factory.subscriber_builder().create().map_err(|e| service_err(service, "create subscriber", e))
+}
+
+/// A failure of the shared `pose` rule as an [`IpcError::Service`]: the operation it names and
+/// iceoryx2's reason.
+fn pose_err(service: &str, error: &ClientError) -> IpcError {
+    IpcError::Service {
+        service: service.to_owned(),
+        operation: error.operation().as_str(),
+        reason: error.cause().to_string(),
+    }
+}
