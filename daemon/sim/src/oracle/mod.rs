@@ -554,16 +554,16 @@ impl Detector for OracleDetector {
         let result = match self.instance_ids.clone() {
             None => Err(DetectorError::Frame {
                 seq: frame.seq,
-                reason: "no instance ids: the oracle detector was given no ground-truth channel (it only works \
-                         with the synthetic source's ground truth)"
+                reason: "frame has no instance ids: the oracle detector only works with the synthetic source \
+                         (it was given no ground-truth channel)"
                     .into(),
             }),
             Some(channel) => {
                 channel.with_ids(frame, |ids| self.detect_with_ids(frame, ids, out)).unwrap_or_else(|| {
                     Err(DetectorError::Frame {
                         seq: frame.seq,
-                        reason: "no instance ids for this frame in the ground-truth channel: the oracle detector only \
-                             works with frames of the synthetic source whose ground truth it was given"
+                        reason: "frame has no instance ids: the oracle detector only works with the synthetic source \
+                                 (the ground-truth channel holds none for this frame)"
                             .into(),
                     })
                 })
