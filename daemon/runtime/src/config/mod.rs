@@ -515,7 +515,7 @@ mod tests {
         let path = write(
             &dir,
             "r.toml",
-            "[source]\nkind = \"replay\"\nrate_hz = 0.0\n[source.replay]\npath = \"rec\"\n[detector]\nkind = \"yolox\"\n[detector.yolx]\nmodel_path = \"m.onnx\"\n",
+            "[source]\nkind = \"replay\"\nrate_hz = 0.0\n[source.replay]\npath = \"rec\"\n[detector.yolx]\nmodel_path = \"m.onnx\"\n",
         );
         let backends = crate::backend::Backends::runtime();
         let err = load_with(&backends, Some(&path), &[]).unwrap_err();
