@@ -8,15 +8,15 @@
 //! | stage | module | what |
 //! |---|---|---|
 //! | profile | [`config`] | the layered, strictly validated TOML profile |
-//! | composition | [`backend`], [`pipeline`] | backends by name; named stage threads, bounded queues, health, the shutdown ladder |
-//! | capture | [`pipeline`] | the capture thread over a [`op3dsg_drivers::source::FrameSource`], frame pool |
-//! | keyframe | [`keyframe`] | the keyframe gate (pose lookup, motion test) |
+//! | composition | [`backend`], [`pipeline`] | backends by name; the wiring of named stage threads and bounded queues, health, the shutdown ladder |
+//! | capture | `capture/` | the capture thread over a [`op3dsg_drivers::source::FrameSource`], frame pool |
+//! | keyframe | [`keyframe`] | the keyframe gate (pose lookup, motion test) and its thread |
 //! | keyframe path | [`keyframe_path`] | detection → fusion → prior graph → reasoner, as the pipeline and the batch runner both run it |
-//! | perception | [`perception`], [`onnx`] | the `Detector` trait, detections and masks; YOLOX and open-vocabulary detectors on ONNX Runtime; the text encoder |
-//! | fusion | [`fusion`] | the map: multi-view association of detections into 3D nodes |
+//! | perception | [`perception`], [`onnx`] | the `Detector` trait, detections and masks; YOLOX and open-vocabulary detectors on ONNX Runtime; the text encoder; the detection workers |
+//! | fusion | [`fusion`] | the map: multi-view association of detections into 3D nodes; the fusion thread |
 //! | prior graph | [`prior`] | neighbours through a grid, spatial relations from geometry and gravity |
 //! | reasoning | [`reasoner`], [`knowledge`] | the offline knowledge reasoner, the asynchronous LLM refiner, their tables |
-//! | publish | [`ipc`] | the iceoryx2 server: graph, update event, health, pose input |
+//! | publish | [`ipc`] | the iceoryx2 server: graph, update event, health, pose input; the publisher thread |
 //! | support | [`graph`], [`queue`], [`stats`] | the in-memory scene graph; bounded queues with drop counters; per-stage latency percentiles |
 //!
 //! ```no_run
@@ -31,6 +31,7 @@
 //! ```
 
 pub mod backend;
+pub(crate) mod capture;
 pub mod config;
 pub mod fusion;
 pub mod graph;

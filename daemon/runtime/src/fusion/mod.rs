@@ -14,6 +14,7 @@ use crate::perception::Detection;
 
 pub mod colour;
 pub mod multiview;
+pub(crate) mod thread;
 
 use colour::ColourParams;
 

@@ -84,6 +84,7 @@
 
 pub mod codec;
 pub mod health_report;
+pub(crate) mod publisher;
 pub mod server;
 
 use std::time::{SystemTime, UNIX_EPOCH};

@@ -8,6 +8,7 @@ pub mod candidates;
 pub mod depth_mask;
 pub mod image_input;
 pub mod open_vocab;
+pub(crate) mod worker;
 pub mod yolox;
 
 /// A binary mask over the detection's pixel box.

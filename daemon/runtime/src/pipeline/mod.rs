@@ -36,8 +36,10 @@
 //! the daemon exits with an error; a second signal exits at once (see the `op3dsgd` binary).
 
 //!
-//! The stages' loops are in `stages.rs`, the counters behind `health` in `stats.rs`; what a
-//! keyframe goes through between the gate and a published graph is [`crate::keyframe_path`].
+//! This module wires the stages; each stage's thread loop lives with its stage (`capture/`,
+//! `keyframe/thread.rs`, `perception/worker.rs`, `fusion/thread.rs`, `ipc/publisher.rs`), the
+//! queue items in `items.rs`, the counters behind `health` in `stats.rs`; what a keyframe goes
+//! through between the gate and a published graph is [`crate::keyframe_path`].
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -57,10 +59,10 @@ use crate::queue::queue;
 use crate::reasoner::{EnricherError, GraphEnricher};
 use crate::stats::StageStats;
 
-mod stages;
+pub(crate) mod items;
 mod stats;
 
-use stages::{CapturedFrame, DetectionBatch, GraphItem, KeyframeItem};
+use items::{CapturedFrame, DetectionBatch, GraphItem, KeyframeItem};
 pub use stats::{PipelineStats, RunSummary};
 
 /// Errors that stop the pipeline from starting.
@@ -220,7 +222,7 @@ impl Pipeline {
                         return;
                     }
                 };
-                stages::publisher_loop(
+                crate::ipc::publisher::publisher_loop(
                     server,
                     graph_rx,
                     pose_tx,
@@ -246,7 +248,7 @@ impl Pipeline {
             let fusion = make_fusion(profile);
             let min_interval = Duration::from_millis(profile.run.min_publish_interval_ms);
             handles.push(spawn_stage("fusion", &finished_tx, move || {
-                stages::fusion_loop(fusion, enricher, det_rx, graph_tx, &stats, min_interval);
+                crate::fusion::thread::fusion_loop(fusion, enricher, det_rx, graph_tx, &stats, min_interval);
             })?);
             running.push("fusion");
         }
@@ -260,7 +262,7 @@ impl Pipeline {
             let stats = stats.clone();
             let name: &'static str = Box::leak(format!("detect-{worker}").into_boxed_str());
             handles.push(spawn_stage(name, &finished_tx, move || {
-                stages::detect_loop(worker, detector, &tickets, &det_tx, &stats);
+                crate::perception::worker::detect_loop(worker, detector, &tickets, &det_tx, &stats);
             })?);
             running.push(name);
         }
@@ -273,7 +275,7 @@ impl Pipeline {
             let config = profile.keyframe.clone();
             let pose_config = profile.pose.clone();
             handles.push(spawn_stage("keyframe", &finished_tx, move || {
-                stages::keyframe_loop(&config, &pose_config, frames_rx, kf_tx, pose_rx, &stats, &stop);
+                crate::keyframe::thread::keyframe_loop(&config, &pose_config, frames_rx, kf_tx, pose_rx, &stats, &stop);
             })?);
             running.push("keyframe");
         }
@@ -286,7 +288,7 @@ impl Pipeline {
             let rate_hz = profile.source.rate_hz;
             let max_frames = profile.run.max_frames;
             handles.push(spawn_stage("capture", &finished_tx, move || {
-                stages::capture_loop(source.as_mut(), &pool, frames_tx, rate_hz, max_frames, &stats, &stop);
+                crate::capture::capture_loop(source.as_mut(), &pool, frames_tx, rate_hz, max_frames, &stats, &stop);
             })?);
             running.push("capture");
         }

@@ -83,7 +83,7 @@ impl PipelineStats {
         h
     }
 
-    pub(super) fn stage(&self, name: &str) -> Arc<StageStats> {
+    pub(crate) fn stage(&self, name: &str) -> Arc<StageStats> {
         // Stages are created in `start`; a missing name is a programming error caught by tests.
         self.stages.iter().find(|s| s.name == name).cloned().unwrap_or_else(|| Arc::new(StageStats::new(name)))
     }

@@ -1,6 +1,7 @@
 //! The keyframe gate: gives each frame its `world_from_camera` and decides whether it is a
-//! keyframe. Shared by the threaded [`crate::pipeline`] (on its `op3dsg-keyframe` thread) and the
-//! synchronous [`crate::batch`] runner, so both select exactly the same keyframes.
+//! keyframe. Shared by the threaded [`crate::pipeline`] (on its `op3dsg-keyframe` thread,
+//! `thread.rs`) and the synchronous batch runner of `op3dsg-sim`, so both select exactly the same
+//! keyframes.
 //!
 //! A frame's pose comes from the frame itself (`pose.source = "frame"`) or from the pose buffer
 //! filled from `<prefix>/pose` and interpolated to the frame stamp (`"ipc"`). A frame without a
@@ -18,6 +19,8 @@
 //! frame.stamp_ns = 1_000_000; // 1 ms later, not moved: not a keyframe
 //! assert_eq!(gate.decide(&frame), GateDecision::Skip);
 //! ```
+
+pub(crate) mod thread;
 
 use op3dsg_drivers::frame::Frame;
 use op3dsg_drivers::pose::{Isometry, PoseBuffer, StampedPose};

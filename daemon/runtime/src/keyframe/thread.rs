@@ -1,0 +1,51 @@
+//! The keyframe gate's thread: poses in, frames in, keyframes (with their pose) out.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use crossbeam_channel::Receiver;
+use op3dsg_ipc_types::PoseStamped;
+
+use super::{GateDecision, KeyframeGate};
+use crate::pipeline::PipelineStats;
+use crate::pipeline::items::{CapturedFrame, KeyframeItem, POLL};
+use crate::queue::{Popped, QueueReceiver, QueueSender};
+
+pub(crate) fn keyframe_loop(
+    config: &crate::config::KeyframeConfig,
+    pose_config: &crate::config::PoseConfig,
+    frames_rx: QueueReceiver<CapturedFrame>,
+    kf_tx: QueueSender<KeyframeItem>,
+    pose_rx: Receiver<PoseStamped>,
+    stats: &PipelineStats,
+    stop: &AtomicBool,
+) {
+    let stage = stats.stage("keyframe");
+    let mut gate = KeyframeGate::new(config, pose_config);
+    loop {
+        let CapturedFrame { frame, captured_at } = match frames_rx.pop_timeout(POLL) {
+            Popped::Item(captured) => captured,
+            Popped::Empty if stop.load(Ordering::Relaxed) => break,
+            Popped::Empty => continue,
+            Popped::Finished => break,
+        };
+        let started = Instant::now();
+        for pose in pose_rx.try_iter() {
+            if !gate.add_pose(&pose) {
+                stats.poses_rejected.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+        match gate.decide(&frame) {
+            GateDecision::NoPose => {
+                stats.frames_without_pose.fetch_add(1, Ordering::Relaxed);
+                tracing::trace!(frame_seq = frame.seq, "no pose within tolerance; frame dropped");
+            }
+            GateDecision::Skip => stage.record(started),
+            GateDecision::Keyframe(world_from_camera) => {
+                stage.record(started);
+                stats.keyframes.fetch_add(1, Ordering::Relaxed);
+                kf_tx.push(KeyframeItem { frame, captured_at, world_from_camera });
+            }
+        }
+    }
+}
