@@ -224,12 +224,11 @@ pub fn pipeline_run(options: &PerfOptions, mode: Mode) -> anyhow::Result<Pipelin
         }
     }
     let end_to_end = stages.iter().find(|s| s.name == "end_to_end").map(|s| s.latency).unwrap_or_default();
-    let kind_name = |debug: String| debug.to_lowercase();
     Ok(PipelineRun {
         mode: mode.describe(),
         overrides,
-        source: kind_name(format!("{:?}", profile.source.kind)),
-        detector: kind_name(format!("{:?}", profile.detector.kind)),
+        source: profile.source.kind.clone(),
+        detector: profile.detector.kind.clone(),
         detection_workers: profile.detector.workers,
         frames: summary.frames,
         keyframes: summary.keyframes,
