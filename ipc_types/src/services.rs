@@ -5,8 +5,8 @@
 //! |--------------------------|-------------------|-------------------|----------------------------------------------------|
 //! | `<prefix>/graph`         | publish-subscribe | [`GraphSnapshot`] | history 1, safe overflow, buffer 2, borrow 1       |
 //! | `<prefix>/graph_updated` | event             | event id 0        | max event id 0                                     |
-//! | `<prefix>/health`        | publish-subscribe | [`Health`]        | history 1, safe overflow                           |
-//! | `<prefix>/pose`          | publish-subscribe | [`PoseStamped`]   | safe overflow, buffer 64, 4 publishers, 4 subscribers |
+//! | `<prefix>/health`        | publish-subscribe | [`Health`]        | history 1, safe overflow, 1 publisher              |
+//! | `<prefix>/pose`          | publish-subscribe | [`PoseStamped`]   | created by op3dsg: safe overflow, buffer 64, 4 publishers, 4 subscribers; opened as it is |
 //!
 //! The figures are the constants below ([`HISTORY_SIZE`], [`DEFAULT_GRAPH_SUBSCRIBER_BUFFER`],
 //! [`SUBSCRIBER_MAX_BORROWED_SAMPLES`], [`GRAPH_UPDATED_EVENT_ID`], [`EVENT_ID_MAX_VALUE`],
@@ -15,8 +15,16 @@
 //!
 //! Who creates what: the daemon creates `graph`, `graph_updated` and `health` (subscriber and
 //! listener counts from its profile, [`DEFAULT_MAX_SUBSCRIBERS`] by default); clients only open
-//! them, so a client can never fix another QoS. `pose` is opened-or-created by both sides with
-//! the same QoS, because the navigation stack may well start first.
+//! them, so a client can never fix another QoS. `pose` may be created by any side, because the
+//! navigation stack may well start first, possibly with its own iceoryx2 code and iceoryx2's
+//! default QoS (2 publishers, 8 subscribers, buffer 2, safe overflow): whoever opens it states
+//! no requirement beyond the payload type, and op3dsg's side creates it with the QoS above when it
+//! does not exist ([`open_or_create_pose_service`](crate::client::open_or_create_pose_service)).
+//! A creator must leave one subscriber slot for the daemon and one publisher slot per pose
+//! publisher; it should keep safe overflow (the daemon warns otherwise).
+//!
+//! `graph` and `health` have one publisher: a second daemon on a prefix fails to create its
+//! graph publisher, and `op3dsgd` reports that another daemon (with its pid) serves the prefix.
 //!
 //! - History 1: a client that starts after the daemon gets the current graph and health at once
 //!   (delivered when the daemon's publisher next updates its connections, every ~100 ms).
@@ -68,11 +76,14 @@ pub const GRAPH_UPDATED_EVENT_ID: usize = 0;
 pub const EVENT_ID_MAX_VALUE: usize = GRAPH_UPDATED_EVENT_ID;
 /// Publishers of `health`: the daemon.
 pub const HEALTH_MAX_PUBLISHERS: usize = 1;
-/// Buffer of the `pose` service when a client creates it before the daemon (the daemon's default).
+/// Buffer of the `pose` service when an op3dsg client creates it before the daemon (the daemon's
+/// default). A service someone else created keeps its own buffer.
 pub const DEFAULT_POSE_BUFFER: usize = 64;
-/// Publishers allowed on `pose` (navigation stack, tools, tests).
+/// Publishers allowed on `pose` when op3dsg creates it (navigation stack, tools, tests); not
+/// required of a service someone else created.
 pub const POSE_MAX_PUBLISHERS: usize = 4;
-/// Subscribers allowed on `pose` (the daemon, a recorder).
+/// Subscribers allowed on `pose` when op3dsg creates it (the daemon, a recorder); not required
+/// of a service someone else created.
 pub const POSE_MAX_SUBSCRIBERS: usize = 4;
 /// Largest accepted deviation of a pose quaternion's norm from 1.
 pub const QUATERNION_NORM_TOLERANCE: f64 = 1e-3;

@@ -3,7 +3,10 @@
 
 use iceoryx2::node::Node as IoxNode;
 use iceoryx2::port::publisher::Publisher;
-use iceoryx2::service::builder::publish_subscribe::{PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError};
+use iceoryx2::service::builder::publish_subscribe::{
+    PublishSubscribeCreateError, PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
+};
+use iceoryx2::service::port_factory::PortFactory as _;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 
 use crate::client::{ClientError, ErrorCause, Operation, create_node};
@@ -45,16 +48,30 @@ impl Pose {
 pub struct PoseService {
     /// The service, to create publishers or subscribers from.
     pub factory: PortFactory<IpcService, PoseStamped, ()>,
+    /// `true` when this call created the service (with the contract's QoS).
+    pub created: bool,
     /// `true` when the service already existed with a smaller subscriber buffer than requested
     /// and was opened as it is (the daemon warns about this).
     pub smaller_buffer: bool,
+    /// `true` when the service already existed without safe overflow: a publisher may then
+    /// block or fail while a subscriber's buffer is full (the daemon warns about this).
+    pub unsafe_overflow: bool,
 }
 
-/// Opens `<prefix>/pose`, or creates it with safe overflow, a subscriber buffer of `buffer`
-/// poses, [`POSE_MAX_PUBLISHERS`] publishers and [`POSE_MAX_SUBSCRIBERS`] subscribers: the rule of
-/// both the daemon (its profile's buffer) and [`PosePublisher`] ([`DEFAULT_POSE_BUFFER`]), since
-/// either may start first. When another side created it with a smaller buffer, it is opened as
-/// it is rather than refused.
+/// Opens `<prefix>/pose`, or creates it when it does not exist: the rule of both the daemon (its
+/// profile's buffer) and [`PosePublisher`] ([`DEFAULT_POSE_BUFFER`]), since either may start
+/// first, and so may a navigation stack with its own iceoryx2 code.
+///
+/// - **Open** states no requirement beyond the payload type ([`PoseStamped`], type name
+///   `op3dsg::PoseStamped`): a service created with iceoryx2's default QoS (2 publishers,
+///   8 subscribers, buffer 2, safe overflow) is opened as it is. What a creator must allow is
+///   one publisher and one subscriber slot for each side that joins later (the daemon takes one
+///   subscriber slot); a full service fails later, when the port is created
+///   (`ExceedsMaxSupportedPublishers` / `ExceedsMaxSupportedSubscribers`). A buffer smaller
+///   than `buffer` or no safe overflow is reported in [`PoseService`] rather than refused.
+/// - **Create** fixes the contract's QoS: safe overflow, a subscriber buffer of `buffer` poses,
+///   [`POSE_MAX_PUBLISHERS`] publishers and [`POSE_MAX_SUBSCRIBERS`] subscribers. If another
+///   process creates it in between, it is opened instead.
 pub fn open_or_create_pose_service(
     node: &IoxNode<IpcService>,
     prefix: &str,
@@ -63,24 +80,55 @@ pub fn open_or_create_pose_service(
     let fail = |operation, cause| ClientError::new(prefix, ServiceKind::Pose, operation, cause);
     let name = service_name(prefix, ServiceKind::Pose)
         .map_err(|e| fail(Operation::OpenOrCreate, ErrorCause::InvalidPrefix(e)))?;
-    let builder = || {
-        node.service_builder(&name)
-            .publish_subscribe::<PoseStamped>()
+    let create_failed = |e| {
+        fail(
+            Operation::OpenOrCreate,
+            ErrorCause::OpenOrCreatePublishSubscribe(PublishSubscribeOpenOrCreateError::PublishSubscribeCreateError(e)),
+        )
+    };
+    let builder = || node.service_builder(&name).publish_subscribe::<PoseStamped>();
+    let opened = |factory: PortFactory<IpcService, PoseStamped, ()>| {
+        let config = factory.static_config();
+        let smaller_buffer = config.subscriber_max_buffer_size() < buffer;
+        let unsafe_overflow = !config.has_safe_overflow();
+        PoseService { factory, created: false, smaller_buffer, unsafe_overflow }
+    };
+    // A few rounds: between a failed open and a create, another process may create it, and
+    // between a failed create and the open, the creator may still be initialising it.
+    let mut last = None;
+    for _ in 0..OPEN_OR_CREATE_ATTEMPTS {
+        match builder().open() {
+            Ok(factory) => return Ok(opened(factory)),
+            Err(PublishSubscribeOpenError::DoesNotExist) => {}
+            Err(e) => return Err(fail(Operation::Open, ErrorCause::OpenPublishSubscribe(e))),
+        }
+        match builder()
             .enable_safe_overflow(SAFE_OVERFLOW)
+            .subscriber_max_buffer_size(buffer)
             .max_publishers(POSE_MAX_PUBLISHERS)
             .max_subscribers(POSE_MAX_SUBSCRIBERS)
-    };
-    match builder().subscriber_max_buffer_size(buffer).open_or_create() {
-        Ok(factory) => Ok(PoseService { factory, smaller_buffer: false }),
-        Err(PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(
-            PublishSubscribeOpenError::DoesNotSupportRequestedMinBufferSize,
-        )) => builder()
-            .open()
-            .map(|factory| PoseService { factory, smaller_buffer: true })
-            .map_err(|e| fail(Operation::Open, ErrorCause::OpenPublishSubscribe(e))),
-        Err(e) => Err(fail(Operation::OpenOrCreate, ErrorCause::OpenOrCreatePublishSubscribe(e))),
+            .create()
+        {
+            Ok(factory) => {
+                return Ok(PoseService { factory, created: true, smaller_buffer: false, unsafe_overflow: false });
+            }
+            Err(
+                e @ (PublishSubscribeCreateError::AlreadyExists
+                | PublishSubscribeCreateError::IsBeingCreatedByAnotherInstance),
+            ) => {
+                last = Some(e);
+                std::thread::sleep(OPEN_OR_CREATE_RETRY);
+            }
+            Err(e) => return Err(create_failed(e)),
+        }
     }
+    Err(create_failed(last.unwrap_or(PublishSubscribeCreateError::AlreadyExists)))
 }
+
+/// Rounds of open, then create, before [`open_or_create_pose_service`] gives up.
+const OPEN_OR_CREATE_ATTEMPTS: usize = 20;
+/// Pause between two rounds.
+const OPEN_OR_CREATE_RETRY: std::time::Duration = std::time::Duration::from_millis(10);
 
 /// Sends camera or base poses to the daemon on `<prefix>/pose` (navigation stacks, tools,
 /// tests). Every pose is checked before it is sent ([`check_pose`]): the daemon would drop a
