@@ -4,7 +4,9 @@
 //! and serves the graph over iceoryx2 until SIGINT/SIGTERM, or until `--max-frames` frames /
 //! the end of a finite source with `--exit-at-end`.
 //!
-//! Exit codes: 0 clean stop, 1 runtime failure, 2 bad profile or arguments, 130 second signal.
+//! Exit codes: 0 clean stop, 1 runtime failure (including a prefix another op3dsgd already
+//! serves: the message names the prefix and that daemon's pid), 2 bad profile or arguments,
+//! 130 second signal.
 
 use std::path::PathBuf;
 use std::process::ExitCode;

@@ -19,8 +19,8 @@
 //! |--------------------------|-------------------|-----------------|--------------------------------------------------|
 //! | `<prefix>/graph`         | publish-subscribe | `GraphSnapshot` | history 1, safe overflow, buffer 2, borrow 1     |
 //! | `<prefix>/graph_updated` | event             | event id 0      | max event id 0                                   |
-//! | `<prefix>/health`        | publish-subscribe | `Health`        | history 1, safe overflow                         |
-//! | `<prefix>/pose`          | publish-subscribe | `PoseStamped`   | safe overflow, buffer 64 (input to the daemon)   |
+//! | `<prefix>/health`        | publish-subscribe | `Health`        | history 1, safe overflow, 1 publisher            |
+//! | `<prefix>/pose`          | publish-subscribe | `PoseStamped`   | if op3dsg creates it: safe overflow, buffer 64, 4 publishers, 4 subscribers; any creator's QoS is accepted (input to the daemon) |
 //!
 //! ## Why this QoS
 //! - **History 1**: a planner that starts (or restarts) after the daemon receives the current
@@ -47,8 +47,15 @@
 //! Who creates what: the daemon creates `graph`, `graph_updated` and `health` (or opens them if a
 //! previous instance's survivors still hold them, stating its QoS as minimums); clients only open
 //! them, so a client cannot fix a different QoS, and a client started before the daemon waits
-//! ([`op3dsg_ipc_types::GraphSubscriber::open_wait`]). `pose` is opened-or-created by both sides with the same QoS,
-//! because the navigation stack may well start first.
+//! ([`op3dsg_ipc_types::GraphSubscriber::open_wait`]). `pose` may be created by either side,
+//! because the navigation stack may well start first: the daemon opens an existing one with no
+//! requirement beyond the payload type (iceoryx2's default QoS is fine; it logs the QoS found and
+//! warns about a smaller buffer or no safe overflow), and creates it with the contract's QoS
+//! otherwise ([`op3dsg_ipc_types::client::open_or_create_pose_service`]).
+//!
+//! One prefix, one daemon: `graph` and `health` allow one publisher, and a second daemon on a
+//! served prefix fails with [`IpcError::PrefixInUse`], naming the prefix and the serving
+//! daemon's pid (from iceoryx2's publisher list of `graph`); `op3dsgd` exits with code 1.
 //!
 //! ## Subscribing from Python
 //! ```python
@@ -180,6 +187,21 @@ pub enum IpcError {
         /// iceoryx2's reason.
         reason: String,
     },
+    /// Another `op3dsgd` already publishes `<prefix>/graph`: one prefix, one daemon.
+    #[error(
+        "another op3dsgd already serves prefix '{prefix}'{}; stop it or give this one another ipc.prefix",
+        pid_suffix(.other_pid)
+    )]
+    PrefixInUse {
+        /// The prefix asked for.
+        prefix: String,
+        /// Process id of the daemon serving it, when iceoryx2's publisher list tells.
+        other_pid: Option<u32>,
+    },
+}
+
+fn pid_suffix(pid: &Option<u32>) -> String {
+    pid.map(|pid| format!(" (pid {pid})")).unwrap_or_default()
 }
 
 /// An [`IpcError::Service`] for `operation` on `service`, with iceoryx2's reason.

@@ -3,7 +3,7 @@
 //! health records, and receives and checks poses on `pose`.
 
 use iceoryx2::port::notifier::Notifier;
-use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::{EventId, Node};
@@ -60,7 +60,12 @@ impl GraphServer {
             .publisher_builder()
             .max_loaned_samples(GRAPH_PUBLISHER_MAX_LOANED_SAMPLES)
             .create()
-            .map_err(|e| service_err(&names.graph, "create publisher", e))?;
+            .map_err(|e| match e {
+                PublisherCreateError::ExceedsMaxSupportedPublishers => {
+                    IpcError::PrefixInUse { prefix: config.prefix.clone(), other_pid: publisher_pid(&graph_service) }
+                }
+                e => service_err(&names.graph, "create publisher", e),
+            })?;
 
         let name = service_name(&config.prefix, &names.graph_updated)?;
         let event = node
@@ -204,10 +209,42 @@ fn open_pose_subscriber(
     buffer: usize,
 ) -> Result<Subscriber<IpcService, PoseStamped, ()>, IpcError> {
     let pose_service = open_or_create_pose_service(node, prefix, buffer).map_err(|e| pose_err(service, &e))?;
+    {
+        use iceoryx2::service::port_factory::PortFactory as _;
+        let qos = pose_service.factory.static_config();
+        tracing::info!(
+            service,
+            created = pose_service.created,
+            max_publishers = qos.max_publishers(),
+            max_subscribers = qos.max_subscribers(),
+            buffer = qos.subscriber_max_buffer_size(),
+            safe_overflow = qos.has_safe_overflow(),
+            "pose service ready"
+        );
+    }
     if pose_service.smaller_buffer {
         tracing::warn!(service, buffer, "pose service exists with a smaller buffer than configured; using it");
     }
+    if pose_service.unsafe_overflow {
+        tracing::warn!(
+            service,
+            "pose service exists without safe overflow; a pose publisher may block on a full buffer"
+        );
+    }
     pose_service.factory.subscriber_builder().create().map_err(|e| service_err(service, "create subscriber", e))
+}
+
+/// The process id of a publisher already on `service` (the daemon that serves the prefix), if
+/// iceoryx2 can tell.
+fn publisher_pid(service: &PortFactory<IpcService, GraphSnapshot, ()>) -> Option<u32> {
+    use iceoryx2::prelude::CallbackProgression;
+    use iceoryx2::service::port_factory::PortFactory as _;
+    let mut pid = None;
+    service.dynamic_config().list_publishers(|details| {
+        pid = details.node_id.pid::<IpcService>().ok().map(|p| p.value() as u32);
+        CallbackProgression::Stop
+    });
+    pid
 }
 
 /// A failure of the shared `pose` rule as an [`IpcError::Service`]: the operation it names and
