@@ -1,5 +1,10 @@
-//! The health record's wire types: [`Health`] with its per-stage, per-queue and LLM refiner
-//! figures, as the daemon publishes them on `<prefix>/health`.
+//! The health record's wire types: [`Health`] with its per-stage, per-queue, pose-input, model
+//! and LLM refiner figures, as the daemon publishes them on `<prefix>/health`.
+//!
+//! Every stage is reported: [`MAX_STAGES`] is [`MAX_WORKERS`] (the profile's limit on
+//! `detector.workers`, one `detect/<i>` entry each) plus [`FIXED_STAGES`] (`capture`,
+//! `keyframe`, `fusion`, `prior`, `publish`, `end_to_end` and room for two more), so no profile
+//! can make the daemon cut entries off.
 
 // The derive macros emit `unsafe impl ZeroCopySend`; that is the only unsafe code here.
 #![allow(unsafe_code)]
@@ -8,8 +13,20 @@ use iceoryx2::prelude::{PlacementDefault, ZeroCopySend};
 
 use crate::{NAME_CAPACITY_BYTES, SCHEMA_VERSION};
 
-/// The most pipeline stages reported in one [`Health`] record.
-pub const MAX_STAGES: usize = 16;
+/// The most detection workers a profile may ask for (`detector.workers`), each with a
+/// `detect/<i>` stage entry.
+pub const MAX_WORKERS: usize = 64;
+/// Stage entries that are not detection workers: `capture`, `keyframe`, `fusion`, `prior`,
+/// `publish`, `end_to_end`, and two spare.
+pub const FIXED_STAGES: usize = 8;
+/// The most pipeline stages reported in one [`Health`] record: every worker plus the fixed
+/// stages, so every stage of any valid profile has an entry.
+pub const MAX_STAGES: usize = MAX_WORKERS + FIXED_STAGES;
+/// The most model entries ([`ModelHealth`]) in one [`Health`] record.
+pub const MAX_MODELS: usize = 8;
+/// Execution providers ([`ModelHealth::provider`] and [`ModelHealth::requested_provider`]
+/// index this): `unknown` (0, never set by the daemon), `cpu`, `cuda`, `openvino`.
+pub const EXECUTION_PROVIDERS: [&str; 4] = ["unknown", "cpu", "cuda", "openvino"];
 /// The most queues reported in one [`Health`] record.
 pub const MAX_QUEUES: usize = 16;
 
@@ -94,6 +111,63 @@ pub struct RefinerHealth {
     pub rejections: [u64; 8],
 }
 
+/// What became of the poses received on `<prefix>/pose` (size 96 bytes), each pose counted once,
+/// under the first check it fails, in this order: the wire checks of
+/// [`check_pose`](crate::check_pose) (`unknown_kind`, `non_finite`, `non_unit_quaternion`), then
+/// the keyframe gate's (`no_base_from_camera`, `out_of_order`, `stale`, `future`). All zero with
+/// `pose.source = "frame"` except the wire checks (poses are still received and checked).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, PlacementDefault)]
+#[type_name("op3dsg::PoseHealth")]
+pub struct PoseHealth {
+    /// Poses the keyframe gate adopted (they may give frames their pose).
+    pub accepted: u64,
+    /// `kind` is not a [`PoseKind`](crate::PoseKind) value.
+    pub unknown_kind: u64,
+    /// A translation or quaternion component is NaN or infinite.
+    pub non_finite: u64,
+    /// The quaternion's norm is off 1 by more than
+    /// [`QUATERNION_NORM_TOLERANCE`](crate::services::QUATERNION_NORM_TOLERANCE).
+    pub non_unit_quaternion: u64,
+    /// A `world_from_base` pose while the profile sets no `pose.base_from_camera`.
+    pub no_base_from_camera: u64,
+    /// Stamped before the newest adopted pose (the buffer only grows forwards).
+    pub out_of_order: u64,
+    /// Stamped more than `pose.tolerance_ms` before the newest frame the gate has seen: no later
+    /// frame can use it.
+    pub stale: u64,
+    /// Stamped more than [`FUTURE_POSE_LIMIT_NS`] after the newest frame the gate has seen; not
+    /// adopted, so it cannot hold back the poses that follow.
+    pub future: u64,
+    /// Dropped between the receiving thread and the gate because the hand-over queue (capacity
+    /// `pose.buffer_len`) was full.
+    pub queue_full: u64,
+    /// Reserved, zero.
+    pub reserved: [u64; 3],
+}
+
+/// A pose stamped this far (nanoseconds) after the newest frame the keyframe gate has seen is
+/// counted as [`PoseHealth::future`] and not adopted (1 s: far beyond any camera latency).
+pub const FUTURE_POSE_LIMIT_NS: u64 = 1_000_000_000;
+
+/// One model's ONNX Runtime sessions on one execution provider (size 40 bytes).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, PlacementDefault)]
+#[type_name("op3dsg::ModelHealth")]
+pub struct ModelHealth {
+    /// The model (`YOLOX model`, `text encoder`, ...), NUL padded.
+    pub name: [u8; NAME_CAPACITY_BYTES],
+    /// Sessions of this model opened on `provider` since start (one per detection worker).
+    pub sessions: u32,
+    /// Index into [`EXECUTION_PROVIDERS`]: the provider the sessions really run on.
+    pub provider: u8,
+    /// Index into [`EXECUTION_PROVIDERS`]: the provider the profile asked for (differs from
+    /// `provider` when it could not start and the session fell back to the CPU).
+    pub requested_provider: u8,
+    /// Reserved, zero.
+    pub reserved: [u8; 2],
+}
+
 /// Daemon health, published on `<prefix>/health` every health period (profile).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, ZeroCopySend, PlacementDefault)]
@@ -101,7 +175,7 @@ pub struct RefinerHealth {
 pub struct Health {
     /// [`SCHEMA_VERSION`] of the publisher.
     pub schema_version: u32,
-    /// Number of valid entries in `stages`.
+    /// Number of valid entries in `stages` (every stage: at most [`MAX_STAGES`]).
     pub stage_count: u32,
     /// Wall-clock time of this record, nanoseconds since the Unix epoch.
     pub stamp_ns: u64,
@@ -111,7 +185,7 @@ pub struct Health {
     pub frames_captured: u64,
     /// Frames accepted by the keyframe gate.
     pub keyframes: u64,
-    /// Frames dropped because no pose was available within tolerance.
+    /// Frames dropped because no pose was available within `pose.tolerance_ms`.
     pub frames_without_pose: u64,
     /// Detections fused since start.
     pub detections_fused: u64,
@@ -133,6 +207,14 @@ pub struct Health {
     pub queues: [QueueHealth; MAX_QUEUES],
     /// The LLM refiner.
     pub refiner: RefinerHealth,
+    /// The pose input, by outcome.
+    pub pose: PoseHealth,
+    /// Number of valid entries in `models`.
+    pub model_count: u32,
+    /// Reserved, zero.
+    pub reserved_models: u32,
+    /// The execution provider each model's sessions run on.
+    pub models: [ModelHealth; MAX_MODELS],
 }
 
 impl Default for Health {
@@ -155,6 +237,10 @@ impl Default for Health {
             stages: [StageHealth::default(); MAX_STAGES],
             queues: [QueueHealth::default(); MAX_QUEUES],
             refiner: RefinerHealth::default(),
+            pose: PoseHealth::default(),
+            model_count: 0,
+            reserved_models: 0,
+            models: [ModelHealth::default(); MAX_MODELS],
         }
     }
 }
@@ -163,6 +249,10 @@ impl Health {
     /// The valid stage entries.
     pub fn valid_stages(&self) -> &[StageHealth] {
         &self.stages[..(self.stage_count as usize).min(MAX_STAGES)]
+    }
+    /// The valid model entries.
+    pub fn valid_models(&self) -> &[ModelHealth] {
+        &self.models[..(self.model_count as usize).min(MAX_MODELS)]
     }
     /// The valid queue entries.
     pub fn valid_queues(&self) -> &[QueueHealth] {

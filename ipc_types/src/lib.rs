@@ -57,7 +57,13 @@
 //! | `<prefix>/health`       | publish-subscribe | [`Health`]         | history 1, safe overflow              |
 //! | `<prefix>/pose`         | publish-subscribe | [`PoseStamped`]    | input: the navigation stack publishes |
 //!
-//! The exact figures and who creates which service are in [`services`].
+//! The exact figures and who creates which service are in [`services`]. `pose` may be created
+//! first by the navigation stack with iceoryx2's default QoS: the daemon opens it as it is.
+//!
+//! [`Health`] tells the whole story without a graph subscriber ([`HealthSubscriber`]): every
+//! stage ([`MAX_STAGES`] = [`MAX_WORKERS`] + [`FIXED_STAGES`]), every queue, the pose input by
+//! outcome ([`PoseHealth`]), frames without a pose, the execution provider each model runs on
+//! ([`ModelHealth`], names in [`EXECUTION_PROVIDERS`]) and the LLM refiner.
 //!
 //! ```
 //! use op3dsg_ipc_types::{GraphSnapshot, ServiceNames};
@@ -91,7 +97,8 @@ pub use graph_types::{
     SPATIAL_RELATIONS, affordance_bits, affordance_names, relation_id, relation_phrase,
 };
 pub use health_types::{
-    Health, MAX_QUEUES, MAX_STAGES, QueueHealth, REFINER_REJECTIONS, REFINER_STATES, RefinerHealth, StageHealth,
+    EXECUTION_PROVIDERS, FIXED_STAGES, FUTURE_POSE_LIMIT_NS, Health, MAX_MODELS, MAX_QUEUES, MAX_STAGES, MAX_WORKERS,
+    ModelHealth, PoseHealth, QueueHealth, REFINER_REJECTIONS, REFINER_STATES, RefinerHealth, StageHealth,
 };
 pub use pose_types::{PoseError, PoseKind, PoseStamped, check_pose};
 pub use services::{IpcService, PrefixError, ServiceKind, ServiceNames, validate_prefix};
@@ -99,7 +106,7 @@ pub use text::{fixed_str, write_fixed_str};
 
 /// Version of this wire contract. Bumped whenever a type's layout or meaning changes; a client
 /// must check [`GraphHeader::schema_version`] and [`Health::schema_version`] before reading.
-pub const SCHEMA_VERSION: u32 = 3;
+pub const SCHEMA_VERSION: u32 = 4;
 
 /// Bytes in a frame id (`PoseStamped::frame_id`), a stage or a queue name.
 pub const NAME_CAPACITY_BYTES: usize = 32;
@@ -119,7 +126,10 @@ mod tests {
         assert_eq!(size_of::<StageHealth>(), 64);
         assert_eq!(size_of::<QueueHealth>(), 56);
         assert_eq!(size_of::<RefinerHealth>(), 128);
-        assert_eq!(size_of::<Health>(), 88 + MAX_STAGES * 64 + MAX_QUEUES * 56 + 128);
+        assert_eq!(size_of::<PoseHealth>(), 96);
+        assert_eq!(size_of::<ModelHealth>(), 40);
+        assert_eq!(MAX_STAGES, 72);
+        assert_eq!(size_of::<Health>(), 88 + MAX_STAGES * 64 + MAX_QUEUES * 56 + 128 + 96 + 8 + MAX_MODELS * 40);
         assert_eq!(size_of::<GraphSnapshot>(), 56 + MAX_NODES * size_of::<Node>() + MAX_EDGES * size_of::<Edge>());
     }
 
@@ -132,6 +142,8 @@ mod tests {
             assert_eq!(<GraphSnapshot as ZeroCopySend>::type_name(), "op3dsg::GraphSnapshot");
             assert_eq!(<Health as ZeroCopySend>::type_name(), "op3dsg::Health");
             assert_eq!(<RefinerHealth as ZeroCopySend>::type_name(), "op3dsg::RefinerHealth");
+            assert_eq!(<PoseHealth as ZeroCopySend>::type_name(), "op3dsg::PoseHealth");
+            assert_eq!(<ModelHealth as ZeroCopySend>::type_name(), "op3dsg::ModelHealth");
             assert_eq!(<PoseStamped as ZeroCopySend>::type_name(), "op3dsg::PoseStamped");
         }
     }

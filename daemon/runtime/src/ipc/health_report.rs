@@ -39,6 +39,45 @@ pub struct HealthReport {
     /// The LLM refiner.
     #[serde(default)]
     pub refiner: RefinerReport,
+    /// The pose input by outcome (`accepted`, `unknown_kind`, `non_finite`,
+    /// `non_unit_quaternion`, `no_base_from_camera`, `out_of_order`, `stale`, `future`,
+    /// `queue_full`; see `op3dsg_ipc_types::PoseHealth`).
+    pub poses: std::collections::BTreeMap<String, u64>,
+    /// The execution provider each model's sessions run on.
+    pub models: Vec<ModelReport>,
+}
+
+/// One model of a [`HealthReport`] (see `op3dsg_ipc_types::ModelHealth`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelReport {
+    /// The model (`YOLOX model`, `text encoder`, ...).
+    pub name: String,
+    /// Sessions opened on `provider`.
+    pub sessions: u32,
+    /// The provider they really run on (`cpu`, `cuda`, `openvino`).
+    pub provider: String,
+    /// The provider the profile asked for.
+    pub requested_provider: String,
+}
+
+/// The names and values of a [`PoseHealth`](op3dsg_ipc_types::PoseHealth), in its field order.
+pub fn pose_counters(p: &op3dsg_ipc_types::PoseHealth) -> [(&'static str, u64); 9] {
+    [
+        ("accepted", p.accepted),
+        ("unknown_kind", p.unknown_kind),
+        ("non_finite", p.non_finite),
+        ("non_unit_quaternion", p.non_unit_quaternion),
+        ("no_base_from_camera", p.no_base_from_camera),
+        ("out_of_order", p.out_of_order),
+        ("stale", p.stale),
+        ("future", p.future),
+        ("queue_full", p.queue_full),
+    ]
+}
+
+fn provider_name(index: u8) -> String {
+    op3dsg_ipc_types::EXECUTION_PROVIDERS.get(index as usize).copied().unwrap_or("unknown").to_owned()
 }
 
 /// The LLM refiner in a [`HealthReport`] (see `op3dsg_ipc_types::RefinerHealth`).
@@ -163,6 +202,17 @@ impl From<&Health> for HealthReport {
                 })
                 .collect(),
             refiner: RefinerReport::from(&h.refiner),
+            poses: pose_counters(&h.pose).iter().map(|(name, n)| ((*name).to_owned(), *n)).collect(),
+            models: h
+                .valid_models()
+                .iter()
+                .map(|m| ModelReport {
+                    name: op3dsg_ipc_types::fixed_str(&m.name).to_owned(),
+                    sessions: m.sessions,
+                    provider: provider_name(m.provider),
+                    requested_provider: provider_name(m.requested_provider),
+                })
+                .collect(),
         }
     }
 }
@@ -182,7 +232,21 @@ mod tests {
         op3dsg_ipc_types::write_fixed_str(&mut health.queues[0].name, "frames");
         health.queues[0].dropped = 3;
         health.refiner.rejections[1] = 2;
+        health.pose.future = 3;
+        health.model_count = 1;
+        op3dsg_ipc_types::write_fixed_str(&mut health.models[0].name, "YOLOX model");
+        (health.models[0].sessions, health.models[0].provider, health.models[0].requested_provider) = (2, 1, 2);
         let report = HealthReport::from(&health);
+        assert_eq!((report.poses.get("future"), report.poses.len()), (Some(&3), 9));
+        assert_eq!(
+            report.models,
+            [ModelReport {
+                name: "YOLOX model".into(),
+                sessions: 2,
+                provider: "cpu".into(),
+                requested_provider: "cuda".into()
+            }]
+        );
         assert_eq!(report.uptime_s, 2.5);
         assert_eq!((report.stages[0].name.as_str(), report.stages[0].processed), ("fusion", 4));
         assert_eq!((report.queues[0].name.as_str(), report.queues[0].dropped), ("frames", 3));

@@ -108,8 +108,8 @@ use op3dsg_ipc_types::services::{
 use serde::{Deserialize, Serialize};
 
 pub use codec::{PublishReport, fill_snapshot, graph_to_scene_graph, snapshot_to_scene_graph};
-pub use health_report::{HealthReport, QueueReport, RefinerReport, StageReport};
-pub use server::GraphServer;
+pub use health_report::{HealthReport, ModelReport, QueueReport, RefinerReport, StageReport, pose_counters};
+pub use server::{GraphServer, PoseCheckCounts};
 
 /// Settings of the iceoryx2 services (the `[ipc]` table of a profile).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

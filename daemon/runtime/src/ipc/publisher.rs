@@ -33,6 +33,7 @@ pub(crate) fn publisher_loop(
     let mut upstream_done = false;
     let mut poses = Vec::new();
     let mut publish_errors = 0u64;
+    let mut reported_pose_checks = super::PoseCheckCounts::default();
     loop {
         match graph_rx.pop_timeout(if upstream_done { Duration::from_millis(100) } else { POLL }) {
             Popped::Item(GraphItem { graph, newest_capture }) => {
@@ -73,12 +74,16 @@ pub(crate) fn publisher_loop(
         if let Err(e) = server.poll_poses(&mut poses) {
             debug!(error = %e, "pose receive failed");
         }
+        stats.pose.add_checks(server.pose_checks(), &mut reported_pose_checks);
         if pose_source == PoseSourceKind::Ipc {
             for pose in poses.drain(..) {
                 // The gate drains this channel every frame; if it is full the oldest poses are
                 // the least useful, but losing the newest is acceptable too: count and go on.
                 if pose_tx.try_send(pose).is_err() {
-                    stats.poses_rejected.fetch_add(1, Ordering::Relaxed);
+                    let dropped = stats.pose.queue_full.fetch_add(1, Ordering::Relaxed) + 1;
+                    if dropped.is_power_of_two() {
+                        warn!(dropped, "pose hand-over queue to the keyframe gate full; pose dropped");
+                    }
                 }
             }
         }

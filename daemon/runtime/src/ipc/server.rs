@@ -14,7 +14,7 @@ use op3dsg_ipc_types::services::{
     EVENT_ID_MAX_VALUE, GRAPH_MAX_PUBLISHERS, GRAPH_PUBLISHER_MAX_LOANED_SAMPLES, GRAPH_UPDATED_EVENT_ID,
     HEALTH_MAX_PUBLISHERS, HISTORY_SIZE, SAFE_OVERFLOW, SUBSCRIBER_MAX_BORROWED_SAMPLES,
 };
-use op3dsg_ipc_types::{ClientError, GraphSnapshot, Health, PoseStamped, ServiceNames, check_pose};
+use op3dsg_ipc_types::{ClientError, GraphSnapshot, Health, PoseError, PoseStamped, ServiceNames, check_pose};
 
 use super::{IpcConfig, IpcError, IpcService, PublishReport, cleanup_dead_nodes, create_node, fill_snapshot};
 use super::{service_err, service_name, wall_clock_ns};
@@ -29,7 +29,7 @@ pub struct GraphServer {
     notifier: Notifier<IpcService>,
     health_publisher: Publisher<IpcService, Health, ()>,
     pose_subscriber: Subscriber<IpcService, PoseStamped, ()>,
-    invalid_poses: u64,
+    pose_checks: PoseCheckCounts,
     dead_nodes_cleaned: u64,
     node: Node<IpcService>,
 }
@@ -102,7 +102,7 @@ impl GraphServer {
             notifier,
             health_publisher,
             pose_subscriber,
-            invalid_poses: 0,
+            pose_checks: PoseCheckCounts::default(),
             dead_nodes_cleaned,
             node,
         })
@@ -169,7 +169,7 @@ impl GraphServer {
     /// Moves every received pose into `out`; poses that fail [`check_pose`] (an unknown kind, a
     /// non-finite translation or rotation, or a quaternion whose norm is off by more than
     /// [`QUATERNION_NORM_TOLERANCE`](op3dsg_ipc_types::services::QUATERNION_NORM_TOLERANCE))
-    /// are dropped and counted ([`Self::invalid_pose_count`]). Returns the number of poses
+    /// are dropped and counted by reason ([`Self::pose_checks`]). Returns the number of poses
     /// appended.
     pub fn poll_poses(&mut self, out: &mut Vec<PoseStamped>) -> Result<usize, IpcError> {
         let mut accepted = 0;
@@ -183,9 +183,9 @@ impl GraphServer {
                     accepted += 1;
                 }
                 Err(reason) => {
-                    self.invalid_poses += 1;
-                    if self.invalid_poses.is_power_of_two() {
-                        tracing::warn!(service = %self.names.pose, invalid = self.invalid_poses, "dropped pose: {reason}");
+                    let count = self.pose_checks.count(&reason);
+                    if count.is_power_of_two() {
+                        tracing::warn!(service = %self.names.pose, count, "dropped pose: {reason}");
                     }
                 }
             }
@@ -193,9 +193,41 @@ impl GraphServer {
         Ok(accepted)
     }
 
-    /// Poses dropped as invalid since start.
+    /// Poses dropped as invalid since start, all reasons together.
     pub fn invalid_pose_count(&self) -> u64 {
-        self.invalid_poses
+        let c = &self.pose_checks;
+        c.unknown_kind + c.non_finite + c.non_unit_quaternion
+    }
+
+    /// Poses dropped as invalid since start, by reason.
+    pub fn pose_checks(&self) -> &PoseCheckCounts {
+        &self.pose_checks
+    }
+}
+
+/// Received poses that failed [`check_pose`], by reason, since start.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct PoseCheckCounts {
+    /// `kind` is not a known value.
+    pub unknown_kind: u64,
+    /// NaN or infinite translation or rotation.
+    pub non_finite: u64,
+    /// Quaternion norm off 1.
+    pub non_unit_quaternion: u64,
+}
+
+impl PoseCheckCounts {
+    /// Counts `reason`; returns the new count of that reason (for rate-limited warnings).
+    fn count(&mut self, reason: &PoseError) -> u64 {
+        let counter = match reason {
+            PoseError::UnknownKind { .. } => &mut self.unknown_kind,
+            PoseError::NonFiniteTranslation { .. } | PoseError::NonFiniteRotation { .. } => &mut self.non_finite,
+            // Not a wire check (a received frame id always fits); counted with the kind checks.
+            PoseError::FrameIdTooLong { .. } => &mut self.unknown_kind,
+            PoseError::NonUnitQuaternion { .. } => &mut self.non_unit_quaternion,
+        };
+        *counter += 1;
+        *counter
     }
 }
 

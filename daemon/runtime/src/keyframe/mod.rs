@@ -4,7 +4,12 @@
 //! keyframes.
 //!
 //! A frame's pose comes from the frame itself (`pose.source = "frame"`) or from the pose buffer
-//! filled from `<prefix>/pose` and interpolated to the frame stamp (`"ipc"`). A frame without a
+//! filled from `<prefix>/pose` and interpolated to the frame stamp (`"ipc"`). A received pose is
+//! not adopted ([`PoseRefusal`], each counted in health) when its kind cannot be used, when it is
+//! older than the newest adopted pose, more than `pose.tolerance_ms` older than the newest frame
+//! (no later frame could use it), or more than
+//! [`FUTURE_POSE_LIMIT_NS`](op3dsg_ipc_types::FUTURE_POSE_LIMIT_NS) newer than the newest frame
+//! (adopting it would make every following pose out of order). A frame without a
 //! pose within `pose.tolerance_ms` is dropped. A frame with a pose is a keyframe when it is the
 //! first one, or when since the last keyframe the camera moved `keyframe.min_translation_m`,
 //! turned `keyframe.min_rotation_deg`, or `keyframe.max_interval_s` passed.
@@ -39,6 +44,22 @@ pub enum GateDecision {
     Keyframe(Isometry),
 }
 
+/// Why [`KeyframeGate::add_pose`] did not adopt a pose (module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PoseRefusal {
+    /// `kind` is not a known value.
+    UnknownKind,
+    /// `world_from_base` without `pose.base_from_camera` in the profile.
+    NoBaseFromCamera,
+    /// Stamped before the newest adopted pose.
+    OutOfOrder,
+    /// Stamped more than the tolerance before the newest frame.
+    Stale,
+    /// Stamped more than [`FUTURE_POSE_LIMIT_NS`](op3dsg_ipc_types::FUTURE_POSE_LIMIT_NS) after
+    /// the newest frame.
+    Future,
+}
+
 /// The keyframe gate's state (see the module docs).
 #[derive(Debug)]
 pub struct KeyframeGate {
@@ -50,6 +71,9 @@ pub struct KeyframeGate {
     min_translation_m: f64,
     min_rotation_rad: f64,
     max_interval_ns: u64,
+    tolerance_ns: u64,
+    /// Stamp of the newest frame looked up (`pose.source = "ipc"`).
+    newest_frame_ns: Option<u64>,
 }
 
 impl KeyframeGate {
@@ -64,21 +88,35 @@ impl KeyframeGate {
             min_translation_m: config.min_translation_m,
             min_rotation_rad: config.min_rotation_deg.to_radians(),
             max_interval_ns: (config.max_interval_s * 1e9) as u64,
+            tolerance_ns,
+            newest_frame_ns: None,
         }
     }
 
-    /// Adds a pose received on the pose service. Returns `false` when it is rejected: an unknown
-    /// kind, or a `world_from_base` pose without `pose.base_from_camera` in the profile.
-    pub fn add_pose(&mut self, pose: &PoseStamped) -> bool {
+    /// Adds a pose received on the pose service (already through
+    /// [`check_pose`](op3dsg_ipc_types::check_pose)), or says why it is not adopted.
+    pub fn add_pose(&mut self, pose: &PoseStamped) -> Result<(), PoseRefusal> {
         let world_from_x =
             Isometry::new(glam::DQuat::from_array(pose.rotation_xyzw), glam::DVec3::from_array(pose.translation_m));
         let world_from_camera = match (PoseKind::from_u8(pose.kind), self.base_from_camera) {
             (Some(PoseKind::WorldFromCamera), _) => world_from_x,
             (Some(PoseKind::WorldFromBase), Some(base_from_camera)) => world_from_x * base_from_camera,
-            _ => return false,
+            (Some(PoseKind::WorldFromBase), None) => return Err(PoseRefusal::NoBaseFromCamera),
+            (None, _) => return Err(PoseRefusal::UnknownKind),
         };
-        self.poses.push(StampedPose { stamp_ns: pose.stamp_ns, world_from_camera });
-        true
+        if let Some(frame_ns) = self.newest_frame_ns {
+            if pose.stamp_ns.saturating_add(self.tolerance_ns) < frame_ns {
+                return Err(PoseRefusal::Stale);
+            }
+            if pose.stamp_ns > frame_ns.saturating_add(op3dsg_ipc_types::FUTURE_POSE_LIMIT_NS) {
+                return Err(PoseRefusal::Future);
+            }
+        }
+        if self.poses.push(StampedPose { stamp_ns: pose.stamp_ns, world_from_camera }) {
+            Ok(())
+        } else {
+            Err(PoseRefusal::OutOfOrder)
+        }
     }
 
     /// Looks up the frame's pose and applies the motion test; a keyframe becomes the reference
@@ -86,7 +124,10 @@ impl KeyframeGate {
     pub fn decide(&mut self, frame: &Frame) -> GateDecision {
         let pose = match self.pose_source {
             PoseSourceKind::Frame => frame.world_from_camera,
-            PoseSourceKind::Ipc => self.poses.lookup(frame.stamp_ns),
+            PoseSourceKind::Ipc => {
+                self.newest_frame_ns = Some(self.newest_frame_ns.map_or(frame.stamp_ns, |n| n.max(frame.stamp_ns)));
+                self.poses.lookup(frame.stamp_ns)
+            }
         };
         let Some(world_from_camera) = pose else {
             return GateDecision::NoPose;
@@ -157,13 +198,39 @@ mod tests {
             kind: kind as u8,
             ..PoseStamped::default()
         };
-        assert!(gate.add_pose(&pose(0, 0.0, PoseKind::WorldFromCamera)));
-        assert!(gate.add_pose(&pose(20_000_000, 2.0, PoseKind::WorldFromCamera)));
+        assert_eq!(gate.add_pose(&pose(0, 0.0, PoseKind::WorldFromCamera)), Ok(()));
+        assert_eq!(gate.add_pose(&pose(20_000_000, 2.0, PoseKind::WorldFromCamera)), Ok(()));
         // No base_from_camera in the base profile: world_from_base poses are refused.
-        assert!(!gate.add_pose(&pose(30_000_000, 9.0, PoseKind::WorldFromBase)));
+        assert_eq!(gate.add_pose(&pose(30_000_000, 9.0, PoseKind::WorldFromBase)), Err(PoseRefusal::NoBaseFromCamera));
+        assert_eq!(gate.add_pose(&pose(15_000_000, 9.0, PoseKind::WorldFromCamera)), Err(PoseRefusal::OutOfOrder));
+        let unknown = PoseStamped { kind: 7, ..pose(25_000_000, 0.0, PoseKind::WorldFromCamera) };
+        assert_eq!(gate.add_pose(&unknown), Err(PoseRefusal::UnknownKind));
         match gate.decide(&frame) {
             GateDecision::Keyframe(w) => assert!((w.translation.x - 1.0).abs() < 1e-9, "{w:?}"),
             other => panic!("expected a keyframe, got {other:?}"),
         }
+    }
+
+    #[test]
+    fn stale_and_future_poses_are_refused_and_do_not_block_later_ones() {
+        let mut p = profile();
+        p.pose.source = PoseSourceKind::Ipc;
+        let mut gate = KeyframeGate::new(&p.keyframe, &p.pose);
+        let tolerance_ns = (p.pose.tolerance_ms * 1e6) as u64;
+        let at =
+            |stamp_ns: u64| PoseStamped { stamp_ns, rotation_xyzw: [0.0, 0.0, 0.0, 1.0], ..PoseStamped::default() };
+        let frame_ns = 10_000_000_000u64;
+        let mut frame = frame_at(frame_ns, 0.0, 0.0);
+        frame.world_from_camera = None;
+        // Before any frame there is no reference: anything in order is adopted.
+        assert_eq!(gate.add_pose(&at(1)), Ok(()));
+        assert_eq!(gate.decide(&frame), GateDecision::NoPose);
+        assert_eq!(gate.add_pose(&at(frame_ns - tolerance_ns - 1)), Err(PoseRefusal::Stale));
+        let future_ns = frame_ns + op3dsg_ipc_types::FUTURE_POSE_LIMIT_NS + 1;
+        assert_eq!(gate.add_pose(&at(future_ns)), Err(PoseRefusal::Future));
+        // Not adopted, so the next good pose is not out of order.
+        assert_eq!(gate.add_pose(&at(frame_ns + 1_000_000)), Ok(()));
+        frame.stamp_ns = frame_ns + 1_000_000;
+        assert!(matches!(gate.decide(&frame), GateDecision::Keyframe(_)));
     }
 }

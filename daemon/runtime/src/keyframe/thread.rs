@@ -31,8 +31,10 @@ pub(crate) fn keyframe_loop(
         };
         let started = Instant::now();
         for pose in pose_rx.try_iter() {
-            if !gate.add_pose(&pose) {
-                stats.poses_rejected.fetch_add(1, Ordering::Relaxed);
+            let outcome = gate.add_pose(&pose);
+            stats.pose.count_gate(outcome);
+            if let Err(reason) = outcome {
+                tracing::debug!(stamp_ns = pose.stamp_ns, ?reason, "pose not adopted");
             }
         }
         match gate.decide(&frame) {

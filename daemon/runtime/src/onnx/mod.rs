@@ -224,6 +224,17 @@ struct RuntimeInner {
     environment: ort::environment::Environment,
     library_path: PathBuf,
     execution_provider: ExecutionProvider,
+    /// Every session opened, by model and provider, for health ([`fill_model_health`]).
+    sessions: Mutex<Vec<SessionRecord>>,
+}
+
+/// Sessions of one model on one provider.
+#[derive(Debug, Clone, Copy)]
+struct SessionRecord {
+    what: &'static str,
+    requested: ExecutionProvider,
+    provider: ExecutionProvider,
+    sessions: u32,
 }
 
 /// The runtime once loaded. A failed attempt leaves it empty (nothing of `ort` was touched
@@ -269,7 +280,14 @@ impl OnnxRuntime {
                 },
             )?;
         tracing::info!(library = %library_path.display(), "ONNX Runtime loaded");
-        let runtime = OnnxRuntime { inner: Arc::new(RuntimeInner { environment, library_path, execution_provider }) };
+        let runtime = OnnxRuntime {
+            inner: Arc::new(RuntimeInner {
+                environment,
+                library_path,
+                execution_provider,
+                sessions: Mutex::new(Vec::new()),
+            }),
+        };
         *slot = Some(runtime.clone());
         Ok(runtime)
     }
@@ -290,11 +308,50 @@ impl OnnxRuntime {
     }
 }
 
+impl OnnxRuntime {
+    fn record_session(&self, what: &'static str, requested: ExecutionProvider, provider: ExecutionProvider) {
+        let mut sessions = self.inner.sessions.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        match sessions.iter_mut().find(|r| r.what == what && r.requested == requested && r.provider == provider) {
+            Some(record) => record.sessions = record.sessions.saturating_add(1),
+            None => sessions.push(SessionRecord { what, requested, provider, sessions: 1 }),
+        }
+    }
+}
+
+impl ExecutionProvider {
+    /// Index into [`op3dsg_ipc_types::EXECUTION_PROVIDERS`].
+    pub fn wire_index(self) -> u8 {
+        match self {
+            Self::Cpu => 1,
+            Self::Cuda => 2,
+            Self::Openvino => 3,
+        }
+    }
+}
+
+/// Writes one [`ModelHealth`](op3dsg_ipc_types::ModelHealth) per model and provider of the
+/// sessions this process opened since start (none before ONNX Runtime is loaded) into `slots`,
+/// in the order they were first opened; returns how many were written.
+pub fn fill_model_health(slots: &mut [op3dsg_ipc_types::ModelHealth]) -> usize {
+    let runtime = RUNTIME.lock().unwrap_or_else(std::sync::PoisonError::into_inner).clone();
+    let Some(runtime) = runtime else {
+        return 0;
+    };
+    let sessions = runtime.inner.sessions.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+    for (slot, record) in slots.iter_mut().zip(sessions.iter()) {
+        op3dsg_ipc_types::write_fixed_str(&mut slot.name, record.what);
+        slot.sessions = record.sessions;
+        slot.provider = record.provider.wire_index();
+        slot.requested_provider = record.requested.wire_index();
+    }
+    sessions.len().min(slots.len())
+}
+
 /// What [`open_session`] loads.
 #[derive(Debug, Clone, Copy)]
 pub struct SessionSpec<'a> {
-    /// What the model is, for messages ("YOLOX model", "text encoder").
-    pub what: &'a str,
+    /// What the model is, for messages and health ("YOLOX model", "text encoder").
+    pub what: &'static str,
     /// The model file, already resolved.
     pub model_path: &'a Path,
     /// Requested execution provider.
@@ -313,6 +370,7 @@ pub fn open_session(runtime: &OnnxRuntime, spec: SessionSpec<'_>) -> Result<(Ses
         match accelerated_session(runtime, spec) {
             Ok(session) => {
                 tracing::info!(model = %spec.model_path.display(), provider = spec.provider.as_str(), "{} on {}", spec.what, spec.provider.as_str());
+                runtime.record_session(spec.what, spec.provider, spec.provider);
                 return Ok((session, spec.provider));
             }
             Err(reason) => tracing::warn!(
@@ -326,6 +384,7 @@ pub fn open_session(runtime: &OnnxRuntime, spec: SessionSpec<'_>) -> Result<(Ses
     let session = base_builder(runtime, spec)?
         .commit_from_file(spec.model_path)
         .map_err(|e| session_error(spec, "reading the model", e.to_string()))?;
+    runtime.record_session(spec.what, spec.provider, ExecutionProvider::Cpu);
     Ok((session, ExecutionProvider::Cpu))
 }
 

@@ -63,7 +63,7 @@ pub(crate) mod items;
 mod stats;
 
 use items::{CapturedFrame, DetectionBatch, GraphItem, KeyframeItem};
-pub use stats::{PipelineStats, RunSummary};
+pub use stats::{PipelineStats, PoseStats, RunSummary};
 
 /// Errors that stop the pipeline from starting.
 #[derive(Debug, thiserror::Error)]
@@ -183,7 +183,7 @@ impl Pipeline {
             frames_pool_exhausted: AtomicU64::new(0),
             keyframes: AtomicU64::new(0),
             frames_without_pose: AtomicU64::new(0),
-            poses_rejected: AtomicU64::new(0),
+            pose: PoseStats::default(),
             detections_fused: AtomicU64::new(0),
             graph_version: AtomicU64::new(0),
             map_node_count: AtomicU64::new(0),

@@ -4,7 +4,10 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Instant;
 
-use op3dsg_ipc_types::{Health, write_fixed_str};
+use op3dsg_ipc_types::{Health, PoseHealth, write_fixed_str};
+
+use crate::ipc::PoseCheckCounts;
+use crate::keyframe::PoseRefusal;
 
 use crate::queue::QueueStats;
 use crate::reasoner::llm::RefinerStats;
@@ -22,8 +25,8 @@ pub struct PipelineStats {
     pub keyframes: AtomicU64,
     /// Frames dropped for lack of a pose within tolerance.
     pub frames_without_pose: AtomicU64,
-    /// Poses received on the pose service that were rejected (bad kind or quaternion).
-    pub poses_rejected: AtomicU64,
+    /// The pose input by outcome (published as [`Health::pose`]).
+    pub pose: PoseStats,
     /// Detections given to fusion.
     pub detections_fused: AtomicU64,
     /// Latest graph version.
@@ -80,12 +83,83 @@ impl PipelineStats {
         }
         h.queue_count = self.queues.len().min(h.queues.len()) as u32;
         h.refiner = self.refiner.health();
+        h.pose = self.pose.health();
+        h.model_count = crate::onnx::fill_model_health(&mut h.models) as u32;
         h
     }
 
     pub(crate) fn stage(&self, name: &str) -> Arc<StageStats> {
         // Stages are created in `start`; a missing name is a programming error caught by tests.
         self.stages.iter().find(|s| s.name == name).cloned().unwrap_or_else(|| Arc::new(StageStats::new(name)))
+    }
+}
+
+/// The pose input's counters, one per outcome ([`PoseHealth`] documents each). The publisher
+/// thread adds the wire-check counts (it checks every received pose), the keyframe thread the
+/// gate's outcomes.
+#[derive(Debug, Default)]
+pub struct PoseStats {
+    /// Adopted by the keyframe gate.
+    pub accepted: AtomicU64,
+    /// Unknown `kind`.
+    pub unknown_kind: AtomicU64,
+    /// NaN or infinite components.
+    pub non_finite: AtomicU64,
+    /// Quaternion norm off 1.
+    pub non_unit_quaternion: AtomicU64,
+    /// `world_from_base` without `pose.base_from_camera`.
+    pub no_base_from_camera: AtomicU64,
+    /// Older than the newest adopted pose.
+    pub out_of_order: AtomicU64,
+    /// Older than the newest frame by more than the tolerance.
+    pub stale: AtomicU64,
+    /// Too far after the newest frame.
+    pub future: AtomicU64,
+    /// Hand-over queue to the gate full.
+    pub queue_full: AtomicU64,
+}
+
+impl PoseStats {
+    /// Counts one of the gate's outcomes.
+    pub fn count_gate(&self, outcome: Result<(), PoseRefusal>) {
+        let counter = match outcome {
+            Ok(()) => &self.accepted,
+            Err(PoseRefusal::UnknownKind) => &self.unknown_kind,
+            Err(PoseRefusal::NoBaseFromCamera) => &self.no_base_from_camera,
+            Err(PoseRefusal::OutOfOrder) => &self.out_of_order,
+            Err(PoseRefusal::Stale) => &self.stale,
+            Err(PoseRefusal::Future) => &self.future,
+        };
+        counter.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Adds the receiver's wire-check counts that are new since `reported`, and remembers them
+    /// there.
+    pub fn add_checks(&self, checks: &PoseCheckCounts, reported: &mut PoseCheckCounts) {
+        let add = |counter: &AtomicU64, now: u64, before: &mut u64| {
+            counter.fetch_add(now.saturating_sub(*before), Ordering::Relaxed);
+            *before = now;
+        };
+        add(&self.unknown_kind, checks.unknown_kind, &mut reported.unknown_kind);
+        add(&self.non_finite, checks.non_finite, &mut reported.non_finite);
+        add(&self.non_unit_quaternion, checks.non_unit_quaternion, &mut reported.non_unit_quaternion);
+    }
+
+    /// The wire form.
+    pub fn health(&self) -> PoseHealth {
+        let load = |c: &AtomicU64| c.load(Ordering::Relaxed);
+        PoseHealth {
+            accepted: load(&self.accepted),
+            unknown_kind: load(&self.unknown_kind),
+            non_finite: load(&self.non_finite),
+            non_unit_quaternion: load(&self.non_unit_quaternion),
+            no_base_from_camera: load(&self.no_base_from_camera),
+            out_of_order: load(&self.out_of_order),
+            stale: load(&self.stale),
+            future: load(&self.future),
+            queue_full: load(&self.queue_full),
+            reserved: [0; 3],
+        }
     }
 }
 

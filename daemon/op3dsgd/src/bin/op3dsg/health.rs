@@ -50,6 +50,16 @@ fn health_text(h: &HealthReport) -> String {
         "frames {}  keyframes {}  without pose {}  detections fused {}",
         h.frames_captured, h.keyframes, h.frames_without_pose, h.detections_fused
     );
+    let poses: Vec<String> = h.poses.iter().filter(|(_, n)| **n > 0).map(|(k, n)| format!("{k} {n}")).collect();
+    let _ = writeln!(s, "poses  {}", if poses.is_empty() { "none received".to_owned() } else { poses.join("  ") });
+    for m in &h.models {
+        let fallback = if m.provider == m.requested_provider {
+            String::new()
+        } else {
+            format!(" (asked for {})", m.requested_provider)
+        };
+        let _ = writeln!(s, "model {} on {}{} ({} sessions)", m.name, m.provider, fallback, m.sessions);
+    }
     let _ = writeln!(
         s,
         "{:<16} {:>10} {:>9} {:>10} {:>10} {:>7}",
@@ -103,7 +113,10 @@ mod tests {
         health.refiner.calls = 6;
         health.refiner.failures = 6;
         health.refiner.rejections[1] = 2;
+        health.pose.accepted = 5;
+        health.pose.out_of_order = 1;
         let text = health_text(&HealthReport::from(&health));
+        assert!(text.contains("poses  accepted 5  out_of_order 1\n"), "{text}");
         assert!(text.contains("llm refiner breaker_open (breaker open)  refreshes 0  calls 6  failures 6"), "{text}");
         assert!(text.contains("unknown_node 2"), "{text}");
         let json = serde_json::to_value(HealthReport::from(&health)).unwrap();

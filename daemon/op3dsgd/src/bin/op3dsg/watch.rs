@@ -29,7 +29,20 @@ fn watch_line(graph: Option<&Graph>, health: Option<&Health>) -> String {
         None => s.push_str("no graph yet"),
     }
     if let Some(h) = health {
-        let _ = write!(s, " | frames {} keyframes {}", h.frames_captured, h.keyframes);
+        let _ =
+            write!(s, " | frames {} keyframes {} no pose {}", h.frames_captured, h.keyframes, h.frames_without_pose);
+        let p = &h.pose;
+        let refused = p.unknown_kind
+            + p.non_finite
+            + p.non_unit_quaternion
+            + p.no_base_from_camera
+            + p.out_of_order
+            + p.stale
+            + p.future
+            + p.queue_full;
+        if p.accepted + refused > 0 {
+            let _ = write!(s, " | poses ok {} refused {refused}", p.accepted);
+        }
         for st in h.valid_stages() {
             let _ = write!(
                 s,
