@@ -210,3 +210,26 @@ fn every_pose_rejection_reason_is_counted_in_health() {
     }
     assert!(report["frames_without_pose"].as_u64().is_some_and(|n| n > 0), "{report}");
 }
+
+#[test]
+fn health_names_the_execution_provider_each_model_runs_on() {
+    let prefix = unique_prefix("providers");
+    // The text encoder is an ONNX model (files from ./scripts/setup-models.sh, as for
+    // text_encoder_startup.rs); the PyPI ONNX Runtime offers the CPU provider only.
+    let daemon = Daemon::start(
+        &prefix,
+        &["--set", "text_encoder.enabled=true", "--set", "source.rate_hz=10", "--set", "health.period_ms=100"],
+    );
+    let mut health = daemon.health_subscriber("providers-health");
+    let h = wait_for("a model entry in health", Duration::from_secs(120), || {
+        health.latest().ok().flatten().filter(|h| h.model_count > 0)
+    });
+    let model = h
+        .valid_models()
+        .iter()
+        .find(|m| op3dsg_ipc_types::fixed_str(&m.name) == "text encoder")
+        .unwrap_or_else(|| panic!("no text encoder entry in {:?}", h.valid_models()));
+    assert_eq!(op3dsg_ipc_types::EXECUTION_PROVIDERS[model.provider as usize], "cpu");
+    assert_eq!(op3dsg_ipc_types::EXECUTION_PROVIDERS[model.requested_provider as usize], "cpu");
+    assert!(model.sessions >= 1);
+}

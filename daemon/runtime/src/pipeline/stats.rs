@@ -190,3 +190,71 @@ impl RunSummary {
         self.keyframes as f64 / self.elapsed_s.max(1e-9)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stats_with_workers(workers: usize) -> PipelineStats {
+        let mut stages = vec![Arc::new(StageStats::new("capture")), Arc::new(StageStats::new("keyframe"))];
+        stages.extend((0..workers).map(|i| Arc::new(StageStats::new(format!("detect/{i}")))));
+        stages.extend(["fusion", "prior", "publish", "end_to_end"].map(|name| Arc::new(StageStats::new(name))));
+        PipelineStats {
+            started: Instant::now(),
+            frames_captured: AtomicU64::new(0),
+            frames_pool_exhausted: AtomicU64::new(0),
+            keyframes: AtomicU64::new(0),
+            frames_without_pose: AtomicU64::new(0),
+            pose: PoseStats::default(),
+            detections_fused: AtomicU64::new(0),
+            graph_version: AtomicU64::new(0),
+            map_node_count: AtomicU64::new(0),
+            map_memory_bytes: AtomicU64::new(0),
+            source_connected: AtomicBool::new(true),
+            source_finished: AtomicBool::new(false),
+            source_bad_data_skipped: AtomicU64::new(0),
+            source_failed: AtomicBool::new(false),
+            stages,
+            queues: Vec::new(),
+            refiner: Arc::default(),
+        }
+    }
+
+    #[test]
+    fn every_stage_of_the_largest_profile_is_reported() {
+        let workers = op3dsg_ipc_types::MAX_WORKERS;
+        let health = stats_with_workers(workers).health();
+        assert_eq!(health.stage_count as usize, workers + 6);
+        let names: Vec<&str> = health.valid_stages().iter().map(|s| op3dsg_ipc_types::fixed_str(&s.name)).collect();
+        assert_eq!(names[2 + workers - 1], "detect/63");
+        assert_eq!(names.last(), Some(&"end_to_end"));
+    }
+
+    #[test]
+    fn pose_outcomes_land_in_their_own_counters() {
+        let stats = stats_with_workers(1);
+        let mut reported = PoseCheckCounts::default();
+        stats
+            .pose
+            .add_checks(&PoseCheckCounts { unknown_kind: 1, non_finite: 2, non_unit_quaternion: 0 }, &mut reported);
+        // Cumulative counts: only what is new since the last call is added.
+        stats
+            .pose
+            .add_checks(&PoseCheckCounts { unknown_kind: 1, non_finite: 3, non_unit_quaternion: 1 }, &mut reported);
+        stats.pose.count_gate(Ok(()));
+        stats.pose.count_gate(Err(PoseRefusal::Future));
+        stats.pose.count_gate(Err(PoseRefusal::UnknownKind));
+        let pose = stats.health().pose;
+        assert_eq!(
+            pose,
+            PoseHealth {
+                accepted: 1,
+                unknown_kind: 2,
+                non_finite: 3,
+                non_unit_quaternion: 1,
+                future: 1,
+                ..PoseHealth::default()
+            }
+        );
+    }
+}
