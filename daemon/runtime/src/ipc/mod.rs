@@ -98,9 +98,10 @@ pub use op3dsg_ipc_types::services::IpcService;
 use op3dsg_ipc_types::services::{
     DEFAULT_GRAPH_SUBSCRIBER_BUFFER, DEFAULT_MAX_SUBSCRIBERS, DEFAULT_POSE_BUFFER, DEFAULT_PREFIX, validate_prefix,
 };
+use op3dsg_ipc_types::{MAX_EDGES, MAX_NODES};
 use serde::{Deserialize, Serialize};
 
-pub use codec::{PublishReport, fill_snapshot, graph_to_scene_graph, snapshot_to_scene_graph};
+pub use codec::{GraphCapacity, GraphEncoder, PublishReport, graph_to_scene_graph, message_to_scene_graph};
 pub use health_report::{HealthReport, QueueReport, RefinerReport, StageReport};
 pub use server::GraphServer;
 
@@ -116,6 +117,11 @@ pub struct IpcConfig {
     pub subscriber_buffer: usize,
     /// Poses buffered for the daemon on `pose` between two polls.
     pub pose_buffer: usize,
+    /// Most nodes one graph sample holds; a larger map publishes its most recently seen nodes
+    /// and sets the header's `capacity_exceeded`.
+    pub max_nodes: usize,
+    /// Most edges one graph sample holds (see `max_nodes`).
+    pub max_edges: usize,
     /// Remove the shared-memory leftovers of dead processes when the daemon starts.
     pub cleanup_dead_nodes_at_start: bool,
 }
@@ -127,6 +133,8 @@ impl Default for IpcConfig {
             max_subscribers: DEFAULT_MAX_SUBSCRIBERS,
             subscriber_buffer: DEFAULT_GRAPH_SUBSCRIBER_BUFFER,
             pose_buffer: DEFAULT_POSE_BUFFER,
+            max_nodes: MAX_NODES,
+            max_edges: MAX_EDGES,
             cleanup_dead_nodes_at_start: true,
         }
     }
@@ -141,6 +149,8 @@ impl IpcConfig {
             ("max_subscribers", self.max_subscribers, 64),
             ("subscriber_buffer", self.subscriber_buffer, 16),
             ("pose_buffer", self.pose_buffer, 4096),
+            ("max_nodes", self.max_nodes, MAX_CONFIGURABLE_NODES),
+            ("max_edges", self.max_edges, MAX_CONFIGURABLE_EDGES),
         ];
         for (field, value, max) in ranges {
             if !(1..=max).contains(&value) {
@@ -148,6 +158,18 @@ impl IpcConfig {
             }
         }
         Ok(())
+    }
+}
+
+/// Largest accepted `ipc.max_nodes` (1 Mi nodes: a 120 MiB sample).
+pub const MAX_CONFIGURABLE_NODES: usize = 1 << 20;
+/// Largest accepted `ipc.max_edges` (4 Mi edges: a 256 MiB sample).
+pub const MAX_CONFIGURABLE_EDGES: usize = 1 << 22;
+
+impl IpcConfig {
+    /// The graph sample capacity of this configuration.
+    pub fn graph_capacity(&self) -> GraphCapacity {
+        GraphCapacity { max_nodes: self.max_nodes, max_edges: self.max_edges }
     }
 }
 
@@ -222,6 +244,19 @@ fn cleanup_dead_nodes(node: &Node<IpcService>) -> u64 {
     state.cleanups
 }
 
+/// A fresh daemon instance id: random (std's per-process random hash keys), mixed with the start
+/// time and the pid, never 0. Two starts of the daemon practically never share one.
+pub fn new_instance_id() -> u64 {
+    use std::hash::{BuildHasher, Hasher};
+    let mut hasher = std::collections::hash_map::RandomState::new().build_hasher();
+    hasher.write_u64(wall_clock_ns());
+    hasher.write_u32(std::process::id());
+    match hasher.finish() {
+        0 => 1,
+        id => id,
+    }
+}
+
 /// Nanoseconds since the Unix epoch (0 if the clock is before 1970).
 pub fn wall_clock_ns() -> u64 {
     SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(0)
@@ -245,6 +280,15 @@ mod tests {
         assert_eq!(c.validate("ipc"), Ok(()));
         c.subscriber_buffer = 0;
         assert_eq!(c.validate("ipc").expect_err("zero"), "ipc.subscriber_buffer: must be between 1 and 16, found 0");
+        c.subscriber_buffer = 2;
+        c.max_nodes = 0;
+        assert_eq!(c.validate("ipc").expect_err("zero"), "ipc.max_nodes: must be between 1 and 1048576, found 0");
+        c.max_nodes = 100;
+        c.max_edges = (1 << 22) + 1;
+        assert_eq!(c.validate("ipc").expect_err("big"), "ipc.max_edges: must be between 1 and 4194304, found 4194305");
+        c.max_edges = 200;
+        assert_eq!(c.validate("ipc"), Ok(()));
+        assert_eq!(c.graph_capacity().max_payload_bytes(), 100 * 120 + 200 * 64);
         let parsed: Result<IpcConfig, _> = toml::from_str("prefix = \"x\"\nbogus = 1\n");
         assert!(parsed.is_err());
         let parsed: IpcConfig = toml::from_str("prefix = \"x\"\n").expect("partial table");
@@ -255,5 +299,6 @@ mod tests {
     fn defaults_are_the_contracts() {
         let c = IpcConfig::default();
         assert_eq!((c.prefix.as_str(), c.max_subscribers, c.subscriber_buffer, c.pose_buffer), ("op3dsg", 8, 2, 64));
+        assert_eq!((c.max_nodes, c.max_edges), (16_384, 32_768));
     }
 }
