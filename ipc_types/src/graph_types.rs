@@ -297,10 +297,9 @@ pub const NODE_BYTES: usize = 120;
 pub const EDGE_BYTES: usize = 64;
 
 impl Node {
-    /// Appends this node's [`NODE_BYTES`] bytes (the struct's field offsets, little-endian) to
-    /// `out`; the inverse of [`Node::from_bytes`].
-    pub fn append_bytes(&self, out: &mut Vec<u8>) {
-        let mut b = [0u8; NODE_BYTES];
+    /// Writes this node's [`NODE_BYTES`] bytes (the struct's field offsets, little-endian) into
+    /// `b`, every byte of it; the inverse of [`Node::from_bytes`].
+    pub fn write_bytes(&self, b: &mut [u8; NODE_BYTES]) {
         b[0..4].copy_from_slice(&self.id.to_le_bytes());
         b[4..8].copy_from_slice(&self.parent_id.to_le_bytes());
         b[8] = self.kind;
@@ -314,6 +313,12 @@ impl Node {
         b[104..106].copy_from_slice(&self.affordance_bits.to_le_bytes());
         b[106..112].copy_from_slice(&self.reserved2);
         b[112..120].copy_from_slice(&self.last_seen_stamp_ns.to_le_bytes());
+    }
+
+    /// Appends this node's [`NODE_BYTES`] bytes to `out` (see [`Node::write_bytes`]).
+    pub fn append_bytes(&self, out: &mut Vec<u8>) {
+        let mut b = [0u8; NODE_BYTES];
+        self.write_bytes(&mut b);
         out.extend_from_slice(&b);
     }
 
@@ -347,10 +352,9 @@ impl Node {
 }
 
 impl Edge {
-    /// Appends this edge's [`EDGE_BYTES`] bytes (the struct's field offsets, little-endian) to
-    /// `out`; the inverse of [`Edge::from_bytes`].
-    pub fn append_bytes(&self, out: &mut Vec<u8>) {
-        let mut b = [0u8; EDGE_BYTES];
+    /// Writes this edge's [`EDGE_BYTES`] bytes (the struct's field offsets, little-endian) into
+    /// `b`, every byte of it; the inverse of [`Edge::from_bytes`].
+    pub fn write_bytes(&self, b: &mut [u8; EDGE_BYTES]) {
         b[0..4].copy_from_slice(&self.source_id.to_le_bytes());
         b[4..8].copy_from_slice(&self.target_id.to_le_bytes());
         b[8] = self.kind;
@@ -358,6 +362,12 @@ impl Edge {
         b[10..12].copy_from_slice(&self.relation_id.to_le_bytes());
         b[12..16].copy_from_slice(&self.confidence.to_le_bytes());
         b[16..64].copy_from_slice(&self.phrase);
+    }
+
+    /// Appends this edge's [`EDGE_BYTES`] bytes to `out` (see [`Edge::write_bytes`]).
+    pub fn append_bytes(&self, out: &mut Vec<u8>) {
+        let mut b = [0u8; EDGE_BYTES];
+        self.write_bytes(&mut b);
         out.extend_from_slice(&b);
     }
 

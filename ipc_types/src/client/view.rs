@@ -32,6 +32,50 @@ impl Hasher for IdHasher {
 
 type IdMap = HashMap<u32, u32, BuildHasherDefault<IdHasher>>;
 
+/// Node id → index in the graph. The daemon hands out ids from a counter, so they are usually
+/// dense: then a table indexed by id (one load per lookup), else a hash map.
+#[derive(Clone, Default)]
+struct IdIndex {
+    /// `dense[id]` is the index of node `id`, or [`NO_INDEX`]; empty when `sparse` is used.
+    dense: Vec<u32>,
+    sparse: IdMap,
+}
+
+impl IdIndex {
+    /// A table is used while it is at most this many times longer than the node list (plus a
+    /// small allowance), so its size stays proportional to the graph.
+    const DENSE_FACTOR: usize = 4;
+    const DENSE_SLACK: usize = 1024;
+
+    fn rebuild(&mut self, nodes: &[Node]) {
+        self.dense.clear();
+        self.sparse.clear();
+        let max_id = nodes.iter().map(|n| n.id).filter(|&id| id != NO_NODE).max();
+        let dense_len = max_id.map_or(0, |id| id as usize + 1);
+        if dense_len <= nodes.len() * Self::DENSE_FACTOR + Self::DENSE_SLACK {
+            self.dense.resize(dense_len, NO_INDEX);
+            for (i, node) in nodes.iter().enumerate() {
+                if let Some(slot) = self.dense.get_mut(node.id as usize) {
+                    *slot = i as u32;
+                }
+            }
+        } else {
+            self.sparse.reserve(nodes.len());
+            for (i, node) in nodes.iter().enumerate() {
+                self.sparse.insert(node.id, i as u32);
+            }
+        }
+    }
+
+    fn get(&self, id: u32) -> Option<u32> {
+        if self.sparse.is_empty() {
+            self.dense.get(id as usize).copied().filter(|&i| i != NO_INDEX)
+        } else {
+            self.sparse.get(&id).copied()
+        }
+    }
+}
+
 /// Index meaning "no node" in the per-edge and per-node index arrays.
 const NO_INDEX: u32 = u32::MAX;
 
@@ -58,7 +102,7 @@ pub struct Graph {
     header: GraphHeader,
     nodes: Vec<Node>,
     edges: Vec<Edge>,
-    index_of_id: IdMap,
+    index_of_id: IdIndex,
     /// The previous graph held came from another daemon instance (see [`Self::restarted`]).
     restarted: bool,
     /// Per node: index of its parent node, or [`NO_INDEX`].
@@ -156,12 +200,8 @@ impl Graph {
 
     fn rebuild_indices(&mut self) {
         let Self { nodes, edges, index_of_id, parent_index, source_index, target_index, cursor, .. } = self;
-        index_of_id.clear();
-        index_of_id.reserve(nodes.len());
-        for (i, node) in nodes.iter().enumerate() {
-            index_of_id.insert(node.id, i as u32);
-        }
-        let index = |id: u32| if id == NO_NODE { NO_INDEX } else { index_of_id.get(&id).copied().unwrap_or(NO_INDEX) };
+        index_of_id.rebuild(nodes);
+        let index = |id: u32| if id == NO_NODE { NO_INDEX } else { index_of_id.get(id).unwrap_or(NO_INDEX) };
         parent_index.clear();
         parent_index.extend(nodes.iter().map(|n| index(n.parent_id)));
         source_index.clear();
@@ -258,7 +298,7 @@ impl Graph {
 
     /// The node with this id.
     pub fn node(&self, id: u32) -> Option<NodeView<'_>> {
-        self.index_of_id.get(&id).map(|&index| NodeView { graph: self, index })
+        self.index_of_id.get(id).map(|index| NodeView { graph: self, index })
     }
 
     /// The parts whose parent is `object_id` (empty for an unknown id).
@@ -306,7 +346,7 @@ impl Graph {
     }
 
     fn related<'a>(&'a self, id: u32, adjacency: &'a Adjacency) -> impl Iterator<Item = u32> + 'a {
-        let items = self.index_of_id.get(&id).map(|&i| adjacency.of(i)).unwrap_or(&[]);
+        let items = self.index_of_id.get(id).map(|i| adjacency.of(i)).unwrap_or(&[]);
         items.iter().copied()
     }
 }

@@ -4,10 +4,11 @@
 //! ([`message_to_scene_graph`], [`graph_to_scene_graph`]).
 
 use op3dsg_ipc_types::{
-    Edge, EdgeKind, EdgeOrigin, Graph, GraphHeader, GraphMessage, MAX_EDGES, MAX_NODES, NO_NODE, Node as WireNode,
-    NodeKind, SCHEMA_VERSION, SnapshotError, check_message, graph_payload_bytes,
+    EDGE_BYTES, Edge, EdgeKind, EdgeOrigin, Graph, GraphHeader, GraphMessage, MAX_EDGES, MAX_NODES, NO_NODE,
+    NODE_BYTES, Node as WireNode, NodeKind, PHRASE_CAPACITY_BYTES, SCHEMA_VERSION, SnapshotError, check_message,
+    graph_payload_bytes, relation_phrase,
 };
-use rustc_hash::{FxHashMap, FxHashSet};
+use rustc_hash::FxHashMap;
 
 use crate::graph::{GraphEdge, GraphNode, SceneGraph};
 #[cfg(doc)]
@@ -59,6 +60,45 @@ pub struct PublishReport {
     pub payload_bytes: usize,
 }
 
+/// Node id → index, as a table indexed by id while the ids are dense (the runtime hands them out
+/// from a counter), else as a hash map; reuses its storage between graphs.
+#[derive(Debug, Default)]
+struct IdTable {
+    dense: Vec<u32>,
+    sparse: FxHashMap<u32, u32>,
+    use_sparse: bool,
+}
+
+impl IdTable {
+    const ABSENT: u32 = u32::MAX;
+
+    /// Rebuilds the table over `(id, index)` pairs; `max_id` is the largest id among them.
+    fn rebuild(&mut self, len: usize, max_id: Option<u32>, entries: impl Iterator<Item = (u32, u32)>) {
+        self.dense.clear();
+        self.sparse.clear();
+        let dense_len = max_id.map_or(0, |id| id as usize + 1);
+        self.use_sparse = dense_len > len * 4 + 1024;
+        if self.use_sparse {
+            self.sparse.extend(entries);
+        } else {
+            self.dense.resize(dense_len, Self::ABSENT);
+            for (id, index) in entries {
+                if let Some(slot) = self.dense.get_mut(id as usize) {
+                    *slot = index;
+                }
+            }
+        }
+    }
+
+    fn get(&self, id: u32) -> Option<u32> {
+        if self.use_sparse {
+            self.sparse.get(&id).copied()
+        } else {
+            self.dense.get(id as usize).copied().filter(|&i| i != Self::ABSENT)
+        }
+    }
+}
+
 /// Encodes [`SceneGraph`]s into the wire form, keeping every buffer between calls: once a graph
 /// of a given size has been encoded, encoding another of at most that size allocates nothing.
 #[derive(Debug, Default)]
@@ -66,21 +106,32 @@ pub struct GraphEncoder {
     capacity: GraphCapacity,
     instance_id: u64,
     header: GraphHeader,
+    /// The payload of the last graph is `payload[..payload_len]`; the buffer only grows.
     payload: Vec<u8>,
+    payload_len: usize,
     /// Indices into `graph.nodes` of the published nodes.
     selected: Vec<usize>,
-    /// `(index into graph.edges, recency)` of the published edges.
-    edges: Vec<(usize, u64)>,
-    /// id -> last_seen of the published nodes, for edge filtering.
-    published: FxHashMap<u32, u64>,
+    /// `(index into graph.edges, source node index, target node index)` of the published edges.
+    edges: Vec<(u32, u32, u32)>,
+    /// Published node id -> index into `graph.nodes`, for edge filtering.
+    published: IdTable,
     /// Every node id, when nodes were left out (to tell capacity from dangling edges).
-    all_ids: FxHashSet<u32>,
+    all_ids: IdTable,
+    /// The wire phrase of each relation id (NUL padded), so edges copy it instead of building it.
+    phrases: Vec<[u8; PHRASE_CAPACITY_BYTES]>,
 }
 
 impl GraphEncoder {
     /// An encoder for samples of at most `capacity`, stamping `instance_id` into every header.
     pub fn new(capacity: GraphCapacity, instance_id: u64) -> Self {
-        Self { capacity, instance_id, ..Self::default() }
+        let phrases = (0..=RELATION_ID_TABLE_MAX)
+            .map(|id| {
+                let mut phrase = [0u8; PHRASE_CAPACITY_BYTES];
+                op3dsg_ipc_types::write_fixed_str(&mut phrase, relation_phrase(id).unwrap_or(""));
+                phrase
+            })
+            .collect();
+        Self { capacity, instance_id, phrases, ..Self::default() }
     }
 
     /// The instance id stamped into every header.
@@ -105,22 +156,23 @@ impl GraphEncoder {
 
     /// The payload of the last encoded graph.
     pub fn payload(&self) -> &[u8] {
-        &self.payload
+        &self.payload[..self.payload_len]
     }
 
     /// The last encoded graph as a subscriber receives it.
     pub fn message(&self) -> GraphMessage<'_> {
-        GraphMessage::new(&self.header, &self.payload)
+        GraphMessage::new(&self.header, self.payload())
     }
 
-    /// Encodes `graph` (header, nodes sorted by id, edges). Pure: no shared memory.
+    /// Chooses what of `graph` a sample holds (nodes sorted by id, edges) and writes the header's
+    /// counts; [`Self::write_payload`] then writes the records. Pure: no shared memory.
     ///
     /// Beyond `max_nodes` it keeps the most recently seen nodes (highest `last_seen_stamp_ns`,
     /// on ties the lower id) and only the edges between kept nodes; beyond `max_edges` it keeps
     /// the edges whose older endpoint was seen most recently (on ties the earlier edge). Either
     /// sets `capacity_exceeded`. `total_*` are always the graph's real counts. `publish_time_ns`
     /// is set to 0; the publisher stamps it.
-    pub fn encode(&mut self, graph: &SceneGraph) -> PublishReport {
+    pub fn select(&mut self, graph: &SceneGraph) -> PublishReport {
         let GraphCapacity { max_nodes, max_edges } = self.capacity;
         let mut report = PublishReport {
             version: graph.version,
@@ -150,32 +202,38 @@ impl GraphEncoder {
             selected.sort_unstable_by_key(|&i| graph.nodes[i].id);
         }
 
-        let published = &mut self.published;
-        published.clear();
-        published.extend(selected.iter().map(|&i| (graph.nodes[i].id, graph.nodes[i].last_seen_stamp_ns)));
-        let all_ids = &mut self.all_ids;
-        all_ids.clear();
+        let max_published_id = selected.iter().map(|&i| graph.nodes[i].id).max();
+        self.published.rebuild(
+            selected.len(),
+            max_published_id,
+            selected.iter().map(|&i| (graph.nodes[i].id, i as u32)),
+        );
         if report.truncated {
-            all_ids.extend(graph.nodes.iter().map(|n| n.id));
+            let max_id = graph.nodes.iter().map(|n| n.id).max();
+            self.all_ids.rebuild(graph.nodes.len(), max_id, graph.nodes.iter().map(|n| (n.id, 0)));
         }
-        let exists = |id: u32| if report.truncated { all_ids.contains(&id) } else { published.contains_key(&id) };
+        let (published, all_ids) = (&self.published, &self.all_ids);
+        let exists = |id: u32| if report.truncated { all_ids.get(id).is_some() } else { published.get(id).is_some() };
 
         let edges = &mut self.edges;
         edges.clear();
         for (i, e) in graph.edges.iter().enumerate() {
-            match (published.get(&e.source_id), published.get(&e.target_id)) {
-                (Some(s), Some(t)) => edges.push((i, (*s).min(*t))),
+            match (published.get(e.source_id), published.get(e.target_id)) {
+                (Some(s), Some(t)) => edges.push((i as u32, s, t)),
                 _ if !exists(e.source_id) || !exists(e.target_id) => report.dangling_edges += 1,
                 _ => {} // endpoint left out for capacity
             }
         }
         if edges.len() > max_edges {
+            let recency = |&(_, s, t): &(u32, u32, u32)| {
+                graph.nodes[s as usize].last_seen_stamp_ns.min(graph.nodes[t as usize].last_seen_stamp_ns)
+            };
             if max_edges == 0 {
                 edges.clear();
             } else {
-                edges.select_nth_unstable_by(max_edges - 1, |a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+                edges.select_nth_unstable_by(max_edges - 1, |a, b| recency(b).cmp(&recency(a)).then(a.0.cmp(&b.0)));
                 edges.truncate(max_edges);
-                edges.sort_unstable_by_key(|&(i, _)| i);
+                edges.sort_unstable_by_key(|&(i, _, _)| i);
             }
             report.truncated = true;
         }
@@ -183,46 +241,10 @@ impl GraphEncoder {
             report.truncated = true;
         }
 
-        let payload = &mut self.payload;
-        payload.clear();
-        payload.reserve(graph_payload_bytes(selected.len(), edges.len()));
-        let mut object_count = 0u32;
-        let mut part_count = 0u32;
-        for &i in selected.iter() {
-            let node = &graph.nodes[i];
-            match node.kind {
-                NodeKind::Object => object_count += 1,
-                NodeKind::Part => part_count += 1,
-            }
-            let mut wire = WireNode {
-                id: node.id,
-                parent_id: node.parent_id.unwrap_or(NO_NODE),
-                kind: node.kind as u8,
-                reserved: [0; 3],
-                observation_count: node.observation_count,
-                confidence: node.confidence,
-                centre_m: node.centre_m,
-                box_min_m: node.box_min_m,
-                box_max_m: node.box_max_m,
-                affordance_bits: node.affordance_bits,
-                reserved2: [0; 6],
-                last_seen_stamp_ns: node.last_seen_stamp_ns,
-                ..WireNode::default()
-            };
-            if !op3dsg_ipc_types::write_fixed_str(&mut wire.label, &node.label) {
-                report.labels_cut += 1;
-            }
-            wire.append_bytes(payload);
-        }
-        for &(i, _) in edges.iter() {
-            let mut wire = Edge::default();
-            write_edge(&mut wire, &graph.edges[i]);
-            wire.append_bytes(payload);
-        }
-
         report.nodes_written = selected.len();
         report.edges_written = edges.len();
-        report.payload_bytes = payload.len();
+        report.payload_bytes = graph_payload_bytes(selected.len(), edges.len());
+        self.payload_len = report.payload_bytes;
         self.header = GraphHeader {
             schema_version: SCHEMA_VERSION,
             node_count: selected.len() as u32,
@@ -231,8 +253,8 @@ impl GraphEncoder {
             stamp_ns: graph.stamp_ns,
             publish_time_ns: 0,
             edge_count: edges.len() as u32,
-            object_count,
-            part_count,
+            object_count: 0,
+            part_count: 0,
             capacity_exceeded: u8::from(report.truncated),
             reserved: [0; 3],
             total_node_count: u32::try_from(graph.nodes.len()).unwrap_or(u32::MAX),
@@ -243,20 +265,92 @@ impl GraphEncoder {
         };
         report
     }
+
+    /// Writes the records of the graph [`Self::select`] chose into `out` (exactly
+    /// `report.payload_bytes` long, every byte written) and completes the header (object and part
+    /// counts) and `report` (labels cut).
+    pub fn write_payload(&mut self, graph: &SceneGraph, out: &mut [u8], report: &mut PublishReport) {
+        let counts = write_records(graph, &self.selected, &self.edges, &self.phrases, out);
+        (self.header.object_count, self.header.part_count, report.labels_cut) = counts;
+    }
+
+    /// [`Self::select`] and [`Self::write_payload`] into the encoder's own buffer: the header and
+    /// payload are then [`Self::header`] and [`Self::payload`].
+    pub fn encode(&mut self, graph: &SceneGraph) -> PublishReport {
+        let mut report = self.select(graph);
+        let len = report.payload_bytes;
+        // The buffer only grows; every byte of `payload[..len]` is written.
+        if self.payload.len() < len {
+            self.payload.resize(len, 0);
+        }
+        let counts = write_records(graph, &self.selected, &self.edges, &self.phrases, &mut self.payload[..len]);
+        (self.header.object_count, self.header.part_count, report.labels_cut) = counts;
+        report
+    }
 }
 
-fn write_edge(slot: &mut Edge, edge: &GraphEdge) {
-    slot.source_id = edge.source_id;
-    slot.target_id = edge.target_id;
-    slot.kind = edge.kind as u8;
-    slot.origin = edge.origin as u8;
-    slot.relation_id = edge.relation_id;
-    slot.confidence = edge.confidence;
-    op3dsg_ipc_types::write_fixed_str(
-        &mut slot.phrase,
-        op3dsg_ipc_types::relation_phrase(edge.relation_id).unwrap_or(""),
-    );
+/// Writes the chosen nodes, then edges, as records into `out`; returns the object and part
+/// counts and the number of labels cut.
+fn write_records(
+    graph: &SceneGraph,
+    selected: &[usize],
+    edges: &[(u32, u32, u32)],
+    phrases: &[[u8; PHRASE_CAPACITY_BYTES]],
+    out: &mut [u8],
+) -> (u32, u32, usize) {
+    debug_assert_eq!(out.len(), graph_payload_bytes(selected.len(), edges.len()));
+    let split = (selected.len() * NODE_BYTES).min(out.len());
+    let (node_bytes, edge_bytes) = out.split_at_mut(split);
+    let (mut object_count, mut part_count, mut labels_cut) = (0u32, 0u32, 0usize);
+    for (record, &i) in node_bytes.as_chunks_mut::<NODE_BYTES>().0.iter_mut().zip(selected) {
+        let node = &graph.nodes[i];
+        match node.kind {
+            NodeKind::Object => object_count += 1,
+            NodeKind::Part => part_count += 1,
+        }
+        let mut wire = WireNode {
+            id: node.id,
+            parent_id: node.parent_id.unwrap_or(NO_NODE),
+            kind: node.kind as u8,
+            reserved: [0; 3],
+            observation_count: node.observation_count,
+            confidence: node.confidence,
+            centre_m: node.centre_m,
+            box_min_m: node.box_min_m,
+            box_max_m: node.box_max_m,
+            affordance_bits: node.affordance_bits,
+            reserved2: [0; 6],
+            last_seen_stamp_ns: node.last_seen_stamp_ns,
+            ..WireNode::default()
+        };
+        if !op3dsg_ipc_types::write_fixed_str(&mut wire.label, &node.label) {
+            labels_cut += 1;
+        }
+        wire.write_bytes(record);
+    }
+    for (record, &(i, _, _)) in edge_bytes.as_chunks_mut::<EDGE_BYTES>().0.iter_mut().zip(edges) {
+        let edge = &graph.edges[i as usize];
+        let phrase = phrases.get(usize::from(edge.relation_id)).copied().unwrap_or_else(|| {
+            let mut phrase = [0u8; PHRASE_CAPACITY_BYTES];
+            op3dsg_ipc_types::write_fixed_str(&mut phrase, relation_phrase(edge.relation_id).unwrap_or(""));
+            phrase
+        });
+        Edge {
+            source_id: edge.source_id,
+            target_id: edge.target_id,
+            kind: edge.kind as u8,
+            origin: edge.origin as u8,
+            relation_id: edge.relation_id,
+            confidence: edge.confidence,
+            phrase,
+        }
+        .write_bytes(record);
+    }
+    (object_count, part_count, labels_cut)
 }
+
+/// Relation ids up to this one get a prepared phrase (the canonical ones are below 128).
+const RELATION_ID_TABLE_MAX: u16 = 127;
 
 /// Reads a received graph back into a [`SceneGraph`], checking it against the wire contract
 /// first ([`check_message`]: schema version, counts, payload length, every kind and origin
@@ -285,7 +379,7 @@ pub fn graph_to_scene_graph(graph: &Graph) -> SceneGraph {
     }
 }
 
-/// A node of a checked snapshot (its kind is known).
+/// A node of a checked graph sample (its kind is known).
 fn node_from_wire(n: &WireNode) -> GraphNode {
     GraphNode {
         id: n.id,
@@ -302,7 +396,7 @@ fn node_from_wire(n: &WireNode) -> GraphNode {
     }
 }
 
-/// An edge of a checked snapshot (its kind and origin are known).
+/// An edge of a checked graph sample (its kind and origin are known).
 fn edge_from_wire(e: &Edge) -> GraphEdge {
     GraphEdge {
         source_id: e.source_id,
@@ -429,6 +523,46 @@ mod tests {
         assert_eq!((header.total_node_count, header.total_edge_count), (5, 4));
         let graph = Graph::from_message(&encoder.message()).expect("valid");
         assert!(graph.capacity_exceeded());
+    }
+
+    #[test]
+    fn writing_into_a_loaned_buffer_matches_the_own_buffer() {
+        let mut part = node(7, NodeKind::Part, 20);
+        part.label = "x".repeat(60);
+        let graph = SceneGraph {
+            version: 3,
+            stamp_ns: 1,
+            nodes: vec![node(3, NodeKind::Object, 10), part],
+            edges: vec![edge(7, 3)],
+        };
+        let mut own = encoder();
+        let own_report = own.encode(&graph);
+        let mut split = encoder();
+        let mut report = split.select(&graph);
+        let mut loaned = vec![0xAAu8; report.payload_bytes];
+        split.write_payload(&graph, &mut loaned, &mut report);
+        assert_eq!(report, own_report);
+        assert_eq!((loaned.as_slice(), split.header()), (own.payload(), own.header()));
+        assert_eq!((split.header().object_count, split.header().part_count, report.labels_cut), (1, 1, 1));
+    }
+
+    #[test]
+    fn sparse_ids_encode_like_dense_ones() {
+        let mut encoder = encoder();
+        let ids = [3u32, 5_000_000, 4_000_000_000];
+        let nodes: Vec<GraphNode> = ids.iter().map(|&id| node(id, NodeKind::Object, 1)).collect();
+        let edges = vec![edge(3, 5_000_000), edge(4_000_000_000, 3), edge(3, 77)];
+        let graph = SceneGraph { version: 1, stamp_ns: 0, nodes, edges };
+        let report = encoder.encode(&graph);
+        assert_eq!((report.edges_written, report.dangling_edges, report.truncated), (2, 1, false));
+        assert_eq!(node_ids(&encoder), ids);
+        let client = Graph::from_message(&encoder.message()).expect("valid");
+        assert_eq!(client.node(4_000_000_000).map(|n| n.edges_from().count()), Some(1));
+        assert_eq!(client.edges_to(3).map(|e| e.source_id()).collect::<Vec<_>>(), [4_000_000_000]);
+        // A dense graph after a sparse one reuses the encoder.
+        let dense = SceneGraph { version: 2, stamp_ns: 0, nodes: vec![node(0, NodeKind::Object, 1)], edges: vec![] };
+        assert_eq!(encoder.encode(&dense).payload_bytes, 120);
+        assert_eq!(node_ids(&encoder), [0]);
     }
 
     #[test]

@@ -9,7 +9,7 @@ use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::{EventId, Node};
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use op3dsg_ipc_types::client::open_or_create_pose_service;
-use op3dsg_ipc_types::publish::{GraphPayload, GraphSendError, send_graph};
+use op3dsg_ipc_types::publish::GraphPayload;
 use op3dsg_ipc_types::services::{
     EVENT_ID_MAX_VALUE, GRAPH_MAX_PUBLISHERS, GRAPH_PUBLISHER_MAX_LOANED_SAMPLES, GRAPH_UPDATED_EVENT_ID,
     HEALTH_MAX_PUBLISHERS, HISTORY_SIZE, SAFE_OVERFLOW, SUBSCRIBER_MAX_BORROWED_SAMPLES,
@@ -148,16 +148,21 @@ impl GraphServer {
         self.health_publisher.update_connections().map_err(|e| service_err(&self.names.health, "update connections", e))
     }
 
-    /// Publishes `graph` in a loaned sample of exactly the graph's size (encoded into a reused
-    /// buffer, then copied in), then notifies `graph_updated` (event id
+    /// Publishes `graph` in a loaned sample of exactly the graph's size (its records written
+    /// straight into the sample), then notifies `graph_updated` (event id
     /// [`GRAPH_UPDATED_EVENT_ID`]). Allocates nothing once a graph of this size was published.
     pub fn publish_graph(&mut self, graph: &SceneGraph) -> Result<PublishReport, IpcError> {
-        let report = self.encoder.encode(graph);
+        let mut report = self.encoder.select(graph);
+        // `loan_slice` zero-fills the bytes (a memset), which is what lets the records be written
+        // in place without unsafe code; every byte is then overwritten.
+        let mut sample = self
+            .graph_publisher
+            .loan_slice(report.payload_bytes)
+            .map_err(|e| service_err(&self.names.graph, "loan", e))?;
+        self.encoder.write_payload(graph, sample.payload_mut(), &mut report);
         self.encoder.set_publish_time_ns(wall_clock_ns());
-        send_graph(&self.graph_publisher, self.encoder.header(), self.encoder.payload()).map_err(|e| match e {
-            GraphSendError::Loan(e) => service_err(&self.names.graph, "loan", e),
-            GraphSendError::Send(e) => service_err(&self.names.graph, "send", e),
-        })?;
+        *sample.user_header_mut() = *self.encoder.header();
+        sample.send().map_err(|e| service_err(&self.names.graph, "send", e))?;
         self.notifier
             .notify_with_custom_event_id(EventId::new(GRAPH_UPDATED_EVENT_ID))
             .map_err(|e| service_err(&self.names.graph_updated, "notify", e))?;
