@@ -459,7 +459,7 @@ pub const fn graph_payload_bytes(nodes: usize, edges: usize) -> usize {
 
 /// One received graph as it lies in a sample: the header and the byte payload, borrowed. Made
 /// from an iceoryx2 sample (`GraphMessage::new(sample.user_header(), sample.payload())`) or from a
-/// [`GraphBuffer`](crate::publish::GraphBuffer) ([`GraphBuffer::message`](crate::publish::GraphBuffer::message)).
+/// [`GraphBuffer`](crate::publish::GraphBuffer) ([`GraphBuffer::encode`](crate::publish::GraphBuffer::encode)).
 ///
 /// Nothing is checked here; [`check_message`](crate::client::check_message) checks the contract.
 #[derive(Debug, Clone, Copy)]

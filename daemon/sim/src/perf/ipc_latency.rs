@@ -14,8 +14,8 @@
 //! one only after the child's acknowledgement, so no message waits behind another. The child waits
 //! on an iceoryx2 event listener for both kinds (as a planner waits on `graph_updated`).
 //!
-//! - **graph**: `t0` just before [`GraphServer::publish_graph`] (encode header, nodes and edges
-//!   into the server's reused buffer, loan a sample of exactly that size, copy in, send,
+//! - **graph**: `t0` just before [`GraphServer::publish_graph`] (choose the records, loan a
+//!   zero-filled sample of exactly their size, write header, nodes and edges in place, send,
 //!   notify); `t1` when the planner client
 //!   library's [`GraphSubscriber::latest_if_newer`] returned the owned [`Graph`] in the child
 //!   (newest sample received, checked, its nodes and edges decoded out, the lookup indices built).

@@ -333,8 +333,8 @@ fn ipc_markdown(s: &mut String, ipc: &IpcLatency) {
         s,
         "**IPC**: publish → receive in another process, {} timed messages per row after {} warm-up \
          ones, graph and raw interleaved; the subscriber waits on an iceoryx2 event listener for \
-         both. Graph: `GraphServer::publish_graph` (encode, loan a sample of the graph's size \
-         (at most {:.1} MiB), copy in, send, notify) to the client library's \
+         both. Graph: `GraphServer::publish_graph` (select, loan a zero-filled sample of the \
+         graph's size (at most {:.1} MiB), write the records in place, send, notify) to the client library's \
          `GraphSubscriber::latest_if_newer` returning the owned `Graph`. Raw: loan a byte slice \
          of the graph sample's size, copy, send, notify; receive, copy out.\n",
         ipc.messages,
