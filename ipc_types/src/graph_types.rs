@@ -1,4 +1,5 @@
-//! The graph's wire types: [`GraphSnapshot`] (header, nodes, edges), the node and edge kinds, and
+//! The graph's wire types: [`GraphHeader`] and the byte payload of [`Node`] and [`Edge`] records
+//! ([`GraphMessage`] borrows one), the node and edge kinds, and
 //! the canonical affordance and relation vocabularies they index.
 
 // The derive macros emit `unsafe impl ZeroCopySend`; that is the only unsafe code here.
@@ -13,10 +14,11 @@ pub const LABEL_CAPACITY_BYTES: usize = 48;
 /// Bytes in a relation phrase buffer (UTF-8, NUL padded). The longest canonical phrase,
 /// "rotate to adjust the setting or temperature", has 43 bytes.
 pub const PHRASE_CAPACITY_BYTES: usize = 48;
-/// The most nodes one [`GraphSnapshot`] holds. A larger map sets
-/// [`GraphHeader::capacity_exceeded`] and publishes the most recently seen nodes that fit.
+/// The most nodes one graph sample holds when the profile sets no `ipc.max_nodes`. A larger map
+/// sets [`GraphHeader::capacity_exceeded`] and publishes the most recently seen nodes that fit.
 pub const MAX_NODES: usize = 16_384;
-/// The most edges one [`GraphSnapshot`] holds (see [`MAX_NODES`] for what happens beyond).
+/// The most edges one graph sample holds when the profile sets no `ipc.max_edges` (see
+/// [`MAX_NODES`] for what happens beyond).
 pub const MAX_EDGES: usize = 32_768;
 /// Node id meaning "no node" (for example the parent of an object node).
 pub const NO_NODE: u32 = u32::MAX;
@@ -183,7 +185,7 @@ impl EdgeOrigin {
 #[derive(Debug, Clone, Copy, ZeroCopySend, PlacementDefault)]
 #[type_name("op3dsg::Node")]
 pub struct Node {
-    /// Stable node id within the daemon's lifetime (and across restarts from a map snapshot).
+    /// Node id, stable while one daemon instance runs ([`GraphHeader::instance_id`]).
     pub id: u32,
     /// Id of the parent object of a part node, [`NO_NODE`] for objects and unattached parts.
     pub parent_id: u32,
@@ -289,30 +291,144 @@ impl Edge {
     }
 }
 
-/// Header of a [`GraphSnapshot`] (size 56 bytes, alignment 8).
+/// Bytes of one node in the graph payload: [`Node`]'s layout, little-endian.
+pub const NODE_BYTES: usize = 120;
+/// Bytes of one edge in the graph payload: [`Edge`]'s layout, little-endian.
+pub const EDGE_BYTES: usize = 64;
+
+impl Node {
+    /// Writes this node's [`NODE_BYTES`] bytes (the struct's field offsets, little-endian) into
+    /// `b`, every byte of it; the inverse of [`Node::from_bytes`].
+    pub fn write_bytes(&self, b: &mut [u8; NODE_BYTES]) {
+        b[0..4].copy_from_slice(&self.id.to_le_bytes());
+        b[4..8].copy_from_slice(&self.parent_id.to_le_bytes());
+        b[8] = self.kind;
+        b[9..12].copy_from_slice(&self.reserved);
+        b[12..16].copy_from_slice(&self.observation_count.to_le_bytes());
+        b[16..64].copy_from_slice(&self.label);
+        b[64..68].copy_from_slice(&self.confidence.to_le_bytes());
+        for (i, v) in self.centre_m.iter().chain(&self.box_min_m).chain(&self.box_max_m).enumerate() {
+            b[68 + 4 * i..72 + 4 * i].copy_from_slice(&v.to_le_bytes());
+        }
+        b[104..106].copy_from_slice(&self.affordance_bits.to_le_bytes());
+        b[106..112].copy_from_slice(&self.reserved2);
+        b[112..120].copy_from_slice(&self.last_seen_stamp_ns.to_le_bytes());
+    }
+
+    /// Appends this node's [`NODE_BYTES`] bytes to `out` (see [`Node::write_bytes`]).
+    pub fn append_bytes(&self, out: &mut Vec<u8>) {
+        let mut b = [0u8; NODE_BYTES];
+        self.write_bytes(&mut b);
+        out.extend_from_slice(&b);
+    }
+
+    /// The node in `b` (laid out as [`Node::append_bytes`] writes it).
+    pub fn from_bytes(b: &[u8; NODE_BYTES]) -> Self {
+        let u32_at = |o: usize| u32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]);
+        let f32_at = |o: usize| f32::from_bits(u32_at(o));
+        let vec3_at = |o: usize| [f32_at(o), f32_at(o + 4), f32_at(o + 8)];
+        let mut label = [0u8; LABEL_CAPACITY_BYTES];
+        label.copy_from_slice(&b[16..64]);
+        let mut reserved2 = [0u8; 6];
+        reserved2.copy_from_slice(&b[106..112]);
+        let mut last_seen = [0u8; 8];
+        last_seen.copy_from_slice(&b[112..120]);
+        Self {
+            id: u32_at(0),
+            parent_id: u32_at(4),
+            kind: b[8],
+            reserved: [b[9], b[10], b[11]],
+            observation_count: u32_at(12),
+            label,
+            confidence: f32_at(64),
+            centre_m: vec3_at(68),
+            box_min_m: vec3_at(80),
+            box_max_m: vec3_at(92),
+            affordance_bits: u16::from_le_bytes([b[104], b[105]]),
+            reserved2,
+            last_seen_stamp_ns: u64::from_le_bytes(last_seen),
+        }
+    }
+}
+
+impl Edge {
+    /// Writes this edge's [`EDGE_BYTES`] bytes (the struct's field offsets, little-endian) into
+    /// `b`, every byte of it; the inverse of [`Edge::from_bytes`].
+    pub fn write_bytes(&self, b: &mut [u8; EDGE_BYTES]) {
+        b[0..4].copy_from_slice(&self.source_id.to_le_bytes());
+        b[4..8].copy_from_slice(&self.target_id.to_le_bytes());
+        b[8] = self.kind;
+        b[9] = self.origin;
+        b[10..12].copy_from_slice(&self.relation_id.to_le_bytes());
+        b[12..16].copy_from_slice(&self.confidence.to_le_bytes());
+        b[16..64].copy_from_slice(&self.phrase);
+    }
+
+    /// Appends this edge's [`EDGE_BYTES`] bytes to `out` (see [`Edge::write_bytes`]).
+    pub fn append_bytes(&self, out: &mut Vec<u8>) {
+        let mut b = [0u8; EDGE_BYTES];
+        self.write_bytes(&mut b);
+        out.extend_from_slice(&b);
+    }
+
+    /// The edge in `b` (laid out as [`Edge::append_bytes`] writes it).
+    pub fn from_bytes(b: &[u8; EDGE_BYTES]) -> Self {
+        let u32_at = |o: usize| u32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]);
+        let mut phrase = [0u8; PHRASE_CAPACITY_BYTES];
+        phrase.copy_from_slice(&b[16..64]);
+        Self {
+            source_id: u32_at(0),
+            target_id: u32_at(4),
+            kind: b[8],
+            origin: b[9],
+            relation_id: u16::from_le_bytes([b[10], b[11]]),
+            confidence: f32::from_bits(u32_at(12)),
+            phrase,
+        }
+    }
+}
+
+/// The user header of every `<prefix>/graph` sample (size 80 bytes, alignment 8).
+///
+/// A sample is this header and a byte payload of exactly [`GraphHeader::payload_bytes`]:
+/// `node_count` nodes of [`NODE_BYTES`] each (sorted by id), then `edge_count` edges of
+/// [`EDGE_BYTES`] each, every record in its struct's layout ([`Node`], [`Edge`]), little-endian.
+/// A sample costs what the graph holds; nothing beyond the counts is sent or initialised.
+///
+/// **Detecting a daemon restart**: `instance_id` is drawn anew each time `op3dsgd` starts (never
+/// 0) and stays the same for its whole run. `graph_version` only grows within one instance; a
+/// restarted daemon starts again at 1. A planner that remembers the last `(instance_id,
+/// graph_version)` it used must treat a different `instance_id` as a new map: forget the version
+/// (and any ids it cached, since node ids are only stable within one instance) and take the new
+/// graph, whatever its version.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend, PlacementDefault)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, PlacementDefault)]
 #[type_name("op3dsg::GraphHeader")]
 pub struct GraphHeader {
     /// [`SCHEMA_VERSION`](crate::SCHEMA_VERSION) of the publisher.
     pub schema_version: u32,
-    /// Number of valid entries at the start of [`GraphSnapshot::nodes`].
+    /// Number of nodes in the payload.
     pub node_count: u32,
-    /// Graph version: increases by one with every published change of the graph. Starts at 1
-    /// for a fresh map; continues from the restored value after a restart from a map snapshot.
+    /// Graph version: increases by one with every published change of the graph while one daemon
+    /// instance runs; starts at 1 when the daemon starts.
     pub graph_version: u64,
+    /// The publishing daemon's instance: a random non-zero value drawn at start, the same for
+    /// every sample of one run. A different value than the last one seen means the daemon was
+    /// restarted (see the type's docs for what a planner should do).
+    pub instance_id: u64,
     /// Stamp of the newest keyframe fused into this version, nanoseconds.
     pub stamp_ns: u64,
     /// Wall-clock time the sample was written, nanoseconds since the Unix epoch (for latency).
     pub publish_time_ns: u64,
-    /// Number of valid entries at the start of [`GraphSnapshot::edges`].
+    /// Number of edges in the payload (after the nodes).
     pub edge_count: u32,
-    /// Number of object nodes among the valid nodes.
+    /// Number of object nodes among the nodes.
     pub object_count: u32,
-    /// Number of part nodes among the valid nodes.
+    /// Number of part nodes among the nodes.
     pub part_count: u32,
-    /// 1 when the map had more nodes or edges than [`MAX_NODES`] / [`MAX_EDGES`]: the snapshot
-    /// then holds the most recently seen nodes and the edges among them. 0 otherwise.
+    /// 1 when the map had more nodes or edges than the daemon publishes (`node_capacity`,
+    /// `edge_capacity`): the sample then holds the most recently seen nodes and the edges among
+    /// them. 0 otherwise.
     pub capacity_exceeded: u8,
     /// Reserved, zero.
     pub reserved: [u8; 3],
@@ -320,30 +436,66 @@ pub struct GraphHeader {
     pub total_node_count: u32,
     /// Edges in the graph, including those not published because of capacity.
     pub total_edge_count: u32,
+    /// Most nodes the daemon publishes (its profile's `ipc.max_nodes`).
+    pub node_capacity: u32,
+    /// Most edges the daemon publishes (its profile's `ipc.max_edges`).
+    pub edge_capacity: u32,
+    /// Reserved, zero.
+    pub reserved2: u32,
 }
 
-/// One consistent version of the scene graph: header, nodes and edges written together.
-///
-/// Too large for the stack (about 3.9 MiB): loan it from the publisher and fill it in place.
-#[repr(C)]
-#[derive(Debug, ZeroCopySend, PlacementDefault)]
-#[type_name("op3dsg::GraphSnapshot")]
-pub struct GraphSnapshot {
-    /// Header: version, stamp, counts, capacity flag.
-    pub header: GraphHeader,
-    /// `header.node_count` valid nodes, sorted by id; the rest is undefined.
-    pub nodes: [Node; MAX_NODES],
-    /// `header.edge_count` valid edges; the rest is undefined.
-    pub edges: [Edge; MAX_EDGES],
-}
-
-impl GraphSnapshot {
-    /// The valid nodes.
-    pub fn valid_nodes(&self) -> &[Node] {
-        &self.nodes[..(self.header.node_count as usize).min(MAX_NODES)]
+impl GraphHeader {
+    /// Bytes of the payload this header describes: `node_count * NODE_BYTES + edge_count *
+    /// EDGE_BYTES`.
+    pub fn payload_bytes(&self) -> usize {
+        graph_payload_bytes(self.node_count as usize, self.edge_count as usize)
     }
-    /// The valid edges.
-    pub fn valid_edges(&self) -> &[Edge] {
-        &self.edges[..(self.header.edge_count as usize).min(MAX_EDGES)]
+}
+
+/// Bytes of the payload of a graph with `nodes` nodes and `edges` edges.
+pub const fn graph_payload_bytes(nodes: usize, edges: usize) -> usize {
+    nodes * NODE_BYTES + edges * EDGE_BYTES
+}
+
+/// One received graph as it lies in a sample: the header and the byte payload, borrowed. Made
+/// from an iceoryx2 sample (`GraphMessage::new(sample.user_header(), sample.payload())`) or from a
+/// [`GraphBuffer`](crate::publish::GraphBuffer) ([`GraphBuffer::encode`](crate::publish::GraphBuffer::encode)).
+///
+/// Nothing is checked here; [`check_message`](crate::client::check_message) checks the contract.
+#[derive(Debug, Clone, Copy)]
+pub struct GraphMessage<'a> {
+    /// The header.
+    pub header: &'a GraphHeader,
+    /// The payload: nodes, then edges.
+    pub payload: &'a [u8],
+}
+
+impl<'a> GraphMessage<'a> {
+    /// A message over a header and its payload.
+    pub fn new(header: &'a GraphHeader, payload: &'a [u8]) -> Self {
+        Self { header, payload }
+    }
+
+    /// The node records (as many as fit in the payload, at most `node_count`).
+    pub fn node_records(&self) -> &'a [[u8; NODE_BYTES]] {
+        let len = (self.header.node_count as usize * NODE_BYTES).min(self.payload.len());
+        self.payload[..len].as_chunks::<NODE_BYTES>().0
+    }
+
+    /// The edge records (as many as fit in the payload after the nodes, at most `edge_count`).
+    pub fn edge_records(&self) -> &'a [[u8; EDGE_BYTES]] {
+        let start = (self.header.node_count as usize * NODE_BYTES).min(self.payload.len());
+        let len = (self.header.edge_count as usize * EDGE_BYTES).min(self.payload.len() - start);
+        self.payload[start..start + len].as_chunks::<EDGE_BYTES>().0
+    }
+
+    /// The nodes, decoded.
+    pub fn nodes(&self) -> impl ExactSizeIterator<Item = Node> + 'a {
+        self.node_records().iter().map(Node::from_bytes)
+    }
+
+    /// The edges, decoded.
+    pub fn edges(&self) -> impl ExactSizeIterator<Item = Edge> + 'a {
+        self.edge_records().iter().map(Edge::from_bytes)
     }
 }

@@ -23,7 +23,11 @@
 //! let mut last_version = 0;
 //! loop {
 //!     graphs.wait_for_update(Duration::from_millis(500))?;
+//!     // A graph of a restarted daemon (new instance id) counts as new whatever its version.
 //!     let Some(graph) = graphs.latest_if_newer(last_version)? else { continue };
+//!     if graph.restarted() {
+//!         println!("op3dsgd restarted (instance {:#x}): node ids start again", graph.instance_id());
+//!     }
 //!     last_version = graph.version();
 //!     for handle in graph.find_by_label("cabinet handle") {
 //!         let cabinet = handle.parent().map(|p| p.label()).unwrap_or("?");
@@ -52,7 +56,7 @@
 //!
 //! | service                 | pattern           | payload            | QoS                                   |
 //! |-------------------------|-------------------|--------------------|---------------------------------------|
-//! | `<prefix>/graph`        | publish-subscribe | [`GraphSnapshot`]  | history 1, safe overflow, borrow 1    |
+//! | `<prefix>/graph`        | publish-subscribe | bytes + [`GraphHeader`] | history 1, safe overflow, borrow 1 |
 //! | `<prefix>/graph_updated`| event             | event id 0         | notified after each graph sample      |
 //! | `<prefix>/health`       | publish-subscribe | [`Health`]         | history 1, safe overflow              |
 //! | `<prefix>/pose`         | publish-subscribe | [`PoseStamped`]    | input: the navigation stack publishes |
@@ -65,12 +69,37 @@
 //! outcome ([`PoseHealth`]), frames without a pose, the execution provider each model runs on
 //! ([`ModelHealth`], names in [`EXECUTION_PROVIDERS`]) and the LLM refiner.
 //!
+//! ## The graph sample
+//!
+//! `<prefix>/graph` is an iceoryx2 slice service: payload `[u8]`, user header [`GraphHeader`]
+//! (type name `op3dsg::GraphHeader`). The payload is exactly
+//! `node_count * NODE_BYTES + edge_count * EDGE_BYTES` bytes: the nodes (sorted by id), then the
+//! edges, each record laid out as its struct ([`Node`], 120 bytes; [`Edge`], 64 bytes),
+//! little-endian. So a sample costs what the graph holds: a 100-node graph is about 25 KB, not
+//! the daemon's maximum (set by the profile's `ipc.max_nodes` / `ipc.max_edges`, default
+//! [`MAX_NODES`] / [`MAX_EDGES`], about 3.9 MiB). A Python or C client reads the header, then views
+//! the payload as `node_count` node records followed by `edge_count` edge records.
+//!
+//! **Restarts**: [`GraphHeader::instance_id`] is drawn anew (never 0) each time the daemon starts.
+//! Versions only grow within one instance; a restarted daemon starts again at version 1. A
+//! planner that sees an instance id other than the last one it saw must forget its version
+//! bookkeeping (and cached node ids) and take the new graph. [`GraphSubscriber::latest_if_newer`]
+//! does this, and [`Graph::restarted`] / [`GraphSubscriber::restarted`] say it happened.
+//!
 //! ```
-//! use op3dsg_ipc_types::{GraphSnapshot, ServiceNames};
+//! use op3dsg_ipc_types::publish::GraphBuffer;
+//! use op3dsg_ipc_types::{Graph, Node, SCHEMA_VERSION, ServiceNames, graph_payload_bytes};
 //! let names = ServiceNames::new("op3dsg");
 //! assert_eq!(names.graph, "op3dsg/graph");
-//! // The snapshot is large and must be built in place (in shared memory), never on the stack.
-//! assert!(core::mem::size_of::<GraphSnapshot>() > 1 << 20);
+//! // A sample holds what the graph holds: here 3 nodes, 360 bytes of payload.
+//! let mut buffer = GraphBuffer::new();
+//! buffer.header.schema_version = SCHEMA_VERSION;
+//! buffer.header.node_capacity = 16_384;
+//! buffer.nodes = (1..=3).map(|id| Node { id, kind: 0, ..Node::default() }).collect();
+//! let message = buffer.encode();
+//! assert_eq!(message.payload.len(), graph_payload_bytes(3, 0));
+//! let graph = Graph::from_message(&message).expect("valid");
+//! assert_eq!(graph.node_count(), 3);
 //! ```
 
 /// The iceoryx2 this crate is built on, for a planner that attaches
@@ -89,12 +118,13 @@ mod text;
 
 pub use client::{
     ClientError, EdgeView, ErrorCause, Graph, GraphSubscriber, HealthSubscriber, NodeView, Operation, Pose,
-    PosePublisher, SnapshotError, UnknownAffordance,
+    PosePublisher, SnapshotError, UnknownAffordance, check_message,
 };
 pub use graph_types::{
-    AFFORDANCES, Edge, EdgeKind, EdgeOrigin, FUNCTIONAL_RELATION_BASE, FUNCTIONAL_RELATIONS, GraphHeader,
-    GraphSnapshot, LABEL_CAPACITY_BYTES, MAX_EDGES, MAX_NODES, NO_NODE, Node, NodeKind, PHRASE_CAPACITY_BYTES,
-    SPATIAL_RELATIONS, affordance_bits, affordance_names, relation_id, relation_phrase,
+    AFFORDANCES, EDGE_BYTES, Edge, EdgeKind, EdgeOrigin, FUNCTIONAL_RELATION_BASE, FUNCTIONAL_RELATIONS, GraphHeader,
+    GraphMessage, LABEL_CAPACITY_BYTES, MAX_EDGES, MAX_NODES, NO_NODE, NODE_BYTES, Node, NodeKind,
+    PHRASE_CAPACITY_BYTES, SPATIAL_RELATIONS, affordance_bits, affordance_names, graph_payload_bytes, relation_id,
+    relation_phrase,
 };
 pub use health_types::{
     EXECUTION_PROVIDERS, FIXED_STAGES, FUTURE_POSE_LIMIT_NS, Health, MAX_MODELS, MAX_QUEUES, MAX_STAGES, MAX_WORKERS,
@@ -106,6 +136,9 @@ pub use text::{fixed_str, write_fixed_str};
 
 /// Version of this wire contract. Bumped whenever a type's layout or meaning changes; a client
 /// must check [`GraphHeader::schema_version`] and [`Health::schema_version`] before reading.
+///
+/// 4: the graph is a slice sample sized to the graph (bytes + [`GraphHeader`] user header) instead
+/// of a fixed `GraphSnapshot`; the header gained `instance_id`, `node_capacity`, `edge_capacity`.
 pub const SCHEMA_VERSION: u32 = 4;
 
 /// Bytes in a frame id (`PoseStamped::frame_id`), a stage or a queue name.
@@ -121,7 +154,9 @@ mod tests {
         assert_eq!(size_of::<Node>(), 120);
         assert_eq!(align_of::<Node>(), 8);
         assert_eq!(size_of::<Edge>(), 64);
-        assert_eq!(size_of::<GraphHeader>(), 56);
+        assert_eq!(size_of::<GraphHeader>(), 80);
+        assert_eq!(align_of::<GraphHeader>(), 8);
+        assert_eq!((NODE_BYTES, EDGE_BYTES), (size_of::<Node>(), size_of::<Edge>()));
         assert_eq!(size_of::<PoseStamped>(), 104);
         assert_eq!(size_of::<StageHealth>(), 64);
         assert_eq!(size_of::<QueueHealth>(), 56);
@@ -130,7 +165,9 @@ mod tests {
         assert_eq!(size_of::<ModelHealth>(), 40);
         assert_eq!(MAX_STAGES, 72);
         assert_eq!(size_of::<Health>(), 88 + MAX_STAGES * 64 + MAX_QUEUES * 56 + 128 + 96 + 8 + MAX_MODELS * 40);
-        assert_eq!(size_of::<GraphSnapshot>(), 56 + MAX_NODES * size_of::<Node>() + MAX_EDGES * size_of::<Edge>());
+        assert_eq!(core::mem::offset_of!(GraphHeader, instance_id), 16);
+        assert_eq!(core::mem::offset_of!(GraphHeader, capacity_exceeded), 52);
+        assert_eq!(core::mem::offset_of!(GraphHeader, node_capacity), 64);
     }
 
     #[test]
@@ -139,13 +176,57 @@ mod tests {
         // SAFETY: `type_name` is an unsafe trait fn only because implementors must keep it stable.
         unsafe {
             assert_eq!(<Node as ZeroCopySend>::type_name(), "op3dsg::Node");
-            assert_eq!(<GraphSnapshot as ZeroCopySend>::type_name(), "op3dsg::GraphSnapshot");
+            assert_eq!(<GraphHeader as ZeroCopySend>::type_name(), "op3dsg::GraphHeader");
             assert_eq!(<Health as ZeroCopySend>::type_name(), "op3dsg::Health");
             assert_eq!(<RefinerHealth as ZeroCopySend>::type_name(), "op3dsg::RefinerHealth");
             assert_eq!(<PoseHealth as ZeroCopySend>::type_name(), "op3dsg::PoseHealth");
             assert_eq!(<ModelHealth as ZeroCopySend>::type_name(), "op3dsg::ModelHealth");
             assert_eq!(<PoseStamped as ZeroCopySend>::type_name(), "op3dsg::PoseStamped");
         }
+    }
+
+    #[test]
+    fn records_round_trip_through_their_bytes_at_the_struct_offsets() {
+        let mut node = Node { id: 7, parent_id: 3, kind: 1, observation_count: 9, ..Node::default() };
+        write_fixed_str(&mut node.label, "cabinet handle");
+        node.confidence = 0.5;
+        node.centre_m = [1.0, 2.0, 3.0];
+        node.box_min_m = [-1.0, -2.0, -3.0];
+        node.box_max_m = [4.0, 5.0, 6.0];
+        node.affordance_bits = 0b1001;
+        node.last_seen_stamp_ns = 0x0102_0304_0506_0708;
+        let mut bytes = Vec::new();
+        node.append_bytes(&mut bytes);
+        assert_eq!(bytes.len(), NODE_BYTES);
+        let u32_at = |b: &[u8], o: usize| u32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]);
+        assert_eq!(u32_at(&bytes, core::mem::offset_of!(Node, parent_id)), 3);
+        assert_eq!(bytes[core::mem::offset_of!(Node, kind)], 1);
+        assert_eq!(f32::from_bits(u32_at(&bytes, core::mem::offset_of!(Node, box_max_m) + 8)), 6.0);
+        assert_eq!(bytes[core::mem::offset_of!(Node, last_seen_stamp_ns)], 0x08);
+        let back = Node::from_bytes(&bytes.as_chunks::<NODE_BYTES>().0[0]);
+        assert_eq!(
+            (back.id, back.label_str(), back.box_max_m, back.last_seen_stamp_ns),
+            (7, "cabinet handle", [4.0, 5.0, 6.0], node.last_seen_stamp_ns)
+        );
+        assert_eq!((back.affordance_bits, back.observation_count, back.confidence), (0b1001, 9, 0.5));
+
+        let mut edge = Edge {
+            source_id: 7,
+            target_id: 3,
+            kind: 1,
+            origin: 2,
+            relation_id: 105,
+            confidence: 0.25,
+            ..Edge::default()
+        };
+        write_fixed_str(&mut edge.phrase, "remote to control");
+        bytes.clear();
+        edge.append_bytes(&mut bytes);
+        assert_eq!(bytes.len(), EDGE_BYTES);
+        assert_eq!(bytes[core::mem::offset_of!(Edge, origin)], 2);
+        let back = Edge::from_bytes(&bytes.as_chunks::<EDGE_BYTES>().0[0]);
+        assert_eq!((back.source_id, back.target_id, back.kind, back.origin, back.relation_id), (7, 3, 1, 2, 105));
+        assert_eq!((back.confidence, back.phrase_str()), (0.25, "remote to control"));
     }
 
     #[test]

@@ -1,55 +1,92 @@
-//! Building a [`GraphSnapshot`] without the stack: in place in a sample loaned from shared memory
-//! (the daemon, test publishers), or on the heap (tools, planner tests).
+//! Writing graph samples: [`send_graph`] loans a sample sized to the graph from the `graph`
+//! publisher, writes the header and payload in place and sends it; [`GraphBuffer`] builds a graph
+//! on the heap (tools, test publishers, planner tests against [`Graph`](crate::Graph)).
 
-use core::mem::MaybeUninit;
-
-use iceoryx2::port::LoanError;
 use iceoryx2::port::publisher::Publisher;
-use iceoryx2::prelude::PlacementDefault;
-use iceoryx2::sample_mut::SampleMut;
-use iceoryx2::sample_mut_uninit::SampleMutUninit;
+use iceoryx2::port::{LoanError, SendError};
 
-use crate::GraphSnapshot;
+use crate::{Edge, GraphHeader, GraphMessage, Node};
 
-/// Initialises a loaned snapshot in place (every field to its placement default: ids
-/// [`NO_NODE`](crate::NO_NODE), counts and text zero), without ever materialising the 3.9 MiB
-/// value on the stack. The caller then writes the header and the valid nodes and edges.
-///
-/// iceoryx2 0.10 offers no safe in-place initialisation for such a type: `Publisher::loan` needs
-/// `Default` and moves a stack value into the sample.
-#[allow(unsafe_code)]
-pub fn init_snapshot_in_place<S: iceoryx2::service::Service>(
-    mut sample: SampleMutUninit<S, MaybeUninit<GraphSnapshot>, ()>,
-) -> SampleMut<S, GraphSnapshot, ()> {
-    let ptr = sample.payload_mut().as_mut_ptr();
-    // SAFETY: `ptr` points to the loaned chunk, sized and aligned for `GraphSnapshot` and owned
-    // exclusively by this sample. The derived `PlacementDefault` writes every field of the header
-    // and every element of both arrays (all plain data, no padding-dependent invariants), so the
-    // payload is fully initialised before `assume_init`.
-    unsafe {
-        GraphSnapshot::placement_default(ptr);
-        sample.assume_init()
+/// The payload type of `<prefix>/graph`: bytes (nodes, then edges), with a [`GraphHeader`] as
+/// the iceoryx2 user header.
+pub type GraphPayload = [u8];
+
+/// Why [`send_graph`] failed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GraphSendError {
+    /// No sample of that size could be loaned (more than the publisher's maximum, or every
+    /// sample is loaned or held by subscribers).
+    Loan(LoanError),
+    /// The sample could not be delivered.
+    Send(SendError),
+}
+
+impl core::fmt::Display for GraphSendError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Loan(e) => write!(f, "loan: {e:?}"),
+            Self::Send(e) => write!(f, "send: {e:?}"),
+        }
     }
 }
 
-/// Loans one snapshot from `publisher` and initialises it with [`init_snapshot_in_place`].
-pub fn loan_snapshot<S: iceoryx2::service::Service>(
-    publisher: &Publisher<S, GraphSnapshot, ()>,
-) -> Result<SampleMut<S, GraphSnapshot, ()>, LoanError> {
-    publisher.loan_uninit().map(init_snapshot_in_place)
+impl std::error::Error for GraphSendError {}
+
+/// Loans a sample of `payload.len()` bytes, writes `header` into its user header and copies
+/// `payload` in, then sends it. The sample in shared memory is exactly as large as the graph.
+/// Returns the number of subscribers it reached.
+pub fn send_graph<S: iceoryx2::service::Service>(
+    publisher: &Publisher<S, GraphPayload, GraphHeader>,
+    header: &GraphHeader,
+    payload: &[u8],
+) -> Result<usize, GraphSendError> {
+    debug_assert_eq!(header.payload_bytes(), payload.len(), "header counts and payload disagree");
+    let mut sample = publisher.loan_slice_uninit(payload.len()).map_err(GraphSendError::Loan)?;
+    *sample.user_header_mut() = *header;
+    sample.write_from_slice(payload).send().map_err(GraphSendError::Send)
 }
 
-/// A snapshot on the heap with every field at its placement default, built without passing
-/// through the stack: for tools and tests that fill a [`GraphSnapshot`] outside shared memory
-/// (for example to test a planner against [`Graph::from_snapshot`](crate::Graph::from_snapshot)).
-#[allow(unsafe_code)]
-pub fn boxed_snapshot() -> Box<GraphSnapshot> {
-    let mut snapshot = Box::<GraphSnapshot>::new_uninit();
-    // SAFETY: the box holds uninitialised memory sized and aligned for `GraphSnapshot`;
-    // `placement_default` writes every field (see `init_snapshot_in_place`), so the value is
-    // fully initialised before `assume_init`.
-    unsafe {
-        GraphSnapshot::placement_default(snapshot.as_mut_ptr());
-        snapshot.assume_init()
+/// A graph on the heap: the header and typed nodes and edges, encoded into the wire payload by
+/// [`Self::encode`] (into a buffer it keeps and reuses).
+#[derive(Debug, Clone, Default)]
+pub struct GraphBuffer {
+    /// The header; [`Self::encode`] sets its `node_count` and `edge_count` from the lists.
+    pub header: GraphHeader,
+    /// The nodes, sorted by id (the contract's order).
+    pub nodes: Vec<Node>,
+    /// The edges.
+    pub edges: Vec<Edge>,
+    payload: Vec<u8>,
+}
+
+impl GraphBuffer {
+    /// An empty graph with a default header.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Sets the counts in the header from the lists, encodes the payload and returns the
+    /// message as a subscriber would see it.
+    pub fn encode(&mut self) -> GraphMessage<'_> {
+        self.header.node_count = self.nodes.len() as u32;
+        self.header.edge_count = self.edges.len() as u32;
+        self.payload.clear();
+        self.payload.reserve(self.header.payload_bytes());
+        for node in &self.nodes {
+            node.append_bytes(&mut self.payload);
+        }
+        for edge in &self.edges {
+            edge.append_bytes(&mut self.payload);
+        }
+        GraphMessage::new(&self.header, &self.payload)
+    }
+
+    /// [`Self::encode`], then [`send_graph`].
+    pub fn send<S: iceoryx2::service::Service>(
+        &mut self,
+        publisher: &Publisher<S, GraphPayload, GraphHeader>,
+    ) -> Result<usize, GraphSendError> {
+        self.encode();
+        send_graph(publisher, &self.header, &self.payload)
     }
 }

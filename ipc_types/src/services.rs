@@ -1,12 +1,12 @@
 //! Service names, prefix rules and QoS of the op3dsg services: the one place the daemon and its
 //! clients take them from.
 //!
-//! | service                  | pattern           | payload           | QoS (fixed by the creator)                         |
-//! |--------------------------|-------------------|-------------------|----------------------------------------------------|
-//! | `<prefix>/graph`         | publish-subscribe | [`GraphSnapshot`] | history 1, safe overflow, buffer 2, borrow 1       |
-//! | `<prefix>/graph_updated` | event             | event id 0        | max event id 0                                     |
-//! | `<prefix>/health`        | publish-subscribe | [`Health`]        | history 1, safe overflow, 1 publisher              |
-//! | `<prefix>/pose`          | publish-subscribe | [`PoseStamped`]   | created by op3dsg: safe overflow, buffer 64, 4 publishers, 4 subscribers; opened as it is |
+//! | service                  | pattern           | payload                                   | QoS (fixed by the creator)                            |
+//! |--------------------------|-------------------|-------------------------------------------|-------------------------------------------------------|
+//! | `<prefix>/graph`         | publish-subscribe | `[u8]` slice, user header [`GraphHeader`] | history 1, safe overflow, buffer 2, borrow 1          |
+//! | `<prefix>/graph_updated` | event             | event id 0                                | max event id 0                                        |
+//! | `<prefix>/health`        | publish-subscribe | [`Health`]                                | history 1, safe overflow, 1 publisher                 |
+//! | `<prefix>/pose`          | publish-subscribe | [`PoseStamped`]                           | created by op3dsg: safe overflow, buffer 64, 4 publishers, 4 subscribers; opened as it is |
 //!
 //! The figures are the constants below ([`HISTORY_SIZE`], [`DEFAULT_GRAPH_SUBSCRIBER_BUFFER`],
 //! [`SUBSCRIBER_MAX_BORROWED_SAMPLES`], [`GRAPH_UPDATED_EVENT_ID`], [`EVENT_ID_MAX_VALUE`],
@@ -30,8 +30,17 @@
 //!   (delivered when the daemon's publisher next updates its connections, every ~100 ms).
 //! - Safe overflow: a slow client never blocks the daemon; a full buffer drops its oldest sample,
 //!   and every graph sample is complete, so losing older ones loses nothing.
-//! - Borrow 1: a subscriber holds at most one 3.9 MiB graph sample at a time, which bounds the
-//!   shared memory the daemon maps to `max_subscribers * (buffer + 1) + history + 1` samples.
+//! - Borrow 1: a subscriber holds at most one graph sample at a time, which bounds the shared
+//!   memory the daemon maps to `max_subscribers * (buffer + 1) + history + 1` samples.
+//! - Graph sample size: the publisher is created with `initial_max_slice_len` equal to the
+//!   profile's maximum (`ipc.max_nodes * NODE_BYTES + ipc.max_edges * EDGE_BYTES`, 3.9 MiB by
+//!   default) and iceoryx2's static allocation strategy: the data segment is reserved once at
+//!   start with that many sample slots and never grows or moves, so a late joiner maps one
+//!   segment and gets the history sample, and a subscriber's mapped memory is bounded by the
+//!   figure above. Each publish loans only the bytes the graph fills and writes nothing else, so
+//!   pages beyond a small graph are never touched. (A dynamic strategy would start small and
+//!   reallocate segments as graphs grow; it saves address space, not touched memory, and makes
+//!   every subscriber map new segments on growth.)
 //! - One event id: a listener scans its whole id range on each wake-up; the version is in the
 //!   sample, not in the event.
 
@@ -41,7 +50,7 @@ use iceoryx2::prelude::ServiceName;
 use iceoryx2::service::service_name::ServiceNameError;
 
 #[cfg(doc)]
-use crate::{GraphSnapshot, Health, PoseStamped};
+use crate::{GraphHeader, Health, PoseStamped};
 
 /// The iceoryx2 service flavour of every port: inter-process, and `Send` so a port may be built
 /// on one thread and used on another. It shares its resources with plain `ipc::Service` peers
@@ -68,7 +77,7 @@ pub const DEFAULT_GRAPH_SUBSCRIBER_BUFFER: usize = 2;
 pub const SUBSCRIBER_MAX_BORROWED_SAMPLES: usize = 1;
 /// Publishers of `graph`: the daemon.
 pub const GRAPH_MAX_PUBLISHERS: usize = 1;
-/// Samples the `graph` publisher loans at once (it fills one snapshot in place, then sends it).
+/// Samples the `graph` publisher loans at once (it writes one sample in place, then sends it).
 pub const GRAPH_PUBLISHER_MAX_LOANED_SAMPLES: usize = 1;
 /// The one event id of `graph_updated` (a wake-up; the version is in the sample).
 pub const GRAPH_UPDATED_EVENT_ID: usize = 0;
@@ -93,7 +102,7 @@ pub const OPEN_RETRY_INTERVAL: Duration = Duration::from_millis(100);
 /// One of the services under a prefix.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum ServiceKind {
-    /// `<prefix>/graph`: [`GraphSnapshot`] publish-subscribe.
+    /// `<prefix>/graph`: graph publish-subscribe (bytes, [`GraphHeader`] user header).
     Graph,
     /// `<prefix>/graph_updated`: event after each new graph sample.
     GraphUpdated,
@@ -126,7 +135,7 @@ impl ServiceKind {
 /// The service names for a prefix.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ServiceNames {
-    /// `<prefix>/graph`: [`GraphSnapshot`] publish-subscribe.
+    /// `<prefix>/graph`: graph publish-subscribe (bytes, [`GraphHeader`] user header).
     pub graph: String,
     /// `<prefix>/graph_updated`: event after each new graph version.
     pub graph_updated: String,

@@ -12,7 +12,7 @@ use std::cell::Cell;
 use std::time::Duration;
 
 use common::{FakeDaemon, unique_prefix, write_kitchen, write_large};
-use op3dsg_ipc_types::publish::boxed_snapshot;
+use op3dsg_ipc_types::publish::GraphBuffer;
 use op3dsg_ipc_types::{Graph, GraphSubscriber};
 
 thread_local! {
@@ -67,10 +67,18 @@ fn allocations_in<T>(f: impl FnOnce() -> T) -> (usize, T) {
 
 #[test]
 fn copying_into_a_warm_graph_allocates_nothing() {
-    let mut large = boxed_snapshot();
+    let capacities = |s: &mut GraphBuffer| {
+        s.header.node_capacity = op3dsg_ipc_types::MAX_NODES as u32;
+        s.header.edge_capacity = op3dsg_ipc_types::MAX_EDGES as u32;
+    };
+    let mut large = GraphBuffer::new();
+    capacities(&mut large);
     write_large(&mut large, 1, 2_000);
-    let mut small = boxed_snapshot();
+    let large = large.encode();
+    let mut small = GraphBuffer::new();
+    capacities(&mut small);
     write_kitchen(&mut small, 2);
+    let small = small.encode();
     let mut graph = Graph::new();
     graph.copy_from(&large).expect("warm-up copy");
 

@@ -82,9 +82,26 @@ fn late_subscriber_gets_the_current_graph_then_only_the_newest_update() {
     assert!(graphs.wait_for_update(Duration::ZERO).expect("wait"), "sample still queued");
     assert_eq!(graphs.latest().expect("read").map(|g| g.version()), Some(5));
 
-    // A restarted daemon on a fresh map starts again at version 1: that is new too.
+    // A version going back within one instance is new too.
     daemon.publish_graph(|s| write_kitchen(s, 1));
     assert_eq!(wait_for_version(&daemon, &mut graphs, 5), Some(1));
+    assert!(!graphs.restarted());
+
+    // A restarted daemon (another instance id) whose count has reached the version already seen:
+    // still new, and flagged as a restart.
+    daemon.publish_graph(|s| {
+        write_kitchen(s, 1);
+        s.header.instance_id = common::INSTANCE_ID + 1;
+    });
+    assert_eq!(wait_for_version(&daemon, &mut graphs, 1), Some(1), "same version, new instance");
+    assert!(graphs.restarted());
+    assert_eq!(graphs.graph().map(|g| (g.instance_id(), g.restarted())), Some((common::INSTANCE_ID + 1, true)));
+    daemon.publish_graph(|s| {
+        write_kitchen(s, 2);
+        s.header.instance_id = common::INSTANCE_ID + 1;
+    });
+    assert_eq!(wait_for_version(&daemon, &mut graphs, 1), Some(2));
+    assert!(!graphs.restarted(), "the same new instance again");
 }
 
 #[test]

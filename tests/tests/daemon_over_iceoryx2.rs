@@ -66,9 +66,20 @@ fn restarted_daemon_serves_again_after_kill_9() {
     let prefix = unique_prefix("restart");
     let mut daemon = Daemon::start(&prefix, FAST);
     let mut graphs = daemon.graph_subscriber("restart-client-1");
-    wait_for("a graph from the first daemon", Duration::from_secs(60), || {
-        graphs.latest().ok().flatten().map(|g| g.version())
+    // A planner that stays attached across the restart, as a real one would.
+    let mut planner = daemon.graph_subscriber("restart-planner");
+    let first = wait_for("a graph from the first daemon", Duration::from_secs(60), || {
+        graphs.latest().ok().flatten().map(|g| (g.instance_id(), g.version()))
     });
+    let (first_instance, _) = first;
+    assert_ne!(first_instance, 0, "an instance id is never 0");
+    // The planner's bookkeeping: the newest version it has seen, well beyond the new daemon's
+    // first versions.
+    let seen = wait_for("the planner's first graph", Duration::from_secs(60), || {
+        planner.latest_if_newer(0).ok().flatten().map(|g| (g.instance_id(), g.version()))
+    });
+    assert_eq!(seen.0, first_instance);
+    assert!(!planner.restarted());
     drop(graphs);
     daemon.kill_9();
 
@@ -77,8 +88,20 @@ fn restarted_daemon_serves_again_after_kill_9() {
     let mut health = second.health_subscriber("restart-health-2");
     let first_health = health_with_frames_above(&mut health, 0, Duration::from_secs(60));
     health_with_frames_above(&mut health, first_health.frames_captured + 10, Duration::from_secs(60));
-    let version = wait_for("a graph from the restarted daemon", Duration::from_secs(60), || {
-        graphs.latest().ok().flatten().filter(|g| g.node_count() > 0).map(|g| g.version())
+    let (second_instance, version) = wait_for("a graph from the restarted daemon", Duration::from_secs(60), || {
+        graphs.latest().ok().flatten().filter(|g| g.node_count() > 0).map(|g| (g.instance_id(), g.version()))
     });
     assert!(version >= 1);
+    assert_ne!(second_instance, 0);
+    assert_ne!(second_instance, first_instance, "a restart draws a new instance id");
+
+    // The planner attached to the old daemon takes the new daemon's graphs even though it asks
+    // for versions newer than the old daemon's, and is told that the daemon restarted.
+    let taken = wait_for("the attached planner to take the new daemon's graph", Duration::from_secs(60), || {
+        let _ = planner.wait_for_update(Duration::from_millis(100));
+        let graph = planner.latest_if_newer(seen.1).ok().flatten()?;
+        (graph.instance_id() == second_instance).then(|| (graph.version(), graph.restarted()))
+    });
+    assert!(planner.restarted(), "the subscriber reports the restart");
+    assert!(taken.1, "the graph reports the restart");
 }

@@ -223,8 +223,10 @@ fn in_process_client_gets_history_updates_and_poses() {
     let graph = graphs.latest_if_newer(1).expect("read").expect("new sample");
     assert_eq!(graph.version(), 4);
     assert!(!graph.capacity_exceeded());
+    assert_eq!(graph.instance_id(), server.instance_id());
+    assert_ne!(graph.instance_id(), 0);
     eprintln!(
-        "publish_graph (loan + in-place init + fill + send + notify) took {publish_ns:?}; \
+        "publish_graph (encode + loan + copy + send + notify) took {publish_ns:?}; \
          publish-to-read latency {} us",
         received_at.saturating_sub(graph.publish_time_ns()) / 1000
     );

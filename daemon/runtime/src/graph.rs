@@ -1,6 +1,7 @@
 //! The in-memory scene graph: what the fusion thread hands to the publisher, the recorder and the
-//! refiner. Plain owned data; the publisher copies it into the shared-memory
-//! [`op3dsg_ipc_types::GraphSnapshot`] and `op3dsg dump --json` writes its JSON form.
+//! refiner. Plain owned data; the publisher encodes it into a shared-memory graph sample
+//! ([`op3dsg_ipc_types::GraphHeader`] and node and edge records) and `op3dsg dump --json` writes
+//! its JSON form.
 
 use op3dsg_drivers::graph_json::{EdgeJson, GraphJson, NodeJson};
 use op3dsg_ipc_types::{EdgeKind, EdgeOrigin, NodeKind};

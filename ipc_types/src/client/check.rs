@@ -1,9 +1,9 @@
-//! The contract checks of a received [`GraphSnapshot`] and [`SnapshotError`], the error that
-//! names the field or entry that breaks it.
+//! The contract checks of a received graph ([`GraphMessage`]) and [`SnapshotError`], the error
+//! that names the field or entry that breaks it.
 
-use crate::{EdgeKind, EdgeOrigin, GraphSnapshot, MAX_EDGES, MAX_NODES, NodeKind, SCHEMA_VERSION};
+use crate::{EDGE_BYTES, EdgeKind, EdgeOrigin, GraphMessage, NODE_BYTES, NodeKind, SCHEMA_VERSION};
 
-/// A snapshot that breaks the wire contract; names the offending field or entry.
+/// A graph sample that breaks the wire contract; names the offending field or entry.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SnapshotError {
     /// The publisher wrote another wire-contract version.
@@ -13,14 +13,21 @@ pub enum SnapshotError {
         /// [`SCHEMA_VERSION`].
         expected: u32,
     },
-    /// A count in the header exceeds the array capacity.
+    /// A count in the header exceeds the capacity the header states.
     CountTooLarge {
         /// `node_count` or `edge_count`.
         field: &'static str,
         /// The count found.
         value: u32,
-        /// The array capacity.
+        /// `node_capacity` or `edge_capacity`.
         capacity: usize,
+    },
+    /// The payload is not as long as the header's counts say.
+    PayloadSize {
+        /// Bytes in the sample.
+        found: usize,
+        /// `node_count * NODE_BYTES + edge_count * EDGE_BYTES`.
+        expected: usize,
     },
     /// A node with an unknown kind value.
     UnknownNodeKind {
@@ -54,6 +61,10 @@ impl core::fmt::Display for SnapshotError {
             Self::CountTooLarge { field, value, capacity } => {
                 write!(f, "header.{field}: {value} exceeds the capacity {capacity}")
             }
+            Self::PayloadSize { found, expected } => write!(
+                f,
+                "payload: {found} bytes, but the header's counts need {expected} ({NODE_BYTES} per node, {EDGE_BYTES} per edge)"
+            ),
             Self::UnknownNodeKind { index, value } => {
                 write!(f, "nodes[{index}].kind: unknown value {value} (0 object, 1 part)")
             }
@@ -69,38 +80,44 @@ impl core::fmt::Display for SnapshotError {
 
 impl std::error::Error for SnapshotError {}
 
-/// Checks a snapshot against the contract: schema version, counts within capacity, every valid
-/// node's kind and every valid edge's kind and origin.
-pub fn check_snapshot(snapshot: &GraphSnapshot) -> Result<(), SnapshotError> {
-    let header = &snapshot.header;
+/// Checks a graph sample against the contract: schema version, counts within the stated
+/// capacity, payload length matching the counts, every node's kind and every edge's kind and
+/// origin.
+pub fn check_message(message: &GraphMessage<'_>) -> Result<(), SnapshotError> {
+    let header = message.header;
     if header.schema_version != SCHEMA_VERSION {
         return Err(SnapshotError::SchemaVersion { found: header.schema_version, expected: SCHEMA_VERSION });
     }
-    if header.node_count as usize > MAX_NODES {
+    if header.node_count > header.node_capacity {
         return Err(SnapshotError::CountTooLarge {
             field: "node_count",
             value: header.node_count,
-            capacity: MAX_NODES,
+            capacity: header.node_capacity as usize,
         });
     }
-    if header.edge_count as usize > MAX_EDGES {
+    if header.edge_count > header.edge_capacity {
         return Err(SnapshotError::CountTooLarge {
             field: "edge_count",
             value: header.edge_count,
-            capacity: MAX_EDGES,
+            capacity: header.edge_capacity as usize,
         });
     }
-    for (index, node) in snapshot.valid_nodes().iter().enumerate() {
-        if NodeKind::from_u8(node.kind).is_none() {
-            return Err(SnapshotError::UnknownNodeKind { index, value: node.kind });
+    if message.payload.len() != header.payload_bytes() {
+        return Err(SnapshotError::PayloadSize { found: message.payload.len(), expected: header.payload_bytes() });
+    }
+    for (index, node) in message.node_records().iter().enumerate() {
+        // The kind byte of a node record (offset 8).
+        if NodeKind::from_u8(node[8]).is_none() {
+            return Err(SnapshotError::UnknownNodeKind { index, value: node[8] });
         }
     }
-    for (index, edge) in snapshot.valid_edges().iter().enumerate() {
-        if EdgeKind::from_u8(edge.kind).is_none() {
-            return Err(SnapshotError::UnknownEdgeKind { index, value: edge.kind });
+    for (index, edge) in message.edge_records().iter().enumerate() {
+        // The kind and origin bytes of an edge record (offsets 8 and 9).
+        if EdgeKind::from_u8(edge[8]).is_none() {
+            return Err(SnapshotError::UnknownEdgeKind { index, value: edge[8] });
         }
-        if EdgeOrigin::from_u8(edge.origin).is_none() {
-            return Err(SnapshotError::UnknownEdgeOrigin { index, value: edge.origin });
+        if EdgeOrigin::from_u8(edge[9]).is_none() {
+            return Err(SnapshotError::UnknownEdgeOrigin { index, value: edge[9] });
         }
     }
     Ok(())

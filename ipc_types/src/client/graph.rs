@@ -8,16 +8,20 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::service::builder::event::EventOpenError;
 use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
 
-use crate::GraphSnapshot;
 use crate::client::{ClientError, ErrorCause, Graph, Operation, create_node, retry_while_not_serving};
+use crate::publish::GraphPayload;
 use crate::services::{HISTORY_SIZE, IpcService, ServiceKind, ServiceNames, service_name};
+use crate::{GraphHeader, GraphMessage};
 
 /// Reads the daemon's scene graph: waits for `graph_updated`, then copies the newest sample of
 /// `graph` into an owned [`Graph`] it keeps (and reuses) across calls.
 ///
-/// A subscriber may borrow only one sample at a time, and samples are 3.9 MiB: [`Self::latest`]
-/// releases each older queued sample before taking the next, copies only the newest one's valid
-/// nodes and edges, and returns the sample to the daemon at once.
+/// A subscriber may borrow only one sample at a time: [`Self::latest`] releases each older queued
+/// sample before taking the next, copies only the newest one's nodes and edges, and returns the
+/// sample to the daemon at once.
+///
+/// A daemon restart shows as a new [`Graph::instance_id`]: [`Self::latest_if_newer`] then returns
+/// the new daemon's graph whatever its version, and [`Self::restarted`] says so.
 ///
 /// A client that joins late receives the current graph from the service's history when the
 /// daemon next updates its connections (within ~100 ms), without a `graph_updated` event; so
@@ -26,10 +30,14 @@ use crate::services::{HISTORY_SIZE, IpcService, ServiceKind, ServiceNames, servi
 pub struct GraphSubscriber {
     prefix: String,
     names: ServiceNames,
-    subscriber: Subscriber<IpcService, GraphSnapshot, ()>,
+    subscriber: Subscriber<IpcService, GraphPayload, GraphHeader>,
     listener: Listener<IpcService>,
     graph: Graph,
     received: bool,
+    /// Instance of the graph [`Self::latest_if_newer`] last returned (0: none yet).
+    returned_instance: u64,
+    /// The last returned graph came from another instance than the one before it.
+    restarted: bool,
     node: IoxNode<IpcService>,
 }
 
@@ -55,7 +63,7 @@ impl GraphSubscriber {
     fn from_ports(
         prefix: &str,
         node: IoxNode<IpcService>,
-        subscriber: Subscriber<IpcService, GraphSnapshot, ()>,
+        subscriber: Subscriber<IpcService, GraphPayload, GraphHeader>,
         listener: Listener<IpcService>,
     ) -> Self {
         Self {
@@ -65,6 +73,8 @@ impl GraphSubscriber {
             listener,
             graph: Graph::new(),
             received: false,
+            returned_instance: 0,
+            restarted: false,
             node,
         }
     }
@@ -117,7 +127,8 @@ impl GraphSubscriber {
             newest = self.subscriber.receive().map_err(|e| self.error(Operation::Receive, ErrorCause::Receive(e)))?;
         }
         let Some(sample) = newest else { return Ok(false) };
-        self.graph.copy_from(sample.payload()).map_err(|e| {
+        let message = GraphMessage::new(sample.user_header(), sample.payload());
+        self.graph.copy_from(&message).map_err(|e| {
             ClientError::new(&self.prefix, ServiceKind::Graph, Operation::Receive, ErrorCause::InvalidGraph(e))
         })?;
         self.received = true;
@@ -134,11 +145,28 @@ impl GraphSubscriber {
     }
 
     /// Like [`Self::latest`], but `None` also when the newest graph has version
-    /// `last_seen_version` (pass 0 before the first graph). Versions only grow while one daemon
-    /// runs; a daemon restarted on a fresh map starts again at 1, which counts as new too.
+    /// `last_seen_version` and comes from the same daemon instance as the graph this call
+    /// returned last (pass 0 before the first graph). Versions only grow while one daemon
+    /// instance runs; a restarted daemon starts again at 1 with a new
+    /// [`instance_id`](Graph::instance_id), and its graphs count as new whatever their version
+    /// ([`Self::restarted`] is then `true`).
     pub fn latest_if_newer(&mut self, last_seen_version: u64) -> Result<Option<&Graph>, ClientError> {
         self.poll()?;
-        Ok(self.graph().filter(|g| g.version() != last_seen_version))
+        let Some(instance) = self.graph().map(Graph::instance_id) else { return Ok(None) };
+        let other_instance = instance != self.returned_instance;
+        if !other_instance && self.graph.version() == last_seen_version {
+            return Ok(None);
+        }
+        self.restarted = other_instance && self.returned_instance != 0;
+        self.returned_instance = instance;
+        Ok(self.graph())
+    }
+
+    /// `true` when the graph [`Self::latest_if_newer`] returned last came from another daemon
+    /// instance than the one it returned before: the daemon restarted in between. Forget version
+    /// bookkeeping and cached node ids of the old instance.
+    pub fn restarted(&self) -> bool {
+        self.restarted
     }
 
     /// The graph last copied, without receiving.
@@ -151,7 +179,7 @@ impl GraphSubscriber {
     }
 }
 
-type GraphPorts = (Subscriber<IpcService, GraphSnapshot, ()>, Listener<IpcService>);
+type GraphPorts = (Subscriber<IpcService, GraphPayload, GraphHeader>, Listener<IpcService>);
 
 fn open_ports(node: &IoxNode<IpcService>, prefix: &str) -> Result<GraphPorts, ClientError> {
     let graph_error = |operation, cause| ClientError::new(prefix, ServiceKind::Graph, operation, cause);
@@ -159,13 +187,14 @@ fn open_ports(node: &IoxNode<IpcService>, prefix: &str) -> Result<GraphPorts, Cl
 
     let name = service_name(prefix, ServiceKind::Graph)
         .map_err(|e| graph_error(Operation::Open, ErrorCause::InvalidPrefix(e)))?;
-    let service = match node.service_builder(&name).publish_subscribe::<GraphSnapshot>().open() {
-        Ok(service) => service,
-        Err(PublishSubscribeOpenError::DoesNotExist) => {
-            return Err(graph_error(Operation::Open, ErrorCause::NotServing));
-        }
-        Err(e) => return Err(graph_error(Operation::Open, ErrorCause::OpenPublishSubscribe(e))),
-    };
+    let service =
+        match node.service_builder(&name).publish_subscribe::<GraphPayload>().user_header::<GraphHeader>().open() {
+            Ok(service) => service,
+            Err(PublishSubscribeOpenError::DoesNotExist) => {
+                return Err(graph_error(Operation::Open, ErrorCause::NotServing));
+            }
+            Err(e) => return Err(graph_error(Operation::Open, ErrorCause::OpenPublishSubscribe(e))),
+        };
     let subscriber = service
         .subscriber_builder()
         .history_request(HISTORY_SIZE)

@@ -25,7 +25,7 @@ use std::time::{Duration, Instant};
 use iceoryx2::node::Node as IoxNode;
 use iceoryx2::prelude::{NodeBuilder, NodeName, SignalHandlingMode};
 
-pub use check::{SnapshotError, check_snapshot};
+pub use check::{SnapshotError, check_message};
 pub use error::{ClientError, ErrorCause, Operation};
 pub use graph::GraphSubscriber;
 pub use health::HealthSubscriber;

@@ -1,13 +1,80 @@
-//! The owned graph a client reads: [`Graph`], copied out of one [`GraphSnapshot`] into reused
-//! buffers, with its lookup indices and the typed read-only views [`NodeView`] and [`EdgeView`].
+//! The owned graph a client reads: [`Graph`], copied out of one graph sample ([`GraphMessage`])
+//! into reused buffers, with its lookup indices and the typed read-only views [`NodeView`] and
+//! [`EdgeView`].
 
 use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
 
-use crate::client::{SnapshotError, check_snapshot};
+use crate::client::{SnapshotError, check_message};
 use crate::{
-    AFFORDANCES, Edge, EdgeKind, EdgeOrigin, GraphHeader, GraphSnapshot, NO_NODE, Node, NodeKind, affordance_bits,
+    AFFORDANCES, Edge, EdgeKind, EdgeOrigin, GraphHeader, GraphMessage, NO_NODE, Node, NodeKind, affordance_bits,
     affordance_names, relation_phrase,
 };
+
+/// A hasher for node ids (u32): one multiply, as rustc's FxHash does. Ids come from the daemon,
+/// not from an adversary, so no DoS-resistant hashing is needed on this per-graph path.
+#[derive(Default, Clone, Copy)]
+struct IdHasher(u64);
+
+impl Hasher for IdHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0.rotate_left(5) ^ u64::from(b)).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+        }
+    }
+    fn write_u32(&mut self, id: u32) {
+        self.0 = (self.0.rotate_left(5) ^ u64::from(id)).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+    }
+}
+
+type IdMap = HashMap<u32, u32, BuildHasherDefault<IdHasher>>;
+
+/// Node id → index in the graph. The daemon hands out ids from a counter, so they are usually
+/// dense: then a table indexed by id (one load per lookup), else a hash map.
+#[derive(Clone, Default)]
+struct IdIndex {
+    /// `dense[id]` is the index of node `id`, or [`NO_INDEX`]; empty when `sparse` is used.
+    dense: Vec<u32>,
+    sparse: IdMap,
+}
+
+impl IdIndex {
+    /// A table is used while it is at most this many times longer than the node list (plus a
+    /// small allowance), so its size stays proportional to the graph.
+    const DENSE_FACTOR: usize = 4;
+    const DENSE_SLACK: usize = 1024;
+
+    fn rebuild(&mut self, nodes: &[Node]) {
+        self.dense.clear();
+        self.sparse.clear();
+        let max_id = nodes.iter().map(|n| n.id).filter(|&id| id != NO_NODE).max();
+        let dense_len = max_id.map_or(0, |id| id as usize + 1);
+        if dense_len <= nodes.len() * Self::DENSE_FACTOR + Self::DENSE_SLACK {
+            self.dense.resize(dense_len, NO_INDEX);
+            for (i, node) in nodes.iter().enumerate() {
+                if let Some(slot) = self.dense.get_mut(node.id as usize) {
+                    *slot = i as u32;
+                }
+            }
+        } else {
+            self.sparse.reserve(nodes.len());
+            for (i, node) in nodes.iter().enumerate() {
+                self.sparse.insert(node.id, i as u32);
+            }
+        }
+    }
+
+    fn get(&self, id: u32) -> Option<u32> {
+        if self.sparse.is_empty() {
+            self.dense.get(id as usize).copied().filter(|&i| i != NO_INDEX)
+        } else {
+            self.sparse.get(&id).copied()
+        }
+    }
+}
 
 /// Index meaning "no node" in the per-edge and per-node index arrays.
 const NO_INDEX: u32 = u32::MAX;
@@ -24,8 +91,8 @@ impl core::fmt::Display for UnknownAffordance {
 
 impl std::error::Error for UnknownAffordance {}
 
-/// One version of the scene graph, owned by the client: the header, the valid nodes and edges
-/// copied out of a [`GraphSnapshot`], and indices built once per copy (id → node, node → parts,
+/// One version of the scene graph, owned by the client: the header, the nodes and edges
+/// decoded out of one graph sample ([`GraphMessage`]), and indices built once per copy (id → node, node → parts,
 /// node → outgoing and incoming edges).
 ///
 /// [`Graph::copy_from`] reuses every buffer, so once a graph of a given size has been copied,
@@ -35,7 +102,9 @@ pub struct Graph {
     header: GraphHeader,
     nodes: Vec<Node>,
     edges: Vec<Edge>,
-    index_of_id: HashMap<u32, u32>,
+    index_of_id: IdIndex,
+    /// The previous graph held came from another daemon instance (see [`Self::restarted`]).
+    restarted: bool,
     /// Per node: index of its parent node, or [`NO_INDEX`].
     parent_index: Vec<u32>,
     /// Per edge: index of its source / target node, or [`NO_INDEX`] when not in the graph.
@@ -90,6 +159,7 @@ impl Adjacency {
 impl core::fmt::Debug for Graph {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.debug_struct("Graph")
+            .field("instance_id", &self.instance_id())
             .field("version", &self.version())
             .field("stamp_ns", &self.stamp_ns())
             .field("nodes", &self.nodes.len())
@@ -105,35 +175,33 @@ impl Graph {
         Self::default()
     }
 
-    /// A graph copied out of `snapshot` (see [`Self::copy_from`]).
-    pub fn from_snapshot(snapshot: &GraphSnapshot) -> Result<Self, SnapshotError> {
+    /// A graph copied out of `message` (see [`Self::copy_from`]).
+    pub fn from_message(message: &GraphMessage<'_>) -> Result<Self, SnapshotError> {
         let mut graph = Self::new();
-        graph.copy_from(snapshot)?;
+        graph.copy_from(message)?;
         Ok(graph)
     }
 
-    /// Replaces this graph with the valid nodes and edges of `snapshot` and rebuilds the indices,
-    /// reusing the buffers. The snapshot is checked first ([`check_snapshot`]); on error the
-    /// graph is left as it was.
-    pub fn copy_from(&mut self, snapshot: &GraphSnapshot) -> Result<(), SnapshotError> {
-        check_snapshot(snapshot)?;
-        self.header = snapshot.header;
+    /// Replaces this graph with the nodes and edges of `message` and rebuilds the indices,
+    /// reusing the buffers. The message is checked first ([`check_message`]); on error the graph
+    /// is left as it was.
+    pub fn copy_from(&mut self, message: &GraphMessage<'_>) -> Result<(), SnapshotError> {
+        check_message(message)?;
+        let previous_instance = self.header.instance_id;
+        self.header = *message.header;
+        self.restarted = previous_instance != 0 && previous_instance != self.header.instance_id;
         self.nodes.clear();
-        self.nodes.extend_from_slice(snapshot.valid_nodes());
+        self.nodes.extend(message.nodes());
         self.edges.clear();
-        self.edges.extend_from_slice(snapshot.valid_edges());
+        self.edges.extend(message.edges());
         self.rebuild_indices();
         Ok(())
     }
 
     fn rebuild_indices(&mut self) {
         let Self { nodes, edges, index_of_id, parent_index, source_index, target_index, cursor, .. } = self;
-        index_of_id.clear();
-        index_of_id.reserve(nodes.len());
-        for (i, node) in nodes.iter().enumerate() {
-            index_of_id.insert(node.id, i as u32);
-        }
-        let index = |id: u32| if id == NO_NODE { NO_INDEX } else { index_of_id.get(&id).copied().unwrap_or(NO_INDEX) };
+        index_of_id.rebuild(nodes);
+        let index = |id: u32| if id == NO_NODE { NO_INDEX } else { index_of_id.get(id).unwrap_or(NO_INDEX) };
         parent_index.clear();
         parent_index.extend(nodes.iter().map(|n| index(n.parent_id)));
         source_index.clear();
@@ -146,10 +214,25 @@ impl Graph {
         self.incoming.rebuild(node_count, &self.target_index, cursor);
     }
 
-    /// Graph version: increases by one with every published change while one daemon runs
-    /// (0 for an empty graph).
+    /// Graph version: increases by one with every published change while one daemon instance
+    /// runs (0 for an empty graph); compare versions only between graphs of the same
+    /// [`Self::instance_id`].
     pub fn version(&self) -> u64 {
         self.header.graph_version
+    }
+
+    /// The daemon instance that published this graph: drawn anew (never 0) each time the daemon
+    /// starts, so a different value than before means the daemon restarted and its versions and
+    /// node ids started again (0 for an empty graph).
+    pub fn instance_id(&self) -> u64 {
+        self.header.instance_id
+    }
+
+    /// `true` when the graph this one replaced (in the last [`Self::copy_from`]) came from
+    /// another daemon instance: the daemon restarted in between, so version bookkeeping and
+    /// cached node ids of the old instance no longer apply.
+    pub fn restarted(&self) -> bool {
+        self.restarted
     }
 
     /// Stamp of the newest keyframe fused into this version, nanoseconds.
@@ -162,7 +245,7 @@ impl Graph {
         self.header.publish_time_ns
     }
 
-    /// `true` when the daemon's map had more nodes or edges than a snapshot holds: this graph is
+    /// `true` when the daemon's map had more nodes or edges than a sample holds: this graph is
     /// then the most recently seen part of it (see [`GraphHeader::capacity_exceeded`]).
     pub fn capacity_exceeded(&self) -> bool {
         self.header.capacity_exceeded != 0
@@ -215,7 +298,7 @@ impl Graph {
 
     /// The node with this id.
     pub fn node(&self, id: u32) -> Option<NodeView<'_>> {
-        self.index_of_id.get(&id).map(|&index| NodeView { graph: self, index })
+        self.index_of_id.get(id).map(|index| NodeView { graph: self, index })
     }
 
     /// The parts whose parent is `object_id` (empty for an unknown id).
@@ -263,7 +346,7 @@ impl Graph {
     }
 
     fn related<'a>(&'a self, id: u32, adjacency: &'a Adjacency) -> impl Iterator<Item = u32> + 'a {
-        let items = self.index_of_id.get(&id).map(|&i| adjacency.of(i)).unwrap_or(&[]);
+        let items = self.index_of_id.get(id).map(|i| adjacency.of(i)).unwrap_or(&[]);
         items.iter().copied()
     }
 }
@@ -304,7 +387,7 @@ impl<'a> NodeView<'a> {
 
     /// Object or part.
     pub fn kind(&self) -> NodeKind {
-        // Checked when the graph was copied (check_snapshot).
+        // Checked when the graph was copied (check_message).
         NodeKind::from_u8(self.wire().kind).unwrap_or_default()
     }
 
@@ -453,13 +536,13 @@ impl<'a> EdgeView<'a> {
 
     /// Spatial or functional.
     pub fn kind(&self) -> EdgeKind {
-        // Checked when the graph was copied (check_snapshot).
+        // Checked when the graph was copied (check_message).
         EdgeKind::from_u8(self.wire().kind).unwrap_or_default()
     }
 
     /// Where the edge came from.
     pub fn origin(&self) -> EdgeOrigin {
-        // Checked when the graph was copied (check_snapshot).
+        // Checked when the graph was copied (check_message).
         EdgeOrigin::from_u8(self.wire().origin).unwrap_or_default()
     }
 

@@ -1,25 +1,50 @@
-//! The graph codec: the runtime's [`SceneGraph`] written into a wire [`GraphSnapshot`]
-//! ([`fill_snapshot`], capacity rules included), and read back from a snapshot or from the
-//! client library's owned [`Graph`] ([`snapshot_to_scene_graph`], [`graph_to_scene_graph`]).
+//! The graph codec: the runtime's [`SceneGraph`] encoded into a wire graph sample (a
+//! [`GraphHeader`] and the byte payload of node and edge records, [`GraphEncoder`], capacity rules
+//! included), and read back from a received sample or from the client library's owned [`Graph`]
+//! ([`message_to_scene_graph`], [`graph_to_scene_graph`]).
 
-use op3dsg_ipc_types::client::check_snapshot;
 use op3dsg_ipc_types::{
-    Edge, EdgeKind, EdgeOrigin, Graph, GraphSnapshot, MAX_EDGES, MAX_NODES, NO_NODE, Node as WireNode, NodeKind,
-    SCHEMA_VERSION, SnapshotError,
+    EDGE_BYTES, Edge, EdgeKind, EdgeOrigin, Graph, GraphHeader, GraphMessage, MAX_EDGES, MAX_NODES, NO_NODE,
+    NODE_BYTES, Node as WireNode, NodeKind, PHRASE_CAPACITY_BYTES, SCHEMA_VERSION, SnapshotError, check_message,
+    graph_payload_bytes, relation_phrase,
 };
+use rustc_hash::FxHashMap;
 
 use crate::graph::{GraphEdge, GraphNode, SceneGraph};
 #[cfg(doc)]
 use crate::ipc::GraphServer;
 
-/// What one [`fill_snapshot`] / [`GraphServer::publish_graph`] wrote.
+/// The most nodes and edges one graph sample holds (the profile's `ipc.max_nodes` and
+/// `ipc.max_edges`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct GraphCapacity {
+    /// Most nodes per sample.
+    pub max_nodes: usize,
+    /// Most edges per sample.
+    pub max_edges: usize,
+}
+
+impl Default for GraphCapacity {
+    fn default() -> Self {
+        Self { max_nodes: MAX_NODES, max_edges: MAX_EDGES }
+    }
+}
+
+impl GraphCapacity {
+    /// Bytes of the largest payload: what the publisher reserves per sample.
+    pub fn max_payload_bytes(&self) -> usize {
+        graph_payload_bytes(self.max_nodes, self.max_edges)
+    }
+}
+
+/// What one [`GraphEncoder::encode`] / [`GraphServer::publish_graph`] wrote.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct PublishReport {
     /// Graph version written.
     pub version: u64,
-    /// Nodes written into the snapshot.
+    /// Nodes written into the sample.
     pub nodes_written: usize,
-    /// Edges written into the snapshot.
+    /// Edges written into the sample.
     pub edges_written: usize,
     /// Nodes in the graph.
     pub total_nodes: usize,
@@ -31,130 +56,313 @@ pub struct PublishReport {
     pub labels_cut: usize,
     /// Edges left out because an endpoint is not in the graph at all (a pipeline bug).
     pub dangling_edges: usize,
+    /// Bytes of the payload sent (nodes and edges; the header comes on top).
+    pub payload_bytes: usize,
 }
 
-/// Writes `graph` into `snapshot` (header, nodes sorted by id, edges). Pure: no shared memory.
-///
-/// Beyond [`MAX_NODES`] it keeps the most recently seen nodes (highest `last_seen_stamp_ns`, on
-/// ties the lower id) and only the edges between kept nodes; beyond [`MAX_EDGES`] it keeps the
-/// edges whose older endpoint was seen most recently (on ties the earlier edge). Either sets
-/// `capacity_exceeded`. `total_*` are always the graph's real counts. `publish_time_ns` is set to 0;
-/// the publisher stamps it.
-pub fn fill_snapshot(graph: &SceneGraph, snapshot: &mut GraphSnapshot) -> PublishReport {
-    let mut report = PublishReport {
-        version: graph.version,
-        total_nodes: graph.nodes.len(),
-        total_edges: graph.edges.len(),
-        ..PublishReport::default()
-    };
+/// Node id → index, as a table indexed by id while the ids are dense (the runtime hands them out
+/// from a counter), else as a hash map; reuses its storage between graphs.
+#[derive(Debug, Default)]
+struct IdTable {
+    dense: Vec<u32>,
+    sparse: FxHashMap<u32, u32>,
+    use_sparse: bool,
+}
 
-    // Node selection: indices into graph.nodes.
-    let mut selected: Vec<usize> = (0..graph.nodes.len()).collect();
-    if selected.len() > MAX_NODES {
-        let recency = |&a: &usize, &b: &usize| {
-            let (na, nb) = (&graph.nodes[a], &graph.nodes[b]);
-            nb.last_seen_stamp_ns.cmp(&na.last_seen_stamp_ns).then(na.id.cmp(&nb.id))
-        };
-        selected.select_nth_unstable_by(MAX_NODES - 1, recency);
-        selected.truncate(MAX_NODES);
-        report.truncated = true;
-    }
-    selected.sort_by_key(|&i| graph.nodes[i].id);
+impl IdTable {
+    const ABSENT: u32 = u32::MAX;
 
-    // id -> last_seen of published nodes, for edge filtering.
-    let published: std::collections::HashMap<u32, u64> =
-        selected.iter().map(|&i| (graph.nodes[i].id, graph.nodes[i].last_seen_stamp_ns)).collect();
-    let all_ids: std::collections::HashSet<u32> =
-        if report.truncated { graph.nodes.iter().map(|n| n.id).collect() } else { std::collections::HashSet::new() };
-    let exists = |id: u32| if report.truncated { all_ids.contains(&id) } else { published.contains_key(&id) };
-
-    let mut edges: Vec<(usize, u64)> = Vec::with_capacity(graph.edges.len().min(MAX_EDGES));
-    for (i, e) in graph.edges.iter().enumerate() {
-        match (published.get(&e.source_id), published.get(&e.target_id)) {
-            (Some(s), Some(t)) => edges.push((i, (*s).min(*t))),
-            _ if !exists(e.source_id) || !exists(e.target_id) => report.dangling_edges += 1,
-            _ => {} // endpoint left out for capacity
+    /// Rebuilds the table over `(id, index)` pairs; `max_id` is the largest id among them.
+    fn rebuild(&mut self, len: usize, max_id: Option<u32>, entries: impl Iterator<Item = (u32, u32)>) {
+        self.dense.clear();
+        self.sparse.clear();
+        let dense_len = max_id.map_or(0, |id| id as usize + 1);
+        self.use_sparse = dense_len > len * 4 + 1024;
+        if self.use_sparse {
+            self.sparse.extend(entries);
+        } else {
+            self.dense.resize(dense_len, Self::ABSENT);
+            for (id, index) in entries {
+                if let Some(slot) = self.dense.get_mut(id as usize) {
+                    *slot = index;
+                }
+            }
         }
     }
-    if edges.len() > MAX_EDGES {
-        edges.select_nth_unstable_by(MAX_EDGES - 1, |a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
-        edges.truncate(MAX_EDGES);
-        edges.sort_by_key(|&(i, _)| i);
-        report.truncated = true;
+
+    fn get(&self, id: u32) -> Option<u32> {
+        if self.use_sparse {
+            self.sparse.get(&id).copied()
+        } else {
+            self.dense.get(id as usize).copied().filter(|&i| i != Self::ABSENT)
+        }
     }
-    if edges.len() + report.dangling_edges < graph.edges.len() {
-        report.truncated = true;
+}
+
+/// Encodes [`SceneGraph`]s into the wire form, keeping every buffer between calls: once a graph
+/// of a given size has been encoded, encoding another of at most that size allocates nothing.
+#[derive(Debug, Default)]
+pub struct GraphEncoder {
+    capacity: GraphCapacity,
+    instance_id: u64,
+    header: GraphHeader,
+    /// The payload of the last graph is `payload[..payload_len]`; the buffer only grows.
+    payload: Vec<u8>,
+    payload_len: usize,
+    /// Indices into `graph.nodes` of the published nodes.
+    selected: Vec<usize>,
+    /// `(index into graph.edges, source node index, target node index)` of the published edges.
+    edges: Vec<(u32, u32, u32)>,
+    /// Published node id -> index into `graph.nodes`, for edge filtering.
+    published: IdTable,
+    /// Every node id, when nodes were left out (to tell capacity from dangling edges).
+    all_ids: IdTable,
+    /// The wire phrase of each relation id (NUL padded), so edges copy it instead of building it.
+    phrases: Vec<[u8; PHRASE_CAPACITY_BYTES]>,
+}
+
+impl GraphEncoder {
+    /// An encoder for samples of at most `capacity`, stamping `instance_id` into every header.
+    pub fn new(capacity: GraphCapacity, instance_id: u64) -> Self {
+        let phrases = (0..=RELATION_ID_TABLE_MAX)
+            .map(|id| {
+                let mut phrase = [0u8; PHRASE_CAPACITY_BYTES];
+                op3dsg_ipc_types::write_fixed_str(&mut phrase, relation_phrase(id).unwrap_or(""));
+                phrase
+            })
+            .collect();
+        Self { capacity, instance_id, phrases, ..Self::default() }
     }
 
-    let mut object_count = 0u32;
-    let mut part_count = 0u32;
-    for (slot, &i) in snapshot.nodes.iter_mut().zip(selected.iter()) {
+    /// The instance id stamped into every header.
+    pub fn instance_id(&self) -> u64 {
+        self.instance_id
+    }
+
+    /// The capacity.
+    pub fn capacity(&self) -> GraphCapacity {
+        self.capacity
+    }
+
+    /// The header of the last encoded graph.
+    pub fn header(&self) -> &GraphHeader {
+        &self.header
+    }
+
+    /// Stamps the header's `publish_time_ns` (the publisher does, just before sending).
+    pub fn set_publish_time_ns(&mut self, publish_time_ns: u64) {
+        self.header.publish_time_ns = publish_time_ns;
+    }
+
+    /// The payload of the last encoded graph.
+    pub fn payload(&self) -> &[u8] {
+        &self.payload[..self.payload_len]
+    }
+
+    /// The last encoded graph as a subscriber receives it.
+    pub fn message(&self) -> GraphMessage<'_> {
+        GraphMessage::new(&self.header, self.payload())
+    }
+
+    /// Chooses what of `graph` a sample holds (nodes sorted by id, edges) and writes the header's
+    /// counts; [`Self::write_payload`] then writes the records. Pure: no shared memory.
+    ///
+    /// Beyond `max_nodes` it keeps the most recently seen nodes (highest `last_seen_stamp_ns`,
+    /// on ties the lower id) and only the edges between kept nodes; beyond `max_edges` it keeps
+    /// the edges whose older endpoint was seen most recently (on ties the earlier edge). Either
+    /// sets `capacity_exceeded`. `total_*` are always the graph's real counts. `publish_time_ns`
+    /// is set to 0; the publisher stamps it.
+    pub fn select(&mut self, graph: &SceneGraph) -> PublishReport {
+        let GraphCapacity { max_nodes, max_edges } = self.capacity;
+        let mut report = PublishReport {
+            version: graph.version,
+            total_nodes: graph.nodes.len(),
+            total_edges: graph.edges.len(),
+            ..PublishReport::default()
+        };
+
+        let selected = &mut self.selected;
+        selected.clear();
+        selected.extend(0..graph.nodes.len());
+        if selected.len() > max_nodes {
+            let recency = |&a: &usize, &b: &usize| {
+                let (na, nb) = (&graph.nodes[a], &graph.nodes[b]);
+                nb.last_seen_stamp_ns.cmp(&na.last_seen_stamp_ns).then(na.id.cmp(&nb.id))
+            };
+            if max_nodes == 0 {
+                selected.clear();
+            } else {
+                selected.select_nth_unstable_by(max_nodes - 1, recency);
+                selected.truncate(max_nodes);
+            }
+            report.truncated = true;
+        }
+        // The runtime keeps its nodes sorted by id; sort only when they are not.
+        if !selected.is_sorted_by_key(|&i| graph.nodes[i].id) {
+            selected.sort_unstable_by_key(|&i| graph.nodes[i].id);
+        }
+
+        let max_published_id = selected.iter().map(|&i| graph.nodes[i].id).max();
+        self.published.rebuild(
+            selected.len(),
+            max_published_id,
+            selected.iter().map(|&i| (graph.nodes[i].id, i as u32)),
+        );
+        if report.truncated {
+            let max_id = graph.nodes.iter().map(|n| n.id).max();
+            self.all_ids.rebuild(graph.nodes.len(), max_id, graph.nodes.iter().map(|n| (n.id, 0)));
+        }
+        let (published, all_ids) = (&self.published, &self.all_ids);
+        let exists = |id: u32| if report.truncated { all_ids.get(id).is_some() } else { published.get(id).is_some() };
+
+        let edges = &mut self.edges;
+        edges.clear();
+        for (i, e) in graph.edges.iter().enumerate() {
+            match (published.get(e.source_id), published.get(e.target_id)) {
+                (Some(s), Some(t)) => edges.push((i as u32, s, t)),
+                _ if !exists(e.source_id) || !exists(e.target_id) => report.dangling_edges += 1,
+                _ => {} // endpoint left out for capacity
+            }
+        }
+        if edges.len() > max_edges {
+            let recency = |&(_, s, t): &(u32, u32, u32)| {
+                graph.nodes[s as usize].last_seen_stamp_ns.min(graph.nodes[t as usize].last_seen_stamp_ns)
+            };
+            if max_edges == 0 {
+                edges.clear();
+            } else {
+                edges.select_nth_unstable_by(max_edges - 1, |a, b| recency(b).cmp(&recency(a)).then(a.0.cmp(&b.0)));
+                edges.truncate(max_edges);
+                edges.sort_unstable_by_key(|&(i, _, _)| i);
+            }
+            report.truncated = true;
+        }
+        if edges.len() + report.dangling_edges < graph.edges.len() {
+            report.truncated = true;
+        }
+
+        report.nodes_written = selected.len();
+        report.edges_written = edges.len();
+        report.payload_bytes = graph_payload_bytes(selected.len(), edges.len());
+        self.payload_len = report.payload_bytes;
+        self.header = GraphHeader {
+            schema_version: SCHEMA_VERSION,
+            node_count: selected.len() as u32,
+            graph_version: graph.version,
+            instance_id: self.instance_id,
+            stamp_ns: graph.stamp_ns,
+            publish_time_ns: 0,
+            edge_count: edges.len() as u32,
+            object_count: 0,
+            part_count: 0,
+            capacity_exceeded: u8::from(report.truncated),
+            reserved: [0; 3],
+            total_node_count: u32::try_from(graph.nodes.len()).unwrap_or(u32::MAX),
+            total_edge_count: u32::try_from(graph.edges.len()).unwrap_or(u32::MAX),
+            node_capacity: u32::try_from(max_nodes).unwrap_or(u32::MAX),
+            edge_capacity: u32::try_from(max_edges).unwrap_or(u32::MAX),
+            reserved2: 0,
+        };
+        report
+    }
+
+    /// Writes the records of the graph [`Self::select`] chose into `out` (exactly
+    /// `report.payload_bytes` long, every byte written) and completes the header (object and part
+    /// counts) and `report` (labels cut).
+    pub fn write_payload(&mut self, graph: &SceneGraph, out: &mut [u8], report: &mut PublishReport) {
+        let counts = write_records(graph, &self.selected, &self.edges, &self.phrases, out);
+        (self.header.object_count, self.header.part_count, report.labels_cut) = counts;
+    }
+
+    /// [`Self::select`] and [`Self::write_payload`] into the encoder's own buffer: the header and
+    /// payload are then [`Self::header`] and [`Self::payload`].
+    pub fn encode(&mut self, graph: &SceneGraph) -> PublishReport {
+        let mut report = self.select(graph);
+        let len = report.payload_bytes;
+        // The buffer only grows; every byte of `payload[..len]` is written.
+        if self.payload.len() < len {
+            self.payload.resize(len, 0);
+        }
+        let counts = write_records(graph, &self.selected, &self.edges, &self.phrases, &mut self.payload[..len]);
+        (self.header.object_count, self.header.part_count, report.labels_cut) = counts;
+        report
+    }
+}
+
+/// Writes the chosen nodes, then edges, as records into `out`; returns the object and part
+/// counts and the number of labels cut.
+fn write_records(
+    graph: &SceneGraph,
+    selected: &[usize],
+    edges: &[(u32, u32, u32)],
+    phrases: &[[u8; PHRASE_CAPACITY_BYTES]],
+    out: &mut [u8],
+) -> (u32, u32, usize) {
+    debug_assert_eq!(out.len(), graph_payload_bytes(selected.len(), edges.len()));
+    let split = (selected.len() * NODE_BYTES).min(out.len());
+    let (node_bytes, edge_bytes) = out.split_at_mut(split);
+    let (mut object_count, mut part_count, mut labels_cut) = (0u32, 0u32, 0usize);
+    for (record, &i) in node_bytes.as_chunks_mut::<NODE_BYTES>().0.iter_mut().zip(selected) {
         let node = &graph.nodes[i];
         match node.kind {
             NodeKind::Object => object_count += 1,
             NodeKind::Part => part_count += 1,
         }
-        slot.id = node.id;
-        slot.parent_id = node.parent_id.unwrap_or(NO_NODE);
-        slot.kind = node.kind as u8;
-        slot.reserved = [0; 3];
-        slot.observation_count = node.observation_count;
-        if !op3dsg_ipc_types::write_fixed_str(&mut slot.label, &node.label) {
-            report.labels_cut += 1;
+        let mut wire = WireNode {
+            id: node.id,
+            parent_id: node.parent_id.unwrap_or(NO_NODE),
+            kind: node.kind as u8,
+            reserved: [0; 3],
+            observation_count: node.observation_count,
+            confidence: node.confidence,
+            centre_m: node.centre_m,
+            box_min_m: node.box_min_m,
+            box_max_m: node.box_max_m,
+            affordance_bits: node.affordance_bits,
+            reserved2: [0; 6],
+            last_seen_stamp_ns: node.last_seen_stamp_ns,
+            ..WireNode::default()
+        };
+        if !op3dsg_ipc_types::write_fixed_str(&mut wire.label, &node.label) {
+            labels_cut += 1;
         }
-        slot.confidence = node.confidence;
-        slot.centre_m = node.centre_m;
-        slot.box_min_m = node.box_min_m;
-        slot.box_max_m = node.box_max_m;
-        slot.affordance_bits = node.affordance_bits;
-        slot.reserved2 = [0; 6];
-        slot.last_seen_stamp_ns = node.last_seen_stamp_ns;
+        wire.write_bytes(record);
     }
-    for (slot, &(i, _)) in snapshot.edges.iter_mut().zip(edges.iter()) {
-        write_edge(slot, &graph.edges[i]);
+    for (record, &(i, _, _)) in edge_bytes.as_chunks_mut::<EDGE_BYTES>().0.iter_mut().zip(edges) {
+        let edge = &graph.edges[i as usize];
+        let phrase = phrases.get(usize::from(edge.relation_id)).copied().unwrap_or_else(|| {
+            let mut phrase = [0u8; PHRASE_CAPACITY_BYTES];
+            op3dsg_ipc_types::write_fixed_str(&mut phrase, relation_phrase(edge.relation_id).unwrap_or(""));
+            phrase
+        });
+        Edge {
+            source_id: edge.source_id,
+            target_id: edge.target_id,
+            kind: edge.kind as u8,
+            origin: edge.origin as u8,
+            relation_id: edge.relation_id,
+            confidence: edge.confidence,
+            phrase,
+        }
+        .write_bytes(record);
     }
-
-    report.nodes_written = selected.len();
-    report.edges_written = edges.len();
-    let header = &mut snapshot.header;
-    header.schema_version = SCHEMA_VERSION;
-    header.node_count = selected.len() as u32;
-    header.graph_version = graph.version;
-    header.stamp_ns = graph.stamp_ns;
-    header.publish_time_ns = 0;
-    header.edge_count = edges.len() as u32;
-    header.object_count = object_count;
-    header.part_count = part_count;
-    header.capacity_exceeded = u8::from(report.truncated);
-    header.reserved = [0; 3];
-    header.total_node_count = u32::try_from(graph.nodes.len()).unwrap_or(u32::MAX);
-    header.total_edge_count = u32::try_from(graph.edges.len()).unwrap_or(u32::MAX);
-    report
+    (object_count, part_count, labels_cut)
 }
 
-fn write_edge(slot: &mut Edge, edge: &GraphEdge) {
-    slot.source_id = edge.source_id;
-    slot.target_id = edge.target_id;
-    slot.kind = edge.kind as u8;
-    slot.origin = edge.origin as u8;
-    slot.relation_id = edge.relation_id;
-    slot.confidence = edge.confidence;
-    op3dsg_ipc_types::write_fixed_str(
-        &mut slot.phrase,
-        op3dsg_ipc_types::relation_phrase(edge.relation_id).unwrap_or(""),
-    );
-}
+/// Relation ids up to this one get a prepared phrase (the canonical ones are below 128).
+const RELATION_ID_TABLE_MAX: u16 = 127;
 
-/// Reads a snapshot back into a [`SceneGraph`], checking it against the wire contract first
-/// ([`check_snapshot`]: schema version, counts, every kind and origin value).
-pub fn snapshot_to_scene_graph(snapshot: &GraphSnapshot) -> Result<SceneGraph, SnapshotError> {
-    check_snapshot(snapshot)?;
-    let header = &snapshot.header;
+/// Reads a received graph back into a [`SceneGraph`], checking it against the wire contract
+/// first ([`check_message`]: schema version, counts, payload length, every kind and origin
+/// value).
+pub fn message_to_scene_graph(message: &GraphMessage<'_>) -> Result<SceneGraph, SnapshotError> {
+    check_message(message)?;
+    let header = message.header;
     Ok(SceneGraph {
         version: header.graph_version,
         stamp_ns: header.stamp_ns,
-        nodes: snapshot.valid_nodes().iter().map(node_from_wire).collect(),
-        edges: snapshot.valid_edges().iter().map(edge_from_wire).collect(),
+        nodes: message.nodes().map(|n| node_from_wire(&n)).collect(),
+        edges: message.edges().map(|e| edge_from_wire(&e)).collect(),
     })
 }
 
@@ -171,7 +379,7 @@ pub fn graph_to_scene_graph(graph: &Graph) -> SceneGraph {
     }
 }
 
-/// A node of a checked snapshot (its kind is known).
+/// A node of a checked graph sample (its kind is known).
 fn node_from_wire(n: &WireNode) -> GraphNode {
     GraphNode {
         id: n.id,
@@ -188,7 +396,7 @@ fn node_from_wire(n: &WireNode) -> GraphNode {
     }
 }
 
-/// An edge of a checked snapshot (its kind and origin are known).
+/// An edge of a checked graph sample (its kind and origin are known).
 fn edge_from_wire(e: &Edge) -> GraphEdge {
     GraphEdge {
         source_id: e.source_id,
@@ -203,7 +411,6 @@ fn edge_from_wire(e: &Edge) -> GraphEdge {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use op3dsg_ipc_types::publish::boxed_snapshot;
 
     fn node(id: u32, kind: NodeKind, last_seen: u64) -> GraphNode {
         GraphNode {
@@ -232,9 +439,17 @@ mod tests {
         }
     }
 
+    fn encoder() -> GraphEncoder {
+        GraphEncoder::new(GraphCapacity::default(), 0x1234)
+    }
+
+    fn node_ids(encoder: &GraphEncoder) -> Vec<u32> {
+        encoder.message().nodes().map(|n| n.id).collect()
+    }
+
     #[test]
     fn round_trip_small_graph() {
-        let mut snap = boxed_snapshot();
+        let mut encoder = encoder();
         let mut part = node(7, NodeKind::Part, 20);
         part.parent_id = Some(3);
         part.affordance_bits = 0b1000;
@@ -244,13 +459,16 @@ mod tests {
             nodes: vec![part, node(3, NodeKind::Object, 10)],
             edges: vec![edge(7, 3)],
         };
-        let report = fill_snapshot(&graph, &mut snap);
+        let report = encoder.encode(&graph);
         assert!(!report.truncated);
         assert_eq!((report.nodes_written, report.edges_written), (2, 1));
-        assert_eq!(snap.header.capacity_exceeded, 0);
-        assert_eq!((snap.header.object_count, snap.header.part_count), (1, 1));
-        assert_eq!(snap.edges[0].phrase_str(), "next to");
-        let back = snapshot_to_scene_graph(&snap).expect("valid");
+        assert_eq!(report.payload_bytes, 2 * 120 + 64, "the sample holds what the graph holds");
+        let header = encoder.header();
+        assert_eq!(header.capacity_exceeded, 0);
+        assert_eq!((header.object_count, header.part_count), (1, 1));
+        assert_eq!((header.instance_id, header.node_capacity, header.edge_capacity), (0x1234, 16_384, 32_768));
+        assert_eq!(encoder.message().edges().next().map(|e| e.phrase_str().to_owned()).as_deref(), Some("next to"));
+        let back = message_to_scene_graph(&encoder.message()).expect("valid");
         // Sorted by id on the wire.
         assert_eq!(back.nodes.iter().map(|n| n.id).collect::<Vec<_>>(), [3, 7]);
         let mut expected = graph.clone();
@@ -260,7 +478,7 @@ mod tests {
 
     #[test]
     fn truncation_keeps_most_recent_nodes_and_prunes_edges() {
-        let mut snap = boxed_snapshot();
+        let mut encoder = encoder();
         let extra = 10;
         let total = MAX_NODES + extra;
         // Node id i seen at stamp i, except the ten lowest ids are the most recent.
@@ -269,88 +487,153 @@ mod tests {
         nodes.reverse(); // input order must not matter
         let edges = vec![edge(0, 1), edge(10, 11), edge(total as u32 - 1, 0), edge(5, 9999999)];
         let graph = SceneGraph { version: 1, stamp_ns: 1, nodes, edges };
-        let report = fill_snapshot(&graph, &mut snap);
+        let report = encoder.encode(&graph);
         assert!(report.truncated);
         assert_eq!(report.nodes_written, MAX_NODES);
         assert_eq!(report.total_nodes, total);
-        assert_eq!(snap.header.capacity_exceeded, 1);
-        assert_eq!(snap.header.total_node_count as usize, total);
-        assert_eq!(snap.header.total_edge_count, 4);
+        let header = *encoder.header();
+        assert_eq!(header.capacity_exceeded, 1);
+        assert_eq!(header.total_node_count as usize, total);
+        assert_eq!(header.total_edge_count, 4);
         // Dropped: ids 10..10+extra (the oldest stamps).
-        let ids: Vec<u32> = snap.valid_nodes().iter().map(|n| n.id).collect();
+        let ids = node_ids(&encoder);
         assert!(ids.windows(2).all(|w| w[0] < w[1]), "sorted by id");
         assert!(ids.contains(&0) && ids.contains(&9) && !ids.contains(&10) && !ids.contains(&19));
         assert!(ids.contains(&20));
         // Kept: 0-1 and last-0; pruned: 10-11 (endpoints dropped); dangling: 5-9999999.
         assert_eq!(report.edges_written, 2);
         assert_eq!(report.dangling_edges, 1);
-        let kept: Vec<(u32, u32)> = snap.valid_edges().iter().map(|e| (e.source_id, e.target_id)).collect();
+        let kept: Vec<(u32, u32)> = encoder.message().edges().map(|e| (e.source_id, e.target_id)).collect();
         assert_eq!(kept, [(0, 1), (total as u32 - 1, 0)]);
+        assert!(check_message(&encoder.message()).is_ok());
+    }
+
+    #[test]
+    fn a_small_profile_capacity_truncates_and_sets_the_flag() {
+        let mut encoder = GraphEncoder::new(GraphCapacity { max_nodes: 3, max_edges: 2 }, 9);
+        let nodes: Vec<GraphNode> = (0..5).map(|i| node(i, NodeKind::Object, u64::from(i))).collect();
+        let edges = vec![edge(4, 3), edge(3, 2), edge(2, 4), edge(0, 1)];
+        let graph = SceneGraph { version: 2, stamp_ns: 0, nodes, edges };
+        let report = encoder.encode(&graph);
+        assert!(report.truncated);
+        assert_eq!(node_ids(&encoder), [2, 3, 4], "the three most recently seen");
+        assert_eq!((report.edges_written, report.payload_bytes), (2, 3 * 120 + 2 * 64));
+        let header = *encoder.header();
+        assert_eq!((header.capacity_exceeded, header.node_capacity, header.edge_capacity), (1, 3, 2));
+        assert_eq!((header.total_node_count, header.total_edge_count), (5, 4));
+        let graph = Graph::from_message(&encoder.message()).expect("valid");
+        assert!(graph.capacity_exceeded());
+    }
+
+    #[test]
+    fn writing_into_a_loaned_buffer_matches_the_own_buffer() {
+        let mut part = node(7, NodeKind::Part, 20);
+        part.label = "x".repeat(60);
+        let graph = SceneGraph {
+            version: 3,
+            stamp_ns: 1,
+            nodes: vec![node(3, NodeKind::Object, 10), part],
+            edges: vec![edge(7, 3)],
+        };
+        let mut own = encoder();
+        let own_report = own.encode(&graph);
+        let mut split = encoder();
+        let mut report = split.select(&graph);
+        let mut loaned = vec![0xAAu8; report.payload_bytes];
+        split.write_payload(&graph, &mut loaned, &mut report);
+        assert_eq!(report, own_report);
+        assert_eq!((loaned.as_slice(), split.header()), (own.payload(), own.header()));
+        assert_eq!((split.header().object_count, split.header().part_count, report.labels_cut), (1, 1, 1));
+    }
+
+    #[test]
+    fn sparse_ids_encode_like_dense_ones() {
+        let mut encoder = encoder();
+        let ids = [3u32, 5_000_000, 4_000_000_000];
+        let nodes: Vec<GraphNode> = ids.iter().map(|&id| node(id, NodeKind::Object, 1)).collect();
+        let edges = vec![edge(3, 5_000_000), edge(4_000_000_000, 3), edge(3, 77)];
+        let graph = SceneGraph { version: 1, stamp_ns: 0, nodes, edges };
+        let report = encoder.encode(&graph);
+        assert_eq!((report.edges_written, report.dangling_edges, report.truncated), (2, 1, false));
+        assert_eq!(node_ids(&encoder), ids);
+        let client = Graph::from_message(&encoder.message()).expect("valid");
+        assert_eq!(client.node(4_000_000_000).map(|n| n.edges_from().count()), Some(1));
+        assert_eq!(client.edges_to(3).map(|e| e.source_id()).collect::<Vec<_>>(), [4_000_000_000]);
+        // A dense graph after a sparse one reuses the encoder.
+        let dense = SceneGraph { version: 2, stamp_ns: 0, nodes: vec![node(0, NodeKind::Object, 1)], edges: vec![] };
+        assert_eq!(encoder.encode(&dense).payload_bytes, 120);
+        assert_eq!(node_ids(&encoder), [0]);
     }
 
     #[test]
     fn ties_at_the_cut_prefer_lower_ids() {
-        let mut snap = boxed_snapshot();
+        let mut encoder = encoder();
         let nodes: Vec<GraphNode> = (0..MAX_NODES as u32 + 2).map(|i| node(i, NodeKind::Part, 5)).collect();
         let graph = SceneGraph { version: 1, stamp_ns: 1, nodes, edges: vec![] };
-        let report = fill_snapshot(&graph, &mut snap);
+        let report = encoder.encode(&graph);
         assert!(report.truncated);
-        assert_eq!(snap.valid_nodes().last().map(|n| n.id), Some(MAX_NODES as u32 - 1));
-        assert_eq!(snap.header.part_count as usize, MAX_NODES);
+        assert_eq!(node_ids(&encoder).last().copied(), Some(MAX_NODES as u32 - 1));
+        assert_eq!(encoder.header().part_count as usize, MAX_NODES);
     }
 
     #[test]
     fn too_many_edges_sets_capacity_flag() {
-        let mut snap = boxed_snapshot();
+        let mut encoder = encoder();
         let nodes = vec![node(1, NodeKind::Object, 1), node(2, NodeKind::Object, 2)];
         let edges: Vec<GraphEdge> = (0..MAX_EDGES + 3).map(|_| edge(1, 2)).collect();
         let graph = SceneGraph { version: 3, stamp_ns: 0, nodes, edges };
-        let report = fill_snapshot(&graph, &mut snap);
+        let report = encoder.encode(&graph);
         assert!(report.truncated);
         assert_eq!(report.edges_written, MAX_EDGES);
-        assert_eq!(snap.header.edge_count as usize, MAX_EDGES);
-        assert_eq!(snap.header.total_edge_count as usize, MAX_EDGES + 3);
-        assert_eq!(snap.header.capacity_exceeded, 1);
+        let header = encoder.header();
+        assert_eq!(header.edge_count as usize, MAX_EDGES);
+        assert_eq!(header.total_edge_count as usize, MAX_EDGES + 3);
+        assert_eq!(header.capacity_exceeded, 1);
     }
 
     #[test]
     fn long_labels_are_cut_at_a_char_boundary() {
-        let mut snap = boxed_snapshot();
+        let mut encoder = encoder();
         let mut n = node(1, NodeKind::Object, 1);
         n.label = "ä".repeat(30); // 60 bytes; 48 bytes = 24 chars
         let graph = SceneGraph { version: 1, stamp_ns: 0, nodes: vec![n], edges: vec![] };
-        let report = fill_snapshot(&graph, &mut snap);
+        let report = encoder.encode(&graph);
         assert_eq!(report.labels_cut, 1);
-        assert_eq!(snap.nodes[0].label_str(), "ä".repeat(24));
+        assert_eq!(encoder.message().nodes().next().map(|n| n.label_str().to_owned()), Some("ä".repeat(24)));
     }
 
     #[test]
     fn unknown_kinds_name_the_entry() {
-        let mut snap = boxed_snapshot();
+        let mut encoder = encoder();
         let graph = SceneGraph {
             version: 1,
             stamp_ns: 0,
             nodes: vec![node(1, NodeKind::Object, 1), node(2, NodeKind::Part, 1)],
             edges: vec![edge(1, 2)],
         };
-        fill_snapshot(&graph, &mut snap);
-        snap.nodes[1].kind = 9;
-        assert_eq!(snapshot_to_scene_graph(&snap), Err(SnapshotError::UnknownNodeKind { index: 1, value: 9 }));
-        snap.nodes[1].kind = 1;
-        snap.edges[0].origin = 7;
-        let err = snapshot_to_scene_graph(&snap).expect_err("bad origin");
+        encoder.encode(&graph);
+        let mut header = *encoder.header();
+        let mut payload = encoder.payload().to_vec();
+        payload[120 + 8] = 9; // the kind of node 1
+        assert_eq!(
+            message_to_scene_graph(&GraphMessage::new(&header, &payload)),
+            Err(SnapshotError::UnknownNodeKind { index: 1, value: 9 })
+        );
+        payload[120 + 8] = 1;
+        payload[2 * 120 + 9] = 7; // the origin of edge 0
+        let err = message_to_scene_graph(&GraphMessage::new(&header, &payload)).expect_err("bad origin");
         assert_eq!(err.to_string(), "edges[0].origin: unknown value 7 (0..=3)");
         let other = op3dsg_ipc_types::SCHEMA_VERSION + 1;
-        snap.header.schema_version = other;
+        header.schema_version = other;
         assert!(matches!(
-            snapshot_to_scene_graph(&snap),
+            message_to_scene_graph(&GraphMessage::new(&header, &payload)),
             Err(SnapshotError::SchemaVersion { found, .. }) if found == other
         ));
     }
 
     #[test]
     fn client_graph_converts_back_to_the_scene_graph() {
-        let mut snap = boxed_snapshot();
+        let mut encoder = encoder();
         let mut part = node(7, NodeKind::Part, 20);
         part.parent_id = Some(3);
         let graph = SceneGraph {
@@ -359,11 +642,12 @@ mod tests {
             nodes: vec![part, node(3, NodeKind::Object, 10)],
             edges: vec![edge(7, 3), GraphEdge { kind: EdgeKind::Functional, origin: EdgeOrigin::Llm, ..edge(3, 7) }],
         };
-        fill_snapshot(&graph, &mut snap);
-        let client_graph = Graph::from_snapshot(&snap).expect("valid snapshot");
+        encoder.encode(&graph);
+        let client_graph = Graph::from_message(&encoder.message()).expect("valid message");
+        assert_eq!(client_graph.instance_id(), 0x1234);
         let mut expected = graph;
         expected.nodes.sort_by_key(|n| n.id);
         assert_eq!(graph_to_scene_graph(&client_graph), expected);
-        assert_eq!(snapshot_to_scene_graph(&snap).expect("valid"), expected);
+        assert_eq!(message_to_scene_graph(&encoder.message()).expect("valid"), expected);
     }
 }

@@ -9,18 +9,24 @@
 //! | module | what |
 //! |---|---|
 //! | this one | [`IpcConfig`], [`IpcError`], the iceoryx2 node helpers |
-//! | [`codec`] | [`SceneGraph`](crate::graph::SceneGraph) ⇄ [`GraphSnapshot`](op3dsg_ipc_types::GraphSnapshot): [`fill_snapshot`], [`snapshot_to_scene_graph`], [`graph_to_scene_graph`] |
+//! | [`codec`] | [`SceneGraph`](crate::graph::SceneGraph) ⇄ graph sample ([`GraphHeader`](op3dsg_ipc_types::GraphHeader) + node and edge records): [`GraphEncoder`], [`message_to_scene_graph`], [`graph_to_scene_graph`] |
 //! | [`server`] | [`GraphServer`]: graph, `graph_updated`, health, pose input |
 //! | [`health_report`] | [`HealthReport`]: the serialisable form of a health record (`op3dsg health --json`) |
 //!
 //! ## Services and QoS
 //!
-//! | service                  | pattern           | payload         | QoS (fixed by the creator)                       |
-//! |--------------------------|-------------------|-----------------|--------------------------------------------------|
-//! | `<prefix>/graph`         | publish-subscribe | `GraphSnapshot` | history 1, safe overflow, buffer 2, borrow 1     |
-//! | `<prefix>/graph_updated` | event             | event id 0      | max event id 0                                   |
-//! | `<prefix>/health`        | publish-subscribe | `Health`        | history 1, safe overflow, 1 publisher            |
-//! | `<prefix>/pose`          | publish-subscribe | `PoseStamped`   | if op3dsg creates it: safe overflow, buffer 64, 4 publishers, 4 subscribers; any creator's QoS is accepted (input to the daemon) |
+//! | service                  | pattern           | payload                            | QoS (fixed by the creator)                     |
+//! |--------------------------|-------------------|------------------------------------|------------------------------------------------|
+//! | `<prefix>/graph`         | publish-subscribe | `[u8]` slice, `GraphHeader` header | history 1, safe overflow, buffer 2, borrow 1   |
+//! | `<prefix>/graph_updated` | event             | event id 0                         | max event id 0                                 |
+//! | `<prefix>/health`        | publish-subscribe | `Health`                           | history 1, safe overflow, 1 publisher          |
+//! | `<prefix>/pose`          | publish-subscribe | `PoseStamped`                      | if op3dsg creates it: safe overflow, buffer 64, 4 publishers, 4 subscribers; any creator's QoS is accepted (input to the daemon) |
+//!
+//! A graph sample is a [`GraphHeader`](op3dsg_ipc_types::GraphHeader) (counts, version, the
+//! daemon's `instance_id`, stamps, capacity flag) and exactly `node_count * 120 + edge_count * 64`
+//! bytes of node and edge records: it costs what the graph holds. The header's `instance_id` is
+//! drawn at every start ([`new_instance_id`]), so a planner tells a restarted daemon (versions
+//! from 1 again) from an old sample.
 //!
 //! ## Why this QoS
 //! - **History 1**: a planner that starts (or restarts) after the daemon receives the current
@@ -32,17 +38,24 @@
 //!   overflow a full subscriber buffer drops its *oldest* sample, so a reader always finds the
 //!   newest versions; each sample is a complete, self-consistent graph, so losing older ones loses
 //!   nothing. The daemon never uses a blocking backpressure strategy.
+//! - **Sized samples, static segment**: the publisher reserves one data segment at start whose
+//!   samples hold the largest graph the profile allows (`ipc.max_nodes`, `ipc.max_edges`;
+//!   `initial_max_slice_len` with iceoryx2's static allocation strategy), and each publish loans
+//!   and writes only the bytes of the current graph ([`GraphEncoder`] chooses the records, the
+//!   sample is loaned zero-filled with `loan_slice`, and the records are written into it in place,
+//!   without unsafe code). The segment never grows, so late joiners get the history
+//!   sample from the one segment they mapped and the memory bound below stays fixed; pages a
+//!   small graph never writes are never touched.
 //! - **Event**: the graph changes irregularly (per keyframe fusion, not per frame). Instead of
 //!   polling the 3.9 MiB sample, a planner waits on a listener of `<prefix>/graph_updated`
 //!   (or attaches it to a `WaitSet` with its other inputs) and reads the graph when woken; the
 //!   version is in the sample's header. The event carries no data (one id, 0): a listener
 //!   scans its whole id range on every wake-up, and a range of 2^16 ids (the version's low bits,
 //!   as an earlier contract had it) cost about 0.3 ms per delivery (`op3dsg bench perf`).
-//! - The snapshot is large: it is loaned from the publisher's data segment and filled in place,
-//!   never built on the stack. A subscriber borrows at most one sample at a time (the service is
-//!   created with `subscriber_max_borrowed_samples = 1`), which keeps the shared memory the
-//!   daemon maps to `max_subscribers * (buffer + 1) + history + 1` samples (26 samples, about
-//!   100 MiB, with the defaults).
+//! - A subscriber borrows at most one sample at a time (the service is created with
+//!   `subscriber_max_borrowed_samples = 1`), which keeps the shared memory the daemon reserves to
+//!   `max_subscribers * (buffer + 1) + history + 1` samples of the maximum size (26 samples,
+//!   about 100 MiB of address space, with the defaults; only written pages are resident).
 //!
 //! Who creates what: the daemon creates `graph`, `graph_updated` and `health` (or opens them if a
 //! previous instance's survivors still hold them, stating its QoS as minimums); clients only open
@@ -58,26 +71,30 @@
 //! daemon's pid (from iceoryx2's publisher list of `graph`); `op3dsgd` exits with code 1.
 //!
 //! ## Subscribing from Python
+//! A sketch (the header and record layouts are documented field by field in
+//! [`op3dsg_ipc_types`]):
 //! ```python
 //! import ctypes, iceoryx2 as iox2          # pip install iceoryx2==0.10.0
-//! class Node(ctypes.Structure):            # mirror field by field, see op3dsg_ipc_types
-//!     _fields_ = [("id", ctypes.c_uint32), ("parent_id", ctypes.c_uint32), ...]
+//! import numpy as np
+//! class GraphHeader(ctypes.Structure):     # mirror field by field, 80 bytes
+//!     _fields_ = [("schema_version", ctypes.c_uint32), ("node_count", ctypes.c_uint32),
+//!                 ("graph_version", ctypes.c_uint64), ("instance_id", ctypes.c_uint64), ...]
 //!     @staticmethod
-//!     def type_name() -> str: return "op3dsg::Node"
-//! class GraphSnapshot(ctypes.Structure):
-//!     _fields_ = [("header", GraphHeader), ("nodes", Node * 16384), ("edges", Edge * 32768)]
-//!     @staticmethod
-//!     def type_name() -> str: return "op3dsg::GraphSnapshot"
+//!     def type_name() -> str: return "op3dsg::GraphHeader"
 //! node = iox2.NodeBuilder.new().create(iox2.ServiceType.Ipc)
 //! service = (node.service_builder(iox2.ServiceName.new("op3dsg/graph"))
-//!            .publish_subscribe(GraphSnapshot).open())
+//!            .publish_subscribe(iox2.Slice[ctypes.c_uint8]).user_header(GraphHeader).open())
 //! subscriber = service.subscriber_builder().create()
 //! sample = subscriber.receive()            # None until the daemon has published
 //! if sample is not None:
-//!     graph = sample.payload().contents    # check graph.header.schema_version == 1 first
+//!     header = sample.user_header().contents   # check header.schema_version == 4 first
+//!     # node_count records of 120 bytes, then edge_count records of 64 bytes (numpy dtypes
+//!     # mirroring Node and Edge view them without copying)
 //! ```
-//! The `type_name()` strings must match exactly (`op3dsg::GraphSnapshot`, `op3dsg::Health`,
-//! `op3dsg::PoseStamped`), or opening fails with incompatible types.
+//! The `type_name()` strings must match exactly (`op3dsg::GraphHeader`, `op3dsg::Health`,
+//! `op3dsg::PoseStamped`), or opening fails with incompatible types. A header whose
+//! `instance_id` differs from the last one seen comes from a restarted daemon: forget the
+//! versions seen.
 //!
 //! ## Stale resources
 //! A daemon killed with `SIGKILL` leaves its node and ports behind in shared memory; the node is
@@ -105,9 +122,10 @@ pub use op3dsg_ipc_types::services::IpcService;
 use op3dsg_ipc_types::services::{
     DEFAULT_GRAPH_SUBSCRIBER_BUFFER, DEFAULT_MAX_SUBSCRIBERS, DEFAULT_POSE_BUFFER, DEFAULT_PREFIX, validate_prefix,
 };
+use op3dsg_ipc_types::{MAX_EDGES, MAX_NODES};
 use serde::{Deserialize, Serialize};
 
-pub use codec::{PublishReport, fill_snapshot, graph_to_scene_graph, snapshot_to_scene_graph};
+pub use codec::{GraphCapacity, GraphEncoder, PublishReport, graph_to_scene_graph, message_to_scene_graph};
 pub use health_report::{HealthReport, ModelReport, QueueReport, RefinerReport, StageReport, pose_counters};
 pub use server::{GraphServer, PoseCheckCounts};
 
@@ -123,6 +141,11 @@ pub struct IpcConfig {
     pub subscriber_buffer: usize,
     /// Poses buffered for the daemon on `pose` between two polls.
     pub pose_buffer: usize,
+    /// Most nodes one graph sample holds; a larger map publishes its most recently seen nodes
+    /// and sets the header's `capacity_exceeded`.
+    pub max_nodes: usize,
+    /// Most edges one graph sample holds (see `max_nodes`).
+    pub max_edges: usize,
     /// Remove the shared-memory leftovers of dead processes when the daemon starts.
     pub cleanup_dead_nodes_at_start: bool,
 }
@@ -134,6 +157,8 @@ impl Default for IpcConfig {
             max_subscribers: DEFAULT_MAX_SUBSCRIBERS,
             subscriber_buffer: DEFAULT_GRAPH_SUBSCRIBER_BUFFER,
             pose_buffer: DEFAULT_POSE_BUFFER,
+            max_nodes: MAX_NODES,
+            max_edges: MAX_EDGES,
             cleanup_dead_nodes_at_start: true,
         }
     }
@@ -148,6 +173,8 @@ impl IpcConfig {
             ("max_subscribers", self.max_subscribers, 64),
             ("subscriber_buffer", self.subscriber_buffer, 16),
             ("pose_buffer", self.pose_buffer, 4096),
+            ("max_nodes", self.max_nodes, MAX_CONFIGURABLE_NODES),
+            ("max_edges", self.max_edges, MAX_CONFIGURABLE_EDGES),
         ];
         for (field, value, max) in ranges {
             if !(1..=max).contains(&value) {
@@ -155,6 +182,18 @@ impl IpcConfig {
             }
         }
         Ok(())
+    }
+}
+
+/// Largest accepted `ipc.max_nodes` (1 Mi nodes: a 120 MiB sample).
+pub const MAX_CONFIGURABLE_NODES: usize = 1 << 20;
+/// Largest accepted `ipc.max_edges` (4 Mi edges: a 256 MiB sample).
+pub const MAX_CONFIGURABLE_EDGES: usize = 1 << 22;
+
+impl IpcConfig {
+    /// The graph sample capacity of this configuration.
+    pub fn graph_capacity(&self) -> GraphCapacity {
+        GraphCapacity { max_nodes: self.max_nodes, max_edges: self.max_edges }
     }
 }
 
@@ -244,6 +283,19 @@ fn cleanup_dead_nodes(node: &Node<IpcService>) -> u64 {
     state.cleanups
 }
 
+/// A fresh daemon instance id: random (std's per-process random hash keys), mixed with the start
+/// time and the pid, never 0. Two starts of the daemon practically never share one.
+pub fn new_instance_id() -> u64 {
+    use std::hash::{BuildHasher, Hasher};
+    let mut hasher = std::collections::hash_map::RandomState::new().build_hasher();
+    hasher.write_u64(wall_clock_ns());
+    hasher.write_u32(std::process::id());
+    match hasher.finish() {
+        0 => 1,
+        id => id,
+    }
+}
+
 /// Nanoseconds since the Unix epoch (0 if the clock is before 1970).
 pub fn wall_clock_ns() -> u64 {
     SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(0)
@@ -267,6 +319,15 @@ mod tests {
         assert_eq!(c.validate("ipc"), Ok(()));
         c.subscriber_buffer = 0;
         assert_eq!(c.validate("ipc").expect_err("zero"), "ipc.subscriber_buffer: must be between 1 and 16, found 0");
+        c.subscriber_buffer = 2;
+        c.max_nodes = 0;
+        assert_eq!(c.validate("ipc").expect_err("zero"), "ipc.max_nodes: must be between 1 and 1048576, found 0");
+        c.max_nodes = 100;
+        c.max_edges = (1 << 22) + 1;
+        assert_eq!(c.validate("ipc").expect_err("big"), "ipc.max_edges: must be between 1 and 4194304, found 4194305");
+        c.max_edges = 200;
+        assert_eq!(c.validate("ipc"), Ok(()));
+        assert_eq!(c.graph_capacity().max_payload_bytes(), 100 * 120 + 200 * 64);
         let parsed: Result<IpcConfig, _> = toml::from_str("prefix = \"x\"\nbogus = 1\n");
         assert!(parsed.is_err());
         let parsed: IpcConfig = toml::from_str("prefix = \"x\"\n").expect("partial table");
@@ -277,5 +338,6 @@ mod tests {
     fn defaults_are_the_contracts() {
         let c = IpcConfig::default();
         assert_eq!((c.prefix.as_str(), c.max_subscribers, c.subscriber_buffer, c.pose_buffer), ("op3dsg", 8, 2, 64));
+        assert_eq!((c.max_nodes, c.max_edges), (16_384, 32_768));
     }
 }

@@ -45,7 +45,10 @@ pub(crate) fn publisher_loop(
                             end_to_end.record(captured_at);
                         }
                         if report.truncated {
-                            warn!(version = graph.version, "graph exceeds the snapshot capacity; truncated");
+                            warn!(
+                                version = graph.version,
+                                "graph exceeds the sample capacity (ipc.max_nodes / ipc.max_edges); truncated"
+                            );
                         }
                     }
                     Err(e) => {

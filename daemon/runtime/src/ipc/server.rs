@@ -1,5 +1,5 @@
 //! [`GraphServer`]: the daemon's side of the services. It creates `graph`, `graph_updated` and
-//! `health` with the contract's QoS, publishes graphs (filled in place in loaned samples) and
+//! `health` with the contract's QoS, publishes graphs (in loaned samples sized to the graph) and
 //! health records, and receives and checks poses on `pose`.
 
 use iceoryx2::port::notifier::Notifier;
@@ -9,23 +9,24 @@ use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::{EventId, Node};
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 use op3dsg_ipc_types::client::open_or_create_pose_service;
-use op3dsg_ipc_types::publish::loan_snapshot;
+use op3dsg_ipc_types::publish::GraphPayload;
 use op3dsg_ipc_types::services::{
     EVENT_ID_MAX_VALUE, GRAPH_MAX_PUBLISHERS, GRAPH_PUBLISHER_MAX_LOANED_SAMPLES, GRAPH_UPDATED_EVENT_ID,
     HEALTH_MAX_PUBLISHERS, HISTORY_SIZE, SAFE_OVERFLOW, SUBSCRIBER_MAX_BORROWED_SAMPLES,
 };
-use op3dsg_ipc_types::{ClientError, GraphSnapshot, Health, PoseError, PoseStamped, ServiceNames, check_pose};
+use op3dsg_ipc_types::{ClientError, GraphHeader, Health, PoseError, PoseStamped, ServiceNames, check_pose};
 
-use super::{IpcConfig, IpcError, IpcService, PublishReport, cleanup_dead_nodes, create_node, fill_snapshot};
-use super::{service_err, service_name, wall_clock_ns};
+use super::{GraphEncoder, IpcConfig, IpcError, IpcService, PublishReport, cleanup_dead_nodes, create_node};
+use super::{new_instance_id, service_err, service_name, wall_clock_ns};
 use crate::graph::SceneGraph;
 
 /// The daemon's side: publishes graph and health, receives poses.
 #[derive(Debug)]
 pub struct GraphServer {
     names: ServiceNames,
-    graph_service: PortFactory<IpcService, GraphSnapshot, ()>,
-    graph_publisher: Publisher<IpcService, GraphSnapshot, ()>,
+    graph_service: PortFactory<IpcService, GraphPayload, GraphHeader>,
+    graph_publisher: Publisher<IpcService, GraphPayload, GraphHeader>,
+    encoder: GraphEncoder,
     notifier: Notifier<IpcService>,
     health_publisher: Publisher<IpcService, Health, ()>,
     pose_subscriber: Subscriber<IpcService, PoseStamped, ()>,
@@ -47,7 +48,8 @@ impl GraphServer {
         let name = service_name(&config.prefix, &names.graph)?;
         let graph_service = node
             .service_builder(&name)
-            .publish_subscribe::<GraphSnapshot>()
+            .publish_subscribe::<GraphPayload>()
+            .user_header::<GraphHeader>()
             .history_size(HISTORY_SIZE)
             .enable_safe_overflow(SAFE_OVERFLOW)
             .subscriber_max_buffer_size(config.subscriber_buffer)
@@ -56,9 +58,14 @@ impl GraphServer {
             .max_publishers(GRAPH_MAX_PUBLISHERS)
             .open_or_create()
             .map_err(|e| service_err(&names.graph, "open or create", e))?;
+        // Static allocation with room for the largest graph: one data segment reserved at start,
+        // never reallocated, so late joiners and the memory bound stay simple (see
+        // `op3dsg_ipc_types::services`). Each publish loans and writes only the graph's bytes.
+        let capacity = config.graph_capacity();
         let graph_publisher = graph_service
             .publisher_builder()
             .max_loaned_samples(GRAPH_PUBLISHER_MAX_LOANED_SAMPLES)
+            .initial_max_slice_len(capacity.max_payload_bytes())
             .create()
             .map_err(|e| match e {
                 PublisherCreateError::ExceedsMaxSupportedPublishers => {
@@ -94,11 +101,13 @@ impl GraphServer {
             .map_err(|e| service_err(&names.health, "create publisher", e))?;
 
         let pose_subscriber = open_pose_subscriber(&node, &config.prefix, &names.pose, config.pose_buffer)?;
-        tracing::info!(prefix = %config.prefix, "serving the scene graph over iceoryx2");
+        let instance_id = new_instance_id();
+        tracing::info!(prefix = %config.prefix, instance_id = format_args!("{instance_id:#018x}"), "serving the scene graph over iceoryx2");
         Ok(Self {
             names,
             graph_service,
             graph_publisher,
+            encoder: GraphEncoder::new(capacity, instance_id),
             notifier,
             health_publisher,
             pose_subscriber,
@@ -111,6 +120,11 @@ impl GraphServer {
     /// The service names served.
     pub fn names(&self) -> &ServiceNames {
         &self.names
+    }
+
+    /// This daemon instance's id, in every graph header (drawn at [`Self::open`], never 0).
+    pub fn instance_id(&self) -> u64 {
+        self.encoder.instance_id()
     }
 
     /// Dead nodes whose resources were removed at start.
@@ -139,12 +153,20 @@ impl GraphServer {
         self.health_publisher.update_connections().map_err(|e| service_err(&self.names.health, "update connections", e))
     }
 
-    /// Publishes `graph` (written in place into a loaned sample), then notifies `graph_updated`
-    /// (event id [`GRAPH_UPDATED_EVENT_ID`]).
+    /// Publishes `graph` in a loaned sample of exactly the graph's size (its records written
+    /// straight into the sample), then notifies `graph_updated` (event id
+    /// [`GRAPH_UPDATED_EVENT_ID`]). Allocates nothing once a graph of this size was published.
     pub fn publish_graph(&mut self, graph: &SceneGraph) -> Result<PublishReport, IpcError> {
-        let mut sample = loan_snapshot(&self.graph_publisher).map_err(|e| service_err(&self.names.graph, "loan", e))?;
-        let report = fill_snapshot(graph, sample.payload_mut());
-        sample.payload_mut().header.publish_time_ns = wall_clock_ns();
+        let mut report = self.encoder.select(graph);
+        // `loan_slice` zero-fills the bytes (a memset), which is what lets the records be written
+        // in place without unsafe code; every byte is then overwritten.
+        let mut sample = self
+            .graph_publisher
+            .loan_slice(report.payload_bytes)
+            .map_err(|e| service_err(&self.names.graph, "loan", e))?;
+        self.encoder.write_payload(graph, sample.payload_mut(), &mut report);
+        self.encoder.set_publish_time_ns(wall_clock_ns());
+        *sample.user_header_mut() = *self.encoder.header();
         sample.send().map_err(|e| service_err(&self.names.graph, "send", e))?;
         self.notifier
             .notify_with_custom_event_id(EventId::new(GRAPH_UPDATED_EVENT_ID))
@@ -155,7 +177,7 @@ impl GraphServer {
                 edges = report.total_edges,
                 published_nodes = report.nodes_written,
                 published_edges = report.edges_written,
-                "graph exceeds the snapshot capacity; published the most recently seen part"
+                "graph exceeds the sample capacity (ipc.max_nodes / ipc.max_edges); published the most recently seen part"
             );
         }
         Ok(report)
@@ -268,7 +290,7 @@ fn open_pose_subscriber(
 
 /// The process id of a publisher already on `service` (the daemon that serves the prefix), if
 /// iceoryx2 can tell.
-fn publisher_pid(service: &PortFactory<IpcService, GraphSnapshot, ()>) -> Option<u32> {
+fn publisher_pid(service: &PortFactory<IpcService, GraphPayload, GraphHeader>) -> Option<u32> {
     use iceoryx2::prelude::CallbackProgression;
     use iceoryx2::service::port_factory::PortFactory as _;
     let mut pid = None;

@@ -14,13 +14,14 @@
 //! one only after the child's acknowledgement, so no message waits behind another. The child waits
 //! on an iceoryx2 event listener for both kinds (as a planner waits on `graph_updated`).
 //!
-//! - **graph**: `t0` just before [`GraphServer::publish_graph`] (loan, initialise the whole
-//!   fixed-size sample, fill header, nodes and edges, send, notify); `t1` when the planner client
+//! - **graph**: `t0` just before [`GraphServer::publish_graph`] (choose the records, loan a
+//!   zero-filled sample of exactly their size, write header, nodes and edges in place, send,
+//!   notify); `t1` when the planner client
 //!   library's [`GraphSubscriber::latest_if_newer`] returned the owned [`Graph`] in the child
-//!   (newest sample received, its valid nodes and edges copied out, the lookup indices built).
-//! - **raw**: `t0` just before loaning a byte slice of the graph's filled size (header + nodes +
-//!   edges as they lie in the snapshot); copy a prepared buffer in, send, notify; `t1` after the
-//!   child received the sample and copied the bytes out.
+//!   (newest sample received, checked, its nodes and edges decoded out, the lookup indices built).
+//! - **raw**: `t0` just before loaning a byte slice of the graph sample's size (header + nodes +
+//!   edges); copy a prepared buffer in, send, notify; `t1` after the child received the sample
+//!   and copied the bytes out.
 //!
 //! Both clocks are the system's wall clock (`CLOCK_REALTIME`, one clock for every process of the
 //! machine). The ratio graph / raw per percentile is the figure.
@@ -40,7 +41,7 @@ use iceoryx2::prelude::Node;
 #[cfg(doc)]
 use op3dsg_ipc_types::Graph;
 use op3dsg_ipc_types::{
-    Edge, EdgeKind, EdgeOrigin, GraphHeader, GraphSnapshot, GraphSubscriber, MAX_EDGES, MAX_NODES, NodeKind,
+    EdgeKind, EdgeOrigin, GraphHeader, GraphSubscriber, MAX_EDGES, MAX_NODES, NodeKind, graph_payload_bytes,
 };
 use serde::{Deserialize, Serialize};
 
@@ -58,7 +59,7 @@ pub struct IpcRow {
     pub nodes: usize,
     /// Edges in the graph.
     pub edges: usize,
-    /// Bytes the graph fills in the snapshot (header + nodes + edges): the raw payload size.
+    /// Bytes of the graph sample (header + nodes + edges): the raw payload size.
     pub bytes: usize,
     /// Graph publish → owned client `Graph` in the other process.
     pub graph: Percentiles,
@@ -86,8 +87,9 @@ pub struct IpcLatency {
     pub messages: usize,
     /// Untimed messages per size and kind before them.
     pub warmup: usize,
-    /// Size of one `GraphSnapshot` sample (fixed, whatever the graph), bytes.
-    pub snapshot_bytes: usize,
+    /// Largest graph sample the publisher reserves (header + `ipc.max_nodes` nodes +
+    /// `ipc.max_edges` edges), bytes; each sample is only as large as its graph.
+    pub max_sample_bytes: usize,
     /// One row per graph size.
     pub rows: Vec<IpcRow>,
 }
@@ -145,11 +147,9 @@ pub fn synthetic_graph(nodes: usize, version: u64) -> SceneGraph {
     graph
 }
 
-/// Bytes `graph` fills in a snapshot: the header and its nodes and edges.
+/// Bytes of the graph sample of `graph`: the header and its nodes and edges.
 pub fn filled_bytes(graph: &SceneGraph) -> usize {
-    size_of::<GraphHeader>()
-        + graph.nodes.len().min(MAX_NODES) * size_of::<op3dsg_ipc_types::Node>()
-        + graph.edges.len().min(MAX_EDGES) * size_of::<Edge>()
+    size_of::<GraphHeader>() + graph_payload_bytes(graph.nodes.len().min(MAX_NODES), graph.edges.len().min(MAX_EDGES))
 }
 
 struct BenchServices {
@@ -391,7 +391,7 @@ pub fn ipc_latency(options: &PerfOptions) -> anyhow::Result<IpcLatency> {
         wait: "iceoryx2 event listener (timed_wait), both kinds".to_owned(),
         messages: options.ipc_messages,
         warmup: options.ipc_warmup,
-        snapshot_bytes: size_of::<GraphSnapshot>(),
+        max_sample_bytes: size_of::<GraphHeader>() + IpcConfig::default().graph_capacity().max_payload_bytes(),
         rows,
     })
 }

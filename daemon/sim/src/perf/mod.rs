@@ -333,13 +333,13 @@ fn ipc_markdown(s: &mut String, ipc: &IpcLatency) {
         s,
         "**IPC**: publish → receive in another process, {} timed messages per row after {} warm-up \
          ones, graph and raw interleaved; the subscriber waits on an iceoryx2 event listener for \
-         both. Graph: `GraphServer::publish_graph` (loan, initialise the {:.1} MiB sample, fill, \
-         send, notify) to the client library's `GraphSubscriber::latest_if_newer` returning the \
-         owned `Graph`. Raw: loan a byte slice of the graph's filled size, copy, send, notify; \
-         receive, copy out.\n",
+         both. Graph: `GraphServer::publish_graph` (select, loan a zero-filled sample of the \
+         graph's size (at most {:.1} MiB), write the records in place, send, notify) to the client library's \
+         `GraphSubscriber::latest_if_newer` returning the owned `Graph`. Raw: loan a byte slice \
+         of the graph sample's size, copy, send, notify; receive, copy out.\n",
         ipc.messages,
         ipc.warmup,
-        op3dsg_runtime::stats::mib(ipc.snapshot_bytes as u64)
+        op3dsg_runtime::stats::mib(ipc.max_sample_bytes as u64)
     );
     let _ = writeln!(
         s,

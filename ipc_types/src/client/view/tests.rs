@@ -1,43 +1,49 @@
-//! Tests of the owned graph and its views, on snapshots built on the heap.
+//! Tests of the owned graph and its views, on graphs built on the heap.
 
 use super::*;
-use crate::publish::boxed_snapshot;
-use crate::{MAX_NODES, SCHEMA_VERSION, relation_id, write_fixed_str};
+use crate::publish::GraphBuffer;
+use crate::{MAX_EDGES, MAX_NODES, SCHEMA_VERSION, relation_id, write_fixed_str};
 
-fn push_node(snapshot: &mut GraphSnapshot, id: u32, kind: NodeKind, parent_id: u32, label: &str, affordances: &[&str]) {
-    let i = snapshot.header.node_count as usize;
-    let node = &mut snapshot.nodes[i];
-    node.id = id;
-    node.parent_id = parent_id;
-    node.kind = kind as u8;
+fn push_node(snapshot: &mut GraphBuffer, id: u32, kind: NodeKind, parent_id: u32, label: &str, affordances: &[&str]) {
+    let mut node = Node { id, parent_id, kind: kind as u8, ..Node::default() };
     write_fixed_str(&mut node.label, label);
     node.centre_m = [id as f32, 0.5, 1.0];
     node.box_min_m = [id as f32 - 0.5, 0.0, 0.5];
     node.box_max_m = [id as f32 + 0.5, 1.0, 1.25];
     node.affordance_bits = affordance_bits(affordances.iter().copied()).expect("canonical affordances");
-    snapshot.header.node_count += 1;
+    snapshot.nodes.push(node);
     match kind {
         NodeKind::Object => snapshot.header.object_count += 1,
         NodeKind::Part => snapshot.header.part_count += 1,
     }
 }
 
-fn push_edge(snapshot: &mut GraphSnapshot, source_id: u32, target_id: u32, phrase: &str, origin: EdgeOrigin) {
-    let i = snapshot.header.edge_count as usize;
+fn push_edge(snapshot: &mut GraphBuffer, source_id: u32, target_id: u32, phrase: &str, origin: EdgeOrigin) {
     let (kind, relation) = relation_id(phrase).expect("canonical phrase");
-    let edge = &mut snapshot.edges[i];
-    *edge =
+    let mut edge =
         Edge { source_id, target_id, kind: kind as u8, origin: origin as u8, relation_id: relation, ..Edge::default() };
     write_fixed_str(&mut edge.phrase, phrase);
-    snapshot.header.edge_count += 1;
+    snapshot.edges.push(edge);
+}
+
+fn empty(version: u64) -> GraphBuffer {
+    let mut s = GraphBuffer::new();
+    s.header.schema_version = SCHEMA_VERSION;
+    s.header.graph_version = version;
+    s.header.instance_id = 0xabc;
+    s.header.node_capacity = MAX_NODES as u32;
+    s.header.edge_capacity = MAX_EDGES as u32;
+    s
+}
+
+fn graph_of(s: &mut GraphBuffer) -> Graph {
+    Graph::from_message(&s.encode()).expect("valid graph")
 }
 
 /// A kitchen: a cabinet with two handles, a stove with a knob, a remote-less TV, an orphan
 /// button; part-of and functional edges.
-fn kitchen(version: u64) -> Box<GraphSnapshot> {
-    let mut s = boxed_snapshot();
-    s.header.schema_version = SCHEMA_VERSION;
-    s.header.graph_version = version;
+fn kitchen(version: u64) -> GraphBuffer {
+    let mut s = empty(version);
     s.header.stamp_ns = 1_000 + version;
     push_node(&mut s, 1, NodeKind::Object, NO_NODE, "cabinet", &[]);
     push_node(&mut s, 2, NodeKind::Part, 1, "Cabinet Handle", &["hook_pull"]);
@@ -60,7 +66,7 @@ fn ids<'a>(nodes: impl Iterator<Item = NodeView<'a>>) -> Vec<u32> {
 
 #[test]
 fn views_answer_the_planner_questions() {
-    let graph = Graph::from_snapshot(&kitchen(7)).expect("valid snapshot");
+    let graph = graph_of(&mut kitchen(7));
     assert_eq!((graph.version(), graph.stamp_ns()), (7, 1_007));
     assert_eq!((graph.node_count(), graph.edge_count()), (6, 6));
     assert_eq!(ids(graph.objects()), [1, 10]);
@@ -116,15 +122,14 @@ fn views_answer_the_planner_questions() {
 
 #[test]
 fn copying_a_smaller_graph_replaces_everything() {
-    let mut graph = Graph::from_snapshot(&kitchen(1)).expect("valid");
-    let mut small = boxed_snapshot();
-    small.header.schema_version = SCHEMA_VERSION;
-    small.header.graph_version = 2;
+    let mut graph = graph_of(&mut kitchen(1));
+    let mut small = empty(2);
     push_node(&mut small, 10, NodeKind::Object, NO_NODE, "stove", &[]);
     push_node(&mut small, 12, NodeKind::Part, 10, "knob", &["rotate"]);
     push_edge(&mut small, 12, 10, "part of", EdgeOrigin::Geometry);
-    graph.copy_from(&small).expect("valid");
+    graph.copy_from(&small.encode()).expect("valid");
     assert_eq!(graph.version(), 2);
+    assert!(!graph.restarted(), "same instance");
     assert_eq!(ids(graph.nodes()), [10, 12]);
     assert!(graph.node(1).is_none() && graph.node(11).is_none(), "old ids gone");
     assert_eq!(ids(graph.parts_of(10)), [12]);
@@ -137,7 +142,7 @@ fn dangling_edges_and_parents_stay_visible_but_unresolved() {
     let mut s = kitchen(1);
     push_node(&mut s, 30, NodeKind::Part, 77, "switch", &[]);
     push_edge(&mut s, 30, 77, "part of", EdgeOrigin::Geometry);
-    let graph = Graph::from_snapshot(&s).expect("valid");
+    let graph = graph_of(&mut s);
     let switch = graph.node(30).expect("switch");
     assert_eq!((switch.parent_id(), switch.parent().map(|p| p.id())), (Some(77), None));
     let edge = graph.edges_from(30).next().expect("edge to a node outside the graph");
@@ -148,10 +153,10 @@ fn dangling_edges_and_parents_stay_visible_but_unresolved() {
 
 #[test]
 fn contract_breaks_are_named_and_leave_the_graph_as_it_was() {
-    let mut graph = Graph::from_snapshot(&kitchen(5)).expect("valid");
+    let mut graph = graph_of(&mut kitchen(5));
     let mut s = kitchen(6);
     s.header.schema_version = SCHEMA_VERSION + 1;
-    let err = graph.copy_from(&s).expect_err("other schema");
+    let err = graph.copy_from(&s.encode()).expect_err("other schema");
     assert_eq!(err, SnapshotError::SchemaVersion { found: SCHEMA_VERSION + 1, expected: SCHEMA_VERSION });
     assert_eq!(
         err.to_string(),
@@ -162,19 +167,30 @@ fn contract_breaks_are_named_and_leave_the_graph_as_it_was() {
 
     let mut s = kitchen(6);
     s.nodes[1].kind = 9;
-    assert_eq!(graph.copy_from(&s), Err(SnapshotError::UnknownNodeKind { index: 1, value: 9 }));
+    assert_eq!(graph.copy_from(&s.encode()), Err(SnapshotError::UnknownNodeKind { index: 1, value: 9 }));
     let mut s = kitchen(6);
     s.edges[0].origin = 7;
-    assert_eq!(graph.copy_from(&s).expect_err("origin").to_string(), "edges[0].origin: unknown value 7 (0..=3)");
+    assert_eq!(
+        graph.copy_from(&s.encode()).expect_err("origin").to_string(),
+        "edges[0].origin: unknown value 7 (0..=3)"
+    );
     let mut s = kitchen(6);
     s.edges[2].kind = 3;
-    assert_eq!(graph.copy_from(&s), Err(SnapshotError::UnknownEdgeKind { index: 2, value: 3 }));
+    assert_eq!(graph.copy_from(&s.encode()), Err(SnapshotError::UnknownEdgeKind { index: 2, value: 3 }));
     let mut s = kitchen(6);
-    s.header.node_count = MAX_NODES as u32 + 1;
+    s.header.node_capacity = 4;
     assert_eq!(
-        graph.copy_from(&s),
-        Err(SnapshotError::CountTooLarge { field: "node_count", value: MAX_NODES as u32 + 1, capacity: MAX_NODES })
+        graph.copy_from(&s.encode()),
+        Err(SnapshotError::CountTooLarge { field: "node_count", value: 6, capacity: 4 })
     );
+    let mut s = kitchen(6);
+    let message = s.encode();
+    let mut header = *message.header;
+    header.edge_count += 1;
+    let err = graph.copy_from(&GraphMessage::new(&header, message.payload)).expect_err("short payload");
+    assert_eq!(err, SnapshotError::PayloadSize { found: 6 * 120 + 6 * 64, expected: 6 * 120 + 7 * 64 });
+    let err = graph.copy_from(&GraphMessage::new(message.header, &message.payload[1..])).expect_err("cut payload");
+    assert!(matches!(err, SnapshotError::PayloadSize { .. }), "{err}");
     assert_eq!(graph.version(), 5, "still unchanged");
     assert_eq!(ids(graph.parts_of(1)), [2, 3]);
 }
@@ -185,9 +201,10 @@ fn an_empty_graph_answers_nothing() {
     assert_eq!((graph.version(), graph.node_count(), graph.edge_count()), (0, 0, 0));
     assert!(graph.node(0).is_none());
     assert_eq!(graph.parts_of(0).count() + graph.edges_from(0).count() + graph.edges_to(0).count(), 0);
-    let mut s = boxed_snapshot();
-    s.header.schema_version = SCHEMA_VERSION;
-    let graph = Graph::from_snapshot(&s).expect("empty but valid");
+    let mut s = empty(1);
+    let message = s.encode();
+    assert!(message.payload.is_empty());
+    let graph = Graph::from_message(&message).expect("empty but valid");
     assert_eq!(graph.nodes().len(), 0);
 }
 
@@ -196,6 +213,38 @@ fn unknown_relation_ids_fall_back_to_the_sample_phrase() {
     let mut s = kitchen(1);
     s.edges[5].relation_id = 60;
     write_fixed_str(&mut s.edges[5].phrase, "leans against");
-    let graph = Graph::from_snapshot(&s).expect("valid");
+    let graph = graph_of(&mut s);
     assert_eq!(graph.edges().nth(5).map(|e| e.phrase()), Some("leans against"));
+}
+
+#[test]
+fn a_three_node_sample_is_small() {
+    let mut s = empty(1);
+    push_node(&mut s, 1, NodeKind::Object, NO_NODE, "cabinet", &[]);
+    push_node(&mut s, 2, NodeKind::Part, 1, "handle", &["hook_pull"]);
+    push_node(&mut s, 3, NodeKind::Part, 1, "knob", &["rotate"]);
+    push_edge(&mut s, 2, 1, "part of", EdgeOrigin::Geometry);
+    let message = s.encode();
+    // Header and payload together: what the graph holds, not the 3.9 MiB maximum.
+    assert_eq!(message.payload.len(), 3 * 120 + 64);
+    assert_eq!(core::mem::size_of::<GraphHeader>() + message.payload.len(), 504);
+    let graph = Graph::from_message(&message).expect("valid");
+    assert_eq!(ids(graph.parts_of(1)), [2, 3]);
+}
+
+#[test]
+fn another_instance_id_marks_a_restart() {
+    let mut graph = graph_of(&mut kitchen(40));
+    assert_eq!(graph.instance_id(), 0xabc);
+    assert!(!graph.restarted(), "nothing before the first graph");
+    let mut again = kitchen(41);
+    graph.copy_from(&again.encode()).expect("valid");
+    assert!(!graph.restarted());
+    let mut restarted = kitchen(1);
+    restarted.header.instance_id = 0xdef;
+    graph.copy_from(&restarted.encode()).expect("valid");
+    assert!(graph.restarted(), "instance changed");
+    assert_eq!((graph.instance_id(), graph.version()), (0xdef, 1));
+    graph.copy_from(&kitchen(2).encode()).map(|_| ()).expect("valid");
+    assert!(graph.restarted(), "0xabc again is another instance than 0xdef");
 }

@@ -47,8 +47,9 @@ fn graph_table(graph: &Graph) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "graph version {}  stamp {} ns  {} objects  {} parts  {} edges",
+        "graph version {}  instance {:#018x}  stamp {} ns  {} objects  {} parts  {} edges",
         graph.version(),
+        graph.instance_id(),
         graph.stamp_ns(),
         graph.objects().count(),
         graph.parts().count(),

@@ -18,12 +18,13 @@ fn watch_line(graph: Option<&Graph>, health: Option<&Health>) -> String {
         Some(g) => {
             let _ = write!(
                 s,
-                "v{} objects {} parts {} edges {}{}",
+                "v{} objects {} parts {} edges {}{}{}",
                 g.version(),
                 g.objects().count(),
                 g.parts().count(),
                 g.edge_count(),
-                if g.capacity_exceeded() { " CAPACITY EXCEEDED" } else { "" }
+                if g.capacity_exceeded() { " CAPACITY EXCEEDED" } else { "" },
+                if g.restarted() { " DAEMON RESTARTED" } else { "" }
             );
         }
         None => s.push_str("no graph yet"),
