@@ -41,7 +41,7 @@
 //! queue items in `items.rs`, the counters behind `health` in `stats.rs`; what a keyframe goes
 //! through between the gate and a published graph is [`crate::keyframe_path`].
 
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -57,7 +57,6 @@ use crate::fusion::Fusion;
 use crate::ipc::GraphServer;
 use crate::queue::queue;
 use crate::reasoner::{EnricherError, GraphEnricher};
-use crate::stats::StageStats;
 
 pub(crate) mod items;
 mod stats;
@@ -166,36 +165,13 @@ impl Pipeline {
         let (graph_tx, graph_rx, graph_stats) = queue::<GraphItem>("graph", q.graph, stop.clone());
         let (pose_tx, pose_rx) = crossbeam_channel::bounded::<PoseStamped>(profile.pose.buffer_len);
 
-        let mut stages = vec![Arc::new(StageStats::new("capture")), Arc::new(StageStats::new("keyframe"))];
-        for i in 0..profile.detector.workers {
-            stages.push(Arc::new(StageStats::new(format!("detect/{i}"))));
-        }
-        stages.push(Arc::new(StageStats::new("fusion")));
-        stages.push(Arc::new(StageStats::new("prior")));
-        stages.push(Arc::new(StageStats::new("publish")));
-        // Not a thread: from a keyframe's capture to the send of the first graph holding it.
-        stages.push(Arc::new(StageStats::new("end_to_end")));
         // Before the counters: the LLM refiner (if any) owns its own.
         let enricher = make_enricher(profile)?;
-        let stats = Arc::new(PipelineStats {
-            started: Instant::now(),
-            frames_captured: AtomicU64::new(0),
-            frames_pool_exhausted: AtomicU64::new(0),
-            keyframes: AtomicU64::new(0),
-            frames_without_pose: AtomicU64::new(0),
-            pose: PoseStats::default(),
-            detections_fused: AtomicU64::new(0),
-            graph_version: AtomicU64::new(0),
-            map_node_count: AtomicU64::new(0),
-            map_memory_bytes: AtomicU64::new(0),
-            source_connected: AtomicBool::new(true),
-            source_finished: AtomicBool::new(false),
-            source_bad_data_skipped: AtomicU64::new(0),
-            source_failed: AtomicBool::new(false),
-            stages,
-            queues: vec![frames_stats, kf_stats, det_stats, graph_stats],
-            refiner: enricher.as_ref().and_then(GraphEnricher::refiner_stats).unwrap_or_default(),
-        });
+        let stats = Arc::new(PipelineStats::new(
+            profile.detector.workers,
+            vec![frames_stats, kf_stats, det_stats, graph_stats],
+            enricher.as_ref().and_then(GraphEnricher::refiner_stats).unwrap_or_default(),
+        ));
 
         let (finished_tx, finished_rx) = crossbeam_channel::unbounded::<&'static str>();
         let mut handles = Vec::new();

@@ -52,6 +52,35 @@ pub struct PipelineStats {
 }
 
 impl PipelineStats {
+    /// Zeroed counters for a pipeline with `workers` detection workers: one stage entry each for
+    /// capture, the keyframe gate, every worker (`detect/<i>`), fusion, prior, publish and
+    /// `end_to_end` (not a thread: from a keyframe's capture to the send of the first graph
+    /// holding it), in pipeline order.
+    pub(crate) fn new(workers: usize, queues: Vec<Arc<QueueStats>>, refiner: Arc<RefinerStats>) -> Self {
+        let mut stages = vec![Arc::new(StageStats::new("capture")), Arc::new(StageStats::new("keyframe"))];
+        stages.extend((0..workers).map(|i| Arc::new(StageStats::new(format!("detect/{i}")))));
+        stages.extend(["fusion", "prior", "publish", "end_to_end"].map(|name| Arc::new(StageStats::new(name))));
+        Self {
+            started: Instant::now(),
+            frames_captured: AtomicU64::new(0),
+            frames_pool_exhausted: AtomicU64::new(0),
+            keyframes: AtomicU64::new(0),
+            frames_without_pose: AtomicU64::new(0),
+            pose: PoseStats::default(),
+            detections_fused: AtomicU64::new(0),
+            graph_version: AtomicU64::new(0),
+            map_node_count: AtomicU64::new(0),
+            map_memory_bytes: AtomicU64::new(0),
+            source_connected: AtomicBool::new(true),
+            source_finished: AtomicBool::new(false),
+            source_bad_data_skipped: AtomicU64::new(0),
+            source_failed: AtomicBool::new(false),
+            stages,
+            queues,
+            refiner,
+        }
+    }
+
     /// The health record of this moment (starts a new latency period for every stage).
     pub fn health(&self) -> Health {
         let mut h = Health { stamp_ns: crate::ipc::wall_clock_ns(), ..Health::default() };
@@ -196,28 +225,7 @@ mod tests {
     use super::*;
 
     fn stats_with_workers(workers: usize) -> PipelineStats {
-        let mut stages = vec![Arc::new(StageStats::new("capture")), Arc::new(StageStats::new("keyframe"))];
-        stages.extend((0..workers).map(|i| Arc::new(StageStats::new(format!("detect/{i}")))));
-        stages.extend(["fusion", "prior", "publish", "end_to_end"].map(|name| Arc::new(StageStats::new(name))));
-        PipelineStats {
-            started: Instant::now(),
-            frames_captured: AtomicU64::new(0),
-            frames_pool_exhausted: AtomicU64::new(0),
-            keyframes: AtomicU64::new(0),
-            frames_without_pose: AtomicU64::new(0),
-            pose: PoseStats::default(),
-            detections_fused: AtomicU64::new(0),
-            graph_version: AtomicU64::new(0),
-            map_node_count: AtomicU64::new(0),
-            map_memory_bytes: AtomicU64::new(0),
-            source_connected: AtomicBool::new(true),
-            source_finished: AtomicBool::new(false),
-            source_bad_data_skipped: AtomicU64::new(0),
-            source_failed: AtomicBool::new(false),
-            stages,
-            queues: Vec::new(),
-            refiner: Arc::default(),
-        }
+        PipelineStats::new(workers, Vec::new(), Arc::default())
     }
 
     #[test]
