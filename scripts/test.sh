@@ -14,6 +14,10 @@ fi
 echo "== models =="
 ./scripts/setup-models.sh
 
+# The project-local Python venv (.venv/): the Python client and the independent readers tests use.
+echo "== python venv =="
+./scripts/setup-python.sh
+
 # iceoryx2 keeps its state in /tmp/iceoryx2 and /dev/shm; every test uses its own service
 # prefix, so parallel tests and a daemon running on this machine do not interfere.
 export RUST_BACKTRACE=1
