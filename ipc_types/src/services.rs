@@ -1,17 +1,33 @@
 //! Service names, prefix rules and QoS of the op3dsg services: the one place the daemon and its
 //! clients take them from.
 //!
-//! | service                  | pattern           | payload                                   | QoS (fixed by the creator)                            |
-//! |--------------------------|-------------------|-------------------------------------------|-------------------------------------------------------|
-//! | `<prefix>/graph`         | publish-subscribe | `[u8]` slice, user header [`GraphHeader`] | history 1, safe overflow, buffer 2, borrow 1          |
-//! | `<prefix>/graph_updated` | event             | event id 0                                | max event id 0                                        |
-//! | `<prefix>/health`        | publish-subscribe | [`Health`]                                | history 1, safe overflow, 1 publisher                 |
-//! | `<prefix>/pose`          | publish-subscribe | [`PoseStamped`]                           | created by op3dsg: safe overflow, buffer 64, 4 publishers, 4 subscribers; opened as it is |
+//! | service | pattern | payload (type name) | history | buffer | borrowed | overflow | publishers | subscribers | nodes | event ids |
+//! |---|---|---|---|---|---|---|---|---|---|---|
+//! | `<prefix>/graph` | publish-subscribe | `[u8]` slice (`u8`), user header [`GraphHeader`] (`op3dsg::GraphHeader`) | 1 | 2 | 1 | safe | 1 | 8 | 10 | – |
+//! | `<prefix>/graph_updated` | event | – | – | – | – | – | 1 | 8 | 10 | 0 |
+//! | `<prefix>/health` | publish-subscribe | [`Health`] (`op3dsg::Health`) | 1 | 2 | 2 | safe | 1 | 8 | 10 | – |
+//! | `<prefix>/pose` | publish-subscribe | [`PoseStamped`] (`op3dsg::PoseStamped`) | 0 | 64 | 2 | safe | 4 | 4 | 8 | – |
 //!
-//! The figures are the constants below ([`HISTORY_SIZE`], [`DEFAULT_GRAPH_SUBSCRIBER_BUFFER`],
-//! [`SUBSCRIBER_MAX_BORROWED_SAMPLES`], [`GRAPH_UPDATED_EVENT_ID`], [`EVENT_ID_MAX_VALUE`],
-//! [`DEFAULT_POSE_BUFFER`], ...); the daemon's profile may change the buffers and the number of
-//! subscribers.
+//! Columns: `history` samples a late joiner gets ([`HISTORY_SIZE`]); `buffer` samples queued per
+//! subscriber before the oldest is overwritten; `borrowed` samples one subscriber may hold at
+//! once; `overflow` safe = a full buffer loses its oldest sample, the publisher never blocks;
+//! `publishers` / `subscribers` the most ports (for `graph_updated`: notifiers / listeners);
+//! `nodes` the most iceoryx2 nodes (processes, usually) that may open the service; `event ids`
+//! the ids `graph_updated` carries (it is a wake-up only: the version is in the sample).
+//!
+//! These are the values with the daemon's default profile; `ipc.max_subscribers` sets the
+//! subscriber and listener counts (nodes = subscribers + 2: the daemon, and one spare so a second
+//! daemon can still open the service and be told who serves it), `ipc.subscriber_buffer` the
+//! graph buffer and `ipc.pose_buffer` the pose buffer. The pose row holds when op3dsg creates the
+//! service; a pose service someone else created keeps its own QoS (below). A test
+//! (`tests/tests/service_contract.rs`) reads this table and opens every service against a running
+//! daemon with exactly these values.
+//!
+//! Clocks: `GraphHeader::stamp_ns` and `PoseStamped::stamp_ns` are on the clock of the frames of
+//! the daemon's source (synthetic: scene time from the source's start, frame `k` at `k` times
+//! the frame period; replay: the recording's own stamps; camera: the host clock, through
+//! librealsense global time). `GraphHeader::publish_time_ns` and `Health::publish_time_ns` are
+//! wall-clock time (`CLOCK_REALTIME`), comparable across processes of one machine.
 //!
 //! Who creates what: the daemon creates `graph`, `graph_updated` and `health` (subscriber and
 //! listener counts from its profile, [`DEFAULT_MAX_SUBSCRIBERS`] by default); clients only open
@@ -85,6 +101,26 @@ pub const GRAPH_UPDATED_EVENT_ID: usize = 0;
 pub const EVENT_ID_MAX_VALUE: usize = GRAPH_UPDATED_EVENT_ID;
 /// Publishers of `health`: the daemon.
 pub const HEALTH_MAX_PUBLISHERS: usize = 1;
+/// Samples buffered per `health` subscriber.
+pub const HEALTH_SUBSCRIBER_BUFFER: usize = 2;
+/// Samples a `health` subscriber may hold at once.
+pub const HEALTH_SUBSCRIBER_MAX_BORROWED_SAMPLES: usize = 2;
+/// Notifiers of `graph_updated`: the daemon.
+pub const GRAPH_UPDATED_MAX_NOTIFIERS: usize = 1;
+/// History of `pose` when op3dsg creates it: none (a pose is only good for frames around its
+/// stamp; a late subscriber waits for the next).
+pub const POSE_HISTORY_SIZE: usize = 0;
+/// Samples a `pose` subscriber may hold at once when op3dsg creates it.
+pub const POSE_SUBSCRIBER_MAX_BORROWED_SAMPLES: usize = 2;
+/// Nodes that may open `pose` when op3dsg creates it (one per publisher and subscriber).
+pub const POSE_MAX_NODES: usize = POSE_MAX_PUBLISHERS + POSE_MAX_SUBSCRIBERS;
+
+/// Nodes that may open `graph`, `graph_updated` and `health` for a daemon serving
+/// `max_subscribers` subscribers: one per subscriber, the daemon, and one spare (a second daemon
+/// started on the same prefix still opens the service and learns who serves it).
+pub const fn daemon_service_max_nodes(max_subscribers: usize) -> usize {
+    max_subscribers + 2
+}
 /// Buffer of the `pose` service when an op3dsg client creates it before the daemon (the daemon's
 /// default). A service someone else created keeps its own buffer.
 pub const DEFAULT_POSE_BUFFER: usize = 64;

@@ -11,8 +11,8 @@ use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 
 use crate::client::{ClientError, ErrorCause, Operation, create_node};
 use crate::services::{
-    DEFAULT_POSE_BUFFER, IpcService, POSE_MAX_PUBLISHERS, POSE_MAX_SUBSCRIBERS, SAFE_OVERFLOW, ServiceKind,
-    service_name,
+    DEFAULT_POSE_BUFFER, IpcService, POSE_HISTORY_SIZE, POSE_MAX_NODES, POSE_MAX_PUBLISHERS, POSE_MAX_SUBSCRIBERS,
+    POSE_SUBSCRIBER_MAX_BORROWED_SAMPLES, SAFE_OVERFLOW, ServiceKind, service_name,
 };
 use crate::{PoseKind, PoseStamped, check_pose};
 
@@ -104,9 +104,12 @@ pub fn open_or_create_pose_service(
         }
         match builder()
             .enable_safe_overflow(SAFE_OVERFLOW)
+            .history_size(POSE_HISTORY_SIZE)
             .subscriber_max_buffer_size(buffer)
+            .subscriber_max_borrowed_samples(POSE_SUBSCRIBER_MAX_BORROWED_SAMPLES)
             .max_publishers(POSE_MAX_PUBLISHERS)
             .max_subscribers(POSE_MAX_SUBSCRIBERS)
+            .max_nodes(POSE_MAX_NODES)
             .create()
         {
             Ok(factory) => {

@@ -12,7 +12,9 @@ use op3dsg_ipc_types::client::open_or_create_pose_service;
 use op3dsg_ipc_types::publish::GraphPayload;
 use op3dsg_ipc_types::services::{
     EVENT_ID_MAX_VALUE, GRAPH_MAX_PUBLISHERS, GRAPH_PUBLISHER_MAX_LOANED_SAMPLES, GRAPH_UPDATED_EVENT_ID,
-    HEALTH_MAX_PUBLISHERS, HISTORY_SIZE, SAFE_OVERFLOW, SUBSCRIBER_MAX_BORROWED_SAMPLES,
+    GRAPH_UPDATED_MAX_NOTIFIERS, HEALTH_MAX_PUBLISHERS, HEALTH_SUBSCRIBER_BUFFER,
+    HEALTH_SUBSCRIBER_MAX_BORROWED_SAMPLES, HISTORY_SIZE, SAFE_OVERFLOW, SUBSCRIBER_MAX_BORROWED_SAMPLES,
+    daemon_service_max_nodes,
 };
 use op3dsg_ipc_types::{ClientError, GraphHeader, Health, PoseError, PoseStamped, ServiceNames, check_pose};
 
@@ -56,6 +58,7 @@ impl GraphServer {
             .subscriber_max_borrowed_samples(SUBSCRIBER_MAX_BORROWED_SAMPLES)
             .max_subscribers(config.max_subscribers)
             .max_publishers(GRAPH_MAX_PUBLISHERS)
+            .max_nodes(daemon_service_max_nodes(config.max_subscribers))
             .open_or_create()
             .map_err(|e| service_err(&names.graph, "open or create", e))?;
         // Static allocation with room for the largest graph: one data segment reserved at start,
@@ -79,7 +82,9 @@ impl GraphServer {
             .service_builder(&name)
             .event()
             .event_id_max_value(EVENT_ID_MAX_VALUE)
+            .max_notifiers(GRAPH_UPDATED_MAX_NOTIFIERS)
             .max_listeners(config.max_subscribers)
+            .max_nodes(daemon_service_max_nodes(config.max_subscribers))
             .open_or_create()
             .map_err(|e| service_err(&names.graph_updated, "open or create", e))?;
         let notifier =
@@ -91,8 +96,11 @@ impl GraphServer {
             .publish_subscribe::<Health>()
             .history_size(HISTORY_SIZE)
             .enable_safe_overflow(SAFE_OVERFLOW)
+            .subscriber_max_buffer_size(HEALTH_SUBSCRIBER_BUFFER)
+            .subscriber_max_borrowed_samples(HEALTH_SUBSCRIBER_MAX_BORROWED_SAMPLES)
             .max_subscribers(config.max_subscribers)
             .max_publishers(HEALTH_MAX_PUBLISHERS)
+            .max_nodes(daemon_service_max_nodes(config.max_subscribers))
             .open_or_create()
             .map_err(|e| service_err(&names.health, "open or create", e))?;
         let health_publisher = health_service
