@@ -182,7 +182,7 @@ impl EdgeOrigin {
 
 /// One node of the scene graph (size 120 bytes, alignment 8, no implicit padding).
 #[repr(C)]
-#[derive(Debug, Clone, Copy, ZeroCopySend, PlacementDefault)]
+#[derive(Debug, Clone, Copy, ZeroCopySend, PlacementDefault, bytemuck::Pod, bytemuck::Zeroable)]
 #[type_name("op3dsg::Node")]
 pub struct Node {
     /// Node id, stable while one daemon instance runs ([`GraphHeader::instance_id`]).
@@ -249,7 +249,7 @@ impl Node {
 /// Direction: `source` relates to `target` as the phrase says, e.g. handle `part of` cabinet,
 /// remote `remote to control` TV, cup `on` table.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, ZeroCopySend, PlacementDefault)]
+#[derive(Debug, Clone, Copy, ZeroCopySend, PlacementDefault, bytemuck::Pod, bytemuck::Zeroable)]
 #[type_name("op3dsg::Edge")]
 pub struct Edge {
     /// Source node id.
@@ -300,6 +300,15 @@ impl Node {
     /// Writes this node's [`NODE_BYTES`] bytes (the struct's field offsets, little-endian) into
     /// `b`, every byte of it; the inverse of [`Node::from_bytes`].
     pub fn write_bytes(&self, b: &mut [u8; NODE_BYTES]) {
+        #[cfg(target_endian = "little")]
+        b.copy_from_slice(bytemuck::bytes_of(self));
+        #[cfg(not(target_endian = "little"))]
+        self.write_fields(b);
+    }
+
+    /// [`Node::write_bytes`] field by field (the portable form, for big-endian machines).
+    #[cfg(any(test, not(target_endian = "little")))]
+    fn write_fields(&self, b: &mut [u8; NODE_BYTES]) {
         b[0..4].copy_from_slice(&self.id.to_le_bytes());
         b[4..8].copy_from_slice(&self.parent_id.to_le_bytes());
         b[8] = self.kind;
@@ -324,6 +333,15 @@ impl Node {
 
     /// The node in `b` (laid out as [`Node::append_bytes`] writes it).
     pub fn from_bytes(b: &[u8; NODE_BYTES]) -> Self {
+        #[cfg(target_endian = "little")]
+        return bytemuck::pod_read_unaligned(b);
+        #[cfg(not(target_endian = "little"))]
+        Self::from_fields(b)
+    }
+
+    /// [`Node::from_bytes`] field by field (the portable form, for big-endian machines).
+    #[cfg(any(test, not(target_endian = "little")))]
+    fn from_fields(b: &[u8; NODE_BYTES]) -> Self {
         let u32_at = |o: usize| u32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]);
         let f32_at = |o: usize| f32::from_bits(u32_at(o));
         let vec3_at = |o: usize| [f32_at(o), f32_at(o + 4), f32_at(o + 8)];
@@ -355,6 +373,15 @@ impl Edge {
     /// Writes this edge's [`EDGE_BYTES`] bytes (the struct's field offsets, little-endian) into
     /// `b`, every byte of it; the inverse of [`Edge::from_bytes`].
     pub fn write_bytes(&self, b: &mut [u8; EDGE_BYTES]) {
+        #[cfg(target_endian = "little")]
+        b.copy_from_slice(bytemuck::bytes_of(self));
+        #[cfg(not(target_endian = "little"))]
+        self.write_fields(b);
+    }
+
+    /// [`Edge::write_bytes`] field by field (the portable form, for big-endian machines).
+    #[cfg(any(test, not(target_endian = "little")))]
+    fn write_fields(&self, b: &mut [u8; EDGE_BYTES]) {
         b[0..4].copy_from_slice(&self.source_id.to_le_bytes());
         b[4..8].copy_from_slice(&self.target_id.to_le_bytes());
         b[8] = self.kind;
@@ -373,6 +400,15 @@ impl Edge {
 
     /// The edge in `b` (laid out as [`Edge::append_bytes`] writes it).
     pub fn from_bytes(b: &[u8; EDGE_BYTES]) -> Self {
+        #[cfg(target_endian = "little")]
+        return bytemuck::pod_read_unaligned(b);
+        #[cfg(not(target_endian = "little"))]
+        Self::from_fields(b)
+    }
+
+    /// [`Edge::from_bytes`] field by field (the portable form, for big-endian machines).
+    #[cfg(any(test, not(target_endian = "little")))]
+    fn from_fields(b: &[u8; EDGE_BYTES]) -> Self {
         let u32_at = |o: usize| u32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]);
         let mut phrase = [0u8; PHRASE_CAPACITY_BYTES];
         phrase.copy_from_slice(&b[16..64]);
@@ -497,5 +533,116 @@ impl<'a> GraphMessage<'a> {
     /// The edges, decoded.
     pub fn edges(&self) -> impl ExactSizeIterator<Item = Edge> + 'a {
         self.edge_records().iter().map(Edge::from_bytes)
+    }
+
+    /// Replaces `out` with the decoded nodes, reusing its buffer (one block copy on
+    /// little-endian machines).
+    pub fn copy_nodes_into(&self, out: &mut Vec<Node>) {
+        copy_records(self.node_records().as_flattened(), out, Node::from_bytes);
+    }
+
+    /// Replaces `out` with the decoded edges, reusing its buffer (one block copy on
+    /// little-endian machines).
+    pub fn copy_edges_into(&self, out: &mut Vec<Edge>) {
+        copy_records(self.edge_records().as_flattened(), out, Edge::from_bytes);
+    }
+}
+
+/// Decodes the records in `bytes` into `out`: on little-endian machines the wire layout is the
+/// struct's layout, so this is one copy into the reused buffer (zero-filling only what it grows).
+#[cfg_attr(target_endian = "little", allow(unused_variables))]
+fn copy_records<T: bytemuck::Pod, const N: usize>(bytes: &[u8], out: &mut Vec<T>, decode: fn(&[u8; N]) -> T) {
+    let count = bytes.len() / N;
+    #[cfg(target_endian = "little")]
+    {
+        out.truncate(count);
+        out.resize(count, T::zeroed());
+        bytemuck::cast_slice_mut::<T, u8>(out).copy_from_slice(&bytes[..count * N]);
+    }
+    #[cfg(not(target_endian = "little"))]
+    {
+        out.clear();
+        out.extend(bytes.as_chunks::<N>().0.iter().map(decode));
+    }
+}
+
+#[cfg(test)]
+mod record_tests {
+    use super::*;
+
+    fn node(seed: u32) -> Node {
+        let f = |k: u32| (seed * 31 + k) as f32 * 0.125 - 3.0;
+        let mut label = [0u8; LABEL_CAPACITY_BYTES];
+        crate::write_fixed_str(&mut label, "stove knob");
+        Node {
+            id: seed,
+            parent_id: seed.wrapping_add(7),
+            kind: (seed % 2) as u8,
+            reserved: [1, 2, 3],
+            observation_count: seed * 3 + 1,
+            label,
+            confidence: f(1),
+            centre_m: [f(2), f(3), f(4)],
+            box_min_m: [f(5), f(6), f(7)],
+            box_max_m: [f(8), f(9), f(10)],
+            affordance_bits: 0x1ff & (seed as u16 * 37),
+            reserved2: [4, 5, 6, 7, 8, 9],
+            last_seen_stamp_ns: u64::from(seed) * 1_000_000_007 + 0x0102_0304_0506_0708,
+        }
+    }
+
+    fn edge(seed: u32) -> Edge {
+        let mut phrase = [0u8; PHRASE_CAPACITY_BYTES];
+        crate::write_fixed_str(&mut phrase, "rotate to adjust the setting");
+        Edge {
+            source_id: seed,
+            target_id: seed ^ 0xa5a5,
+            kind: (seed % 2) as u8,
+            origin: (seed % 4) as u8,
+            relation_id: (seed % 300) as u16,
+            confidence: seed as f32 / 7.0,
+            phrase,
+        }
+    }
+
+    /// The block copies of little-endian machines and the field-by-field form agree byte for
+    /// byte, both ways.
+    #[test]
+    fn block_and_field_encodings_agree() {
+        for seed in [0, 1, 2, 977, 65_537] {
+            let n = node(seed);
+            let (mut block, mut fields) = ([0u8; NODE_BYTES], [0u8; NODE_BYTES]);
+            n.write_bytes(&mut block);
+            n.write_fields(&mut fields);
+            assert_eq!(block, fields);
+            assert_eq!(bytemuck::bytes_of(&Node::from_bytes(&fields)), bytemuck::bytes_of(&Node::from_fields(&block)));
+            let e = edge(seed);
+            let (mut block, mut fields) = ([0u8; EDGE_BYTES], [0u8; EDGE_BYTES]);
+            e.write_bytes(&mut block);
+            e.write_fields(&mut fields);
+            assert_eq!(block, fields);
+            assert_eq!(bytemuck::bytes_of(&Edge::from_bytes(&fields)), bytemuck::bytes_of(&Edge::from_fields(&block)));
+        }
+    }
+
+    /// `copy_nodes_into` / `copy_edges_into` decode what was written, shrinking and growing the
+    /// reused buffer.
+    #[test]
+    fn bulk_copies_decode_every_record() {
+        let nodes: Vec<Node> = (0..50).map(node).collect();
+        let edges: Vec<Edge> = (0..90).map(edge).collect();
+        let mut payload = Vec::new();
+        nodes.iter().for_each(|n| n.append_bytes(&mut payload));
+        edges.iter().for_each(|e| e.append_bytes(&mut payload));
+        let header = GraphHeader { node_count: 50, edge_count: 90, ..GraphHeader::default() };
+        let message = GraphMessage::new(&header, &payload);
+        let (mut out_nodes, mut out_edges) = (vec![node(999); 70], Vec::new());
+        for _ in 0..2 {
+            message.copy_nodes_into(&mut out_nodes);
+            message.copy_edges_into(&mut out_edges);
+            assert_eq!(bytemuck::cast_slice::<Node, u8>(&out_nodes), bytemuck::cast_slice::<Node, u8>(&nodes));
+            assert_eq!(bytemuck::cast_slice::<Edge, u8>(&out_edges), bytemuck::cast_slice::<Edge, u8>(&edges));
+            out_nodes.truncate(10);
+        }
     }
 }

@@ -4,6 +4,7 @@
 
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
+use std::sync::{Mutex, OnceLock, PoisonError};
 
 use crate::client::{SnapshotError, check_message};
 use crate::{
@@ -92,19 +93,45 @@ impl core::fmt::Display for UnknownAffordance {
 impl std::error::Error for UnknownAffordance {}
 
 /// One version of the scene graph, owned by the client: the header, the nodes and edges
-/// decoded out of one graph sample ([`GraphMessage`]), and indices built once per copy (id → node, node → parts,
-/// node → outgoing and incoming edges).
+/// copied out of one graph sample ([`GraphMessage`]), and lookup indices (id → node, node →
+/// parent and parts, node → outgoing and incoming edges).
 ///
-/// [`Graph::copy_from`] reuses every buffer, so once a graph of a given size has been copied,
-/// copying another of at most that size allocates nothing.
-#[derive(Clone, Default)]
+/// [`Graph::copy_from`] copies the records only (one block copy each for nodes and edges on
+/// little-endian machines); the indices are built once per graph, on the first lookup that
+/// needs them ([`Self::node`], [`Self::parts_of`], [`NodeView::parent`], [`EdgeView::source`],
+/// ...), so a planner that only scans the nodes never pays for them.
+/// Every buffer is reused, so once a graph of a given size has been copied and indexed, copying
+/// and indexing another of at most that size allocates nothing.
+#[derive(Default)]
 pub struct Graph {
     header: GraphHeader,
     nodes: Vec<Node>,
     edges: Vec<Edge>,
-    index_of_id: IdIndex,
     /// The previous graph held came from another daemon instance (see [`Self::restarted`]).
     restarted: bool,
+    /// Built on first use for the graph held now.
+    indices: OnceLock<Indices>,
+    /// The buffers of the previous graph's indices, reused by the next build.
+    spare: Mutex<Indices>,
+}
+
+impl Clone for Graph {
+    fn clone(&self) -> Self {
+        Self {
+            header: self.header,
+            nodes: self.nodes.clone(),
+            edges: self.edges.clone(),
+            restarted: self.restarted,
+            indices: self.indices.clone(),
+            spare: Mutex::default(),
+        }
+    }
+}
+
+/// The lookup indices of one graph.
+#[derive(Clone, Default)]
+struct Indices {
+    index_of_id: IdIndex,
     /// Per node: index of its parent node, or [`NO_INDEX`].
     parent_index: Vec<u32>,
     /// Per edge: index of its source / target node, or [`NO_INDEX`] when not in the graph.
@@ -116,6 +143,24 @@ pub struct Graph {
     incoming: Adjacency,
     /// Scratch space of [`Adjacency::rebuild`].
     cursor: Vec<u32>,
+}
+
+impl Indices {
+    fn rebuild(&mut self, nodes: &[Node], edges: &[Edge]) {
+        let Self { index_of_id, parent_index, source_index, target_index, parts, outgoing, incoming, cursor } = self;
+        index_of_id.rebuild(nodes);
+        let index = |id: u32| if id == NO_NODE { NO_INDEX } else { index_of_id.get(id).unwrap_or(NO_INDEX) };
+        parent_index.clear();
+        parent_index.extend(nodes.iter().map(|n| index(n.parent_id)));
+        source_index.clear();
+        source_index.extend(edges.iter().map(|e| index(e.source_id)));
+        target_index.clear();
+        target_index.extend(edges.iter().map(|e| index(e.target_id)));
+        let node_count = nodes.len();
+        parts.rebuild(node_count, parent_index, cursor);
+        outgoing.rebuild(node_count, source_index, cursor);
+        incoming.rebuild(node_count, target_index, cursor);
+    }
 }
 
 #[derive(Clone, Default)]
@@ -190,28 +235,22 @@ impl Graph {
         let previous_instance = self.header.instance_id;
         self.header = *message.header;
         self.restarted = previous_instance != 0 && previous_instance != self.header.instance_id;
-        self.nodes.clear();
-        self.nodes.extend(message.nodes());
-        self.edges.clear();
-        self.edges.extend(message.edges());
-        self.rebuild_indices();
+        message.copy_nodes_into(&mut self.nodes);
+        message.copy_edges_into(&mut self.edges);
+        if let Some(old) = self.indices.take() {
+            *self.spare.get_mut().unwrap_or_else(PoisonError::into_inner) = old;
+        }
         Ok(())
     }
 
-    fn rebuild_indices(&mut self) {
-        let Self { nodes, edges, index_of_id, parent_index, source_index, target_index, cursor, .. } = self;
-        index_of_id.rebuild(nodes);
-        let index = |id: u32| if id == NO_NODE { NO_INDEX } else { index_of_id.get(id).unwrap_or(NO_INDEX) };
-        parent_index.clear();
-        parent_index.extend(nodes.iter().map(|n| index(n.parent_id)));
-        source_index.clear();
-        source_index.extend(edges.iter().map(|e| index(e.source_id)));
-        target_index.clear();
-        target_index.extend(edges.iter().map(|e| index(e.target_id)));
-        let node_count = nodes.len();
-        self.parts.rebuild(node_count, &self.parent_index, cursor);
-        self.outgoing.rebuild(node_count, &self.source_index, cursor);
-        self.incoming.rebuild(node_count, &self.target_index, cursor);
+    /// The indices of the graph held now, built on first use (reusing the previous graph's
+    /// buffers).
+    fn indices(&self) -> &Indices {
+        self.indices.get_or_init(|| {
+            let mut indices = std::mem::take(&mut *self.spare.lock().unwrap_or_else(PoisonError::into_inner));
+            indices.rebuild(&self.nodes, &self.edges);
+            indices
+        })
     }
 
     /// Graph version: increases by one with every published change while one daemon instance
@@ -298,12 +337,12 @@ impl Graph {
 
     /// The node with this id.
     pub fn node(&self, id: u32) -> Option<NodeView<'_>> {
-        self.index_of_id.get(id).map(|index| NodeView { graph: self, index })
+        self.indices().index_of_id.get(id).map(|index| NodeView { graph: self, index })
     }
 
     /// The parts whose parent is `object_id` (empty for an unknown id).
     pub fn parts_of(&self, object_id: u32) -> impl Iterator<Item = NodeView<'_>> {
-        self.related(object_id, &self.parts).map(|index| NodeView { graph: self, index })
+        self.related(object_id, |ix| &ix.parts).map(|index| NodeView { graph: self, index })
     }
 
     /// The parent object of the part `part_id` (`None` for objects, unattached parts and unknown
@@ -314,12 +353,12 @@ impl Graph {
 
     /// The edges whose source is `id`.
     pub fn edges_from(&self, id: u32) -> impl Iterator<Item = EdgeView<'_>> {
-        self.related(id, &self.outgoing).map(|index| EdgeView { graph: self, index })
+        self.related(id, |ix| &ix.outgoing).map(|index| EdgeView { graph: self, index })
     }
 
     /// The edges whose target is `id`.
     pub fn edges_to(&self, id: u32) -> impl Iterator<Item = EdgeView<'_>> {
-        self.related(id, &self.incoming).map(|index| EdgeView { graph: self, index })
+        self.related(id, |ix| &ix.incoming).map(|index| EdgeView { graph: self, index })
     }
 
     /// The nodes labelled exactly `label`.
@@ -345,8 +384,9 @@ impl Graph {
         self.nodes().filter(move |n| n.affordance_bits() & bits == bits)
     }
 
-    fn related<'a>(&'a self, id: u32, adjacency: &'a Adjacency) -> impl Iterator<Item = u32> + 'a {
-        let items = self.index_of_id.get(id).map(|i| adjacency.of(i)).unwrap_or(&[]);
+    fn related(&self, id: u32, adjacency: impl Fn(&Indices) -> &Adjacency) -> impl Iterator<Item = u32> + '_ {
+        let indices = self.indices();
+        let items = indices.index_of_id.get(id).map(|i| adjacency(indices).of(i)).unwrap_or(&[]);
         items.iter().copied()
     }
 }
@@ -465,26 +505,26 @@ impl<'a> NodeView<'a> {
 
     /// The parent object of a part, when it is in this graph.
     pub fn parent(&self) -> Option<NodeView<'a>> {
-        let index = self.graph.parent_index[self.index as usize];
+        let index = self.graph.indices().parent_index[self.index as usize];
         (index != NO_INDEX).then_some(NodeView { graph: self.graph, index })
     }
 
     /// The parts attached to this node.
     pub fn parts(&self) -> impl Iterator<Item = NodeView<'a>> + use<'a> {
         let graph = self.graph;
-        graph.parts.of(self.index).iter().map(move |&index| NodeView { graph, index })
+        graph.indices().parts.of(self.index).iter().map(move |&index| NodeView { graph, index })
     }
 
     /// The edges whose source is this node.
     pub fn edges_from(&self) -> impl Iterator<Item = EdgeView<'a>> + use<'a> {
         let graph = self.graph;
-        graph.outgoing.of(self.index).iter().map(move |&index| EdgeView { graph, index })
+        graph.indices().outgoing.of(self.index).iter().map(move |&index| EdgeView { graph, index })
     }
 
     /// The edges whose target is this node.
     pub fn edges_to(&self) -> impl Iterator<Item = EdgeView<'a>> + use<'a> {
         let graph = self.graph;
-        graph.incoming.of(self.index).iter().map(move |&index| EdgeView { graph, index })
+        graph.indices().incoming.of(self.index).iter().map(move |&index| EdgeView { graph, index })
     }
 }
 
@@ -524,13 +564,13 @@ impl<'a> EdgeView<'a> {
 
     /// The source node, when it is in this graph.
     pub fn source(&self) -> Option<NodeView<'a>> {
-        let index = self.graph.source_index[self.index as usize];
+        let index = self.graph.indices().source_index[self.index as usize];
         (index != NO_INDEX).then_some(NodeView { graph: self.graph, index })
     }
 
     /// The target node, when it is in this graph.
     pub fn target(&self) -> Option<NodeView<'a>> {
-        let index = self.graph.target_index[self.index as usize];
+        let index = self.graph.indices().target_index[self.index as usize];
         (index != NO_INDEX).then_some(NodeView { graph: self.graph, index })
     }
 
