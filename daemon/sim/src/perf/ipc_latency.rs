@@ -18,7 +18,9 @@
 //!   zero-filled sample of exactly their size, write header, nodes and edges in place, send,
 //!   notify); `t1` when the planner client
 //!   library's [`GraphSubscriber::latest_if_newer`] returned the owned [`Graph`] in the child
-//!   (newest sample received, checked, its nodes and edges decoded out, the lookup indices built).
+//!   (newest sample received, checked, its nodes and edges copied out). The lookup indices are
+//!   built on the first lookup; the child times one right after `t1` and reports it apart
+//!   (`graph_index_build`), since a planner that only scans the nodes never pays it.
 //! - **raw**: `t0` just before loaning a byte slice of the graph sample's size (header + nodes +
 //!   edges); copy a prepared buffer in, send, notify; `t1` after the child received the sample
 //!   and copied the bytes out.
@@ -72,6 +74,10 @@ pub struct IpcRow {
     /// The subscriber's share of `graph`: the `GraphSubscriber::latest_if_newer` call that
     /// returned it (receive and copy into the owned `Graph`).
     pub graph_read_call: Percentiles,
+    /// After the graph was taken (not part of `graph`): the first id lookup on it, which builds
+    /// the lookup indices a planner's first `node`, `parts_of`, `edges_from` ... call pays.
+    #[serde(default)]
+    pub graph_index_build: Percentiles,
     /// `graph.p50_ms / raw.p50_ms`.
     pub ratio_p50: f64,
     /// `graph.p99_ms / raw.p99_ms`.
@@ -176,6 +182,10 @@ pub struct Receipts {
     /// Per graph message, nanoseconds spent in the successful `GraphSubscriber::latest_if_newer`
     /// call.
     pub graph_read_ns: Vec<u64>,
+    /// Per graph message, nanoseconds of the first id lookup after the read (the index build),
+    /// taken after the receive stamp.
+    #[serde(default)]
+    pub graph_index_ns: Vec<u64>,
     /// Raw messages (id = the first 8 bytes, little endian).
     pub raw: Vec<(u64, u64)>,
 }
@@ -355,9 +365,13 @@ pub fn ipc_latency(options: &PerfOptions) -> anyhow::Result<IpcLatency> {
     };
     let mut graph_ms = latencies(&sent_graph, &receipts.graph, "graph")?;
     let mut read_ms: Vec<Vec<f64>> = vec![Vec::new(); graphs.len()];
-    for (&(id, _), &read_ns) in receipts.graph.iter().zip(&receipts.graph_read_ns) {
+    let mut index_ms: Vec<Vec<f64>> = vec![Vec::new(); graphs.len()];
+    for ((&(id, _), &read_ns), &index_ns) in
+        receipts.graph.iter().zip(&receipts.graph_read_ns).zip(&receipts.graph_index_ns)
+    {
         if let Some(&(size, _, true)) = sent_graph.get(&id) {
             read_ms[size].push(read_ns as f64 / 1e6);
+            index_ms[size].push(index_ns as f64 / 1e6);
         }
     }
     let mut raw_ms = latencies(&sent_raw, &receipts.raw, "raw sample")?;
@@ -385,6 +399,7 @@ pub fn ipc_latency(options: &PerfOptions) -> anyhow::Result<IpcLatency> {
             graph_publish_call: Percentiles::from_samples_ms(&mut graph_calls_ms[i]),
             raw_publish_call: Percentiles::from_samples_ms(&mut raw_calls_ms[i]),
             graph_read_call: Percentiles::from_samples_ms(&mut read_ms[i]),
+            graph_index_build: Percentiles::from_samples_ms(&mut index_ms[i]),
         });
     }
     Ok(IpcLatency {
@@ -434,6 +449,7 @@ pub fn ipc_peer(prefix: &str, pairs: usize) -> anyhow::Result<Receipts> {
     let mut receipts = Receipts {
         graph: Vec::with_capacity(pairs),
         graph_read_ns: Vec::with_capacity(pairs),
+        graph_index_ns: Vec::with_capacity(pairs),
         raw: Vec::with_capacity(pairs),
     };
     let mut copy: Vec<u8> = Vec::new();
@@ -452,8 +468,14 @@ pub fn ipc_peer(prefix: &str, pairs: usize) -> anyhow::Result<Receipts> {
                 bail!("no graph within {} s", PEER_TIMEOUT.as_secs());
             }
         };
+        let received_ns = wall_clock_ns();
+        if let Some(graph) = graphs.graph() {
+            let index = Instant::now();
+            std::hint::black_box(graph.node(0).is_some());
+            receipts.graph_index_ns.push(index.elapsed().as_nanos() as u64);
+        }
         last_version = version;
-        receipts.graph.push((version, wall_clock_ns()));
+        receipts.graph.push((version, received_ns));
         acknowledge()?;
 
         let id = loop {
