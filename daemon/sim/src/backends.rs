@@ -67,11 +67,13 @@ pub fn set_synthetic_config(profile: &mut Profile, config: &SyntheticConfig) {
 }
 
 /// Changes `[source.synthetic]` of `profile` in place (for code that varies a loaded profile:
-/// benchmarks, tests). The profile was checked when it loaded, so its section parses.
-pub fn edit_synthetic(profile: &mut Profile, edit: impl FnOnce(&mut SyntheticConfig)) {
-    let mut config = synthetic_config(profile).unwrap_or_default();
+/// benchmarks, tests). A section that does not parse (a profile built by hand, not loaded) is an
+/// error naming the section and field; the profile is then left unchanged.
+pub fn edit_synthetic(profile: &mut Profile, edit: impl FnOnce(&mut SyntheticConfig)) -> Result<(), StartError> {
+    let mut config = synthetic_config(profile)?;
     edit(&mut config);
     set_synthetic_config(profile, &config);
+    Ok(())
 }
 
 /// `[detector.oracle]` of `profile`, typed (presets already expanded at load).

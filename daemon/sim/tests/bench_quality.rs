@@ -71,7 +71,8 @@ fn the_synthetic_mix_is_led_by_pull_to_open_like_the_benchmark() {
 #[test]
 fn text_encoder_semantic_features_fuse_like_label_vectors() {
     let mut base = profile();
-    op3dsg_sim::backends::edit_synthetic(&mut base, |s| s.frame_count = Some(300));
+    op3dsg_sim::backends::edit_synthetic(&mut base, |s| s.frame_count = Some(300))
+        .expect("[source.synthetic] of the profile");
     let mut with_encoder = op3dsg_sim::load_profile(
         None,
         &[
@@ -83,7 +84,8 @@ fn text_encoder_semantic_features_fuse_like_label_vectors() {
     .unwrap_or_else(|e| panic!("{e}"))
     .profile;
     let intrinsics = op3dsg_sim::backends::synthetic_config(&base).unwrap().intrinsics;
-    op3dsg_sim::backends::edit_synthetic(&mut with_encoder, |s| s.intrinsics = intrinsics);
+    op3dsg_sim::backends::edit_synthetic(&mut with_encoder, |s| s.intrinsics = intrinsics)
+        .expect("[source.synthetic] of the profile");
     let visibility = op3dsg_sim::batch::VisibilityThresholds::default();
     let a = op3dsg_sim::batch::run(&base, &visibility).unwrap();
     let b = op3dsg_sim::batch::run(&with_encoder, &visibility).unwrap();

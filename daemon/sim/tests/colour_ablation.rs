@@ -19,8 +19,9 @@ fn profile(frames: Option<u64>) -> Profile {
     let base = op3dsg_sim::load_profile(None, &[]).expect("base profile").profile;
     let loop_frames =
         CameraPath::new(&Scene::generate(RoomKind::ColourPanel, SEED), SEED, FRAME_RATE_HZ).period_frames();
-    let mut profile = colour_panel_profile(&base, SEED, frames.unwrap_or(loop_frames));
-    op3dsg_sim::backends::edit_synthetic(&mut profile, |s| s.frame_rate_hz = FRAME_RATE_HZ);
+    let mut profile = colour_panel_profile(&base, SEED, frames.unwrap_or(loop_frames)).expect("colour panel profile");
+    op3dsg_sim::backends::edit_synthetic(&mut profile, |s| s.frame_rate_hz = FRAME_RATE_HZ)
+        .expect("[source.synthetic] of the profile");
     profile
 }
 

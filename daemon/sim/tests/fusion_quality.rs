@@ -37,7 +37,8 @@ fn room_profile(room: RoomKind) -> Profile {
     ];
     let mut profile = op3dsg_sim::load_profile(None, &sets).expect("profile").profile;
     let path = CameraPath::new(&Scene::generate(room, SEED), SEED, FRAME_RATE_HZ);
-    op3dsg_sim::backends::edit_synthetic(&mut profile, |s| s.frame_count = Some(path.period_frames()));
+    op3dsg_sim::backends::edit_synthetic(&mut profile, |s| s.frame_count = Some(path.period_frames()))
+        .expect("[source.synthetic] of the profile");
     profile
 }
 

@@ -8,7 +8,8 @@ use op3dsg_sim::batch::{self, VisibilityThresholds};
 #[test]
 fn the_kitchen_graph_gets_functional_edges_and_affordances() {
     let mut profile = op3dsg_sim::load_profile(None, &[]).unwrap().profile;
-    op3dsg_sim::backends::edit_synthetic(&mut profile, |s| s.frame_count = Some(600));
+    op3dsg_sim::backends::edit_synthetic(&mut profile, |s| s.frame_count = Some(600))
+        .expect("[source.synthetic] of the profile");
     let run = batch::run(&profile, &VisibilityThresholds::default()).unwrap();
     let graph = &run.graph;
     let label = |id: u32| graph.nodes.iter().find(|n| n.id == id).map_or("?", |n| n.label.as_str());

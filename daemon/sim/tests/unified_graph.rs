@@ -27,7 +27,8 @@ fn run(room: RoomKind) -> (BatchRun, FusionMatchReport) {
     ];
     let mut profile = op3dsg_sim::load_profile(None, &sets).expect("profile").profile;
     let path = CameraPath::new(&Scene::generate(room, SEED), SEED, FRAME_RATE_HZ);
-    op3dsg_sim::backends::edit_synthetic(&mut profile, |s| s.frame_count = Some(path.period_frames()));
+    op3dsg_sim::backends::edit_synthetic(&mut profile, |s| s.frame_count = Some(path.period_frames()))
+        .expect("[source.synthetic] of the profile");
     let run = batch::run(&profile, &batch::VisibilityThresholds::default()).expect("batch run");
     let criteria = MatchCriteria { min_observations: profile.fusion.min_observations, ..MatchCriteria::default() };
     let report = match_run(&run, &criteria);

@@ -19,7 +19,7 @@
 //!
 //! ```no_run
 //! use op3dsg_sim::eval::ablation::*;
-//! let profile = colour_panel_profile(&op3dsg_runtime::config::load(None, &[]).unwrap().profile, 1, 600);
+//! let profile = colour_panel_profile(&op3dsg_runtime::config::load(None, &[]).unwrap().profile, 1, 600).unwrap();
 //! let result = run_colour_ablation(&profile, &fusion_with_colour, &fusion_without_colour).unwrap();
 //! print!("{}", ablation_table(&result));
 //! ```
@@ -34,6 +34,7 @@ use crate::batch::{BatchError, BatchRun, VisibilityThresholds, run_with_fusions}
 use crate::oracle::OracleConfig;
 use op3dsg_runtime::config::Profile;
 use op3dsg_runtime::fusion::Fusion;
+use op3dsg_runtime::pipeline::StartError;
 use op3dsg_runtime::pipeline::make_fusion;
 
 /// Makes a fusion for a profile.
@@ -54,9 +55,9 @@ pub fn fusion_without_colour(profile: &Profile) -> Box<dyn Fusion> {
 /// `base` turned into the ablation's setting: the `colour_panel` scene with `seed`, `frames`
 /// frames, depth noise on (the base profile's model when `base` has none) and the realistic
 /// oracle (its seed kept).
-pub fn colour_panel_profile(base: &Profile, seed: u64, frames: u64) -> Profile {
+pub fn colour_panel_profile(base: &Profile, seed: u64, frames: u64) -> Result<Profile, StartError> {
     let mut profile = base.clone();
-    let mut synthetic = synthetic_config(base).unwrap_or_default();
+    let mut synthetic = synthetic_config(base)?;
     synthetic.room = RoomKind::ColourPanel;
     synthetic.seed = seed;
     synthetic.frame_count = Some(frames);
@@ -64,9 +65,9 @@ pub fn colour_panel_profile(base: &Profile, seed: u64, frames: u64) -> Profile {
         synthetic.depth_noise = Some(Default::default());
     }
     set_synthetic_config(&mut profile, &synthetic);
-    let oracle_seed = oracle_config(base).map(|o| o.seed).unwrap_or_default();
+    let oracle_seed = oracle_config(base)?.seed;
     set_oracle_config(&mut profile, &OracleConfig { seed: oracle_seed, ..OracleConfig::realistic() });
-    profile
+    Ok(profile)
 }
 
 /// One side of the ablation.
