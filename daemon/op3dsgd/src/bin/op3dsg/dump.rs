@@ -1,19 +1,32 @@
 //! `op3dsg dump`: the current graph once, read with the client library's [`GraphSubscriber`], as
-//! a table or (with `--json`) as graph JSON (`op3dsg.graph/1`).
+//! a table, as graph JSON (`op3dsg.graph/1`), or in the compact form for LLM prompts
+//! (`op3dsg.llm/1`, see `docs/llm-graph.md`).
 
 use std::fmt::Write as _;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use op3dsg_ipc_types::{Graph, GraphSubscriber};
+use op3dsg_ipc_types::{EdgeKind, Graph, GraphSubscriber, NodeView};
 use op3dsg_runtime::ipc::graph_to_scene_graph;
+use serde_json::{Value, json};
 
 use super::{node_name, poll_until, write_output};
 
+/// What `op3dsg dump` prints.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub(super) enum DumpFormat {
+    /// A table: a summary line, one line per node, one per edge.
+    Table,
+    /// The graph JSON form (op3dsg.graph/1).
+    Json,
+    /// The compact JSON form for LLM prompts (op3dsg.llm/1).
+    Llm,
+}
+
 /// `op3dsg dump`: waits up to `timeout` for the daemon and its first graph, then writes it to
 /// `out` (or standard output).
-pub(super) fn dump(prefix: &str, json: bool, timeout: Duration, out: Option<&Path>) -> Result<()> {
+pub(super) fn dump(prefix: &str, format: DumpFormat, timeout: Duration, out: Option<&Path>) -> Result<()> {
     let deadline = Instant::now() + timeout;
     let mut graphs = GraphSubscriber::open_wait(prefix, &node_name(), timeout).with_context(|| {
         format!("connecting to op3dsgd under prefix '{prefix}' (waited {:.1} s)", timeout.as_secs_f64())
@@ -27,13 +40,15 @@ pub(super) fn dump(prefix: &str, json: bool, timeout: Duration, out: Option<&Pat
             timeout.as_secs_f64()
         );
     };
-    let text = if json {
-        let json = graph_to_scene_graph(&graph).to_json("op3dsgd");
-        let mut text = serde_json::to_string_pretty(&json).context("serialising the graph JSON")?;
-        text.push('\n');
-        text
-    } else {
-        graph_table(&graph)
+    let text = match format {
+        DumpFormat::Json => {
+            let json = graph_to_scene_graph(&graph).to_json("op3dsgd");
+            let mut text = serde_json::to_string_pretty(&json).context("serialising the graph JSON")?;
+            text.push('\n');
+            text
+        }
+        DumpFormat::Llm => llm_form(&graph),
+        DumpFormat::Table => graph_table(&graph),
     };
     write_output(out, &text)
 }
@@ -95,4 +110,154 @@ fn graph_table(graph: &Graph) -> String {
         }
     }
     s
+}
+
+/// Metres to two decimals (centimetres): enough for a planner's reasoning, short in a prompt.
+fn metres(v: f32) -> Value {
+    json!((f64::from(v) * 100.0).round() / 100.0)
+}
+
+fn vec3(v: [f32; 3]) -> Value {
+    Value::Array(v.into_iter().map(metres).collect())
+}
+
+/// The node's outgoing edges of `kind` as `[phrase, target id]` pairs, in wire order; a part's
+/// "part of" edge to its parent is left out (the nesting says it).
+fn relations(node: &NodeView<'_>, kind: EdgeKind) -> Vec<Value> {
+    let parent = node.parent_id();
+    node.edges_from()
+        .filter(|e| e.kind() == kind)
+        .filter(|e| !(e.kind() == EdgeKind::Spatial && e.phrase() == "part of" && Some(e.target_id()) == parent))
+        .map(|e| json!([e.phrase(), e.target_id()]))
+        .collect()
+}
+
+/// One node of the LLM form; empty lists are left out to keep the prompt short.
+fn llm_node(node: &NodeView<'_>, with_parts: bool) -> Value {
+    let mut item = serde_json::Map::new();
+    item.insert("id".into(), json!(node.id()));
+    item.insert("label".into(), json!(node.label()));
+    item.insert("centre_m".into(), vec3(node.centre_m()));
+    item.insert("size_m".into(), vec3(node.size_m()));
+    let affordances: Vec<&str> = node.affordances().collect();
+    if !affordances.is_empty() {
+        item.insert("affordances".into(), json!(affordances));
+    }
+    let functional = relations(node, EdgeKind::Functional);
+    if !functional.is_empty() {
+        item.insert("functional".into(), Value::Array(functional));
+    }
+    let spatial = relations(node, EdgeKind::Spatial);
+    if !spatial.is_empty() {
+        item.insert("spatial".into(), Value::Array(spatial));
+    }
+    if with_parts {
+        let parts: Vec<Value> = node.parts().map(|p| llm_node(&p, false)).collect();
+        if !parts.is_empty() {
+            item.insert("parts".into(), Value::Array(parts));
+        }
+    }
+    Value::Object(item)
+}
+
+/// The compact form for LLM prompts (`op3dsg.llm/1`): objects in id order, each with its parts
+/// nested; parts without a parent object in this graph listed apart; relations as `[phrase,
+/// target id]` from the node they leave. One object per line, so a prompt stays readable and a
+/// diff between versions stays small. Documented in `docs/llm-graph.md`.
+fn llm_form(graph: &Graph) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "{}",
+        json!({
+            "format": "op3dsg.llm/1",
+            "instance_id": format!("{:#018x}", graph.instance_id()),
+            "version": graph.version(),
+            "objects": graph.objects().count(),
+            "parts": graph.parts().count(),
+        })
+    );
+    for object in graph.objects() {
+        let _ = writeln!(s, "{}", json!({ "object": llm_node(&object, true) }));
+    }
+    for part in graph.parts().filter(|p| p.parent().is_none()) {
+        let _ = writeln!(s, "{}", json!({ "unattached_part": llm_node(&part, false) }));
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use op3dsg_ipc_types::publish::GraphBuffer;
+    use op3dsg_ipc_types::{Edge, GraphHeader, NO_NODE, Node, SCHEMA_VERSION, affordance_bits, write_fixed_str};
+
+    use super::*;
+
+    fn node(id: u32, parent_id: u32, label: &str, affordances: &[&str]) -> Node {
+        let mut n = Node {
+            id,
+            parent_id,
+            kind: u8::from(parent_id != NO_NODE),
+            centre_m: [1.234, 0.5, 0.987],
+            box_min_m: [1.0, 0.25, 0.5],
+            box_max_m: [1.5, 0.75, 1.5],
+            affordance_bits: affordance_bits(affordances.iter().copied()).unwrap(),
+            ..Node::default()
+        };
+        write_fixed_str(&mut n.label, label);
+        n
+    }
+
+    fn edge(source_id: u32, target_id: u32, functional: bool, phrase: &str) -> Edge {
+        let relation_id = if functional {
+            op3dsg_ipc_types::FUNCTIONAL_RELATION_BASE
+                + op3dsg_ipc_types::FUNCTIONAL_RELATIONS.iter().position(|r| *r == phrase).unwrap() as u16
+        } else {
+            op3dsg_ipc_types::SPATIAL_RELATIONS.iter().position(|r| *r == phrase).unwrap() as u16
+        };
+        let mut e = Edge { source_id, target_id, kind: u8::from(functional), relation_id, ..Edge::default() };
+        write_fixed_str(&mut e.phrase, phrase);
+        e
+    }
+
+    #[test]
+    fn llm_form_nests_parts_under_their_object_and_lists_relations_by_id() {
+        let mut buffer = GraphBuffer::new();
+        buffer.header = GraphHeader {
+            schema_version: SCHEMA_VERSION,
+            graph_version: 7,
+            instance_id: 0xabc,
+            node_capacity: 16,
+            edge_capacity: 16,
+            ..GraphHeader::default()
+        };
+        let stove_phrase = op3dsg_ipc_types::FUNCTIONAL_RELATIONS[0];
+        buffer.nodes = vec![
+            node(1, NO_NODE, "stove", &[]),
+            node(2, 1, "stove knob", &["rotate"]),
+            node(3, NO_NODE, "counter", &[]),
+            node(9, 42, "handle", &["hook_pull"]),
+        ];
+        buffer.edges = vec![edge(2, 1, true, stove_phrase), edge(2, 1, false, "part of"), edge(1, 3, false, "next to")];
+        let graph = Graph::from_message(&buffer.encode()).unwrap();
+        let text = llm_form(&graph);
+        let lines: Vec<Value> = text.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+        assert_eq!(lines.len(), 4, "{text}");
+        assert_eq!(lines[0]["format"], "op3dsg.llm/1");
+        assert_eq!(lines[0]["version"], 7);
+        assert_eq!(lines[0]["objects"], 2);
+        assert_eq!(lines[0]["parts"], 2);
+        let stove = &lines[1]["object"];
+        assert_eq!(stove["id"], 1);
+        assert_eq!(stove["centre_m"], json!([1.23, 0.5, 0.99]));
+        assert_eq!(stove["size_m"], json!([0.5, 0.5, 1.0]));
+        assert_eq!(stove["spatial"], json!([["next to", 3]]));
+        assert!(stove.get("functional").is_none(), "empty lists are left out: {stove}");
+        assert_eq!(stove["parts"][0]["label"], "stove knob");
+        assert_eq!(stove["parts"][0]["affordances"], json!(["rotate"]));
+        assert_eq!(stove["parts"][0]["functional"], json!([[stove_phrase, 1]]));
+        assert!(stove["parts"][0].get("spatial").is_none(), "the nesting says part of: {stove}");
+        assert_eq!(lines[2]["object"]["label"], "counter");
+        assert_eq!(lines[3]["unattached_part"]["id"], 9);
+    }
 }

@@ -59,11 +59,16 @@ enum Command {
         #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(10..=60_000))]
         interval_ms: u64,
     },
-    /// Print the current graph once: a table (nodes, then edges) or, with --json, the graph JSON
-    /// form (schema op3dsg.graph/1, the same as `op3dsg gt` writes).
+    /// Print the current graph once: a table (nodes, then edges), the graph JSON form (schema
+    /// op3dsg.graph/1, the same as `op3dsg gt` writes), or the compact form for LLM prompts
+    /// (op3dsg.llm/1: objects with their parts, affordances and relations by id; see
+    /// docs/llm-graph.md).
     Dump {
-        /// Print the JSON form instead of a table.
-        #[arg(long)]
+        /// Output form.
+        #[arg(long, value_enum, default_value_t = dump::DumpFormat::Table)]
+        format: dump::DumpFormat,
+        /// Shorthand for --format json.
+        #[arg(long, conflicts_with = "format")]
         json: bool,
         /// Give up (exit code 1) if no graph arrives within this many seconds.
         #[arg(long, default_value_t = 5.0)]
@@ -313,7 +318,10 @@ fn run(cli: Cli) -> Result<()> {
     op3dsg_ipc_types::validate_prefix(&prefix).map_err(|e| anyhow::anyhow!("--prefix / {PREFIX_ENV}: {e}"))?;
     match cli.command {
         Command::Watch { interval_ms } => watch::watch(&prefix, Duration::from_millis(interval_ms)),
-        Command::Dump { json, timeout_s, out } => dump::dump(&prefix, json, seconds(timeout_s)?, out.as_deref()),
+        Command::Dump { format, json, timeout_s, out } => {
+            let format = if json { dump::DumpFormat::Json } else { format };
+            dump::dump(&prefix, format, seconds(timeout_s)?, out.as_deref())
+        }
         Command::Health { json, timeout_s } => health::health(&prefix, json, seconds(timeout_s)?),
         Command::Gt { room, seed, out } => gt::write_ground_truth(room, seed, out.as_deref()),
         Command::FusionEval { room, seed, frames, preset, profile, overrides, details, check, json } => {
