@@ -52,6 +52,79 @@ fn a_small_benchmark_scores_every_row_and_repeats() {
     // Deterministic, whichever thread ran which scene.
     let again = benchmark::run_scenes(&profile, scenes, 1, &progress).unwrap();
     assert_eq!(benchmark::score(&again, &mut encoder).unwrap(), report);
+    regression_guard(&report);
+}
+
+/// The committed figures of this CI-sized run (R@3, percent, per row and column).
+const BASELINE: &str = "tests/data/quality_baseline_ci.json";
+/// A column may drop this many points below the baseline before the guard fails.
+const ALLOWED_DROP: f64 = 2.0;
+
+fn r3_columns(figures: &op3dsg_sim::eval::recall::RecallFigures) -> [(&'static str, Option<f64>); 5] {
+    [
+        ("object", figures.object.percent(K3)),
+        ("part", figures.part.percent(K3)),
+        ("affordance", figures.affordance.percent(K3)),
+        ("functional triplet", figures.functional.percent(K3)),
+        ("spatial triplet", figures.spatial.percent(K3)),
+    ]
+}
+
+/// Compares every row and column with the committed baseline and fails when one drops by more
+/// than [`ALLOWED_DROP`] points. `OP3DSG_WRITE_BASELINE=1` writes the current figures instead
+/// (after a change that is meant to move them; commit the file with the reason).
+fn regression_guard(report: &benchmark::QualityReport) {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(BASELINE);
+    let now: serde_json::Map<String, serde_json::Value> = report
+        .rows
+        .iter()
+        .map(|(row, figures)| {
+            let columns: serde_json::Map<String, serde_json::Value> = r3_columns(figures)
+                .into_iter()
+                .map(|(column, value)| {
+                    (column.to_owned(), value.map_or(serde_json::Value::Null, |v| ((v * 10.0).round() / 10.0).into()))
+                })
+                .collect();
+            (row.clone(), serde_json::Value::Object(columns))
+        })
+        .collect();
+    if std::env::var_os("OP3DSG_WRITE_BASELINE").is_some_and(|v| v == "1") {
+        let file = serde_json::json!({
+            "what": "R@3 percent of the CI-sized quality run (daemon/sim/tests/bench_quality.rs); written with OP3DSG_WRITE_BASELINE=1",
+            "rows": now,
+        });
+        std::fs::write(&path, serde_json::to_string_pretty(&file).unwrap() + "\n")
+            .unwrap_or_else(|e| panic!("write {}: {e}", path.display()));
+        return;
+    }
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
+        panic!(
+            "{}: {e}; write it with OP3DSG_WRITE_BASELINE=1 cargo test -p op3dsg-sim --test bench_quality",
+            path.display()
+        )
+    });
+    let baseline: serde_json::Value =
+        serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: not JSON: {e}", path.display()));
+    let mut drops = Vec::new();
+    for (row, columns) in &now {
+        for (column, value) in columns.as_object().unwrap() {
+            let Some(was) = baseline["rows"][row][column].as_f64() else {
+                drops.push(format!("{row} / {column}: not in the baseline"));
+                continue;
+            };
+            let is = value.as_f64().unwrap_or(0.0);
+            if is + ALLOWED_DROP < was {
+                drops.push(format!("{row} / {column}: R@3 {is:.1} (baseline {was:.1})"));
+            }
+        }
+    }
+    assert!(
+        drops.is_empty(),
+        "quality dropped by more than {ALLOWED_DROP} points against {}:\n  {}\n{}",
+        path.display(),
+        drops.join("\n  "),
+        benchmark::text(report)
+    );
 }
 
 #[test]
