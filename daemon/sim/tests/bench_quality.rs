@@ -93,7 +93,7 @@ fn regression_guard(report: &benchmark::QualityReport) {
             "what": "R@3 percent of the CI-sized quality run (daemon/sim/tests/bench_quality.rs); written with OP3DSG_WRITE_BASELINE=1",
             "rows": now,
         });
-        std::fs::write(&path, serde_json::to_string_pretty(&file).unwrap() + "\n")
+        std::fs::write(&path, serde_json::to_string_pretty(&file).expect("baseline JSON") + "\n")
             .unwrap_or_else(|e| panic!("write {}: {e}", path.display()));
         return;
     }
@@ -107,7 +107,7 @@ fn regression_guard(report: &benchmark::QualityReport) {
         serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: not JSON: {e}", path.display()));
     let mut drops = Vec::new();
     for (row, columns) in &now {
-        for (column, value) in columns.as_object().unwrap() {
+        for (column, value) in columns.as_object().expect("columns of a row") {
             let Some(was) = baseline["rows"][row][column].as_f64() else {
                 drops.push(format!("{row} / {column}: not in the baseline"));
                 continue;
