@@ -47,7 +47,7 @@
 //!   sample from the one segment they mapped and the memory bound below stays fixed; pages a
 //!   small graph never writes are never touched.
 //! - **Event**: the graph changes irregularly (per keyframe fusion, not per frame). Instead of
-//!   polling the 3.9 MiB sample, a planner waits on a listener of `<prefix>/graph_updated`
+//!   polling the graph service, a planner waits on a listener of `<prefix>/graph_updated`
 //!   (or attaches it to a `WaitSet` with its other inputs) and reads the graph when woken; the
 //!   version is in the sample's header. The event carries no data (one id, 0): a listener
 //!   scans its whole id range on every wake-up, and a range of 2^16 ids (the version's low bits,
