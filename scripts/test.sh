@@ -33,5 +33,8 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 echo "== build (debug, all targets) =="
 cargo build --workspace --all-targets --locked
 
+echo "== systemd unit =="
+./scripts/check-systemd.sh target/debug/op3dsgd
+
 echo "== tests =="
 cargo test --workspace --locked --no-fail-fast

@@ -185,7 +185,8 @@ impl EdgeOrigin {
 #[derive(Debug, Clone, Copy, ZeroCopySend, PlacementDefault, bytemuck::Pod, bytemuck::Zeroable)]
 #[type_name("op3dsg::Node")]
 pub struct Node {
-    /// Node id, stable while one daemon instance runs ([`GraphHeader::instance_id`]).
+    /// Node id, stable while one daemon instance runs ([`GraphHeader::instance_id`]) and across
+    /// a restart that restored a map snapshot.
     pub id: u32,
     /// Id of the parent object of a part node, [`NO_NODE`] for objects and unattached parts.
     pub parent_id: u32,
@@ -432,11 +433,14 @@ impl Edge {
 /// A sample costs what the graph holds; nothing beyond the counts is sent or initialised.
 ///
 /// **Detecting a daemon restart**: `instance_id` is drawn anew each time `op3dsgd` starts (never
-/// 0) and stays the same for its whole run. `graph_version` only grows within one instance; a
-/// restarted daemon starts again at 1. A planner that remembers the last `(instance_id,
-/// graph_version)` it used must treat a different `instance_id` as a new map: forget the version
-/// (and any ids it cached, since node ids are only stable within one instance) and take the new
-/// graph, whatever its version.
+/// 0) and stays the same for its whole run; it is the epoch of `graph_version`. `graph_version`
+/// only grows within one instance. A restarted daemon that restored a map snapshot (see
+/// `op3dsg map info`) goes on from the snapshot's version and keeps the snapshot's node ids;
+/// without one it starts again at 1. Versions published after the last snapshot and before a
+/// crash are unknown to the next instance, so a version may repeat across a restart. A planner
+/// that remembers the last `(instance_id, graph_version)` it used must therefore treat a
+/// different `instance_id` as a new map: forget the version (and re-check any ids it cached) and
+/// take the new graph, whatever its version.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, PlacementDefault)]
 #[type_name("op3dsg::GraphHeader")]
@@ -446,7 +450,8 @@ pub struct GraphHeader {
     /// Number of nodes in the payload.
     pub node_count: u32,
     /// Graph version: increases by one with every published change of the graph while one daemon
-    /// instance runs; starts at 1 when the daemon starts.
+    /// instance runs; starts at 1 when the daemon starts with an empty map, at the snapshot's
+    /// version + 1 when it restored one.
     pub graph_version: u64,
     /// The publishing daemon's instance: a random non-zero value drawn at start, the same for
     /// every sample of one run. A different value than the last one seen means the daemon was

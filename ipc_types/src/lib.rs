@@ -26,7 +26,7 @@
 //!     // A graph of a restarted daemon (new instance id) counts as new whatever its version.
 //!     let Some(graph) = graphs.latest_if_newer(last_version)? else { continue };
 //!     if graph.restarted() {
-//!         println!("op3dsgd restarted (instance {:#x}): node ids start again", graph.instance_id());
+//!         println!("op3dsgd restarted (instance {:#x}): re-check cached node ids", graph.instance_id());
 //!     }
 //!     last_version = graph.version();
 //!     for handle in graph.find_by_label("cabinet handle") {

@@ -49,15 +49,41 @@ pub struct Daemon {
 impl Daemon {
     /// Starts `op3dsgd --prefix <prefix> <args>` with logs at warn.
     pub fn start(prefix: &str, args: &[&str]) -> Self {
+        Self::start_with_env(prefix, args, &[])
+    }
+
+    /// [`Self::start`] with extra environment variables (`NOTIFY_SOCKET`, test fault hooks).
+    pub fn start_with_env(prefix: &str, args: &[&str], env: &[(&str, &std::ffi::OsStr)]) -> Self {
         let child = Command::new(binary("op3dsgd"))
             .arg("--prefix")
             .arg(prefix)
             .args(args)
             .env("OP3DSG_LOG", std::env::var("OP3DSG_LOG").unwrap_or_else(|_| "warn".into()))
+            .envs(env.iter().map(|(k, v)| (*k, *v)))
             .stdin(Stdio::null())
             .spawn()
             .expect("spawn op3dsgd");
         Self { child, prefix: prefix.to_owned() }
+    }
+
+    /// Sends SIGTERM (the orderly shutdown ladder) through `kill(1)`.
+    pub fn sigterm(&self) {
+        let status = Command::new("kill").arg("-TERM").arg(self.child.id().to_string()).status().expect("run kill");
+        assert!(status.success(), "kill -TERM {} failed", self.child.id());
+    }
+
+    /// Waits up to `timeout` for the process to exit; its status, `None` when it is still running.
+    pub fn wait_exit(&mut self, timeout: Duration) -> Option<std::process::ExitStatus> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            if let Ok(Some(status)) = self.child.try_wait() {
+                return Some(status);
+            }
+            if Instant::now() >= deadline {
+                return None;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
     }
 
     /// A graph subscriber (`graph` and `graph_updated`) on this daemon's services, waiting up to

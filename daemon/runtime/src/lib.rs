@@ -17,6 +17,7 @@
 //! | prior graph | [`prior`] | neighbours through a grid, spatial relations from geometry and gravity |
 //! | reasoning | [`reasoner`], [`knowledge`] | the offline knowledge reasoner, the asynchronous LLM refiner, their tables |
 //! | publish | [`ipc`] | the iceoryx2 server: graph, update event, health, pose input; the publisher thread |
+//! | service | [`service`] | sd_notify readiness, status and watchdog from stage heartbeats; map snapshots and their restoration |
 //! | support | [`graph`], [`queue`], [`stats`] | the in-memory scene graph; bounded queues with drop counters; per-stage latency percentiles |
 //!
 //! ```no_run
@@ -45,4 +46,5 @@ pub mod pipeline;
 pub mod prior;
 pub mod queue;
 pub mod reasoner;
+pub mod service;
 pub mod stats;

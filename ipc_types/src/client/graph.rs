@@ -147,8 +147,8 @@ impl GraphSubscriber {
     /// Like [`Self::latest`], but `None` also when the newest graph has version
     /// `last_seen_version` and comes from the same daemon instance as the graph this call
     /// returned last (pass 0 before the first graph). Versions only grow while one daemon
-    /// instance runs; a restarted daemon starts again at 1 with a new
-    /// [`instance_id`](Graph::instance_id), and its graphs count as new whatever their version
+    /// instance runs; a restarted daemon starts again at 1 (or after its map snapshot's version)
+    /// with a new [`instance_id`](Graph::instance_id), and its graphs count as new whatever their version
     /// ([`Self::restarted`] is then `true`).
     pub fn latest_if_newer(&mut self, last_seen_version: u64) -> Result<Option<&Graph>, ClientError> {
         self.poll()?;

@@ -52,10 +52,7 @@ struct Args {
 
 fn main() -> ExitCode {
     let args = Args::parse();
-    let filter = tracing_subscriber::EnvFilter::try_new(&args.log).unwrap_or_else(|_| "info".into());
-    // Plain text when not on a terminal (journald, log files).
-    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
-    tracing_subscriber::fmt().with_env_filter(filter).with_ansi(ansi).with_writer(std::io::stderr).init();
+    init_logging(&args.log);
     iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
 
     let mut overrides = args.set.clone();
@@ -124,7 +121,20 @@ fn main() -> ExitCode {
         }
     };
     info!(prefix = %profile.ipc.prefix, "serving");
-    match pipeline.wait() {
+    // READY=1 now: every stage runs and the graph service exists. Then STATUS= and the watchdog
+    // (while the stages are alive), STOPPING=1 at the shutdown ladder (a no-op when not run by
+    // systemd).
+    let notifier = match op3dsg_runtime::service::ServiceNotifier::start(pipeline.stats().clone(), stop.clone()) {
+        Ok(notifier) => notifier,
+        Err(e) => {
+            error!(error = %e, "cannot start the sd_notify thread");
+            return ExitCode::FAILURE;
+        }
+    };
+    let result = pipeline.wait();
+    notifier.stopping();
+    drop(notifier);
+    match result {
         Ok(summary) => {
             info!(
                 frames = summary.frames,
@@ -149,6 +159,45 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// Logging: under systemd, when stderr is the journal (`$JOURNAL_STREAM` names stderr's device
+/// and inode), events go to the journal directly with their level as priority and every field
+/// as a journal field (`journalctl -u op3dsgd -o verbose` shows e.g. `F_FRAME_SEQ=`); otherwise
+/// text on stderr, with ANSI colour only on a terminal. `filter` is `--log` / `OP3DSG_LOG`.
+fn init_logging(filter: &str) {
+    use tracing_subscriber::layer::SubscriberExt;
+    use tracing_subscriber::util::SubscriberInitExt;
+    let (filter, bad_filter) = match tracing_subscriber::EnvFilter::try_new(filter) {
+        Ok(f) => (f, None),
+        Err(e) => (
+            tracing_subscriber::EnvFilter::new("info"),
+            Some(format!("--log / OP3DSG_LOG {filter:?}: {e}; using \"info\"")),
+        ),
+    };
+    let registry = tracing_subscriber::registry().with(filter);
+    let journal = stderr_is_journal().then(tracing_journald::layer);
+    match journal {
+        Some(Ok(layer)) => registry.with(layer.with_syslog_identifier("op3dsgd".to_owned())).init(),
+        other => {
+            let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
+            registry.with(tracing_subscriber::fmt::layer().with_ansi(ansi).with_writer(std::io::stderr)).init();
+            if let Some(Err(e)) = other {
+                tracing::warn!(error = %e, "stderr is the journal but its socket cannot be used; logging text to stderr");
+            }
+        }
+    }
+    if let Some(message) = bad_filter {
+        tracing::warn!("{message}");
+    }
+}
+
+/// Whether stderr is connected to the journal (systemd sets `JOURNAL_STREAM=<dev>:<inode>`).
+fn stderr_is_journal() -> bool {
+    use std::os::unix::fs::MetadataExt;
+    let Some(stream) = std::env::var_os("JOURNAL_STREAM") else { return false };
+    let Ok(meta) = std::fs::metadata("/proc/self/fd/2") else { return false };
+    stream.to_string_lossy() == format!("{}:{}", meta.dev(), meta.ino())
 }
 
 /// Loads ONNX Runtime and the text encoder and embeds one label, so that a profile asking for

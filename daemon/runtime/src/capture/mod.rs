@@ -11,6 +11,7 @@ use tracing::{error, info, warn};
 use crate::pipeline::PipelineStats;
 use crate::pipeline::items::CapturedFrame;
 use crate::queue::QueueSender;
+use crate::service::notify::WatchedStage;
 
 pub(crate) fn capture_loop(
     source: &mut dyn FrameSource,
@@ -38,6 +39,10 @@ pub(crate) fn capture_loop(
     };
     count_skipped(source);
     while !stop.load(Ordering::Relaxed) {
+        // Every way round this loop comes back within a pool wait (100 ms), an error backoff
+        // (at most 1 s), the pacing period or one `next_frame` (which waits for the camera
+        // with a timeout): the systemd watchdog takes a missing beat for a stalled capture.
+        stats.liveness.beat(WatchedStage::Capture);
         if max_frames > 0 && delivered >= max_frames {
             info!(frames = delivered, "run.max_frames reached");
             stats.source_finished.store(true, Ordering::Relaxed);
@@ -90,4 +95,5 @@ pub(crate) fn capture_loop(
         }
     }
     stats.source_connected.store(false, Ordering::Relaxed);
+    stats.liveness.ended(WatchedStage::Capture);
 }

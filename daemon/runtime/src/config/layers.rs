@@ -275,7 +275,9 @@ fn resolve_paths(merged: &mut toml::Table, origin_of: &dyn Fn(&str) -> String) {
         while let (Some(part), Some(table)) = (parts.next(), value.take()) {
             let entry = table.get_mut(part);
             if parts.peek().is_none() {
+                // "" keeps its meaning of "not set" (snapshot.dir: the systemd state directory).
                 if let Some(toml::Value::String(path)) = entry
+                    && !path.is_empty()
                     && Path::new(path.as_str()).is_relative()
                 {
                     let dir = Path::new(&origin).parent().unwrap_or(Path::new(""));

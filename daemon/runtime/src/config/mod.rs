@@ -20,7 +20,8 @@
 //! Loading and layering live in `layers.rs`; this file holds the types and their checks.
 //!
 //! File paths in a profile (`extends`, and the keys in [`PATH_KEYS`]: `source.replay.path`,
-//! `detector.yolox.model_path`, `reasoner.knowledge_dir`, `reasoner.llm.api_key_file`) are
+//! `detector.yolox.model_path`, `reasoner.knowledge_dir`, `reasoner.llm.api_key_file`,
+//! `snapshot.dir`) are
 //! relative to the folder of the file that sets them; a path given with `--set` is relative to
 //! the working directory. `--print-config` shows them resolved.
 
@@ -53,6 +54,7 @@ pub const PATH_KEYS: &[&str] = &[
     "detector.open_vocab.model_path",
     "reasoner.knowledge_dir",
     "reasoner.llm.api_key_file",
+    "snapshot.dir",
 ];
 
 /// The whole daemon configuration.
@@ -88,6 +90,9 @@ pub struct Profile {
     pub text_encoder: TextEncoderConfig,
     /// The prior graph and the reasoner run on every published graph.
     pub reasoner: ReasonerConfig,
+    /// Map snapshots (`crate::service::snapshot`).
+    #[serde(default)]
+    pub snapshot: crate::service::snapshot::SnapshotConfig,
     /// The sections of registered backends, by dotted path (`source.synthetic`,
     /// `detector.oracle`), as their backend checked and completed them at load time.
     #[serde(skip)]
@@ -367,6 +372,7 @@ impl Profile {
         self.ipc.validate("ipc").map_err(split_message)?;
         self.onnx.validate("onnx").map_err(split_message)?;
         self.text_encoder.validate("text_encoder").map_err(split_message)?;
+        self.snapshot.validate("snapshot").map_err(split_message)?;
         let r = &self.reasoner;
         check(r.neighbour_radius_m > 0.0 && r.neighbour_radius_m <= 10.0, "reasoner.neighbour_radius_m", || {
             format!("must be within (0, 10] metres, got {}", r.neighbour_radius_m)

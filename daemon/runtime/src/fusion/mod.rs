@@ -206,6 +206,18 @@ pub trait Fusion: Send {
 
     /// Heap bytes the map holds (capacity, not length), for health and memory benchmarks.
     fn memory_bytes(&self) -> usize;
+
+    /// The map's saved form for a snapshot (`crate::service::snapshot`); `None` when this
+    /// fusion cannot be saved.
+    fn export_state(&self) -> Option<multiview::MapState> {
+        None
+    }
+
+    /// Replaces the map with a saved one; the message says why it does not fit.
+    fn restore_state(&mut self, state: &multiview::MapState) -> Result<(), String> {
+        let _ = state;
+        Err("this fusion cannot restore a map snapshot".to_owned())
+    }
 }
 
 /// The fusion the profile asks for.

@@ -26,8 +26,9 @@
 //!    pool and closes the `frames` queue.
 //! 2. The keyframe gate drains `frames`, then closes `keyframes`.
 //! 3. Each worker finishes the keyframe it holds and exits; the last one closes `detections`.
-//! 4. Fusion applies every result it received, publishes the final graph into `graph` and exits
-//!    (stopping the LLM refiner, which abandons any request in flight).
+//! 4. Fusion applies every result it received, publishes the final graph into `graph`, hands the
+//!    final map snapshot to the snapshot writer (which writes it and exits) and exits (stopping
+//!    the LLM refiner, which abandons any request in flight).
 //! 5. The publisher sends that final graph and a last health record, then releases its iceoryx2
 //!    services. At the end of a finite source without `run.exit_at_end` it keeps serving instead
 //!    until a signal arrives.
@@ -84,6 +85,9 @@ pub enum StartError {
     /// A model or the ONNX Runtime could not be loaded (the message says what to run).
     #[error("detector: {0}")]
     Model(#[from] crate::onnx::OnnxError),
+    /// The snapshot directory could not be used (or another daemon holds it).
+    #[error("snapshot.dir: {0}")]
+    Snapshot(#[from] crate::service::snapshot::SnapshotError),
     /// A thread could not be started.
     #[error("thread {name}: {reason}")]
     Thread {
@@ -173,6 +177,31 @@ impl Pipeline {
             enricher.as_ref().and_then(GraphEnricher::refiner_stats).unwrap_or_default(),
         ));
 
+        // The map: restored from the last snapshot before anything runs, so the first graph
+        // published holds it (crate::service::snapshot).
+        let mut fusion = make_fusion(profile);
+        let mut resume = crate::fusion::thread::Resume::default();
+        let snapshots = match profile.snapshot.resolve_dir() {
+            None => {
+                info!("map snapshots off (snapshot.dir unset outside systemd, or snapshot.enabled = false)");
+                None
+            }
+            Some(dir) => {
+                let store = crate::service::snapshot::SnapshotStore::open(&dir)?;
+                if let Some(restored) = store.restore(fusion.as_mut()) {
+                    stats.snapshot.version.store(restored.graph_version, std::sync::atomic::Ordering::Relaxed);
+                    resume = crate::fusion::thread::Resume {
+                        graph_version: restored.graph_version,
+                        stamp_ns: restored.stamp_ns,
+                        restored: true,
+                    };
+                }
+                info!(dir = %store.dir().display(), period_s = profile.snapshot.period_s, "map snapshots on");
+                Some(crate::service::snapshot::channel(store, profile.snapshot.period_s))
+            }
+        };
+        let (snapshot_sink, snapshot_writer) = snapshots.unzip();
+
         let (finished_tx, finished_rx) = crossbeam_channel::unbounded::<&'static str>();
         let mut handles = Vec::new();
         let mut running = Vec::new();
@@ -218,13 +247,28 @@ impl Pipeline {
             Err(_) => return Err(StartError::Ipc("publisher thread ended during start-up".to_owned())),
         }
 
+        // Snapshot writer: off the hot path, ends after the final snapshot of the ladder.
+        if let Some(writer) = snapshot_writer {
+            let stats = stats.clone();
+            handles.push(spawn_stage("snapshot", &finished_tx, move || writer.run(&stats))?);
+            running.push("snapshot");
+        }
+
         // Fusion.
         {
             let stats = stats.clone();
-            let fusion = make_fusion(profile);
             let min_interval = Duration::from_millis(profile.run.min_publish_interval_ms);
             handles.push(spawn_stage("fusion", &finished_tx, move || {
-                crate::fusion::thread::fusion_loop(fusion, enricher, det_rx, graph_tx, &stats, min_interval);
+                crate::fusion::thread::fusion_loop(
+                    fusion,
+                    enricher,
+                    det_rx,
+                    graph_tx,
+                    &stats,
+                    min_interval,
+                    snapshot_sink,
+                    resume,
+                );
             })?);
             running.push("fusion");
         }

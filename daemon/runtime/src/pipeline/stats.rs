@@ -49,6 +49,10 @@ pub struct PipelineStats {
     pub queues: Vec<Arc<QueueStats>>,
     /// The LLM refiner (state `off` without `reasoner.kind = "llm"`).
     pub refiner: Arc<RefinerStats>,
+    /// Heartbeats of the stages the systemd watchdog watches (`crate::service::notify`).
+    pub liveness: crate::service::Liveness,
+    /// Map snapshots written (`crate::service::snapshot`).
+    pub snapshot: crate::service::snapshot::SnapshotStats,
 }
 
 impl PipelineStats {
@@ -78,6 +82,8 @@ impl PipelineStats {
             stages,
             queues,
             refiner,
+            liveness: crate::service::Liveness::default(),
+            snapshot: crate::service::snapshot::SnapshotStats::default(),
         }
     }
 

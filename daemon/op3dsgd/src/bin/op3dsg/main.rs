@@ -14,6 +14,7 @@
 //! | [`fusion_eval`] | `fusion-eval` |
 //! | [`eval`] | `eval` |
 //! | [`bench`] | `bench perf`, `bench quality`, `bench ipc-peer` |
+//! | [`map`] | `map info`, `map save`, `map reset` |
 
 mod bench;
 mod dump;
@@ -21,6 +22,7 @@ mod eval;
 mod fusion_eval;
 mod gt;
 mod health;
+mod map;
 mod watch;
 
 use std::io::Write;
@@ -164,6 +166,36 @@ enum Command {
         #[command(subcommand)]
         command: BenchCommand,
     },
+    /// The daemon's map snapshots (the map it restores after a restart): info, save now, reset.
+    Map {
+        /// Snapshot directory (the daemon's snapshot.dir; under systemd
+        /// /var/lib/op3dsg/snapshots).
+        #[arg(long, global = true, env = "OP3DSG_SNAPSHOT_DIR", default_value = map::DEFAULT_DIR)]
+        dir: PathBuf,
+        #[command(subcommand)]
+        command: MapCommand,
+    },
+}
+
+#[derive(Debug, Subcommand)]
+enum MapCommand {
+    /// Check the snapshot (header, checksum, decoding) and print what it holds: graph version,
+    /// age, objects, parts, points, whether a daemon runs with it, files moved aside. No daemon
+    /// needed.
+    Info {
+        /// Print JSON (schema op3dsg.map_info/1).
+        #[arg(long)]
+        json: bool,
+    },
+    /// Ask the running daemon to write a snapshot now, wait for it, and print its info.
+    Save {
+        /// Give up (exit code 1) after this many seconds.
+        #[arg(long, default_value_t = 10.0)]
+        timeout_s: f64,
+    },
+    /// Move the snapshot aside (never deleted: map.snapshot.reset-<unix ms>) so the next start
+    /// begins with an empty map. Refused while a daemon runs with the directory.
+    Reset,
 }
 
 #[derive(Debug, Subcommand)]
@@ -335,6 +367,9 @@ fn run(cli: Cli) -> Result<()> {
             fusion_eval::fusion_eval(profile.as_deref(), &sets, details, check, json.as_deref())
         }
         Command::Bench { command: BenchCommand::Perf(args) } => bench::perf(*args),
+        Command::Map { dir, command: MapCommand::Info { json } } => map::info(&dir, json),
+        Command::Map { dir, command: MapCommand::Save { timeout_s } } => map::save(&dir, seconds(timeout_s)?),
+        Command::Map { dir, command: MapCommand::Reset } => map::reset(&dir),
         Command::Bench { command: BenchCommand::IpcPeer { pairs } } => bench::ipc_peer(&prefix, pairs),
         Command::Eval { pred, gt, vocabulary, profile, json } => {
             eval::evaluate(&pred, &gt, &vocabulary, profile.as_deref(), json.as_deref())

@@ -63,7 +63,8 @@
 //! `cargo bench -p op3dsg-sim --bench fusion` measures a step and counts allocations.
 //!
 //! Files: `cloud.rs` (node point clouds), `node.rs` (one node), `index.rs` (the node index),
-//! `back_projection.rs` (step 1), `maintenance.rs`, `attach.rs` (part → object in the graph).
+//! `back_projection.rs` (step 1), `maintenance.rs`, `attach.rs` (part → object in the graph),
+//! `state.rs` (the map's saved form for snapshots).
 
 use glam::{IVec3, Vec3};
 use op3dsg_drivers::frame::Frame;
@@ -82,6 +83,7 @@ mod cloud;
 mod index;
 mod maintenance;
 mod node;
+mod state;
 #[cfg(test)]
 mod tests;
 
@@ -90,6 +92,7 @@ use back_projection::inside_eroded;
 use cloud::{KindGeometry, NONE};
 use index::NodeIndex;
 use node::Node;
+pub use state::{MapGeometry, MapState, NodeState};
 
 /// One detection of the current keyframe after back-projection.
 #[derive(Debug, Clone, Copy)]
@@ -480,6 +483,14 @@ impl Fusion for MultiViewFusion {
 
     fn node_count(&self) -> usize {
         self.alive
+    }
+
+    fn export_state(&self) -> Option<MapState> {
+        Some(self.export())
+    }
+
+    fn restore_state(&mut self, state: &MapState) -> Result<(), String> {
+        self.restore(state)
     }
 
     fn memory_bytes(&self) -> usize {

@@ -296,3 +296,63 @@ fn eroded_masks_lose_their_border() {
     assert!(inside_eroded(&m, 0, 0, 0));
     assert!(!inside_eroded(&m, 2, 2, 3));
 }
+
+/// Saving and restoring the map changes nothing: the graph is the same, and fusing on from
+/// the restored map gives what fusing on from the original gives (same ids, same merges).
+#[test]
+fn a_restored_map_fuses_on_as_if_it_never_stopped() {
+    let config = FusionConfig { maintenance_every_keyframes: 3, ..dense() };
+    let mut original = MultiViewFusion::new(config.clone());
+    let mut frame = wall_frame(2000);
+    paint(&mut frame, 40, 30, 6, [200, 30, 30]);
+    let pose = Isometry::IDENTITY;
+    let views = [
+        vec![square("cabinet", NodeKind::Object, 10, 10, 12), square("cabinet handle", NodeKind::Part, 40, 30, 6)],
+        vec![square("cabinet", NodeKind::Object, 11, 10, 12), square("cabinet handle", NodeKind::Part, 40, 30, 6)],
+        vec![square("stove", NodeKind::Object, 30, 5, 8)],
+    ];
+    for detections in &views {
+        original.integrate(&frame, &pose, detections);
+    }
+    let state = original.export_state().expect("multiview fusion saves");
+    // Through the snapshot's encoding, as a restart would read it.
+    let bytes = postcard::to_stdvec(&state).expect("encode");
+    let decoded: MapState = postcard::from_bytes(&bytes).expect("decode");
+    assert_eq!(decoded, state);
+
+    let mut restored = MultiViewFusion::new(config.clone());
+    restored.restore_state(&decoded).expect("restore");
+    let (mut a, mut b) = (SceneGraph::default(), SceneGraph::default());
+    original.build_graph(&mut a);
+    restored.build_graph(&mut b);
+    assert!(!a.nodes.is_empty());
+    assert_eq!(a.nodes, b.nodes);
+    assert_eq!(restored.node_count(), original.node_count());
+    assert_eq!(restored.export_state(), Some(state));
+
+    // Go on fusing both: the same reports, the same graph, new ids continue from next_id.
+    let more = [
+        vec![square("cabinet", NodeKind::Object, 10, 11, 12), square("sink", NodeKind::Object, 45, 5, 8)],
+        vec![square("stove", NodeKind::Object, 30, 5, 8)],
+    ];
+    for detections in &more {
+        assert_eq!(original.integrate(&frame, &pose, detections), restored.integrate(&frame, &pose, detections));
+    }
+    original.build_graph(&mut a);
+    restored.build_graph(&mut b);
+    assert_eq!(a.nodes, b.nodes);
+}
+
+#[test]
+fn a_map_saved_under_other_voxels_is_refused() {
+    let mut fusion = MultiViewFusion::new(dense());
+    fusion.integrate(&wall_frame(2000), &Isometry::IDENTITY, &[square("cabinet", NodeKind::Object, 10, 10, 12)]);
+    let state = fusion.export_state().expect("saves");
+    let mut other = MultiViewFusion::new(FusionConfig { object_voxel_m: 0.02, object_nnr_radius_m: 0.02, ..dense() });
+    let err = other.restore_state(&state).unwrap_err();
+    assert!(err.contains("fusion.object_voxel_m = 0.01"), "{err}");
+    let mut broken = state.clone();
+    broken.nodes[0].votes = vec![(99, 1)];
+    let err = MultiViewFusion::new(dense()).restore_state(&broken).unwrap_err();
+    assert!(err.starts_with("node 1:"), "{err}");
+}

@@ -39,10 +39,22 @@ impl std::fmt::Display for ApiKey {
     }
 }
 
-/// Where the key comes from: `api_key_file` (first line), else the variable `api_key_env`;
-/// `Ok(None)` when neither is set (a local server without authentication). Errors name the
-/// field, never the key.
+/// Where the key comes from, first match wins: `api_key_file` (first line); the systemd
+/// credential `api_key_credential` in `$CREDENTIALS_DIRECTORY` (first line; a missing or empty
+/// file counts as none, so the unit's empty placeholder means "no key"); the variable
+/// `api_key_env`. `Ok(None)` when none is set (a local server without authentication). Errors
+/// name the field, never the key.
 pub fn load_api_key(config: &LlmConfig) -> Result<Option<ApiKey>, (&'static str, String)> {
+    let credentials = std::env::var_os("CREDENTIALS_DIRECTORY").map(std::path::PathBuf::from);
+    load_api_key_from(config, credentials.as_deref(), |name| std::env::var(name).ok())
+}
+
+/// [`load_api_key`] with the credentials directory and the environment given.
+pub fn load_api_key_from(
+    config: &LlmConfig,
+    credentials_dir: Option<&std::path::Path>,
+    env: impl Fn(&str) -> Option<String>,
+) -> Result<Option<ApiKey>, (&'static str, String)> {
     if let Some(path) = &config.api_key_file {
         let text = std::fs::read_to_string(path)
             .map_err(|e| ("reasoner.llm.api_key_file", format!("cannot read {}: {e}", path.display())))?;
@@ -52,10 +64,27 @@ pub fn load_api_key(config: &LlmConfig) -> Result<Option<ApiKey>, (&'static str,
         }
         return Ok(key);
     }
+    if let Some(dir) = credentials_dir
+        && !config.api_key_credential.is_empty()
+    {
+        let path = dir.join(&config.api_key_credential);
+        match std::fs::read_to_string(&path) {
+            Ok(text) => {
+                if let Some(key) = ApiKey::new(text.lines().next().unwrap_or("")) {
+                    tracing::info!(credential = %path.display(), "LLM API key from the systemd credential");
+                    return Ok(Some(key));
+                }
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => {
+                return Err(("reasoner.llm.api_key_credential", format!("cannot read {}: {e}", path.display())));
+            }
+        }
+    }
     if config.api_key_env.is_empty() {
         return Ok(None);
     }
-    Ok(std::env::var(&config.api_key_env).ok().as_deref().and_then(ApiKey::new))
+    Ok(env(&config.api_key_env).as_deref().and_then(ApiKey::new))
 }
 
 /// Why a call failed.
@@ -228,5 +257,41 @@ mod tests {
         assert_eq!(load_api_key(&missing).unwrap_err().0, "reasoner.llm.api_key_file");
         let none = LlmConfig { api_key_env: String::new(), ..LlmConfig::default() };
         assert!(load_api_key(&none).unwrap().is_none());
+    }
+
+    #[test]
+    fn the_systemd_credential_comes_between_the_file_and_the_variable() {
+        let dir = tempfile::tempdir().unwrap();
+        let env = |name: &str| (name == "OP3DSG_LLM_API_KEY").then(|| "sk-from-env".to_owned());
+        let config = LlmConfig::default();
+        let key = |dir: Option<&std::path::Path>, config: &LlmConfig| {
+            load_api_key_from(config, dir, env).unwrap().map(|k| k.0)
+        };
+        // No credential file yet: the variable.
+        assert_eq!(key(Some(dir.path()), &config).as_deref(), Some("sk-from-env"));
+        // The unit's empty placeholder counts as none.
+        std::fs::write(dir.path().join("llm-api-key"), "").unwrap();
+        assert_eq!(key(Some(dir.path()), &config).as_deref(), Some("sk-from-env"));
+        std::fs::write(dir.path().join("llm-api-key"), "sk-from-credential\n").unwrap();
+        assert_eq!(key(Some(dir.path()), &config).as_deref(), Some("sk-from-credential"));
+        // Not under systemd: no credentials directory, the variable.
+        assert_eq!(key(None, &config).as_deref(), Some("sk-from-env"));
+        // api_key_file wins over the credential.
+        let file = dir.path().join("llm.key");
+        std::fs::write(&file, "sk-from-file\n").unwrap();
+        let with_file = LlmConfig { api_key_file: Some(file), ..LlmConfig::default() };
+        assert_eq!(key(Some(dir.path()), &with_file).as_deref(), Some("sk-from-file"));
+        // An empty name never looks.
+        let off = LlmConfig { api_key_credential: String::new(), ..LlmConfig::default() };
+        assert_eq!(key(Some(dir.path()), &off).as_deref(), Some("sk-from-env"));
+        // A credential that cannot be read names the field.
+        std::fs::remove_file(dir.path().join("llm-api-key")).unwrap();
+        std::fs::create_dir(dir.path().join("llm-api-key")).unwrap();
+        assert_eq!(load_api_key_from(&config, Some(dir.path()), env).unwrap_err().0, "reasoner.llm.api_key_credential");
+        assert!(
+            LlmConfig { api_key_credential: "sk abc/def".to_owned(), ..LlmConfig::default() }
+                .validate("reasoner.llm", false)
+                .is_err()
+        );
     }
 }

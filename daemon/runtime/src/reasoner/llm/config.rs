@@ -32,6 +32,12 @@ pub struct LlmConfig {
     /// profile file that sets it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub api_key_file: Option<PathBuf>,
+    /// Name of a systemd credential holding the API key (`LoadCredential=` in
+    /// `systemd/op3dsgd.service`): read from `$CREDENTIALS_DIRECTORY/<name>` (first line) when
+    /// that variable is set and the file holds a key; between `api_key_file` and `api_key_env`.
+    /// Empty: never look.
+    #[serde(default = "default_api_key_credential")]
+    pub api_key_credential: String,
     /// `json_schema` or `json_object`.
     pub response_format: ResponseFormat,
     /// Sampling temperature.
@@ -69,6 +75,13 @@ pub struct LlmConfig {
     pub max_prompt_items: u32,
 }
 
+/// The credential name `systemd/op3dsgd.service` loads the key under.
+pub const DEFAULT_API_KEY_CREDENTIAL: &str = "llm-api-key";
+
+fn default_api_key_credential() -> String {
+    DEFAULT_API_KEY_CREDENTIAL.to_owned()
+}
+
 impl Default for LlmConfig {
     fn default() -> Self {
         Self {
@@ -76,6 +89,7 @@ impl Default for LlmConfig {
             model: String::new(),
             api_key_env: "OP3DSG_LLM_API_KEY".to_owned(),
             api_key_file: None,
+            api_key_credential: default_api_key_credential(),
             response_format: ResponseFormat::JsonSchema,
             temperature: 0.0,
             max_tokens: 4096,
@@ -119,6 +133,11 @@ impl LlmConfig {
         if !self.api_key_env.is_empty() && !self.api_key_env.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
             return Err(format!(
                 "{path}.api_key_env: must be an environment variable name (letters, digits, _), not the key itself"
+            ));
+        }
+        if !self.api_key_credential.chars().all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c)) {
+            return Err(format!(
+                "{path}.api_key_credential: must be a credential name (letters, digits, '-', '_', '.'), not the key itself"
             ));
         }
         if self.api_key_file.as_ref().is_some_and(|p| p.as_os_str().is_empty()) {
