@@ -38,3 +38,9 @@ echo "== systemd unit =="
 
 echo "== tests =="
 cargo test --workspace --locked --no-fail-fast
+
+# The Python client (ipc_types/python) against the live debug daemon built above: its ctypes
+# mirror against the Rust layout, and real op3dsgd processes (a couple of minutes).
+echo "== python tests =="
+OP3DSGD="$PWD/target/debug/op3dsgd" OP3DSG_WIRE_LAYOUT="$PWD/target/debug/examples/wire_layout" \
+  "${VENV_DIR:-.venv}/bin/python" -m pytest ipc_types/python/tests -q

@@ -40,7 +40,10 @@
 //! Examples: `cargo run -p op3dsg-ipc-types --example planner -- --prefix op3dsg --versions 3`
 //! prints each new graph version with every part and its parent object;
 //! `cargo run -p op3dsg-ipc-types --example pose_publisher -- --seconds 10` sends a base driving a
-//! circle at 10 Hz.
+//! circle at 10 Hz. `--example wire_layout` prints every wire type's size and field offsets as
+//! JSON (the Python package's layout test compares its ctypes mirror with it); `--example
+//! graph_bench` is the Rust side of `ipc_types/python/bench_latest.py`. The Python client,
+//! `ipc_types/python/` (package `op3dsg`), reads the graph as numpy views of the sample.
 //!
 //! Conventions used by every type:
 //! - Units are part of field names: `_m` metres, `_ns` nanoseconds, `_us` microseconds, `_hz`.

@@ -1,0 +1,90 @@
+"""op3dsg: the Python client of ``op3dsgd``, the live 3D scene graph daemon.
+
+Two lines read the graph as numpy views of the daemon's shared memory (no copy)::
+
+    import op3dsg
+    graph = op3dsg.GraphClient("op3dsg", timeout=30).latest()   # None until the first graph
+
+- :class:`GraphClient` — ``latest()``, ``latest_if_newer(version)``, ``wait_for_update(timeout)``,
+  ``restarted``; returns :class:`GraphView` (``nodes`` / ``edges`` structured arrays viewing the
+  sample, ``copy()`` to an owned :class:`Graph`, labels decoded on demand).
+- :class:`PosePublisher` — sends poses on ``<prefix>/pose`` (creates the service if nobody has).
+- :func:`health` / :class:`HealthClient` — the daemon's health record, without a graph subscriber.
+- :mod:`op3dsg.wire` — the ctypes mirror of the Rust wire types, numpy dtypes, constants.
+
+Same iceoryx2 as the daemon: PyPI ``iceoryx2==0.10.0``.
+"""
+
+from .errors import (
+    Iceoryx2Error,
+    InvalidGraphError,
+    InvalidPoseError,
+    InvalidPrefixError,
+    NotServingError,
+    Op3dsgError,
+    SampleReleasedError,
+    SchemaVersionError,
+    SubscriberSlotsFullError,
+)
+from .graph import Graph, GraphClient, GraphView, wait_for_graph
+from .health import HealthClient, health
+from .pose import PosePublisher, PoseService, check_pose, make_pose, open_or_create_pose_service
+from .wire import (
+    AFFORDANCES,
+    DEFAULT_PREFIX,
+    EDGE_DTYPE,
+    FUNCTIONAL_RELATIONS,
+    NO_NODE,
+    NODE_DTYPE,
+    POSE_WORLD_FROM_BASE,
+    POSE_WORLD_FROM_CAMERA,
+    SCHEMA_VERSION,
+    SPATIAL_RELATIONS,
+    GraphHeader,
+    Health,
+    PoseStamped,
+    affordance_names,
+    fixed_str,
+    relation_phrase,
+)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "AFFORDANCES",
+    "DEFAULT_PREFIX",
+    "EDGE_DTYPE",
+    "FUNCTIONAL_RELATIONS",
+    "Graph",
+    "GraphClient",
+    "GraphHeader",
+    "GraphView",
+    "Health",
+    "HealthClient",
+    "Iceoryx2Error",
+    "InvalidGraphError",
+    "InvalidPoseError",
+    "InvalidPrefixError",
+    "NODE_DTYPE",
+    "NO_NODE",
+    "NotServingError",
+    "Op3dsgError",
+    "POSE_WORLD_FROM_BASE",
+    "POSE_WORLD_FROM_CAMERA",
+    "PosePublisher",
+    "PoseService",
+    "PoseStamped",
+    "SCHEMA_VERSION",
+    "SPATIAL_RELATIONS",
+    "SampleReleasedError",
+    "SchemaVersionError",
+    "SubscriberSlotsFullError",
+    "affordance_names",
+    "check_pose",
+    "fixed_str",
+    "health",
+    "make_pose",
+    "open_or_create_pose_service",
+    "relation_phrase",
+    "wait_for_graph",
+]

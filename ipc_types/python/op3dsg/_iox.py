@@ -1,0 +1,115 @@
+"""iceoryx2 plumbing shared by the clients: prefix rules, service names, node creation, retries
+while the daemon is not up, and iceoryx2 errors turned into op3dsg errors."""
+
+from __future__ import annotations
+
+import os
+import re
+import time
+from typing import Callable, TypeVar
+
+import iceoryx2 as iox2
+
+from .errors import InvalidPrefixError, NotServingError, Op3dsgError, Iceoryx2Error, SubscriberSlotsFullError
+from .wire import MAX_PREFIX_LEN
+
+#: How often a client started before the daemon retries opening its services (seconds).
+OPEN_RETRY_INTERVAL_S = 0.1
+
+_PREFIX_CHARS = re.compile(r"[A-Za-z0-9_\-./]")
+
+T = TypeVar("T")
+
+# iceoryx2 warns at start when it finds no config file and uses its defaults (fine here); the
+# environment (IOX2_LOG_LEVEL) may still ask for more.
+iox2.set_log_level_from_env_or(iox2.LogLevel.Error)
+
+
+def validate_prefix(prefix: str, service: str) -> None:
+    """The Rust ``validate_prefix``: not empty, at most 128 bytes, ``A-Z a-z 0-9 _ - . /`` with
+    inner slashes only. Raises :class:`InvalidPrefixError` naming ``service``."""
+
+    def fail(reason: str):
+        raise InvalidPrefixError(service, "open", f"invalid prefix {prefix!r}: {reason}")
+
+    if not isinstance(prefix, str) or not prefix:
+        fail("must not be empty")
+    if len(prefix.encode()) > MAX_PREFIX_LEN:
+        fail(f"must be at most {MAX_PREFIX_LEN} bytes, found {len(prefix.encode())}")
+    for ch in prefix:
+        if not _PREFIX_CHARS.fullmatch(ch):
+            fail(f"invalid character {ch!r} (allowed: A-Z a-z 0-9 _ - . /)")
+    if prefix.startswith("/") or prefix.endswith("/") or "//" in prefix:
+        fail("must not start or end with '/' nor contain \"//\"")
+
+
+def service_name(prefix: str, suffix: str) -> str:
+    return f"{prefix}/{suffix}"
+
+
+def reason(error: BaseException) -> str:
+    """iceoryx2's reason of an exception (its variant name, e.g. ``DoesNotExist``)."""
+    return str(error.args[0]) if error.args else type(error).__name__
+
+
+def create_node(prefix: str, service: str, node_name: str):
+    """The client's iceoryx2 node (signal handling off: Ctrl-C stays Python's), after checking the
+    prefix; removes the shared-memory leftovers of dead processes, as the Rust client does."""
+    validate_prefix(prefix, service)
+    try:
+        name = iox2.NodeName.new(node_name)
+        node = (
+            iox2.NodeBuilder.new()
+            .name(name)
+            .signal_handling_mode(iox2.SignalHandlingMode.Disabled)
+            .create(iox2.ServiceType.Ipc)
+        )
+    except Exception as e:  # iceoryx2 raises its own exception classes
+        raise Iceoryx2Error(service, "create node", f"{type(e).__name__}: {reason(e)}") from e
+    try:
+        node.try_cleanup_dead_nodes()
+    except Exception:
+        # Leftovers are the daemon's to report; a client loses nothing but a faster start.
+        pass
+    return node
+
+
+def default_node_name(role: str) -> str:
+    return f"op3dsg-py-{role}-{os.getpid()}"
+
+
+def open_error(service: str, error: BaseException, operation: str = "open") -> Op3dsgError:
+    """An op3dsg error for a failed iceoryx2 open or port creation."""
+    why = reason(error)
+    if why == "DoesNotExist":
+        return NotServingError(service, operation)
+    if why == "IncompatibleTypes":
+        return Iceoryx2Error(
+            service,
+            operation,
+            "IncompatibleTypes: the service carries another payload type or layout than this package "
+            "(wire contract schema 4); update the op3dsg Python package or the daemon",
+        )
+    if why == "ExceedsMaxSupportedSubscribers":
+        return SubscriberSlotsFullError(
+            service, operation, f"{why}: every subscriber slot of the service is taken (the daemon's ipc.max_subscribers)"
+        )
+    return Iceoryx2Error(service, operation, f"{type(error).__name__}: {why}")
+
+
+def retry_while_not_serving(timeout_s: float, open_fn: Callable[[], T]) -> T:
+    """Calls ``open_fn`` until it succeeds, fails with another error than :class:`NotServingError`,
+    or ``timeout_s`` has passed (then the last :class:`NotServingError` is raised)."""
+    deadline = time.monotonic() + max(0.0, timeout_s)
+    while True:
+        try:
+            return open_fn()
+        except NotServingError:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise
+            time.sleep(min(OPEN_RETRY_INTERVAL_S, left))
+
+
+def duration(seconds: float):
+    return iox2.Duration.from_secs_f64(max(0.0, float(seconds)))

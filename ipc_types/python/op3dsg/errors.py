@@ -1,0 +1,68 @@
+"""Exceptions of the op3dsg client. Every message names the service (``<prefix>/<service>``) and
+what the client was doing, as the Rust ``ClientError`` does (``op3dsg/graph: open: ...``)."""
+
+from __future__ import annotations
+
+
+class Op3dsgError(Exception):
+    """Base of every op3dsg client error.
+
+    ``service`` is the full service name, ``operation`` what the client was doing (``open``,
+    ``receive``, ``publish``, ...), ``cause`` the reason (iceoryx2's own, or a contract check)."""
+
+    def __init__(self, service: str, operation: str, cause: str):
+        super().__init__(f"{service}: {operation}: {cause}")
+        self.service = service
+        self.operation = operation
+        self.cause = cause
+
+    @property
+    def prefix(self) -> str:
+        return self.service.rsplit("/", 1)[0]
+
+
+class NotServingError(Op3dsgError):
+    """No op3dsgd serves the prefix (the service does not exist); retrying later may succeed."""
+
+    def __init__(self, service: str, operation: str = "open"):
+        prefix = service.rsplit("/", 1)[0]
+        super().__init__(service, operation, f"no op3dsgd is serving under prefix '{prefix}' (service {service} not found)")
+
+
+class InvalidPrefixError(Op3dsgError, ValueError):
+    """The prefix cannot form iceoryx2 service names."""
+
+
+class SchemaVersionError(Op3dsgError):
+    """The daemon writes another version of the wire contract than this package reads."""
+
+    def __init__(self, service: str, found: int, expected: int):
+        super().__init__(
+            service,
+            "receive",
+            f"invalid sample: schema_version: found {found}, this package reads {expected} "
+            "(update the op3dsg Python package or the daemon so both speak one schema)",
+        )
+        self.found = found
+        self.expected = expected
+
+
+class InvalidGraphError(Op3dsgError):
+    """A graph sample breaks the wire contract (a count, the payload size, a kind or origin)."""
+
+
+class SubscriberSlotsFullError(Op3dsgError):
+    """Every subscriber slot of a daemon service is taken (the daemon's ``ipc.max_subscribers``)."""
+
+
+class SampleReleasedError(Op3dsgError):
+    """A graph view was used after its shared-memory sample went back to the daemon (a newer
+    :meth:`GraphClient.latest`, or :meth:`GraphView.release`). Keep :meth:`GraphView.copy` instead."""
+
+
+class InvalidPoseError(Op3dsgError, ValueError):
+    """A pose that the daemon would drop (unknown kind, non-finite, non-unit quaternion, frame id too long)."""
+
+
+class Iceoryx2Error(Op3dsgError):
+    """iceoryx2 refused an operation; ``cause`` holds its reason (``ExceedsMaxSupportedPublishers``, ...)."""

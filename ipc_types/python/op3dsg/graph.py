@@ -1,0 +1,505 @@
+"""Reading the scene graph: :class:`GraphClient` (``<prefix>/graph`` and ``<prefix>/graph_updated``),
+:class:`GraphView` (numpy views of one shared-memory sample, zero copy) and :class:`Graph` (an
+owned copy with the same interface).
+
+The one-borrowed-sample rule
+----------------------------
+The daemon creates ``<prefix>/graph`` with ``subscriber_max_borrowed_samples = 1``: a subscriber
+holds at most one sample at a time. A :class:`GraphView` *is* that borrowed sample; its
+``nodes`` and ``edges`` arrays point into the daemon's shared memory. So:
+
+- :meth:`GraphClient.latest` releases the view it returned before (``sample.delete()``) when a
+  newer sample is waiting, then borrows the newest. The old view is then invalid: its methods
+  raise :class:`~op3dsg.errors.SampleReleasedError`, and numpy arrays taken from it earlier
+  must not be used any more (their memory may already hold a newer graph).
+- Keep what you need beyond the next ``latest()`` with :meth:`GraphView.copy` (an owned
+  :class:`Graph`, about 0.1 ms for 2,000 nodes) or by copying single arrays (``np.copy``).
+- :meth:`GraphView.release` (or :meth:`GraphClient.release`) gives the sample back early, so a
+  planner idle for a long time does not hold daemon memory.
+
+The arrays are read-only (``writeable = False``); the shared memory belongs to the daemon.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import time
+from typing import List, Optional
+
+import iceoryx2 as iox2
+import numpy as np
+
+from . import _iox
+from .errors import InvalidGraphError, Op3dsgError, SampleReleasedError, SchemaVersionError
+from .wire import (
+    DEFAULT_PREFIX,
+    EDGE_BYTES,
+    EDGE_DTYPE,
+    EDGE_KINDS,
+    EDGE_ORIGINS,
+    HISTORY_SIZE,
+    NO_NODE,
+    NODE_BYTES,
+    NODE_DTYPE,
+    NODE_KIND_PART,
+    NODE_KINDS,
+    SCHEMA_VERSION,
+    GraphHeader,
+    affordance_names,
+    fixed_str,
+    relation_phrase,
+)
+
+
+def _f32(value) -> float:
+    """An f32 as the float of its shortest decimal form (what the graph JSON writes), so
+    ``0.7178173`` and not ``0.7178173065185547``."""
+    return float(str(np.float32(value)))
+
+
+class _GraphData:
+    """What a borrowed view and an owned copy share: the header, the node and edge arrays, and
+    lookups on them. Subclasses provide ``_header``, ``_nodes``, ``_edges`` and ``restarted``."""
+
+    _header: GraphHeader
+    _nodes: np.ndarray
+    _edges: np.ndarray
+    restarted: bool
+
+    def _check(self) -> None:
+        """Raises when the data is gone (only a released view)."""
+
+    # -- header -----------------------------------------------------------------------------
+    @property
+    def header(self) -> GraphHeader:
+        """A copy of the sample's :class:`~op3dsg.wire.GraphHeader` (every field)."""
+        self._check()
+        copy = GraphHeader()
+        ctypes.memmove(ctypes.addressof(copy), ctypes.addressof(self._header), ctypes.sizeof(GraphHeader))
+        return copy
+
+    @property
+    def version(self) -> int:
+        """Graph version: grows by one per published change while one daemon instance runs;
+        compare versions only between graphs of the same :attr:`instance_id`."""
+        self._check()
+        return self._header.graph_version
+
+    @property
+    def instance_id(self) -> int:
+        """The publishing daemon's instance, drawn anew (never 0) at every start."""
+        self._check()
+        return self._header.instance_id
+
+    @property
+    def stamp_ns(self) -> int:
+        """Stamp of the newest keyframe fused into this version, nanoseconds."""
+        self._check()
+        return self._header.stamp_ns
+
+    @property
+    def publish_time_ns(self) -> int:
+        """Wall-clock time the daemon wrote the sample, nanoseconds since the Unix epoch."""
+        self._check()
+        return self._header.publish_time_ns
+
+    @property
+    def capacity_exceeded(self) -> bool:
+        """The map held more nodes or edges than the daemon publishes (its ``ipc.max_nodes`` /
+        ``ipc.max_edges``); the sample then holds the most recently seen nodes."""
+        self._check()
+        return bool(self._header.capacity_exceeded)
+
+    @property
+    def node_count(self) -> int:
+        self._check()
+        return int(self._header.node_count)
+
+    @property
+    def edge_count(self) -> int:
+        self._check()
+        return int(self._header.edge_count)
+
+    # -- records ----------------------------------------------------------------------------
+    @property
+    def nodes(self) -> np.ndarray:
+        """The nodes, sorted by id, as a structured array of :data:`~op3dsg.wire.NODE_DTYPE`
+        (fields ``id``, ``parent_id``, ``kind``, ``label`` (bytes), ``confidence``, ``centre_m``,
+        ``box_min_m``, ``box_max_m``, ``affordance_bits``, ``observation_count``,
+        ``last_seen_stamp_ns``, ...). A view of shared memory for a :class:`GraphView`."""
+        self._check()
+        return self._nodes
+
+    @property
+    def edges(self) -> np.ndarray:
+        """The edges as a structured array of :data:`~op3dsg.wire.EDGE_DTYPE` (``source_id``,
+        ``target_id``, ``kind``, ``origin``, ``relation_id``, ``confidence``, ``phrase``)."""
+        self._check()
+        return self._edges
+
+    def label(self, index: int) -> str:
+        """The label of the node at ``index`` (not id), decoded from UTF-8."""
+        return fixed_str(self.nodes["label"][index])
+
+    def labels(self) -> List[str]:
+        """Every node's label, in node order."""
+        return [fixed_str(raw) for raw in self.nodes["label"]]
+
+    def phrase(self, index: int) -> str:
+        """The relation phrase of the edge at ``index``."""
+        return fixed_str(self.edges["phrase"][index])
+
+    def index_of(self, node_id: int) -> Optional[int]:
+        """Index of the node with ``node_id`` (nodes are sorted by id), ``None`` when absent."""
+        ids = self.nodes["id"]
+        i = int(np.searchsorted(ids, node_id))
+        return i if i < len(ids) and ids[i] == node_id else None
+
+    def objects(self) -> np.ndarray:
+        """Indices of the object nodes."""
+        return np.flatnonzero(self.nodes["kind"] != NODE_KIND_PART)
+
+    def parts(self) -> np.ndarray:
+        """Indices of the part nodes."""
+        return np.flatnonzero(self.nodes["kind"] == NODE_KIND_PART)
+
+    def parts_of(self, object_id: int) -> np.ndarray:
+        """Indices of the parts whose parent is the node ``object_id``."""
+        nodes = self.nodes
+        return np.flatnonzero((nodes["parent_id"] == object_id) & (nodes["kind"] == NODE_KIND_PART))
+
+    def find_by_label(self, label: str) -> np.ndarray:
+        """Indices of the nodes labelled exactly ``label``."""
+        return np.flatnonzero(self.nodes["label"] == label.encode("utf-8"))
+
+    def node_dict(self, index: int) -> dict:
+        """The node at ``index`` in the graph JSON form (``op3dsg dump --json``)."""
+        n = self.nodes[index]
+        parent = int(n["parent_id"])
+        return {
+            "id": int(n["id"]),
+            "label": fixed_str(n["label"]),
+            "kind": NODE_KINDS[int(n["kind"])],
+            "parent": None if parent == NO_NODE else parent,
+            "centre_m": [_f32(v) for v in n["centre_m"]],
+            "box_min_m": [_f32(v) for v in n["box_min_m"]],
+            "box_max_m": [_f32(v) for v in n["box_max_m"]],
+            "affordances": list(affordance_names(int(n["affordance_bits"]))),
+            "confidence": _f32(n["confidence"]),
+            "observation_count": int(n["observation_count"]),
+        }
+
+    def edge_dict(self, index: int) -> dict:
+        """The edge at ``index`` in the graph JSON form."""
+        e = self.edges[index]
+        return {
+            "source": int(e["source_id"]),
+            "target": int(e["target_id"]),
+            "kind": EDGE_KINDS[int(e["kind"])],
+            "relation": relation_phrase(int(e["relation_id"])),
+            "confidence": _f32(e["confidence"]),
+            "origin": EDGE_ORIGINS[int(e["origin"])],
+        }
+
+    def to_dict(self) -> dict:
+        """The whole graph in the graph JSON form (``op3dsg.graph/1``, as ``op3dsg dump --json``;
+        floats are the f32 values' shortest decimal form, as there)."""
+        return {
+            "schema": "op3dsg.graph/1",
+            "source": "op3dsgd",
+            "graph_version": self.version,
+            "stamp_ns": self.stamp_ns,
+            "nodes": [self.node_dict(i) for i in range(self.node_count)],
+            "edges": [self.edge_dict(i) for i in range(self.edge_count)],
+        }
+
+
+class Graph(_GraphData):
+    """An owned graph (from :meth:`GraphView.copy`): the same interface as :class:`GraphView`,
+    valid for as long as it is kept, writable arrays of its own."""
+
+    def __init__(self, header: GraphHeader, nodes: np.ndarray, edges: np.ndarray, restarted: bool):
+        self._header = header
+        self._nodes = nodes
+        self._edges = edges
+        self.restarted = restarted
+
+    def __repr__(self) -> str:
+        return f"Graph(version={self.version}, instance_id={self.instance_id:#018x}, nodes={self.node_count}, edges={self.edge_count})"
+
+
+class GraphView(_GraphData):
+    """One borrowed graph sample: the header and numpy views of its node and edge records in
+    shared memory (no copy). Valid until the next :meth:`GraphClient.latest` that finds a newer
+    sample, or :meth:`release`; see the module docs for the one-borrowed-sample rule.
+
+    ``restarted`` is ``True`` when the graph received before this one by the same client came
+    from another daemon instance: the daemon restarted in between, its versions started again
+    at 1 and its node ids mean other nodes. Forget version bookkeeping and cached ids."""
+
+    def __init__(self, service: str, sample, header: GraphHeader, nodes: np.ndarray, edges: np.ndarray, restarted: bool):
+        self._service = service
+        self._sample = sample
+        self._header = header
+        self._nodes = nodes
+        self._edges = edges
+        self.restarted = restarted
+
+    @property
+    def valid(self) -> bool:
+        """``False`` once the sample went back to the daemon."""
+        return self._sample is not None
+
+    def _check(self) -> None:
+        if self._sample is None:
+            raise SampleReleasedError(
+                self._service,
+                "read",
+                "this graph view's sample was released (a newer latest() or release()); "
+                "keep view.copy() to read a graph after the next latest()",
+            )
+
+    def copy(self) -> Graph:
+        """An owned copy of this graph (header, nodes, edges), valid after the sample is released."""
+        return Graph(self.header, self.nodes.copy(), self.edges.copy(), self.restarted)
+
+    def release(self) -> None:
+        """Gives the sample back to the daemon now (``sample.delete()``); the view and every array
+        taken from it are invalid afterwards. Calling it twice does nothing."""
+        sample, self._sample = self._sample, None
+        if sample is not None:
+            sample.delete()
+
+    def __repr__(self) -> str:
+        if not self.valid:
+            return "GraphView(released)"
+        return (
+            f"GraphView(version={self.version}, instance_id={self.instance_id:#018x}, "
+            f"nodes={self.node_count}, edges={self.edge_count}, restarted={self.restarted})"
+        )
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array.flags.writeable = False
+    return array
+
+
+def _invalid(service: str, what: str) -> InvalidGraphError:
+    return InvalidGraphError(service, "receive", f"invalid sample: {what}")
+
+
+def _check_header(service: str, header: GraphHeader, payload_len: int) -> None:
+    """The header half of the Rust ``check_message``: schema, counts within capacity, payload size."""
+    if header.schema_version != SCHEMA_VERSION:
+        raise SchemaVersionError(service, header.schema_version, SCHEMA_VERSION)
+    node_count, edge_count = header.node_count, header.edge_count
+    if node_count > header.node_capacity:
+        raise _invalid(service, f"header.node_count: {node_count} exceeds the capacity {header.node_capacity}")
+    if edge_count > header.edge_capacity:
+        raise _invalid(service, f"header.edge_count: {edge_count} exceeds the capacity {header.edge_capacity}")
+    expected = node_count * NODE_BYTES + edge_count * EDGE_BYTES
+    if payload_len != expected:
+        raise _invalid(
+            service,
+            f"payload: {payload_len} bytes, but the header's counts need {expected} ({NODE_BYTES} per node, {EDGE_BYTES} per edge)",
+        )
+
+
+def _check_records(service: str, nodes: np.ndarray, edges: np.ndarray) -> None:
+    """The record half of ``check_message``: every node's kind, every edge's kind and origin
+    (one vectorised pass each; the index of the first bad one only on failure)."""
+    for records, field, limit, what in (
+        (nodes, "kind", 1, "nodes[{}].kind: unknown value {} (0 object, 1 part)"),
+        (edges, "kind", 1, "edges[{}].kind: unknown value {} (0 spatial, 1 functional)"),
+        (edges, "origin", 3, "edges[{}].origin: unknown value {} (0..=3)"),
+    ):
+        values = records[field]
+        if values.size and values.max() > limit:
+            first = int(np.argmax(values > limit))
+            raise _invalid(service, what.format(first, values[first]))
+
+
+class GraphClient:
+    """The planner's reader of ``<prefix>/graph``, woken by ``<prefix>/graph_updated``.
+
+    ::
+
+        client = op3dsg.GraphClient("op3dsg", timeout=30)   # waits up to 30 s for the daemon
+        while True:
+            client.wait_for_update(0.5)
+            graph = client.latest()                        # GraphView or None, zero copy
+            if graph is not None:
+                handles = graph.find_by_label("cabinet handle")
+                print(graph.version, graph.nodes["centre_m"][handles])
+
+    A client that joins late receives the current graph from the service's history when the
+    daemon next updates its connections (within ~100 ms), without an event: so call
+    :meth:`latest` after every :meth:`wait_for_update`, also when it timed out.
+
+    ``timeout`` (seconds): how long the constructor waits for a daemon that is not up yet
+    (0: fail at once with :class:`~op3dsg.errors.NotServingError`).
+    """
+
+    def __init__(self, prefix: str = DEFAULT_PREFIX, timeout: float = 0.0, node_name: Optional[str] = None):
+        self.prefix = prefix
+        self.service = _iox.service_name(prefix, "graph")
+        self.event_service = _iox.service_name(prefix, "graph_updated")
+        self._node = _iox.create_node(prefix, self.service, node_name or _iox.default_node_name("graph"))
+        self._subscriber, self._listener = _iox.retry_while_not_serving(timeout, self._open_ports)
+        self._view: Optional[GraphView] = None
+        self._last_instance = 0
+        self._if_newer_instance = 0
+
+    def _open_ports(self):
+        try:
+            service = (
+                self._node.service_builder(iox2.ServiceName.new(self.service))
+                .publish_subscribe(iox2.Slice[ctypes.c_uint8])
+                .user_header(GraphHeader)
+                .open()
+            )
+        except Exception as e:
+            raise _iox.open_error(self.service, e) from e
+        try:
+            subscriber = service.subscriber_builder().history_request(HISTORY_SIZE).create()
+        except Exception as e:
+            raise _iox.open_error(self.service, e, "create subscriber") from e
+        try:
+            event = self._node.service_builder(iox2.ServiceName.new(self.event_service)).event().open()
+        except Exception as e:
+            raise _iox.open_error(self.event_service, e) from e
+        try:
+            listener = event.listener_builder().create()
+        except Exception as e:
+            raise _iox.open_error(self.event_service, e, "create listener") from e
+        return subscriber, listener
+
+    # -- waiting ----------------------------------------------------------------------------
+    def wait_for_update(self, timeout: float) -> bool:
+        """Waits up to ``timeout`` seconds for a new graph; ``True`` when one is waiting (a
+        ``graph_updated`` event came, or a sample is already queued), ``False`` on timeout."""
+        queued = self._has_samples()
+        try:
+            if queued:
+                self._listener.try_wait()
+                return True
+            return len(self._listener.timed_wait(_iox.duration(timeout))) > 0
+        except Exception as e:
+            if _iox.reason(e) == "InterruptSignal":
+                return queued
+            raise _iox.open_error(self.event_service, e, "wait") from e
+
+    def _has_samples(self) -> bool:
+        try:
+            return self._subscriber.has_samples()
+        except Exception as e:
+            raise _iox.open_error(self.service, e, "receive") from e
+
+    # -- reading ----------------------------------------------------------------------------
+    def latest(self) -> Optional[GraphView]:
+        """The newest graph as a :class:`GraphView` (zero copy), or ``None`` while the daemon
+        has published nothing this client could receive.
+
+        When a newer sample is queued, the view returned before is released first (one borrowed
+        sample at most), older queued samples are released unread, and the newest is checked
+        against the contract (schema version, counts, payload size, kinds): a bad one raises
+        :class:`~op3dsg.errors.SchemaVersionError` or :class:`~op3dsg.errors.InvalidGraphError`
+        and is released. Without a newer sample the current view is returned again."""
+        if not self._has_samples():
+            return self._view if self._view is not None and self._view.valid else None
+        self.release()
+        newest = None
+        while self._has_samples():
+            if newest is not None:
+                newest.delete()
+            try:
+                newest = self._subscriber.receive()
+            except Exception as e:
+                raise _iox.open_error(self.service, e, "receive") from e
+        if newest is None:
+            return None
+        try:
+            view = self._wrap(newest)
+        except Op3dsgError:
+            newest.delete()
+            raise
+        self._view = view
+        return view
+
+    def latest_if_newer(self, last_seen_version: int) -> Optional[GraphView]:
+        """Like :meth:`latest`, but ``None`` also when the newest graph has version
+        ``last_seen_version`` and comes from the same daemon instance as the graph this call
+        returned last (pass 0 before the first graph). A restarted daemon's graphs count as new
+        whatever their version (their ``restarted`` flag then says so)."""
+        view = self.latest()
+        if view is None:
+            return None
+        if view.instance_id == self._if_newer_instance and view.version == last_seen_version:
+            return None
+        self._if_newer_instance = view.instance_id
+        return view
+
+    @property
+    def restarted(self) -> bool:
+        """``restarted`` of the graph :meth:`latest` returned last: it came from another daemon
+        instance than the graph this client received before it."""
+        return self._view is not None and self._view.restarted
+
+    def release(self) -> None:
+        """Gives the borrowed sample back to the daemon (the current view becomes invalid)."""
+        if self._view is not None:
+            self._view.release()
+            self._view = None
+
+    def close(self) -> None:
+        """Releases the sample and the ports; the client is unusable afterwards."""
+        self.release()
+        for port in (getattr(self, "_subscriber", None), getattr(self, "_listener", None)):
+            if port is not None:
+                port.delete()
+        self._subscriber = self._listener = None
+
+    def __enter__(self) -> "GraphClient":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _wrap(self, sample) -> GraphView:
+        header = GraphHeader()
+        ctypes.memmove(ctypes.addressof(header), sample.user_header_ptr, ctypes.sizeof(GraphHeader))
+        # The slice length in bytes (the payload is u8, so elements are bytes): the iceoryx2
+        # header's count, since Python's Slice.len() is unreliable in 0.10.
+        payload_len = int(sample.header.number_of_elements)
+        _check_header(self.service, header, payload_len)
+        node_count, edge_count = int(header.node_count), int(header.edge_count)
+        if payload_len:
+            buffer = (ctypes.c_uint8 * payload_len).from_address(sample.payload_ptr)
+            # The arrays keep the sample object alive (so it is not released while they exist).
+            buffer._op3dsg_sample = sample
+            nodes = np.frombuffer(buffer, dtype=NODE_DTYPE, count=node_count, offset=0)
+            edges = np.frombuffer(buffer, dtype=EDGE_DTYPE, count=edge_count, offset=node_count * NODE_BYTES)
+        else:
+            nodes, edges = np.empty(0, NODE_DTYPE), np.empty(0, EDGE_DTYPE)
+        _check_records(self.service, nodes, edges)
+        restarted = self._last_instance not in (0, header.instance_id)
+        self._last_instance = header.instance_id
+        return GraphView(self.service, sample, header, _read_only(nodes), _read_only(edges), restarted)
+
+    def __repr__(self) -> str:
+        return f"GraphClient(prefix={self.prefix!r})"
+
+
+def wait_for_graph(client: GraphClient, timeout: float, min_nodes: int = 0) -> GraphView:
+    """Waits up to ``timeout`` seconds for a graph with at least ``min_nodes`` nodes; raises
+    ``TimeoutError`` naming the service otherwise."""
+    deadline = time.monotonic() + timeout
+    while True:
+        view = client.latest()
+        if view is not None and view.node_count >= min_nodes:
+            return view
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise TimeoutError(f"{client.service}: no graph with at least {min_nodes} nodes within {timeout:.1f} s")
+        client.wait_for_update(min(left, 0.2))
+
