@@ -11,9 +11,12 @@
 //! so once. A recording's frames keep the stamps it was recorded with (the recording's clock).
 //!
 //! **Frame sets.** After alignment, a set is delivered when both its depth and its colour frame
-//! are new (by frame number); a set that repeats the previous depth or colour frame (the
-//! pipeline does that when one stream runs ahead) is passed over and counted
-//! ([`RealsenseSource::repeated_sets`]).
+//! are new (by frame number) and were taken within half a frame period of each other; a set
+//! that repeats the previous depth or colour frame, or pairs frames of different instants (the
+//! pipeline does both when one stream runs ahead), is passed over and counted
+//! ([`RealsenseSource::repeated_sets`]). librealsense's pipeline never delivers a recording's
+//! first depth frame with both streams enabled (pyrealsense2 shows the same), so a `.bag` of N
+//! frame pairs plays as N - 1 frames.
 //!
 //! **Unplug.** A live camera whose frames stop is looked for among the connected devices after
 //! each timeout; once it is gone the pipeline is stopped, [`FrameSource::connected`] turns
@@ -35,9 +38,7 @@ use op3dsg_drivers::source::{FrameSource, SourceError, SourceStatus};
 use realsense_rust::config::Config;
 use realsense_rust::context::Context;
 use realsense_rust::frame::{ColorFrame, CompositeFrame, DepthFrame, FrameEx};
-use realsense_rust::kind::{
-    Rs2CameraInfo, Rs2Extension, Rs2Format, Rs2FrameMetadata, Rs2Option, Rs2StreamKind, Rs2TimestampDomain,
-};
+use realsense_rust::kind::{Rs2CameraInfo, Rs2Format, Rs2FrameMetadata, Rs2Option, Rs2StreamKind, Rs2TimestampDomain};
 use realsense_rust::pipeline::{ActivePipeline, InactivePipeline};
 use realsense_rust::processing_blocks::align::Align;
 use realsense_sys as sys;
@@ -48,6 +49,8 @@ use crate::rotate::{ColourOrder, Rotation, SourceLayout, copy_colour, copy_depth
 
 /// Longest wait for the first frame set after a (re)start.
 const FIRST_FRAME_TIMEOUT: Duration = Duration::from_secs(10);
+/// Wait for the frame sets still queued once playback has read the whole file.
+const END_DRAIN_TIMEOUT: Duration = Duration::from_millis(250);
 /// Longest a call to `next_frame` sleeps while waiting to retry a lost camera.
 const RETRY_SLICE: Duration = Duration::from_millis(100);
 
@@ -57,6 +60,8 @@ struct Streams {
     colour: Intrinsics,
     depth_units_per_m: f32,
     colour_order: ColourOrder,
+    /// Half the colour frame period: depth and colour further apart are not one instant.
+    half_period_ms: f64,
 }
 
 /// The librealsense frame source (`source.kind = "realsense"`).
@@ -217,6 +222,7 @@ impl RealsenseSource {
                 colour: Intrinsics { width: 0, height: 0, fx: 1.0, fy: 1.0, cx: 0.0, cy: 0.0 },
                 depth_units_per_m: 1000.0,
                 colour_order: ColourOrder::Rgb8,
+                half_period_ms: 0.0,
             },
             intrinsics: Intrinsics { width: 0, height: 0, fx: 1.0, fy: 1.0, cx: 0.0, cy: 0.0 },
             rotation: config.rotate,
@@ -324,14 +330,17 @@ impl RealsenseSource {
             cy: k.ppy(),
         };
         let extrinsics = depth_stream.extrinsics(colour_stream).ok();
+        let half_period_ms = 500.0 / f64::from(colour_stream.framerate().max(1));
         // Depth units: the depth sensor's option (metres per unit); the first frame corrects it
         // when the sensor does not report it.
         let mut depth_units_per_m = 1000.0;
         let mut sensors = profile.device().sensors();
         for sensor in &mut sensors {
-            let is_depth = sensor.extension() == Rs2Extension::DepthSensor;
+            // (Sensor::extension panics on sensors of recordings; the depth sensor is the one
+            // with depth units.)
+            let is_depth = sensor.supports_option(Rs2Option::DepthUnits);
             if is_depth && let Some(units) = sensor.get_option(Rs2Option::DepthUnits).filter(|u| *u > 0.0) {
-                depth_units_per_m = 1.0 / units;
+                depth_units_per_m = units_per_m(units);
             }
             if self.bag.is_some() {
                 continue;
@@ -364,7 +373,7 @@ impl RealsenseSource {
         self.playback = None;
         self.last_numbers = None;
         self.delivered_any = false;
-        Ok(Streams { colour, depth_units_per_m, colour_order })
+        Ok(Streams { colour, depth_units_per_m, colour_order, half_period_ms })
     }
 
     fn open_error(&self, name: &str, reason: String) -> SourceError {
@@ -449,10 +458,11 @@ impl RealsenseSource {
             return Err(device_err(format!("{name}: frame set without depth and colour")));
         };
         let numbers = (depth.frame_number(), colour.frame_number());
-        if let Some((d, c)) = self.last_numbers
-            && (numbers.0 == d || numbers.1 == c)
-        {
+        let repeated = self.last_numbers.is_some_and(|(d, c)| numbers.0 == d || numbers.1 == c);
+        let apart_ms = (depth.timestamp() - colour.timestamp()).abs();
+        if repeated || apart_ms > self.streams.half_period_ms {
             self.repeated_sets += 1;
+            tracing::trace!(depth = numbers.0, colour = numbers.1, apart_ms, "frame set passed over");
             return Ok(SourceStatus::Pending);
         }
         self.last_numbers = Some(numbers);
@@ -472,7 +482,7 @@ impl RealsenseSource {
             && let Ok(units) = depth.depth_units()
             && units > 0.0
         {
-            self.streams.depth_units_per_m = 1.0 / units;
+            self.streams.depth_units_per_m = units_per_m(units);
         }
         let copy_err =
             |e: crate::rotate::CopyError| SourceError::Frame { seq: self.seq, reason: format!("{name}: {e}") };
@@ -535,6 +545,15 @@ impl RealsenseSource {
     }
 }
 
+/// Depth units per metre from librealsense's metres per unit. The option is an `f32`, so
+/// decimal units (0.001, 0.00025) arrive rounded; a reciprocal within 1e-5 (relative) of a whole
+/// number is that number.
+fn units_per_m(metres_per_unit: f32) -> f32 {
+    let per_m = 1.0 / f64::from(metres_per_unit);
+    let whole = per_m.round();
+    if whole > 0.0 && ((per_m - whole) / whole).abs() < 1e-5 { whole as f32 } else { per_m as f32 }
+}
+
 fn info(device: &realsense_rust::device::Device, what: Rs2CameraInfo) -> String {
     device.info(what).map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
 }
@@ -573,16 +592,14 @@ impl FrameSource for RealsenseSource {
         let Some(pipeline) = self.pipeline.as_mut() else {
             return if self.bag.is_some() { Ok(SourceStatus::EndOfStream) } else { self.try_reconnect() };
         };
-        let timeout = if self.delivered_any {
+        let timeout = if self.playback.as_ref().is_some_and(PlaybackDevice::stopped) {
+            // Playback read the whole file: drain what the pipeline still holds, then end.
+            END_DRAIN_TIMEOUT
+        } else if self.delivered_any {
             Duration::from_millis(self.config.frame_timeout_ms)
         } else {
             FIRST_FRAME_TIMEOUT.max(Duration::from_millis(self.config.frame_timeout_ms))
         };
-        // Playback that reached the end of the file: no more frames will come.
-        if self.playback.as_ref().is_some_and(PlaybackDevice::stopped) {
-            self.pipeline = None;
-            return Ok(SourceStatus::EndOfStream);
-        }
         match pipeline.wait(Some(timeout)) {
             Ok(set) => {
                 self.align.queue(set).map_err(|e| device_err(format!("{}: align: {e}", self.name())))?;
