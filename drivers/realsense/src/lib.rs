@@ -21,6 +21,8 @@
 //! assert_eq!(Rotation::Cw90.map_pixel(0, 0, 848, 480), (479, 0));
 //! ```
 
+#[cfg(feature = "librealsense")]
+pub mod backend;
 pub mod config;
 #[cfg(feature = "librealsense")]
 pub mod device;

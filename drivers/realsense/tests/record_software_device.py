@@ -17,6 +17,7 @@ import gc
 import json
 import time
 
+import numpy as np
 import pyrealsense2 as rs
 
 FX, FY = 70.5, 71.25
@@ -72,22 +73,13 @@ def main():
     depth_sensor.start(queue)
     colour_sensor.start(queue)
 
+    vv, uu = np.mgrid[0:h, 0:w].astype(np.int64)
     stamps = []
     for i in range(a.frames):
         stamp = T0_MS + i * 1000.0 / a.fps
         stamps.append(stamp)
-        depth = bytearray(w * h * 2)
-        colour = bytearray(w * h * 3)
-        for v in range(h):
-            for u in range(w):
-                d = 500 + 7 * u + 13 * v + i
-                j = (v * w + u) * 2
-                depth[j] = d & 0xFF
-                depth[j + 1] = d >> 8
-                k = (v * w + u) * 3
-                colour[k] = u % 256
-                colour[k + 1] = v % 256
-                colour[k + 2] = (11 * i) % 256
+        depth = (500 + 7 * uu + 13 * vv + i).astype("<u2").tobytes()
+        colour = np.stack([uu % 256, vv % 256, np.full_like(uu, (11 * i) % 256)], axis=-1).astype(np.uint8).tobytes()
         for sensor, profile, pixels, bpp in (
             (depth_sensor, depth_profile, depth, 2),
             (colour_sensor, colour_profile, colour, 3),
