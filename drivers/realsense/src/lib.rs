@@ -7,9 +7,10 @@
 //! is mounted turned by 90°) while they are copied from the driver's buffers into the pooled
 //! [`op3dsg_drivers::frame::Frame`], with no per-frame buffer allocation.
 //!
-//! The librealsense part ([`device`]) is behind the crate feature `librealsense` (what
-//! `op3dsgd --features realsense` turns on), so the default build needs no librealsense; the
-//! configuration, the rotation and the copy kernels (and their benchmark) always build.
+//! The librealsense part ([`device`]) is behind the crate feature `librealsense`, its
+//! registration with the runtime (`backend`) behind `backend` (what `op3dsgd --features
+//! realsense` turns on), so the default build needs no librealsense; the configuration, the
+//! rotation and the copy kernels (and their benchmark) always build.
 //!
 //! ```
 //! use op3dsg_drivers::frame::Intrinsics;
@@ -21,7 +22,7 @@
 //! assert_eq!(Rotation::Cw90.map_pixel(0, 0, 848, 480), (479, 0));
 //! ```
 
-#[cfg(feature = "librealsense")]
+#[cfg(feature = "backend")]
 pub mod backend;
 pub mod config;
 #[cfg(feature = "librealsense")]
