@@ -18,6 +18,16 @@ echo "== models =="
 echo "== python venv =="
 ./scripts/setup-python.sh
 
+# librealsense (from PyPI pyrealsense2 into .deps/realsense/; fast when already there): the
+# feature `realsense` of op3dsgd is built and tested with the rest, in the same debug build.
+echo "== librealsense sysroot =="
+./scripts/setup-realsense.sh
+RS_LIB="$PWD/.deps/realsense/lib"
+export PKG_CONFIG_PATH="$RS_LIB/pkgconfig${PKG_CONFIG_PATH:+:$PKG_CONFIG_PATH}"
+# cargo does not put realsense-sys's -L folder on the run-time path of tests and binaries.
+export LD_LIBRARY_PATH="$RS_LIB${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
+FEATURES=(--features op3dsgd/realsense)
+
 # iceoryx2 keeps its state in /tmp/iceoryx2 and /dev/shm; every test uses its own service
 # prefix, so parallel tests and a daemon running on this machine do not interfere.
 export RUST_BACKTRACE=1
@@ -28,16 +38,16 @@ export OP3DSG_LOG="${OP3DSG_LOG:-warn}"
 echo "== fmt =="
 cargo fmt --all -- --check
 echo "== clippy =="
-cargo clippy --workspace --all-targets --locked -- -D warnings
+cargo clippy --workspace --all-targets --locked "${FEATURES[@]}" -- -D warnings
 
 echo "== build (debug, all targets) =="
-cargo build --workspace --all-targets --locked
+cargo build --workspace --all-targets --locked "${FEATURES[@]}"
 
 echo "== systemd unit =="
 ./scripts/check-systemd.sh target/debug/op3dsgd
 
 echo "== tests =="
-cargo test --workspace --locked --no-fail-fast
+cargo test --workspace --locked --no-fail-fast "${FEATURES[@]}"
 
 # The Python client (ipc_types/python) against the live debug daemon built above: its ctypes
 # mirror against the Rust layout, and real op3dsgd processes (a couple of minutes).

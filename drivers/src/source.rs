@@ -63,6 +63,12 @@ pub trait FrameSource: Send {
         false
     }
 
+    /// Whether the device behind the source is there (a camera that was unplugged and is being
+    /// reconnected says `false`); the pipeline reports it as health's `source_connected`.
+    fn connected(&self) -> bool {
+        true
+    }
+
     /// Fills `frame` with the next frame. A live source may block up to its frame period.
     fn next_frame(&mut self, frame: &mut Frame) -> Result<SourceStatus, SourceError>;
 

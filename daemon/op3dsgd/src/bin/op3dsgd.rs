@@ -66,7 +66,10 @@ fn main() -> ExitCode {
     if let Some(prefix) = &args.prefix {
         overrides.push(format!("ipc.prefix=\"{}\"", prefix.replace('"', "")));
     }
-    let backends = op3dsg_sim::backends();
+    #[allow(unused_mut)] // registered into only with the feature `realsense`
+    let mut backends = op3dsg_sim::backends();
+    #[cfg(feature = "realsense")]
+    op3dsg_realsense::backend::register(&mut backends);
     let loaded = match config::load_with(&backends, args.profile.as_deref(), &overrides) {
         Ok(loaded) => loaded,
         Err(e) => {

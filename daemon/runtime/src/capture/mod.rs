@@ -62,6 +62,7 @@ pub(crate) fn capture_loop(
         let started = Instant::now();
         let status = source.next_frame(&mut frame);
         count_skipped(source);
+        stats.source_connected.store(source.connected(), Ordering::Relaxed);
         match status {
             Ok(SourceStatus::Frame) => {
                 consecutive_errors = 0;

@@ -20,8 +20,8 @@
 //! Loading and layering live in `layers.rs`; this file holds the types and their checks.
 //!
 //! File paths in a profile (`extends`, and the keys in [`PATH_KEYS`]: `source.replay.path`,
-//! `detector.yolox.model_path`, `reasoner.knowledge_dir`, `reasoner.llm.api_key_file`,
-//! `snapshot.dir`) are
+//! `source.realsense.bag`, `detector.yolox.model_path`, `reasoner.knowledge_dir`,
+//! `reasoner.llm.api_key_file`, `snapshot.dir`) are
 //! relative to the folder of the file that sets them; a path given with `--set` is relative to
 //! the working directory. `--print-config` shows them resolved.
 
@@ -50,6 +50,7 @@ pub const BASE_PROFILE_NAME: &str = "<built-in profiles/base.toml>";
 /// that sets them.
 pub const PATH_KEYS: &[&str] = &[
     "source.replay.path",
+    "source.realsense.bag",
     "detector.yolox.model_path",
     "detector.open_vocab.model_path",
     "reasoner.knowledge_dir",

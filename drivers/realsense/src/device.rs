@@ -1,0 +1,651 @@
+//! The librealsense part: a live camera or a `.bag` recording through `realsense-rust`'s
+//! pipeline, depth aligned to colour by librealsense's align block, rotated and copied into the
+//! pooled frame.
+//!
+//! **Clock.** A live camera's frames are stamped in librealsense's *global time* domain
+//! (`RS2_OPTION_GLOBAL_TIME_ENABLED`, switched on at start for every sensor that has it): the
+//! camera's hardware timestamp mapped onto the host's system clock (`CLOCK_REALTIME`,
+//! nanoseconds since the Unix epoch), the clock a navigation stack on the same computer stamps
+//! its poses with. A frame that still comes in the hardware-clock domain (old firmware) is
+//! stamped with its host arrival time (`RS2_FRAME_METADATA_TIME_OF_ARRIVAL`) and a warning says
+//! so once. A recording's frames keep the stamps it was recorded with (the recording's clock).
+//!
+//! **Frame sets.** After alignment, a set is delivered when both its depth and its colour frame
+//! are new (by frame number) and were taken within half a frame period of each other; a set
+//! that repeats the previous depth or colour frame, or pairs frames of different instants (the
+//! pipeline does both when one stream runs ahead), is passed over and counted
+//! ([`RealsenseSource::repeated_sets`]). librealsense's pipeline never delivers a recording's
+//! first depth frame with both streams enabled (pyrealsense2 shows the same), so a `.bag` of N
+//! frame pairs plays as N - 1 frames.
+//!
+//! **Unplug.** A live camera whose frames stop is looked for among the connected devices after
+//! each timeout; once it is gone the pipeline is stopped, [`FrameSource::connected`] turns
+//! `false` (health's `source_connected`) and the source retries with a doubling backoff
+//! (`reconnect.initial_ms` .. `max_ms`), returning [`SourceStatus::Pending`] meanwhile, until the
+//! same serial number is back with the same stream modes.
+
+#![allow(unsafe_code)] // FFI: librealsense buffers and the playback controls realsense-rust lacks.
+
+use std::collections::HashSet;
+use std::ffi::{CStr, CString};
+use std::path::{Path, PathBuf};
+use std::ptr::NonNull;
+use std::time::{Duration, Instant};
+
+use op3dsg_drivers::frame::{Frame, Intrinsics};
+use op3dsg_drivers::pose::Isometry;
+use op3dsg_drivers::source::{FrameSource, SourceError, SourceStatus};
+use realsense_rust::config::Config;
+use realsense_rust::context::Context;
+use realsense_rust::frame::{ColorFrame, CompositeFrame, DepthFrame, FrameEx};
+use realsense_rust::kind::{Rs2CameraInfo, Rs2Format, Rs2FrameMetadata, Rs2Option, Rs2StreamKind, Rs2TimestampDomain};
+use realsense_rust::pipeline::{ActivePipeline, InactivePipeline};
+use realsense_rust::processing_blocks::align::Align;
+use realsense_sys as sys;
+use tracing::{info, warn};
+
+use crate::config::{RealsenseConfig, StreamMode};
+use crate::rotate::{ColourOrder, Rotation, SourceLayout, copy_colour, copy_depth};
+
+/// Longest wait for the first frame set after a (re)start.
+const FIRST_FRAME_TIMEOUT: Duration = Duration::from_secs(10);
+/// Wait for the frame sets still queued once playback has read the whole file.
+const END_DRAIN_TIMEOUT: Duration = Duration::from_millis(250);
+/// Longest a call to `next_frame` sleeps while waiting to retry a lost camera.
+const RETRY_SLICE: Duration = Duration::from_millis(100);
+
+/// What the stream resolution gave at start.
+#[derive(Debug, Clone, Copy)]
+struct Streams {
+    colour: Intrinsics,
+    depth_units_per_m: f32,
+    colour_order: ColourOrder,
+    /// Half the colour frame period: depth and colour further apart are not one instant.
+    half_period_ms: f64,
+}
+
+/// The librealsense frame source (`source.kind = "realsense"`).
+pub struct RealsenseSource {
+    config: RealsenseConfig,
+    bag: Option<PathBuf>,
+    context: Context,
+    pipeline: Option<ActivePipeline>,
+    align: Align,
+    streams: Streams,
+    /// Intrinsics of delivered (rotated) frames.
+    intrinsics: Intrinsics,
+    rotation: Rotation,
+    modes: (StreamMode, StreamMode),
+    serial: String,
+    playback: Option<PlaybackDevice>,
+    seq: u64,
+    last_numbers: Option<(u64, u64)>,
+    repeated_sets: u64,
+    warned_hardware_clock: bool,
+    delivered_any: bool,
+    connected: bool,
+    retry_at: Instant,
+    backoff: Duration,
+    world_from_camera: Option<Isometry>,
+}
+
+impl std::fmt::Debug for RealsenseSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RealsenseSource").field("source", &self.describe()).field("seq", &self.seq).finish()
+    }
+}
+
+// SAFETY: the source is used by one thread at a time (the capture thread); librealsense's
+// context, pipeline, processing block and device handles may be used from any thread.
+unsafe impl Send for RealsenseSource {}
+
+/// A playback device handle made from a frame's sensor (realsense-rust has no playback control).
+struct PlaybackDevice(NonNull<sys::rs2_device>);
+
+impl Drop for PlaybackDevice {
+    fn drop(&mut self) {
+        // SAFETY: made by rs2_create_device_from_sensor, owned here, deleted once.
+        unsafe { sys::rs2_delete_device(self.0.as_ptr()) }
+    }
+}
+
+impl PlaybackDevice {
+    /// The playback device a frame came from, with real-time pacing set.
+    fn from_frame(frame: DepthFrame, real_time: bool) -> Result<Self, String> {
+        // SAFETY: the frame pointer is owned by us after get_owned_raw and released below; the
+        // sensor handle is deleted after the device was made from it; every call checks `err`.
+        unsafe {
+            let raw = frame.get_owned_raw();
+            let mut err = std::ptr::null_mut::<sys::rs2_error>();
+            let sensor = sys::rs2_get_frame_sensor(raw.as_ptr(), &mut err);
+            let device = if err.is_null() && !sensor.is_null() {
+                let device = sys::rs2_create_device_from_sensor(sensor, &mut err);
+                sys::rs2_delete_sensor(sensor);
+                device
+            } else {
+                std::ptr::null_mut()
+            };
+            sys::rs2_release_frame(raw.as_ptr());
+            let device = match (take_error(err), NonNull::new(device)) {
+                (None, Some(device)) => Self(device),
+                (Some(e), _) => return Err(e),
+                (None, None) => return Err("no playback device behind the frame".to_owned()),
+            };
+            sys::rs2_playback_device_set_real_time(device.0.as_ptr(), i32::from(real_time), &mut err);
+            match take_error(err) {
+                None => Ok(device),
+                Some(e) => Err(e),
+            }
+        }
+    }
+
+    fn stopped(&self) -> bool {
+        let mut err = std::ptr::null_mut::<sys::rs2_error>();
+        // SAFETY: a live device handle; the error is checked and freed.
+        let status = unsafe { sys::rs2_playback_device_get_current_status(self.0.as_ptr(), &mut err) };
+        take_error(err).is_none() && status == sys::rs2_playback_status_RS2_PLAYBACK_STATUS_STOPPED
+    }
+}
+
+/// The message of a librealsense error, freeing it.
+fn take_error(err: *mut sys::rs2_error) -> Option<String> {
+    if err.is_null() {
+        return None;
+    }
+    // SAFETY: a non-null error from librealsense; its message lives until rs2_free_error.
+    unsafe {
+        let message = CStr::from_ptr(sys::rs2_get_error_message(err)).to_string_lossy().into_owned();
+        sys::rs2_free_error(err);
+        Some(message)
+    }
+}
+
+fn device_err(what: impl std::fmt::Display) -> SourceError {
+    SourceError::Device(what.to_string())
+}
+
+impl RealsenseSource {
+    /// Opens the camera (or the `.bag` file) `config` names; `base_dir` resolves a relative
+    /// `bag`. Fails naming the camera or file when it cannot deliver the configured streams.
+    pub fn open(config: &RealsenseConfig, base_dir: Option<&Path>) -> Result<Self, SourceError> {
+        config
+            .validate()
+            .map_err(|(field, message)| SourceError::Config(format!("source.realsense.{field}: {message}")))?;
+        let bag = config.is_playback().then(|| {
+            let path = PathBuf::from(&config.bag);
+            match base_dir {
+                Some(dir) if path.is_relative() => dir.join(path),
+                _ => path,
+            }
+        });
+        if let Some(bag) = &bag
+            && let Err(e) = std::fs::metadata(bag)
+        {
+            return Err(SourceError::File { path: bag.display().to_string(), reason: format!("cannot open: {e}") });
+        }
+        let context = Context::new().map_err(|e| device_err(format!("librealsense context: {e}")))?;
+        let align = Align::new(Rs2StreamKind::Color, 1).map_err(|e| device_err(format!("align block: {e}")))?;
+        let mut modes = (config.depth, config.colour);
+        let mut serial = config.serial.clone();
+        if bag.is_none() {
+            let device = find_device(&context, &config.serial)?;
+            serial = info(&device, Rs2CameraInfo::SerialNumber);
+            let usb = info(&device, Rs2CameraInfo::UsbTypeDescriptor);
+            let name = info(&device, Rs2CameraInfo::Name);
+            info!(camera = %name, serial = %serial, usb = %usb, firmware = %info(&device, Rs2CameraInfo::FirmwareVersion), "realsense camera found");
+            if usb.starts_with('2') {
+                if config.usb2_fallback {
+                    modes = (config.usb2_mode, config.usb2_mode);
+                    warn!(
+                        serial = %serial, usb = %usb,
+                        "camera is on a USB 2 link, too slow for depth {}x{}@{} + colour {}x{}@{}: falling back to {}x{}@{} for both (plug it into a USB 3 port)",
+                        config.depth.width, config.depth.height, config.depth.fps,
+                        config.colour.width, config.colour.height, config.colour.fps,
+                        config.usb2_mode.width, config.usb2_mode.height, config.usb2_mode.fps
+                    );
+                } else {
+                    warn!(serial = %serial, usb = %usb, "camera is on a USB 2 link: the configured streams may not start or may drop frames (usb2_fallback = false)");
+                }
+            }
+        }
+        let world_from_camera = config.world_from_camera.map(|p| {
+            let [x, y, z, w] = p.rotation_xyzw;
+            Isometry::new(glam::DQuat::from_xyzw(x, y, z, w).normalize(), glam::DVec3::from_array(p.translation_m))
+        });
+        let mut source = Self {
+            config: config.clone(),
+            bag,
+            context,
+            pipeline: None,
+            align,
+            streams: Streams {
+                colour: Intrinsics { width: 0, height: 0, fx: 1.0, fy: 1.0, cx: 0.0, cy: 0.0 },
+                depth_units_per_m: 1000.0,
+                colour_order: ColourOrder::Rgb8,
+                half_period_ms: 0.0,
+            },
+            intrinsics: Intrinsics { width: 0, height: 0, fx: 1.0, fy: 1.0, cx: 0.0, cy: 0.0 },
+            rotation: config.rotate,
+            modes,
+            serial,
+            playback: None,
+            seq: 0,
+            last_numbers: None,
+            repeated_sets: 0,
+            warned_hardware_clock: false,
+            delivered_any: false,
+            connected: false,
+            retry_at: Instant::now(),
+            backoff: Duration::from_millis(config.reconnect.initial_ms),
+            world_from_camera,
+        };
+        source.streams = source.start()?;
+        source.intrinsics = source.rotation.intrinsics(&source.streams.colour);
+        source.connected = true;
+        Ok(source)
+    }
+
+    fn name(&self) -> String {
+        match &self.bag {
+            Some(bag) => bag.display().to_string(),
+            None => format!("camera {}", if self.serial.is_empty() { "(first found)" } else { &self.serial }),
+        }
+    }
+
+    /// Starts the pipeline and reads the streams' calibration.
+    fn start(&mut self) -> Result<Streams, SourceError> {
+        let name = self.name();
+        let mut cfg = Config::new();
+        let (depth, colour) = self.modes;
+        let enable = |cfg: &mut Config| -> Result<(), String> {
+            match &self.bag {
+                Some(bag) => {
+                    cfg.enable_device_from_file(bag, false).map_err(|e| e.to_string())?;
+                    cfg.enable_stream(Rs2StreamKind::Depth, None, 0, 0, Rs2Format::Z16, 0)
+                        .map_err(|e| e.to_string())?;
+                    cfg.enable_stream(Rs2StreamKind::Color, None, 0, 0, Rs2Format::Any, 0)
+                        .map_err(|e| e.to_string())?;
+                }
+                None => {
+                    if !self.serial.is_empty() {
+                        let serial = CString::new(self.serial.clone()).map_err(|e| e.to_string())?;
+                        cfg.enable_device_from_serial(&serial).map_err(|e| e.to_string())?;
+                    }
+                    cfg.enable_stream(
+                        Rs2StreamKind::Depth,
+                        None,
+                        depth.width as usize,
+                        depth.height as usize,
+                        Rs2Format::Z16,
+                        depth.fps as usize,
+                    )
+                    .map_err(|e| e.to_string())?;
+                    cfg.enable_stream(
+                        Rs2StreamKind::Color,
+                        None,
+                        colour.width as usize,
+                        colour.height as usize,
+                        Rs2Format::Rgb8,
+                        colour.fps as usize,
+                    )
+                    .map_err(|e| e.to_string())?;
+                }
+            }
+            Ok(())
+        };
+        enable(&mut cfg).map_err(|e| self.open_error(&name, e))?;
+        let pipeline =
+            InactivePipeline::try_from(&self.context).map_err(|e| device_err(format!("{name}: pipeline: {e}")))?;
+        if self.bag.is_none() && !pipeline.can_resolve(&cfg) {
+            return Err(device_err(format!(
+                "{name}: cannot deliver depth {}x{}@{} Z16 with colour {}x{}@{} RGB8 (another process using it, or a mode this camera lacks)",
+                depth.width, depth.height, depth.fps, colour.width, colour.height, colour.fps
+            )));
+        }
+        let pipeline = pipeline.start(Some(cfg)).map_err(|e| self.open_error(&name, e.to_string()))?;
+        let profile = pipeline.profile();
+        let colour_stream = profile.streams().iter().find(|s| s.kind() == Rs2StreamKind::Color);
+        let depth_stream = profile.streams().iter().find(|s| s.kind() == Rs2StreamKind::Depth);
+        let (Some(colour_stream), Some(depth_stream)) = (colour_stream, depth_stream) else {
+            return Err(device_err(format!("{name}: needs a depth and a colour stream")));
+        };
+        let colour_order = match colour_stream.format() {
+            Rs2Format::Rgb8 => ColourOrder::Rgb8,
+            Rs2Format::Bgr8 => ColourOrder::Bgr8,
+            Rs2Format::Rgba8 => ColourOrder::Rgba8,
+            Rs2Format::Bgra8 => ColourOrder::Bgra8,
+            other => {
+                return Err(device_err(format!(
+                    "{name}: colour stream format {other:?}; supported: RGB8, BGR8, RGBA8, BGRA8"
+                )));
+            }
+        };
+        let k = colour_stream.intrinsics().map_err(|e| device_err(format!("{name}: colour intrinsics: {e}")))?;
+        let colour = Intrinsics {
+            width: k.width() as u32,
+            height: k.height() as u32,
+            fx: k.fx(),
+            fy: k.fy(),
+            cx: k.ppx(),
+            cy: k.ppy(),
+        };
+        let extrinsics = depth_stream.extrinsics(colour_stream).ok();
+        let half_period_ms = 500.0 / f64::from(colour_stream.framerate().max(1));
+        // Depth units: the depth sensor's option (metres per unit); the first frame corrects it
+        // when the sensor does not report it.
+        let mut depth_units_per_m = 1000.0;
+        let mut sensors = profile.device().sensors();
+        for sensor in &mut sensors {
+            // (Sensor::extension panics on sensors of recordings; the depth sensor is the one
+            // with depth units.)
+            let is_depth = sensor.supports_option(Rs2Option::DepthUnits);
+            if is_depth && let Some(units) = sensor.get_option(Rs2Option::DepthUnits).filter(|u| *u > 0.0) {
+                depth_units_per_m = units_per_m(units);
+            }
+            if self.bag.is_some() {
+                continue;
+            }
+            let mut set = |option: Rs2Option, value: Option<f32>, what: &str| {
+                if let Some(value) = value
+                    && sensor.supports_option(option)
+                    && let Err(e) = sensor.set_option(option, value)
+                {
+                    warn!(camera = %name, option = what, value, error = %e, "cannot set realsense option");
+                }
+            };
+            set(Rs2Option::GlobalTimeEnabled, Some(1.0), "global_time_enabled");
+            if is_depth {
+                set(Rs2Option::VisualPreset, self.config.visual_preset.option_value(), "visual_preset");
+                set(Rs2Option::EmitterEnabled, self.config.emitter.option_value(), "emitter");
+                set(Rs2Option::LaserPower, self.config.laser_power_mw, "laser_power_mw");
+            }
+        }
+        info!(
+            source = %name,
+            colour = format!("{}x{} {:?}", colour.width, colour.height, colour_order),
+            fx = colour.fx, fy = colour.fy, cx = colour.cx, cy = colour.cy,
+            depth_units_per_m,
+            depth_to_colour_translation_m = ?extrinsics.map(|e| e.translation()),
+            rotate = self.rotation.degrees(),
+            "realsense streams started (depth aligned to colour)"
+        );
+        self.pipeline = Some(pipeline);
+        self.playback = None;
+        self.last_numbers = None;
+        self.delivered_any = false;
+        Ok(Streams { colour, depth_units_per_m, colour_order, half_period_ms })
+    }
+
+    fn open_error(&self, name: &str, reason: String) -> SourceError {
+        match &self.bag {
+            Some(bag) => SourceError::File {
+                path: bag.display().to_string(),
+                reason: format!("librealsense cannot play it: {reason}"),
+            },
+            None => device_err(format!("{name}: {reason}")),
+        }
+    }
+
+    /// Frame sets passed over because they repeated the previous depth or colour frame.
+    pub fn repeated_sets(&self) -> u64 {
+        self.repeated_sets
+    }
+
+    /// The intrinsics of the colour stream as the camera delivers it (before `rotate`).
+    pub fn camera_intrinsics(&self) -> Intrinsics {
+        self.streams.colour
+    }
+
+    /// Lost camera: stop, and retry after the backoff.
+    fn lose(&mut self, reason: &str) {
+        if let Some(pipeline) = self.pipeline.take() {
+            let _ = pipeline.stop();
+        }
+        self.connected = false;
+        self.backoff = Duration::from_millis(self.config.reconnect.initial_ms);
+        self.retry_at = Instant::now() + self.backoff;
+        warn!(camera = %self.name(), reason, retry_in_ms = self.backoff.as_millis() as u64, "realsense camera lost; reconnecting");
+    }
+
+    fn try_reconnect(&mut self) -> Result<SourceStatus, SourceError> {
+        let now = Instant::now();
+        if now < self.retry_at {
+            std::thread::sleep((self.retry_at - now).min(RETRY_SLICE));
+            return Ok(SourceStatus::Pending);
+        }
+        let attempt = find_device(&self.context, &self.serial).and_then(|_| self.start());
+        match attempt {
+            Ok(streams)
+                if streams.colour == self.streams.colour && streams.colour_order == self.streams.colour_order =>
+            {
+                self.streams = streams;
+                self.connected = true;
+                info!(camera = %self.name(), "realsense camera reconnected");
+                Ok(SourceStatus::Pending)
+            }
+            Ok(streams) => {
+                self.pipeline = None;
+                self.schedule_retry();
+                Err(device_err(format!(
+                    "{}: reconnected camera delivers colour {}x{} (fx {}), not the {}x{} (fx {}) frames were sized for",
+                    self.name(),
+                    streams.colour.width,
+                    streams.colour.height,
+                    streams.colour.fx,
+                    self.streams.colour.width,
+                    self.streams.colour.height,
+                    self.streams.colour.fx
+                )))
+            }
+            Err(e) => {
+                self.schedule_retry();
+                tracing::debug!(error = %e, retry_in_ms = self.backoff.as_millis() as u64, "realsense reconnect attempt failed");
+                Ok(SourceStatus::Pending)
+            }
+        }
+    }
+
+    fn schedule_retry(&mut self) {
+        self.backoff = (self.backoff * 2).min(Duration::from_millis(self.config.reconnect.max_ms));
+        self.retry_at = Instant::now() + self.backoff;
+    }
+
+    fn fill(&mut self, set: CompositeFrame, frame: &mut Frame) -> Result<SourceStatus, SourceError> {
+        let name = self.name();
+        let depth = set.frames_of_type::<DepthFrame>().into_iter().next();
+        let colour = set.frames_of_type::<ColorFrame>().into_iter().next();
+        let (Some(depth), Some(colour)) = (depth, colour) else {
+            return Err(device_err(format!("{name}: frame set without depth and colour")));
+        };
+        let numbers = (depth.frame_number(), colour.frame_number());
+        let repeated = self.last_numbers.is_some_and(|(d, c)| numbers.0 == d || numbers.1 == c);
+        let apart_ms = (depth.timestamp() - colour.timestamp()).abs();
+        if repeated || apart_ms > self.streams.half_period_ms {
+            self.repeated_sets += 1;
+            tracing::trace!(depth = numbers.0, colour = numbers.1, apart_ms, "frame set passed over");
+            return Ok(SourceStatus::Pending);
+        }
+        self.last_numbers = Some(numbers);
+        let k = self.streams.colour;
+        let (w, h) = (k.width as usize, k.height as usize);
+        for (what, fw, fh) in
+            [("colour", colour.width(), colour.height()), ("aligned depth", depth.width(), depth.height())]
+        {
+            if (fw, fh) != (w, h) {
+                return Err(SourceError::Frame {
+                    seq: self.seq,
+                    reason: format!("{name}: {what} frame is {fw}x{fh}, the stream is {w}x{h}"),
+                });
+            }
+        }
+        if !self.delivered_any
+            && let Ok(units) = depth.depth_units()
+            && units > 0.0
+        {
+            self.streams.depth_units_per_m = units_per_m(units);
+        }
+        let copy_err =
+            |e: crate::rotate::CopyError| SourceError::Frame { seq: self.seq, reason: format!("{name}: {e}") };
+        // SAFETY: librealsense keeps each frame's buffer (get_data_size bytes) alive while the
+        // frame object lives; the slices do not outlive `colour` / `depth`.
+        let (colour_bytes, depth_bytes) = unsafe {
+            (
+                std::slice::from_raw_parts(
+                    (colour.get_data() as *const std::ffi::c_void).cast::<u8>(),
+                    colour.get_data_size(),
+                ),
+                std::slice::from_raw_parts(
+                    (depth.get_data() as *const std::ffi::c_void).cast::<u8>(),
+                    depth.get_data_size(),
+                ),
+            )
+        };
+        copy_colour(
+            colour_bytes,
+            SourceLayout { width: w, height: h, stride_bytes: colour.stride() },
+            self.streams.colour_order,
+            self.rotation,
+            &mut frame.rgb,
+        )
+        .map_err(copy_err)?;
+        copy_depth(
+            depth_bytes,
+            SourceLayout { width: w, height: h, stride_bytes: depth.stride() },
+            self.rotation,
+            &mut frame.depth,
+        )
+        .map_err(copy_err)?;
+        let stamp_ms = match colour.timestamp_domain() {
+            Rs2TimestampDomain::GlobalTime | Rs2TimestampDomain::SystemTime => colour.timestamp(),
+            _ if self.bag.is_some() => colour.timestamp(),
+            _ => {
+                if !self.warned_hardware_clock {
+                    self.warned_hardware_clock = true;
+                    warn!(camera = %name, "frames are stamped by the camera's hardware clock, not global time: using the host arrival time instead (update the firmware)");
+                }
+                colour.metadata(Rs2FrameMetadata::TimeOfArrival).map_or_else(|| colour.timestamp(), |ms| ms as f64)
+            }
+        };
+        frame.seq = self.seq;
+        frame.stamp_ns = (stamp_ms * 1e6).round().max(0.0) as u64;
+        frame.intrinsics = self.intrinsics;
+        frame.depth_units_per_m = self.streams.depth_units_per_m;
+        frame.world_from_camera = self.world_from_camera;
+        self.seq += 1;
+        if !self.delivered_any {
+            self.delivered_any = true;
+            if self.bag.is_some() {
+                match PlaybackDevice::from_frame(depth, self.config.bag_real_time) {
+                    Ok(device) => self.playback = Some(device),
+                    Err(e) => warn!(bag = %name, error = %e, "cannot control playback pacing; playing in real time"),
+                }
+            }
+        }
+        Ok(SourceStatus::Frame)
+    }
+}
+
+/// Depth units per metre from librealsense's metres per unit. The option is an `f32`, so
+/// decimal units (0.001, 0.00025) arrive rounded; a reciprocal within 1e-5 (relative) of a whole
+/// number is that number.
+fn units_per_m(metres_per_unit: f32) -> f32 {
+    let per_m = 1.0 / f64::from(metres_per_unit);
+    let whole = per_m.round();
+    if whole > 0.0 && ((per_m - whole) / whole).abs() < 1e-5 { whole as f32 } else { per_m as f32 }
+}
+
+fn info(device: &realsense_rust::device::Device, what: Rs2CameraInfo) -> String {
+    device.info(what).map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
+}
+
+/// The connected camera with `serial` (any when empty).
+fn find_device(context: &Context, serial: &str) -> Result<realsense_rust::device::Device, SourceError> {
+    let devices = context.query_devices(HashSet::new());
+    let serials: Vec<String> = devices.iter().map(|d| info(d, Rs2CameraInfo::SerialNumber)).collect();
+    let found =
+        devices.into_iter().zip(&serials).find(|(_, s)| serial.is_empty() || s.as_str() == serial).map(|(d, _)| d);
+    found.ok_or_else(|| {
+        if serials.is_empty() {
+            device_err(
+                "no RealSense camera connected (check the USB cable, `rs-enumerate-devices`, and the udev rules)",
+            )
+        } else {
+            device_err(format!("no RealSense camera with serial {serial:?}; connected: {}", serials.join(", ")))
+        }
+    })
+}
+
+impl FrameSource for RealsenseSource {
+    fn intrinsics(&self) -> Intrinsics {
+        self.intrinsics
+    }
+
+    fn has_poses(&self) -> bool {
+        self.world_from_camera.is_some()
+    }
+
+    fn connected(&self) -> bool {
+        self.connected
+    }
+
+    fn next_frame(&mut self, frame: &mut Frame) -> Result<SourceStatus, SourceError> {
+        let Some(pipeline) = self.pipeline.as_mut() else {
+            return if self.bag.is_some() { Ok(SourceStatus::EndOfStream) } else { self.try_reconnect() };
+        };
+        let timeout = if self.playback.as_ref().is_some_and(PlaybackDevice::stopped) {
+            // Playback read the whole file: drain what the pipeline still holds, then end.
+            END_DRAIN_TIMEOUT
+        } else if self.delivered_any {
+            Duration::from_millis(self.config.frame_timeout_ms)
+        } else {
+            FIRST_FRAME_TIMEOUT.max(Duration::from_millis(self.config.frame_timeout_ms))
+        };
+        match pipeline.wait(Some(timeout)) {
+            Ok(set) => {
+                self.align.queue(set).map_err(|e| device_err(format!("{}: align: {e}", self.name())))?;
+                let aligned =
+                    self.align.wait(timeout).map_err(|e| device_err(format!("{}: align: {e}", self.name())))?;
+                self.fill(aligned, frame)
+            }
+            Err(e) => {
+                if self.bag.is_some() {
+                    // librealsense shows the end of a non-looping file only as a timeout.
+                    if self.delivered_any {
+                        self.pipeline = None;
+                        return Ok(SourceStatus::EndOfStream);
+                    }
+                    return Err(SourceError::File {
+                        path: self.name(),
+                        reason: format!("no frame set within {timeout:?}: {e}"),
+                    });
+                }
+                if find_device(&self.context, &self.serial).is_err() {
+                    self.lose("unplugged");
+                    return Ok(SourceStatus::Pending);
+                }
+                Err(device_err(format!("{}: {e}", self.name())))
+            }
+        }
+    }
+
+    fn stops_on_error(&self) -> bool {
+        self.bag.is_some()
+    }
+
+    fn describe(&self) -> String {
+        match &self.bag {
+            Some(bag) => format!("realsense playback {}", bag.display()),
+            None => format!(
+                "realsense {} depth {}x{}@{} colour {}x{}@{} rotate {}",
+                if self.serial.is_empty() { "(first found)" } else { &self.serial },
+                self.modes.0.width,
+                self.modes.0.height,
+                self.modes.0.fps,
+                self.modes.1.width,
+                self.modes.1.height,
+                self.modes.1.fps,
+                self.rotation.degrees()
+            ),
+        }
+    }
+}

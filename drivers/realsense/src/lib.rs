@@ -1,0 +1,37 @@
+//! # op3dsg-realsense: the Intel RealSense D435i as a frame source
+//!
+//! `source.kind = "realsense"` (`[source.realsense]`, [`RealsenseConfig`]): a live camera chosen
+//! by serial number, or a librealsense `.bag` recording played through the same code. Depth is
+//! aligned to colour by librealsense's align block; intrinsics and depth units come from the
+//! device (or the recording); frames are rotated upright ([`rotate`], the Stretch 3's head camera
+//! is mounted turned by 90°) while they are copied from the driver's buffers into the pooled
+//! [`op3dsg_drivers::frame::Frame`], with no per-frame buffer allocation.
+//!
+//! The librealsense part ([`device`]) is behind the crate feature `librealsense`, its
+//! registration with the runtime (`backend`) behind `backend` (what `op3dsgd --features
+//! realsense` turns on), so the default build needs no librealsense; the configuration, the
+//! rotation and the copy kernels (and their benchmark) always build.
+//!
+//! ```
+//! use op3dsg_drivers::frame::Intrinsics;
+//! use op3dsg_realsense::rotate::Rotation;
+//!
+//! let k = Intrinsics { width: 848, height: 480, fx: 421.0, fy: 421.0, cx: 424.0, cy: 240.0 };
+//! let upright = Rotation::Cw90.intrinsics(&k);
+//! assert_eq!((upright.width, upright.height), (480, 848));
+//! assert_eq!(Rotation::Cw90.map_pixel(0, 0, 848, 480), (479, 0));
+//! ```
+
+#[cfg(feature = "backend")]
+pub mod backend;
+pub mod config;
+#[cfg(feature = "librealsense")]
+pub mod device;
+pub mod rotate;
+
+pub use config::RealsenseConfig;
+#[cfg(feature = "librealsense")]
+pub use device::RealsenseSource;
+
+/// `source.kind` of this source.
+pub const REALSENSE_SOURCE: &str = "realsense";

@@ -1,0 +1,398 @@
+//! Rotating frames upright: the Stretch 3's head camera is mounted rotated by 90°, detectors
+//! expect upright images, so colour, depth and the intrinsics are turned before anything else
+//! sees them.
+//!
+//! `rotate` is the **clockwise** turn applied to the image as the camera delivers it, in
+//! degrees (0, 90, 180, 270). Pixel indices follow librealsense and
+//! [`Intrinsics::point_in_camera`]: pixel `(u, v)` is at `(u, v)` (no half-pixel offset). For
+//! 90° a `w x h` image becomes `h x w` and pixel `(u, v)` lands at `(h - 1 - v, u)`.
+//!
+//! The camera frame turns with the image (x right, y down, z forward in the *upright* image):
+//! [`Rotation::camera_from_upright`] is the rotation about the optical axis that takes a point
+//! in the upright camera frame to the physical camera's optical frame, so
+//! `world_from_upright = world_from_camera * camera_from_upright` and back-projection with the
+//! rotated intrinsics lands every pixel where the unrotated image would have put it.
+//!
+//! The copy kernels read the driver's buffer (any row stride) and write the pooled frame's
+//! buffers in place: nothing is allocated per frame.
+
+use op3dsg_drivers::frame::Intrinsics;
+use op3dsg_drivers::pose::Isometry;
+use serde::{Deserialize, Serialize};
+
+/// A clockwise image rotation by a multiple of 90°.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(try_from = "u32", into = "u32")]
+pub enum Rotation {
+    /// As delivered.
+    #[default]
+    None,
+    /// 90° clockwise.
+    Cw90,
+    /// 180°.
+    Cw180,
+    /// 270° clockwise (90° counter-clockwise).
+    Cw270,
+}
+
+impl TryFrom<u32> for Rotation {
+    type Error = String;
+    fn try_from(degrees: u32) -> Result<Self, String> {
+        match degrees {
+            0 => Ok(Self::None),
+            90 => Ok(Self::Cw90),
+            180 => Ok(Self::Cw180),
+            270 => Ok(Self::Cw270),
+            other => Err(format!("must be 0, 90, 180 or 270 (degrees clockwise), got {other}")),
+        }
+    }
+}
+
+impl From<Rotation> for u32 {
+    fn from(rotation: Rotation) -> u32 {
+        rotation.degrees()
+    }
+}
+
+impl Rotation {
+    /// Clockwise degrees.
+    pub fn degrees(self) -> u32 {
+        match self {
+            Self::None => 0,
+            Self::Cw90 => 90,
+            Self::Cw180 => 180,
+            Self::Cw270 => 270,
+        }
+    }
+
+    /// Whether width and height swap.
+    pub fn swaps_axes(self) -> bool {
+        matches!(self, Self::Cw90 | Self::Cw270)
+    }
+
+    /// Where pixel `(u, v)` of a `width x height` source image lands in the rotated image.
+    #[inline]
+    pub fn map_pixel(self, u: u32, v: u32, width: u32, height: u32) -> (u32, u32) {
+        match self {
+            Self::None => (u, v),
+            Self::Cw90 => (height - 1 - v, u),
+            Self::Cw180 => (width - 1 - u, height - 1 - v),
+            Self::Cw270 => (v, width - 1 - u),
+        }
+    }
+
+    /// The intrinsics of the rotated image.
+    pub fn intrinsics(self, k: &Intrinsics) -> Intrinsics {
+        let (w, h) = (k.width as f32, k.height as f32);
+        match self {
+            Self::None => *k,
+            Self::Cw90 => {
+                Intrinsics { width: k.height, height: k.width, fx: k.fy, fy: k.fx, cx: h - 1.0 - k.cy, cy: k.cx }
+            }
+            Self::Cw180 => Intrinsics { cx: w - 1.0 - k.cx, cy: h - 1.0 - k.cy, ..*k },
+            Self::Cw270 => {
+                Intrinsics { width: k.height, height: k.width, fx: k.fy, fy: k.fx, cx: k.cy, cy: w - 1.0 - k.cx }
+            }
+        }
+    }
+
+    /// `camera_from_upright`: the physical camera's optical frame from the upright image's
+    /// camera frame (a rotation about the optical axis z).
+    pub fn camera_from_upright(self) -> Isometry {
+        // Upright x' = -y (90° cw) etc.: the upright axes expressed in the camera frame.
+        let angle = -(self.degrees() as f64).to_radians();
+        Isometry::new(glam::DQuat::from_rotation_z(angle), glam::DVec3::ZERO)
+    }
+}
+
+/// Layout of a driver buffer: size in pixels and the byte stride of one row.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SourceLayout {
+    /// Width, pixels.
+    pub width: usize,
+    /// Height, pixels.
+    pub height: usize,
+    /// Bytes from one row to the next (at least `width * bytes_per_pixel`).
+    pub stride_bytes: usize,
+}
+
+/// Colour channel order of a driver buffer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ColourOrder {
+    /// R, G, B (3 bytes).
+    Rgb8,
+    /// B, G, R (3 bytes).
+    Bgr8,
+    /// R, G, B, A (4 bytes).
+    Rgba8,
+    /// B, G, R, A (4 bytes).
+    Bgra8,
+}
+
+impl ColourOrder {
+    /// Bytes per pixel.
+    pub fn bytes_per_pixel(self) -> usize {
+        match self {
+            Self::Rgb8 | Self::Bgr8 => 3,
+            Self::Rgba8 | Self::Bgra8 => 4,
+        }
+    }
+
+    fn swaps_red_blue(self) -> bool {
+        matches!(self, Self::Bgr8 | Self::Bgra8)
+    }
+}
+
+/// A buffer or layout that does not fit: what was expected and what came.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum CopyError {
+    /// The source slice is shorter than its layout says.
+    #[error("{stream}: driver buffer holds {got} bytes, {width}x{height} with stride {stride} needs {needed}")]
+    ShortSource {
+        /// `colour` or `depth`.
+        stream: &'static str,
+        /// Bytes present.
+        got: usize,
+        /// Bytes needed.
+        needed: usize,
+        /// Width, pixels.
+        width: usize,
+        /// Height, pixels.
+        height: usize,
+        /// Row stride, bytes.
+        stride: usize,
+    },
+    /// The destination does not have exactly one element per pixel (per channel).
+    #[error("{stream}: frame buffer holds {got} values, the {width}x{height} stream needs {needed}")]
+    Destination {
+        /// `colour` or `depth`.
+        stream: &'static str,
+        /// Values present.
+        got: usize,
+        /// Values needed.
+        needed: usize,
+        /// Width, pixels.
+        width: usize,
+        /// Height, pixels.
+        height: usize,
+    },
+}
+
+fn check(
+    stream: &'static str,
+    src: &[u8],
+    layout: SourceLayout,
+    bpp: usize,
+    dst_len: usize,
+    channels: usize,
+) -> Result<(), CopyError> {
+    let SourceLayout { width, height, stride_bytes } = layout;
+    let needed = if height == 0 { 0 } else { stride_bytes * (height - 1) + width * bpp };
+    if src.len() < needed || stride_bytes < width * bpp {
+        return Err(CopyError::ShortSource { stream, got: src.len(), needed, width, height, stride: stride_bytes });
+    }
+    let want = width * height * channels;
+    if dst_len != want {
+        return Err(CopyError::Destination { stream, got: dst_len, needed: want, width, height });
+    }
+    Ok(())
+}
+
+/// Destination index and per-step increments for walking the source row by row: the rotated
+/// position of source pixel `(0, v)` and how it moves per `u`.
+#[inline]
+fn walk(rotation: Rotation, v: usize, w: usize, h: usize) -> (isize, isize) {
+    // Destination width: h when axes swap, else w.
+    let (w, h, v) = (w as isize, h as isize, v as isize);
+    match rotation {
+        Rotation::None => (v * w, 1),
+        // (u, v) -> (h-1-v, u), dst width h: index = u*h + (h-1-v).
+        Rotation::Cw90 => (h - 1 - v, h),
+        // (u, v) -> (w-1-u, h-1-v), dst width w.
+        Rotation::Cw180 => ((h - 1 - v) * w + (w - 1), -1),
+        // (u, v) -> (v, w-1-u), dst width h: index = (w-1-u)*h + v.
+        Rotation::Cw270 => ((w - 1) * h + v, -h),
+    }
+}
+
+/// Copies a colour buffer into `dst` (row-major RGB8 of the rotated image), converting the
+/// channel order.
+pub fn copy_colour(
+    src: &[u8],
+    layout: SourceLayout,
+    order: ColourOrder,
+    rotation: Rotation,
+    dst: &mut [u8],
+) -> Result<(), CopyError> {
+    let bpp = order.bytes_per_pixel();
+    check("colour", src, layout, bpp, dst.len(), 3)?;
+    let SourceLayout { width, height, stride_bytes } = layout;
+    let swap = order.swaps_red_blue();
+    if rotation == Rotation::None && bpp == 3 && !swap {
+        for v in 0..height {
+            dst[v * width * 3..(v + 1) * width * 3]
+                .copy_from_slice(&src[v * stride_bytes..v * stride_bytes + width * 3]);
+        }
+        return Ok(());
+    }
+    for v in 0..height {
+        let row = &src[v * stride_bytes..v * stride_bytes + width * bpp];
+        let (mut at, step) = walk(rotation, v, width, height);
+        for px in row.chunks_exact(bpp) {
+            let i = at as usize * 3;
+            let (r, b) = if swap { (px[2], px[0]) } else { (px[0], px[2]) };
+            dst[i] = r;
+            dst[i + 1] = px[1];
+            dst[i + 2] = b;
+            at += step;
+        }
+    }
+    Ok(())
+}
+
+/// Copies a Z16 depth buffer (little-endian `u16` per pixel, any stride and alignment) into
+/// `dst` (row-major depth of the rotated image).
+pub fn copy_depth(src: &[u8], layout: SourceLayout, rotation: Rotation, dst: &mut [u16]) -> Result<(), CopyError> {
+    check("depth", src, layout, 2, dst.len(), 1)?;
+    let SourceLayout { width, height, stride_bytes } = layout;
+    for v in 0..height {
+        let row = &src[v * stride_bytes..v * stride_bytes + width * 2];
+        let (mut at, step) = walk(rotation, v, width, height);
+        if rotation == Rotation::None {
+            for (d, px) in dst[v * width..(v + 1) * width].iter_mut().zip(row.chunks_exact(2)) {
+                *d = u16::from_le_bytes([px[0], px[1]]);
+            }
+            continue;
+        }
+        for px in row.chunks_exact(2) {
+            dst[at as usize] = u16::from_le_bytes([px[0], px[1]]);
+            at += step;
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const ALL: [Rotation; 4] = [Rotation::None, Rotation::Cw90, Rotation::Cw180, Rotation::Cw270];
+
+    fn k() -> Intrinsics {
+        Intrinsics { width: 848, height: 480, fx: 421.5, fy: 420.25, cx: 425.75, cy: 238.5 }
+    }
+
+    #[test]
+    fn ninety_degrees_maps_the_corners_and_a_known_pixel() {
+        let r = Rotation::Cw90;
+        // The top-left corner goes to the top-right, the bottom-left to the top-left.
+        assert_eq!(r.map_pixel(0, 0, 848, 480), (479, 0));
+        assert_eq!(r.map_pixel(0, 479, 848, 480), (0, 0));
+        assert_eq!(r.map_pixel(847, 479, 848, 480), (0, 847));
+        assert_eq!(r.map_pixel(100, 30, 848, 480), (449, 100));
+        assert_eq!(Rotation::Cw270.map_pixel(100, 30, 848, 480), (30, 747));
+        assert_eq!(Rotation::Cw180.map_pixel(100, 30, 848, 480), (747, 449));
+    }
+
+    #[test]
+    fn rotated_intrinsics_are_exact_for_ninety_degrees() {
+        let r = Rotation::Cw90.intrinsics(&k());
+        assert_eq!(r, Intrinsics { width: 480, height: 848, fx: 420.25, fy: 421.5, cx: 479.0 - 238.5, cy: 425.75 });
+        let r = Rotation::Cw270.intrinsics(&k());
+        assert_eq!(r, Intrinsics { width: 480, height: 848, fx: 420.25, fy: 421.5, cx: 238.5, cy: 847.0 - 425.75 });
+        let r = Rotation::Cw180.intrinsics(&k());
+        assert_eq!(r, Intrinsics { cx: 847.0 - 425.75, cy: 479.0 - 238.5, ..k() });
+        assert_eq!(Rotation::None.intrinsics(&k()), k());
+    }
+
+    #[test]
+    fn rotation_keeps_back_projection_consistent() {
+        // A pixel and its rotated twin back-project to the same point once the upright camera
+        // frame is turned back into the physical one.
+        let k = k();
+        for r in ALL {
+            let kr = r.intrinsics(&k);
+            let camera_from_upright = r.camera_from_upright();
+            for (u, v) in [(0u32, 0u32), (100, 30), (847, 479), (424, 240), (5, 470)] {
+                let depth_m = 1.7;
+                let p = k.point_in_camera(u as f32, v as f32, depth_m).as_dvec3();
+                let (ur, vr) = r.map_pixel(u, v, k.width, k.height);
+                let q =
+                    camera_from_upright.transform_point(kr.point_in_camera(ur as f32, vr as f32, depth_m).as_dvec3());
+                assert!((p - q).length() < 1e-5, "{r:?} pixel ({u}, {v}): {p} vs {q}");
+            }
+        }
+    }
+
+    #[test]
+    fn parses_degrees_and_refuses_others() {
+        assert_eq!(Rotation::try_from(270), Ok(Rotation::Cw270));
+        assert!(Rotation::try_from(45).unwrap_err().contains("got 45"));
+    }
+
+    fn test_image(w: usize, h: usize, stride: usize) -> (Vec<u8>, Vec<u8>) {
+        let mut rgb = vec![0xEEu8; stride * h];
+        let mut z16 = vec![0xEEu8; (stride * 2 / 3).max(w * 2) * h];
+        let zstride = z16.len() / h;
+        for v in 0..h {
+            for u in 0..w {
+                let i = v * stride + u * 3;
+                rgb[i..i + 3].copy_from_slice(&[u as u8, v as u8, (u * 7 + v) as u8]);
+                let d = (1000 + u * 10 + v) as u16;
+                z16[v * zstride + u * 2..v * zstride + u * 2 + 2].copy_from_slice(&d.to_le_bytes());
+            }
+        }
+        (rgb, z16)
+    }
+
+    #[test]
+    fn copies_land_every_pixel_where_map_pixel_says() {
+        let (w, h, stride) = (7usize, 5usize, 7 * 3 + 9);
+        let (rgb, z16) = test_image(w, h, stride);
+        let zstride = z16.len() / h;
+        for r in ALL {
+            let mut out_rgb = vec![0u8; w * h * 3];
+            let mut out_depth = vec![0u16; w * h];
+            copy_colour(
+                &rgb,
+                SourceLayout { width: w, height: h, stride_bytes: stride },
+                ColourOrder::Rgb8,
+                r,
+                &mut out_rgb,
+            )
+            .unwrap();
+            copy_depth(&z16, SourceLayout { width: w, height: h, stride_bytes: zstride }, r, &mut out_depth).unwrap();
+            let out_w = if r.swaps_axes() { h } else { w };
+            for v in 0..h {
+                for u in 0..w {
+                    let (ur, vr) = r.map_pixel(u as u32, v as u32, w as u32, h as u32);
+                    let i = vr as usize * out_w + ur as usize;
+                    assert_eq!(&out_rgb[i * 3..i * 3 + 3], &[u as u8, v as u8, (u * 7 + v) as u8], "{r:?} ({u},{v})");
+                    assert_eq!(out_depth[i], (1000 + u * 10 + v) as u16, "{r:?} ({u},{v})");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn channel_orders_convert_to_rgb() {
+        let layout = SourceLayout { width: 2, height: 1, stride_bytes: 8 };
+        let mut out = vec![0u8; 6];
+        copy_colour(&[3, 2, 1, 255, 6, 5, 4, 255], layout, ColourOrder::Bgra8, Rotation::None, &mut out).unwrap();
+        assert_eq!(out, [1, 2, 3, 4, 5, 6]);
+        let layout = SourceLayout { width: 2, height: 1, stride_bytes: 6 };
+        copy_colour(&[3, 2, 1, 6, 5, 4], layout, ColourOrder::Bgr8, Rotation::Cw180, &mut out).unwrap();
+        assert_eq!(out, [4, 5, 6, 1, 2, 3]);
+    }
+
+    #[test]
+    fn short_buffers_are_refused_naming_the_stream() {
+        let layout = SourceLayout { width: 4, height: 4, stride_bytes: 8 };
+        let mut out = vec![0u16; 16];
+        let e = copy_depth(&[0; 30], layout, Rotation::Cw90, &mut out).unwrap_err();
+        assert!(e.to_string().starts_with("depth: driver buffer holds 30 bytes"), "{e}");
+        let mut out = vec![0u16; 15];
+        let e = copy_depth(&[0; 32], layout, Rotation::None, &mut out).unwrap_err();
+        assert!(e.to_string().contains("frame buffer holds 15 values"), "{e}");
+    }
+}
