@@ -45,4 +45,5 @@ pub mod pipeline;
 pub mod prior;
 pub mod queue;
 pub mod reasoner;
+pub mod record;
 pub mod stats;

@@ -53,6 +53,8 @@ pub const PATH_KEYS: &[&str] = &[
     "detector.open_vocab.model_path",
     "reasoner.knowledge_dir",
     "reasoner.llm.api_key_file",
+    "record.dir",
+    "source.mcap.path",
 ];
 
 /// The whole daemon configuration.
@@ -88,6 +90,9 @@ pub struct Profile {
     pub text_encoder: TextEncoderConfig,
     /// The prior graph and the reasoner run on every published graph.
     pub reasoner: ReasonerConfig,
+    /// The MCAP recorder (`crate::record`); off unless `enabled`.
+    #[serde(default)]
+    pub record: crate::record::RecordConfig,
     /// The sections of registered backends, by dotted path (`source.synthetic`,
     /// `detector.oracle`), as their backend checked and completed them at load time.
     #[serde(skip)]
@@ -366,6 +371,7 @@ impl Profile {
         self.queues.graph.validate("queues.graph").map_err(split_message)?;
         self.ipc.validate("ipc").map_err(split_message)?;
         self.onnx.validate("onnx").map_err(split_message)?;
+        self.record.validate("record").map_err(split_message)?;
         self.text_encoder.validate("text_encoder").map_err(split_message)?;
         let r = &self.reasoner;
         check(r.neighbour_radius_m > 0.0 && r.neighbour_radius_m <= 10.0, "reasoner.neighbour_radius_m", || {

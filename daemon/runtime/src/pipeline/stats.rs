@@ -11,6 +11,7 @@ use crate::keyframe::PoseRefusal;
 
 use crate::queue::QueueStats;
 use crate::reasoner::llm::RefinerStats;
+use crate::record::RecorderStats;
 use crate::stats::StageStats;
 
 /// Counters shared by every stage and read by the health reporter.
@@ -49,6 +50,8 @@ pub struct PipelineStats {
     pub queues: Vec<Arc<QueueStats>>,
     /// The LLM refiner (state `off` without `reasoner.kind = "llm"`).
     pub refiner: Arc<RefinerStats>,
+    /// The MCAP recorder (state `off` without `[record] enabled`).
+    pub recorder: Arc<RecorderStats>,
 }
 
 impl PipelineStats {
@@ -78,6 +81,7 @@ impl PipelineStats {
             stages,
             queues,
             refiner,
+            recorder: Arc::new(RecorderStats::default()),
         }
     }
 
@@ -113,6 +117,7 @@ impl PipelineStats {
         h.queue_count = self.queues.len().min(h.queues.len()) as u32;
         h.refiner = self.refiner.health();
         h.pose = self.pose.health();
+        h.recorder = self.recorder.health();
         h.model_count = crate::onnx::fill_model_health(&mut h.models) as u32;
         h
     }
