@@ -50,7 +50,7 @@ def main(path):
     with open(path, "rb") as f:
         reader = NonSeekingReader(f, validate_crcs=True)
         try:
-            for schema, channel, message in reader.iter_messages():
+            for schema, channel, message in reader.iter_messages(log_time_order=False):
                 topic = channel.topic
                 entry = out["channels"].setdefault(
                     topic,
