@@ -237,7 +237,7 @@ mod tests {
         assert_eq!(back.intrinsics().unwrap(), k);
         let pose = Isometry::new(
             glam::DQuat::from_euler(glam::EulerRot::XYZ, 0.1, -0.7, 2.9),
-            glam::DVec3::new(1.0 / 3.0, -2.718_281_828_459_045, 1e-17),
+            glam::DVec3::new(1.0 / 3.0, -2.718_281_828_459_1, 1e-17),
         );
         let meta =
             FrameMeta { seq: 3, stamp_ns: 9, depth_units_per_m: 1000.0, world_from_camera: Some((&pose).into()) };

@@ -35,6 +35,8 @@ pub mod messages;
 pub mod reader;
 pub mod schemas;
 mod source;
+#[cfg(test)]
+mod tests;
 
 use std::path::PathBuf;
 

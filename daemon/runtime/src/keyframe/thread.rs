@@ -12,6 +12,7 @@ use crate::pipeline::items::{CapturedFrame, KeyframeItem, POLL};
 use crate::queue::{Popped, QueueReceiver, QueueSender};
 use crate::record::{RecordSender, SideChannelTap};
 
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn keyframe_loop(
     config: &crate::config::KeyframeConfig,
     pose_config: &crate::config::PoseConfig,
