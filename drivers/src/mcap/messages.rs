@@ -56,7 +56,12 @@ impl From<&Isometry> for IsometryJson {
 impl From<&IsometryJson> for Isometry {
     fn from(pose: &IsometryJson) -> Self {
         let [x, y, z, w] = pose.rotation_xyzw;
-        Isometry::new(glam::DQuat::from_xyzw(x, y, z, w), glam::DVec3::from_array(pose.translation_m))
+        // As recorded: the source's quaternion was unit already, and normalising it again could
+        // change its last bits (a replay must give the same pose to the bit).
+        Isometry {
+            rotation: glam::DQuat::from_xyzw(x, y, z, w),
+            translation: glam::DVec3::from_array(pose.translation_m),
+        }
     }
 }
 

@@ -109,7 +109,8 @@ fn a_recording_plays_back_exactly() {
     assert_eq!((f.seq, f.stamp_ns), (3, 3_000_000));
     assert_eq!(f.rgb[10], 13);
     assert_eq!(f.depth[10], 73);
-    assert_eq!(f.world_from_camera.unwrap().rotation, glam::DQuat::from_rotation_z(0.1 * 3.0));
+    let written = Isometry::new(glam::DQuat::from_rotation_z(0.1 * 3.0), glam::DVec3::new(0.1, 0.2, 0.3));
+    assert_eq!(f.world_from_camera.unwrap(), written, "the pose as written, to the bit");
 }
 
 #[test]
