@@ -529,7 +529,7 @@ mod tests {
         assert_eq!(
             err.to_string(),
             format!(
-                "{BASE_PROFILE_NAME}: source.synthetic: no source backend \"synthetic\" in this build (it has: replay)"
+                "{BASE_PROFILE_NAME}: source.synthetic: no source backend \"synthetic\" in this build (it has: mcap, replay)"
             )
         );
         // Without a registry the sections are kept as they are, for their backend to check.
