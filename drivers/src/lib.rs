@@ -5,6 +5,7 @@
 //! - [`source`]: the [`source::FrameSource`] trait every source implements.
 //! - [`replay`]: recorded RGB-D in the TUM RGB-D layout (`rgb.txt`, `depth.txt`,
 //!   `groundtruth.txt`, `camera.json`) with its poses; recorded-rate, fast or stepped playback.
+//! - [`mcap`]: the channels of MCAP recordings and their replay ([`mcap::McapSource`]).
 //! - [`graph_json`]: the scene-graph JSON form shared by published graphs and evaluation.
 //!
 //! The synthetic rooms (world, renderer, camera path) are the crate `op3dsg-synthetic` in
@@ -20,6 +21,7 @@
 
 pub mod frame;
 pub mod graph_json;
+pub mod mcap;
 pub mod pose;
 pub mod replay;
 pub mod source;

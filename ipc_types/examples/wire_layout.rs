@@ -20,7 +20,7 @@ use op3dsg_ipc_types::{
     AFFORDANCES, EDGE_BYTES, EXECUTION_PROVIDERS, Edge, FIXED_STAGES, FUNCTIONAL_RELATION_BASE, FUNCTIONAL_RELATIONS,
     FUTURE_POSE_LIMIT_NS, GraphHeader, Health, LABEL_CAPACITY_BYTES, MAX_EDGES, MAX_MODELS, MAX_NODES, MAX_QUEUES,
     MAX_STAGES, MAX_WORKERS, ModelHealth, NAME_CAPACITY_BYTES, NO_NODE, NODE_BYTES, Node, PHRASE_CAPACITY_BYTES,
-    PoseHealth, PoseStamped, QueueHealth, REFINER_REJECTIONS, REFINER_STATES, RefinerHealth, SCHEMA_VERSION,
+    PoseHealth, PoseStamped, QueueHealth, RECORDER_STATES, RecorderHealth, REFINER_REJECTIONS, REFINER_STATES, RefinerHealth, SCHEMA_VERSION,
     SPATIAL_RELATIONS, StageHealth, ZeroCopySend,
 };
 
@@ -145,6 +145,10 @@ fn main() {
     layout!(types, ModelHealth { name, sessions, provider, requested_provider, reserved });
     layout!(
         types,
+        RecorderHealth { state, reserved, files, messages_written, messages_dropped, bytes_written, cpu_ns }
+    );
+    layout!(
+        types,
         Health {
             schema_version,
             stage_count,
@@ -167,6 +171,7 @@ fn main() {
             model_count,
             reserved_models,
             models,
+            recorder,
         }
     );
 
@@ -195,6 +200,7 @@ fn main() {
     constant("FUNCTIONAL_RELATIONS", json_strings(&FUNCTIONAL_RELATIONS));
     constant("EXECUTION_PROVIDERS", json_strings(&EXECUTION_PROVIDERS));
     constant("REFINER_STATES", json_strings(&REFINER_STATES));
+    constant("RECORDER_STATES", json_strings(&RECORDER_STATES));
     constant("REFINER_REJECTIONS", json_strings(&REFINER_REJECTIONS));
     constant("DEFAULT_PREFIX", format!("\"{DEFAULT_PREFIX}\""));
     constant("MAX_PREFIX_LEN", MAX_PREFIX_LEN.to_string());

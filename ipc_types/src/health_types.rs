@@ -215,6 +215,8 @@ pub struct Health {
     pub reserved_models: u32,
     /// The execution provider each model's sessions run on.
     pub models: [ModelHealth; MAX_MODELS],
+    /// The MCAP recorder (`[record]`).
+    pub recorder: RecorderHealth,
 }
 
 impl Default for Health {
@@ -241,6 +243,7 @@ impl Default for Health {
             model_count: 0,
             reserved_models: 0,
             models: [ModelHealth::default(); MAX_MODELS],
+            recorder: RecorderHealth::default(),
         }
     }
 }
@@ -258,4 +261,30 @@ impl Health {
     pub fn valid_queues(&self) -> &[QueueHealth] {
         &self.queues[..(self.queue_count as usize).min(MAX_QUEUES)]
     }
+}
+
+/// Names of [`RecorderHealth::state`], by value.
+pub const RECORDER_STATES: [&str; 4] = ["off", "recording", "failed", "finished"];
+
+/// The MCAP recorder's state and counters (`[record]`, `daemon/runtime/src/record/`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, PlacementDefault)]
+#[type_name("op3dsg::RecorderHealth")]
+pub struct RecorderHealth {
+    /// Index into [`RECORDER_STATES`]: 0 off (not configured), 1 recording, 2 failed (a write
+    /// failed, e.g. the disk is full: recording stopped, the pipeline goes on), 3 finished.
+    pub state: u8,
+    /// Reserved, zero.
+    pub reserved: [u8; 3],
+    /// Files started so far (rotation starts a new one).
+    pub files: u32,
+    /// Messages written, all channels.
+    pub messages_written: u64,
+    /// Messages dropped, all channels: queue full or no free frame buffer (the disk is slower
+    /// than the input), or given up after a failure.
+    pub messages_dropped: u64,
+    /// Bytes on disk in the files written so far (compressed; updated at each flush).
+    pub bytes_written: u64,
+    /// CPU time of the recorder thread so far, nanoseconds (Linux; 0 elsewhere).
+    pub cpu_ns: u64,
 }

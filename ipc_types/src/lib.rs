@@ -131,7 +131,8 @@ pub use graph_types::{
 };
 pub use health_types::{
     EXECUTION_PROVIDERS, FIXED_STAGES, FUTURE_POSE_LIMIT_NS, Health, MAX_MODELS, MAX_QUEUES, MAX_STAGES, MAX_WORKERS,
-    ModelHealth, PoseHealth, QueueHealth, REFINER_REJECTIONS, REFINER_STATES, RefinerHealth, StageHealth,
+    ModelHealth, PoseHealth, QueueHealth, RECORDER_STATES, REFINER_REJECTIONS, REFINER_STATES, RecorderHealth,
+    RefinerHealth, StageHealth,
 };
 pub use pose_types::{PoseError, PoseKind, PoseStamped, check_pose};
 pub use services::{IpcService, PrefixError, ServiceKind, ServiceNames, validate_prefix};
@@ -167,7 +168,7 @@ mod tests {
         assert_eq!(size_of::<PoseHealth>(), 96);
         assert_eq!(size_of::<ModelHealth>(), 40);
         assert_eq!(MAX_STAGES, 72);
-        assert_eq!(size_of::<Health>(), 88 + MAX_STAGES * 64 + MAX_QUEUES * 56 + 128 + 96 + 8 + MAX_MODELS * 40);
+        assert_eq!(size_of::<Health>(), 88 + MAX_STAGES * 64 + MAX_QUEUES * 56 + 128 + 96 + 8 + MAX_MODELS * 40 + 40);
         assert_eq!(core::mem::offset_of!(GraphHeader, instance_id), 16);
         assert_eq!(core::mem::offset_of!(GraphHeader, capacity_exceeded), 52);
         assert_eq!(core::mem::offset_of!(GraphHeader, node_capacity), 64);

@@ -20,8 +20,10 @@ use std::any::Any;
 use std::sync::{Arc, Mutex, PoisonError};
 
 use op3dsg_drivers::frame::Frame;
-use op3dsg_drivers::replay::ReplaySource;
+use op3dsg_drivers::mcap::{McapReplayConfig, McapSource};
+use op3dsg_drivers::replay::{PlaybackMode, ReplaySource};
 use op3dsg_drivers::source::FrameSource;
+use serde::Deserialize as _;
 
 use crate::config::{OPEN_VOCAB_DETECTOR, Profile, REPLAY_SOURCE, YOLOX_DETECTOR};
 use crate::knowledge::KnowledgeBase;
@@ -30,6 +32,7 @@ use crate::perception::open_vocab::OpenVocabDetector;
 use crate::perception::yolox::YoloxDetector;
 use crate::perception::{Detection, Detector, DetectorError};
 use crate::pipeline::StartError;
+use crate::record::SideChannelTap;
 
 /// A check of a backend's section failed: `(field path inside the section, message)`; the
 /// loader prefixes the section's path and names the file that set the field.
@@ -74,6 +77,13 @@ pub trait SourceBackend: Send + Sync {
 
     /// Opens the source the profile describes.
     fn open(&self, profile: &Profile) -> Result<OpenedSource, StartError>;
+
+    /// Side channels of an opened source the recorder writes with each frame
+    /// (`[record.channels] side_channels`): the simulator's instance ids, so a recording of a
+    /// synthetic run can replay with the oracle detector. None by default.
+    fn side_channel_taps(&self, _opened: &OpenedSource) -> Vec<Box<dyn SideChannelTap>> {
+        Vec::new()
+    }
 }
 
 /// A detector a profile can name in `detector.kind`.
@@ -116,7 +126,7 @@ impl Backends {
     /// The runtime's own backends: source `replay`, detectors `yolox` and `open_vocab`.
     pub fn runtime() -> Self {
         Self {
-            sources: vec![Arc::new(ReplayBackend)],
+            sources: vec![Arc::new(ReplayBackend), Arc::new(McapBackend)],
             detectors: vec![Arc::new(YoloxBackend), Arc::new(OpenVocabBackend)],
         }
     }
@@ -190,6 +200,67 @@ impl SourceBackend for ReplayBackend {
             });
         };
         Ok(OpenedSource { source: Box::new(ReplaySource::new(config)?), side_channel: None })
+    }
+}
+
+/// `source.kind` of a recording the recorder wrote (`[source.mcap]`).
+pub const MCAP_SOURCE: &str = "mcap";
+
+/// `source.kind = "mcap"`: replays the raw input of recordings of `crate::record`
+/// (`[source.mcap]`: `path`, `mode`; [`op3dsg_drivers::mcap::McapSource`]).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct McapBackend;
+
+impl McapBackend {
+    /// `[source.mcap]` of `profile`, typed.
+    pub fn config(profile: &Profile) -> Result<McapReplayConfig, StartError> {
+        let section = profile.section("source.mcap").cloned().unwrap_or_default();
+        McapReplayConfig::deserialize(toml::Value::Table(section))
+            .map_err(|e| StartError::Incompatible { field: "source.mcap", reason: e.to_string() })
+    }
+
+    /// Opens the recording `[source.mcap]` names, for a backend that wraps this one (the
+    /// simulator's, which adds the instance-id side channel).
+    pub fn open_source(profile: &Profile) -> Result<McapSource, StartError> {
+        Ok(McapSource::new(&Self::config(profile)?)?)
+    }
+}
+
+impl SourceBackend for McapBackend {
+    fn name(&self) -> &'static str {
+        MCAP_SOURCE
+    }
+
+    fn load_section(&self, section: &mut toml::Table) -> Result<(), SectionError> {
+        let config: McapReplayConfig =
+            serde_path_to_error::deserialize(toml::Value::Table(section.clone())).map_err(|e| {
+                let path = e.path().to_string();
+                let inner = e.into_inner().to_string();
+                (if path == "." { String::new() } else { path }, inner.lines().next().unwrap_or("").trim().to_owned())
+            })?;
+        config.validate("").map_err(|e| (String::new(), e.trim_start_matches('.').to_owned()))
+    }
+
+    fn validate(&self, profile: &Profile) -> Result<(), SectionError> {
+        if profile.source.kind != MCAP_SOURCE {
+            return Ok(());
+        }
+        let config = Self::config(profile).map_err(|e| ("source.mcap".to_owned(), e.to_string()))?;
+        if config.mode != PlaybackMode::Fast && profile.source.rate_hz != 0.0 {
+            return Err((
+                "source.mcap.mode".to_owned(),
+                format!(
+                    "{:?} paces frames itself; set source.rate_hz = 0 (it is {})",
+                    config.mode, profile.source.rate_hz
+                )
+                .to_lowercase(),
+            ));
+        }
+        Ok(())
+    }
+
+    fn open(&self, profile: &Profile) -> Result<OpenedSource, StartError> {
+        Ok(OpenedSource { source: Box::new(Self::open_source(profile)?), side_channel: None })
     }
 }
 

@@ -47,4 +47,5 @@ pub mod prior;
 pub mod queue;
 pub mod reasoner;
 pub mod service;
+pub mod record;
 pub mod stats;

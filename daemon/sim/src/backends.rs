@@ -19,8 +19,12 @@ use std::collections::HashMap;
 use std::path::Path;
 use std::sync::Arc;
 
+use op3dsg_drivers::frame::Frame;
+use op3dsg_drivers::mcap::messages::RawImageIn;
+use op3dsg_drivers::source::FrameSource as _;
 use op3dsg_runtime::backend::{
-    Backends, DetectorBackend, DetectorFactory, OpenedSource, SectionError, SourceBackend, knowledge_base,
+    Backends, DetectorBackend, DetectorFactory, MCAP_SOURCE, McapBackend, OpenedSource, SectionError, SourceBackend,
+    knowledge_base,
 };
 use op3dsg_runtime::config::{self, LoadedProfile, Profile, ProfileError};
 use op3dsg_runtime::onnx::OnnxRuntime;
@@ -28,6 +32,7 @@ use op3dsg_runtime::onnx::text_encoder::TextEncoder;
 use op3dsg_runtime::perception::Detector;
 use op3dsg_runtime::perception::candidates::{CandidateMode, PartCandidates};
 use op3dsg_runtime::pipeline::StartError;
+use op3dsg_runtime::record::SideChannelTap;
 use op3dsg_synthetic::{GroundTruth, InstanceIdChannel, InstanceInfo, SyntheticConfig, SyntheticSource};
 use serde::Serialize;
 use serde::de::DeserializeOwned;
@@ -47,7 +52,10 @@ pub const ORACLE_SECTION: &str = "detector.oracle";
 /// The runtime's backends plus the simulator's: what `op3dsgd` and every `op3dsg` command use.
 pub fn backends() -> Backends {
     let mut backends = Backends::runtime();
-    backends.register_source(Arc::new(SyntheticBackend)).register_detector(Arc::new(OracleBackend));
+    backends
+        .register_source(Arc::new(SyntheticBackend))
+        .register_source(Arc::new(SimMcapBackend))
+        .register_detector(Arc::new(OracleBackend));
     backends
 }
 
@@ -160,6 +168,112 @@ impl SourceBackend for SyntheticBackend {
         let truth: Arc<GroundTruth> = Arc::new(source.ground_truth());
         Ok(OpenedSource { source: Box::new(source), side_channel: Some(truth) })
     }
+
+    fn side_channel_taps(&self, opened: &OpenedSource) -> Vec<Box<dyn SideChannelTap>> {
+        instance_id_taps(opened)
+    }
+}
+
+/// Topic of the synthetic renderer's per-pixel instance ids in a recording (simulation only):
+/// what the oracle detector reads, so a recorded synthetic run replays with the same detector.
+pub const INSTANCE_IDS_TOPIC: &str = "/sim/instance_ids";
+
+/// Records the instance ids of each frame of a source that has them.
+struct InstanceIdTap(InstanceIdChannel);
+
+impl SideChannelTap for InstanceIdTap {
+    fn topic(&self) -> &str {
+        INSTANCE_IDS_TOPIC
+    }
+
+    fn copy(&mut self, frame: &Frame, out: &mut [u16]) -> bool {
+        self.0
+            .with_ids(frame, |ids| {
+                if ids.len() == out.len() {
+                    out.copy_from_slice(ids);
+                    true
+                } else {
+                    false
+                }
+            })
+            .unwrap_or(false)
+    }
+}
+
+fn instance_id_taps(opened: &OpenedSource) -> Vec<Box<dyn SideChannelTap>> {
+    ground_truth(opened)
+        .map(|truth| vec![Box::new(InstanceIdTap(truth.instance_ids.clone())) as Box<dyn SideChannelTap>])
+        .unwrap_or_default()
+}
+
+/// `source.kind = "mcap"` in the simulator's build: the runtime's replay of a recording
+/// ([`McapBackend`]), plus, when the recording holds [`INSTANCE_IDS_TOPIC`] (it was a synthetic
+/// run), the ground truth for the oracle detector: the scene regenerated from the
+/// `[source.synthetic]` section of the profile *the recording was made with* (its
+/// `op3dsg.profile` metadata), and each frame's instance ids from the recording. A recording
+/// from a camera has no such channel and replays exactly as in the runtime.
+struct SimMcapBackend;
+
+impl SourceBackend for SimMcapBackend {
+    fn name(&self) -> &'static str {
+        MCAP_SOURCE
+    }
+
+    fn load_section(&self, section: &mut toml::Table) -> Result<(), SectionError> {
+        McapBackend.load_section(section)
+    }
+
+    fn validate(&self, profile: &Profile) -> Result<(), SectionError> {
+        McapBackend.validate(profile)
+    }
+
+    fn open(&self, profile: &Profile) -> Result<OpenedSource, StartError> {
+        let source = McapBackend::open_source(profile)?;
+        if !source.has_channel(INSTANCE_IDS_TOPIC)? {
+            return Ok(OpenedSource { source: Box::new(source), side_channel: None });
+        }
+        let recorded = source.recorded_profile()?.ok_or_else(|| StartError::Incompatible {
+            field: "source.mcap.path",
+            reason: format!(
+                "{} has {INSTANCE_IDS_TOPIC} but no op3dsg.profile metadata: cannot rebuild the synthetic scene",
+                source.describe()
+            ),
+        })?;
+        let synthetic = recorded_synthetic_config(&recorded).map_err(|reason| StartError::Incompatible {
+            field: "source.mcap.path",
+            reason: format!("{}: op3dsg.profile: {reason}", source.describe()),
+        })?;
+        let truth = Arc::new(SyntheticSource::new(&synthetic)?.ground_truth());
+        let channel = truth.instance_ids.clone();
+        let source = source.with_side_channel(
+            INSTANCE_IDS_TOPIC,
+            Box::new(move |frame: &mut Frame, bytes: &[u8]| {
+                let image = RawImageIn::parse(bytes)?;
+                let mut result = Ok(());
+                channel.write(frame, |frame, ids| {
+                    ids.resize(frame.depth.len(), 0);
+                    result = image.decode_into(&["16UC1", "mono16"], 2, bytemuck::cast_slice_mut(ids.as_mut_slice()));
+                });
+                result
+            }),
+        );
+        Ok(OpenedSource { source: Box::new(source), side_channel: Some(truth) })
+    }
+
+    fn side_channel_taps(&self, opened: &OpenedSource) -> Vec<Box<dyn SideChannelTap>> {
+        instance_id_taps(opened)
+    }
+}
+
+/// `[source.synthetic]` of a recorded effective profile.
+fn recorded_synthetic_config(profile_toml: &str) -> Result<SyntheticConfig, String> {
+    let table: toml::Table = profile_toml.parse().map_err(|e: toml::de::Error| e.to_string())?;
+    let section = table
+        .get("source")
+        .and_then(|s| s.get("synthetic"))
+        .and_then(toml::Value::as_table)
+        .ok_or_else(|| "no [source.synthetic] section".to_owned())?;
+    parse_section(section).map_err(|(field, message)| format!("source.synthetic.{field}: {message}"))
 }
 
 /// The ground truth a source opened by [`SyntheticBackend`] carries, if `opened` is one.

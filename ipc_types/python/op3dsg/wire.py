@@ -77,6 +77,7 @@ MAX_MODELS = 8
 FUTURE_POSE_LIMIT_NS = 1_000_000_000
 EXECUTION_PROVIDERS = ("unknown", "cpu", "cuda", "openvino")
 REFINER_STATES = ("off", "idle", "calling", "backoff", "breaker_open", "budget_exhausted")
+RECORDER_STATES = ("off", "recording", "failed", "finished")
 REFINER_REJECTIONS = ("malformed", "unknown_node", "wrong_kind", "non_canonical", "stale")
 
 # QoS of the services (``ipc_types/src/services.rs``).
@@ -327,6 +328,24 @@ class ModelHealth(_Wire):
         return "op3dsg::ModelHealth"
 
 
+class RecorderHealth(_Wire):
+    """The MCAP recorder's state and counters (40 bytes): ``op3dsg::RecorderHealth``."""
+
+    _fields_ = [
+        ("state", _u8),
+        ("reserved", _u8 * 3),
+        ("files", _u32),
+        ("messages_written", _u64),
+        ("messages_dropped", _u64),
+        ("bytes_written", _u64),
+        ("cpu_ns", _u64),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "op3dsg::RecorderHealth"
+
+
 class Health(_Wire):
     """Daemon health, published on ``<prefix>/health`` every health period: ``op3dsg::Health``.
 
@@ -355,6 +374,7 @@ class Health(_Wire):
         ("model_count", _u32),
         ("reserved_models", _u32),
         ("models", ModelHealth * MAX_MODELS),
+        ("recorder", RecorderHealth),
     ]
 
     @staticmethod
@@ -407,6 +427,14 @@ class Health(_Wire):
                 for q in self.valid_queues()
             ],
             "pose": self.pose.counters(),
+            "recorder": {
+                "state": _name_of(RECORDER_STATES, self.recorder.state),
+                "files": self.recorder.files,
+                "messages_written": self.recorder.messages_written,
+                "messages_dropped": self.recorder.messages_dropped,
+                "bytes_written": self.recorder.bytes_written,
+                "cpu_ns": self.recorder.cpu_ns,
+            },
             "models": [
                 {
                     "name": fixed_str(m.name),

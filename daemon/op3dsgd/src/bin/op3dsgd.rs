@@ -41,6 +41,12 @@ struct Args {
     #[arg(long, env = "OP3DSG_PREFIX")]
     prefix: Option<String>,
 
+    /// Record to MCAP files in DIR: a shortcut for `--set record.enabled=true --set
+    /// record.dir="DIR"` (DIR relative to the working directory); the profile's [record]
+    /// section says what is written. `op3dsg record info FILE` shows what a file holds.
+    #[arg(long, value_name = "DIR")]
+    record: Option<PathBuf>,
+
     /// Print the effective profile (all layers merged) and exit.
     #[arg(long)]
     print_config: bool,
@@ -62,6 +68,11 @@ fn main() -> ExitCode {
     }
     if args.exit_at_end {
         overrides.push("run.exit_at_end=true".to_owned());
+    }
+    if let Some(dir) = &args.record {
+        let dir = dir.display().to_string();
+        overrides.push("record.enabled=true".to_owned());
+        overrides.push(format!("record.dir={}", toml::Value::String(dir)));
     }
     if let Some(prefix) = &args.prefix {
         overrides.push(format!("ipc.prefix=\"{}\"", prefix.replace('"', "")));

@@ -56,6 +56,8 @@ pub const PATH_KEYS: &[&str] = &[
     "reasoner.knowledge_dir",
     "reasoner.llm.api_key_file",
     "snapshot.dir",
+    "record.dir",
+    "source.mcap.path",
 ];
 
 /// The whole daemon configuration.
@@ -94,6 +96,9 @@ pub struct Profile {
     /// Map snapshots (`crate::service::snapshot`).
     #[serde(default)]
     pub snapshot: crate::service::snapshot::SnapshotConfig,
+    /// The MCAP recorder (`crate::record`); off unless `enabled`.
+    #[serde(default)]
+    pub record: crate::record::RecordConfig,
     /// The sections of registered backends, by dotted path (`source.synthetic`,
     /// `detector.oracle`), as their backend checked and completed them at load time.
     #[serde(skip)]
@@ -372,6 +377,7 @@ impl Profile {
         self.queues.graph.validate("queues.graph").map_err(split_message)?;
         self.ipc.validate("ipc").map_err(split_message)?;
         self.onnx.validate("onnx").map_err(split_message)?;
+        self.record.validate("record").map_err(split_message)?;
         self.text_encoder.validate("text_encoder").map_err(split_message)?;
         self.snapshot.validate("snapshot").map_err(split_message)?;
         let r = &self.reasoner;
@@ -530,7 +536,7 @@ mod tests {
         assert_eq!(
             err.to_string(),
             format!(
-                "{BASE_PROFILE_NAME}: source.synthetic: no source backend \"synthetic\" in this build (it has: replay)"
+                "{BASE_PROFILE_NAME}: source.synthetic: no source backend \"synthetic\" in this build (it has: mcap, replay)"
             )
         );
         // Without a registry the sections are kept as they are, for their backend to check.

@@ -45,6 +45,40 @@ pub struct HealthReport {
     pub poses: std::collections::BTreeMap<String, u64>,
     /// The execution provider each model's sessions run on.
     pub models: Vec<ModelReport>,
+    /// The MCAP recorder (see `op3dsg_ipc_types::RecorderHealth`).
+    #[serde(default)]
+    pub recorder: RecorderReport,
+}
+
+/// The recorder of a [`HealthReport`].
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecorderReport {
+    /// `off`, `recording`, `failed` or `finished`.
+    pub state: String,
+    /// Files started.
+    pub files: u32,
+    /// Messages written.
+    pub messages_written: u64,
+    /// Messages dropped (queue full, no free frame buffer, or after a failure).
+    pub messages_dropped: u64,
+    /// Bytes on disk.
+    pub bytes_written: u64,
+    /// CPU time of the recorder thread, nanoseconds.
+    pub cpu_ns: u64,
+}
+
+impl From<&op3dsg_ipc_types::RecorderHealth> for RecorderReport {
+    fn from(r: &op3dsg_ipc_types::RecorderHealth) -> Self {
+        Self {
+            state: op3dsg_ipc_types::RECORDER_STATES.get(r.state as usize).copied().unwrap_or("unknown").to_owned(),
+            files: r.files,
+            messages_written: r.messages_written,
+            messages_dropped: r.messages_dropped,
+            bytes_written: r.bytes_written,
+            cpu_ns: r.cpu_ns,
+        }
+    }
 }
 
 /// One model of a [`HealthReport`] (see `op3dsg_ipc_types::ModelHealth`).
@@ -202,6 +236,7 @@ impl From<&Health> for HealthReport {
                 })
                 .collect(),
             refiner: RefinerReport::from(&h.refiner),
+            recorder: RecorderReport::from(&h.recorder),
             poses: pose_counters(&h.pose).iter().map(|(name, n)| ((*name).to_owned(), *n)).collect(),
             models: h
                 .valid_models()

@@ -13,6 +13,7 @@ use crate::config::PoseSourceKind;
 use crate::pipeline::PipelineStats;
 use crate::pipeline::items::{GraphItem, POLL};
 use crate::queue::{Popped, QueueReceiver};
+use crate::record::RecordSender;
 
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn publisher_loop(
@@ -25,6 +26,7 @@ pub(crate) fn publisher_loop(
     health_period: Duration,
     log_every: u32,
     exit_at_end: bool,
+    mut recorder: Option<RecordSender>,
 ) {
     let stage = stats.stage("publish");
     let end_to_end = stats.stage("end_to_end");
@@ -49,6 +51,10 @@ pub(crate) fn publisher_loop(
                                 version = graph.version,
                                 "graph exceeds the sample capacity (ipc.max_nodes / ipc.max_edges); truncated"
                             );
+                        }
+                        // Sent already: the recorder takes the graph itself, no copy.
+                        if let Some(recorder) = recorder.as_mut() {
+                            recorder.offer_graph(graph);
                         }
                     }
                     Err(e) => {
@@ -94,6 +100,9 @@ pub(crate) fn publisher_loop(
             let health = stats.health();
             if let Err(e) = server.publish_health(&health) {
                 warn!(error = %e, "health publish failed");
+            }
+            if let Some(recorder) = recorder.as_mut() {
+                recorder.offer_health(&health);
             }
             periods += 1;
             if log_every > 0 && periods.is_multiple_of(log_every) {

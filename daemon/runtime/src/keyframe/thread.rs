@@ -10,7 +10,9 @@ use super::{GateDecision, KeyframeGate};
 use crate::pipeline::PipelineStats;
 use crate::pipeline::items::{CapturedFrame, KeyframeItem, POLL};
 use crate::queue::{Popped, QueueReceiver, QueueSender};
+use crate::record::{RecordSender, SideChannelTap};
 
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn keyframe_loop(
     config: &crate::config::KeyframeConfig,
     pose_config: &crate::config::PoseConfig,
@@ -19,6 +21,7 @@ pub(crate) fn keyframe_loop(
     pose_rx: Receiver<PoseStamped>,
     stats: &PipelineStats,
     stop: &AtomicBool,
+    mut recorder: Option<(RecordSender, Vec<Box<dyn SideChannelTap>>)>,
 ) {
     let stage = stats.stage("keyframe");
     let mut gate = KeyframeGate::new(config, pose_config);
@@ -37,6 +40,11 @@ pub(crate) fn keyframe_loop(
                 tracing::debug!(stamp_ns = pose.stamp_ns, ?reason, "pose not adopted");
             }
         }
+        // Every frame the gate receives is the pipeline's input: recorded for replay (a copy into
+        // the recorder's pool, or a counted drop; never a wait).
+        if let Some((sender, taps)) = recorder.as_mut() {
+            sender.offer_frame(&frame, taps);
+        }
         match gate.decide(&frame) {
             GateDecision::NoPose => {
                 stats.frames_without_pose.fetch_add(1, Ordering::Relaxed);
@@ -46,6 +54,9 @@ pub(crate) fn keyframe_loop(
             GateDecision::Keyframe(world_from_camera) => {
                 stage.record(started);
                 stats.keyframes.fetch_add(1, Ordering::Relaxed);
+                if let Some((sender, _)) = recorder.as_mut() {
+                    sender.offer_keyframe(frame.stamp_ns, &world_from_camera);
+                }
                 kf_tx.push(KeyframeItem { frame, captured_at, world_from_camera });
             }
         }

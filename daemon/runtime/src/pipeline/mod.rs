@@ -152,7 +152,9 @@ impl Pipeline {
     /// detector `backends` the profile names. Returns once the services exist (the daemon may
     /// then report ready).
     pub fn start(profile: &Profile, backends: &Backends, stop: Arc<AtomicBool>) -> Result<Self, StartError> {
-        let (OpenedSource { mut source, .. }, detector_factory) = backends.open(profile)?;
+        let (opened, detector_factory) = backends.open(profile)?;
+        let side_taps = backends.source(&profile.source.kind)?.side_channel_taps(&opened);
+        let OpenedSource { mut source, .. } = opened;
         if profile.pose.source == PoseSourceKind::Frame && !source.has_poses() {
             return Err(StartError::Incompatible {
                 field: "pose.source",
@@ -206,6 +208,25 @@ impl Pipeline {
         let mut handles = Vec::new();
         let mut running = Vec::new();
 
+        // The recorder first among the threads, so it is there before anything is produced; it
+        // ends after the last producer (publisher) has dropped its sender.
+        let recorder = if profile.record.enabled {
+            let side_topics = side_taps.iter().map(|t| t.topic().to_owned()).collect();
+            let (sender, parts) = crate::record::prepare(
+                &profile.record,
+                crate::record::effective_toml(profile),
+                source.intrinsics(),
+                side_topics,
+                stats.recorder.clone(),
+            )
+            .map_err(|e| StartError::Incompatible { field: "record.dir", reason: e.to_string() })?;
+            handles.push(spawn_stage("record", &finished_tx, move || crate::record::run(parts))?);
+            running.push("record");
+            Some(sender)
+        } else {
+            None
+        };
+
         // Publisher first: it owns the iceoryx2 services and must be up before anything runs.
         let (ready_tx, ready_rx) = crossbeam_channel::bounded::<Result<(), String>>(1);
         {
@@ -216,6 +237,7 @@ impl Pipeline {
             let log_every = profile.health.log_every_periods;
             let exit_at_end = profile.run.exit_at_end;
             let pose_source = profile.pose.source;
+            let publisher_recorder = recorder.clone();
             handles.push(spawn_stage("publish", &finished_tx, move || {
                 let server = match GraphServer::open(&ipc, "op3dsgd") {
                     Ok(server) => {
@@ -237,6 +259,7 @@ impl Pipeline {
                     health_period,
                     log_every,
                     exit_at_end,
+                    publisher_recorder,
                 );
             })?);
             running.push("publish");
@@ -294,8 +317,18 @@ impl Pipeline {
             let stop = stop.clone();
             let config = profile.keyframe.clone();
             let pose_config = profile.pose.clone();
+            let recorder = recorder.map(|sender| (sender, side_taps));
             handles.push(spawn_stage("keyframe", &finished_tx, move || {
-                crate::keyframe::thread::keyframe_loop(&config, &pose_config, frames_rx, kf_tx, pose_rx, &stats, &stop);
+                crate::keyframe::thread::keyframe_loop(
+                    &config,
+                    &pose_config,
+                    frames_rx,
+                    kf_tx,
+                    pose_rx,
+                    &stats,
+                    &stop,
+                    recorder,
+                );
             })?);
             running.push("keyframe");
         }

@@ -11,6 +11,7 @@ use crate::keyframe::PoseRefusal;
 
 use crate::queue::QueueStats;
 use crate::reasoner::llm::RefinerStats;
+use crate::record::RecorderStats;
 use crate::stats::StageStats;
 
 /// Counters shared by every stage and read by the health reporter.
@@ -53,6 +54,8 @@ pub struct PipelineStats {
     pub liveness: crate::service::Liveness,
     /// Map snapshots written (`crate::service::snapshot`).
     pub snapshot: crate::service::snapshot::SnapshotStats,
+    /// The MCAP recorder (state `off` without `[record] enabled`).
+    pub recorder: Arc<RecorderStats>,
 }
 
 impl PipelineStats {
@@ -84,6 +87,7 @@ impl PipelineStats {
             refiner,
             liveness: crate::service::Liveness::default(),
             snapshot: crate::service::snapshot::SnapshotStats::default(),
+            recorder: Arc::new(RecorderStats::default()),
         }
     }
 
@@ -119,6 +123,7 @@ impl PipelineStats {
         h.queue_count = self.queues.len().min(h.queues.len()) as u32;
         h.refiner = self.refiner.health();
         h.pose = self.pose.health();
+        h.recorder = self.recorder.health();
         h.model_count = crate::onnx::fill_model_health(&mut h.models) as u32;
         h
     }

@@ -76,6 +76,18 @@ fn health_text(h: &HealthReport) -> String {
     for q in &h.queues {
         let _ = writeln!(s, "{:<16} {:>7} {:>9} {:>10} {:>10}", q.name, q.depth, q.capacity, q.dropped, q.pushed);
     }
+    let rec = &h.recorder;
+    if rec.state != "off" {
+        let _ = writeln!(
+            s,
+            "recorder {}  files {}  written {}  dropped {}  {:.1} MiB on disk",
+            rec.state,
+            rec.files,
+            rec.messages_written,
+            rec.messages_dropped,
+            rec.bytes_written as f64 / (1 << 20) as f64
+        );
+    }
     let r = &h.refiner;
     if r.state != "off" {
         let _ = writeln!(

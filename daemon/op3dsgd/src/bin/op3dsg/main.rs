@@ -15,6 +15,7 @@
 //! | [`eval`] | `eval` |
 //! | [`bench`] | `bench perf`, `bench quality`, `bench ipc-peer` |
 //! | [`map`] | `map info`, `map save`, `map reset` |
+//! | [`record`] | `record info`, `bench record` |
 
 mod bench;
 mod dump;
@@ -23,6 +24,7 @@ mod fusion_eval;
 mod gt;
 mod health;
 mod map;
+mod record;
 mod watch;
 
 use std::io::Write;
@@ -161,6 +163,11 @@ enum Command {
         #[arg(long, value_name = "FILE")]
         json: Option<PathBuf>,
     },
+    /// MCAP recordings of op3dsgd (`op3dsgd --record DIR`, profile section [record]).
+    Record {
+        #[command(subcommand)]
+        command: RecordCommand,
+    },
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -199,7 +206,63 @@ enum MapCommand {
 }
 
 #[derive(Debug, Subcommand)]
+enum RecordCommand {
+    /// What recordings hold: per channel its schema, message count and rate; the time range;
+    /// whether the recorder finished the file and how many messages it dropped while recording.
+    /// Reads files cut off by a crash or a full disk up to where they end, and says so.
+    Info {
+        /// The .mcap files.
+        #[arg(required = true)]
+        files: Vec<PathBuf>,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+#[derive(Debug, clap::Args)]
+struct RecordBenchArgs {
+    /// Seconds of input per compression.
+    #[arg(long, default_value_t = 10.0)]
+    seconds: f64,
+    /// Frame rate, Hz.
+    #[arg(long, default_value_t = 30.0)]
+    rate_hz: f64,
+    /// Image width, pixels (the D435i stream of the robot: 848x480).
+    #[arg(long, default_value_t = 848)]
+    width: u32,
+    /// Image height, pixels.
+    #[arg(long, default_value_t = 480)]
+    height: u32,
+    /// Distinct synthetic kitchen frames, rendered once and cycled.
+    #[arg(long, default_value_t = 30)]
+    distinct_frames: u64,
+    /// Nodes of the graph written with the keyframes.
+    #[arg(long, default_value_t = 150)]
+    graph_nodes: usize,
+    /// A keyframe (pose + graph version) every this many frames (0: none).
+    #[arg(long, default_value_t = 3)]
+    graph_every: u64,
+    /// zstd, lz4, none, or all (zstd then lz4).
+    #[arg(long, default_value = "all")]
+    compression: String,
+    /// Chunk size, KiB (record.chunk_size_kib).
+    #[arg(long, default_value_t = 4096)]
+    chunk_size_kib: u64,
+    /// Folder for the files (default: a temporary folder, removed afterwards).
+    #[arg(long)]
+    dir: Option<PathBuf>,
+    /// Keep the files.
+    #[arg(long)]
+    keep: bool,
+}
+
+#[derive(Debug, Subcommand)]
 enum BenchCommand {
+    /// The MCAP recorder's throughput on raw colour + depth at camera rate plus the graph at
+    /// every keyframe: messages, drops, MB/s in and on disk, and the recorder thread's CPU
+    /// share of one core, with zstd and with lz4 chunks. Build with --release to measure.
+    Record(Box<RecordBenchArgs>),
     /// Performance: the real pipeline on a synthetic scene (per-stage latency p50/p99 for capture,
     /// detection, fusion, prior graph and publish; keyframes/s; capture → published-graph latency;
     /// RSS over time), graph publish → receive latency between two processes next to raw iceoryx2
@@ -370,6 +433,8 @@ fn run(cli: Cli) -> Result<()> {
         Command::Map { dir, command: MapCommand::Info { json } } => map::info(&dir, json),
         Command::Map { dir, command: MapCommand::Save { timeout_s } } => map::save(&dir, seconds(timeout_s)?),
         Command::Map { dir, command: MapCommand::Reset } => map::reset(&dir),
+        Command::Bench { command: BenchCommand::Record(args) } => record::bench(*args),
+        Command::Record { command: RecordCommand::Info { files, json } } => record::info(&files, json),
         Command::Bench { command: BenchCommand::IpcPeer { pairs } } => bench::ipc_peer(&prefix, pairs),
         Command::Eval { pred, gt, vocabulary, profile, json } => {
             eval::evaluate(&pred, &gt, &vocabulary, profile.as_deref(), json.as_deref())

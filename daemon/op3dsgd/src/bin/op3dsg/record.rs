@@ -1,0 +1,295 @@
+//! `op3dsg record info FILE` (what a recording holds) and `op3dsg bench record` (the recorder's
+//! throughput on the robot's raw stream).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use op3dsg_drivers::mcap::reader::{Item, McapReader};
+use op3dsg_drivers::mcap::{METADATA_PROFILE, METADATA_RECORDER};
+
+use super::RecordBenchArgs;
+
+#[derive(Debug, Default, serde::Serialize)]
+struct ChannelSummary {
+    topic: String,
+    schema: String,
+    encoding: String,
+    messages: u64,
+    first_log_time_ns: Option<u64>,
+    last_log_time_ns: Option<u64>,
+}
+
+#[derive(Debug, Default, serde::Serialize)]
+struct FileSummary {
+    file: String,
+    bytes: u64,
+    channels: Vec<ChannelSummary>,
+    messages: u64,
+    first_log_time_ns: Option<u64>,
+    last_log_time_ns: Option<u64>,
+    /// `None`: the file was not finished (no `op3dsg.recorder` metadata).
+    recorder_dropped: Option<u64>,
+    recorder_metadata: BTreeMap<String, String>,
+    profile_recorded: bool,
+    /// Why reading stopped early (a truncated or damaged file), if it did.
+    error: Option<String>,
+}
+
+fn summarise(path: &Path) -> Result<FileSummary> {
+    let mut reader = McapReader::open(path).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+    let mut summary = FileSummary { file: path.display().to_string(), bytes, ..FileSummary::default() };
+    let mut by_channel: BTreeMap<u16, ChannelSummary> = BTreeMap::new();
+    let mut data = Vec::new();
+    loop {
+        match reader.next(&mut data) {
+            Ok(None) => break,
+            Ok(Some(Item::Message(at))) => {
+                let entry = by_channel.entry(at.channel_id).or_default();
+                entry.messages += 1;
+                entry.first_log_time_ns.get_or_insert(at.log_time);
+                entry.last_log_time_ns = Some(at.log_time);
+                summary.messages += 1;
+                summary.first_log_time_ns = Some(summary.first_log_time_ns.map_or(at.log_time, |t| t.min(at.log_time)));
+                summary.last_log_time_ns = Some(summary.last_log_time_ns.map_or(at.log_time, |t| t.max(at.log_time)));
+            }
+            Ok(Some(Item::Metadata { name, entries })) => {
+                if name == METADATA_RECORDER {
+                    summary.recorder_dropped = entries.get("dropped_total").and_then(|v| v.parse().ok());
+                    summary.recorder_metadata = entries;
+                } else if name == METADATA_PROFILE {
+                    summary.profile_recorded = true;
+                }
+            }
+            Err(e) => {
+                summary.error = Some(e.to_string());
+                break;
+            }
+        }
+    }
+    for channel in reader.channels() {
+        let entry = by_channel.entry(channel.id).or_default();
+        entry.topic = channel.topic.clone();
+        entry.schema = channel.schema_name.clone();
+        entry.encoding = channel.message_encoding.clone();
+    }
+    summary.channels = by_channel.into_values().collect();
+    summary.channels.sort_by(|a, b| a.topic.cmp(&b.topic));
+    Ok(summary)
+}
+
+fn seconds_between(a: Option<u64>, b: Option<u64>) -> f64 {
+    match (a, b) {
+        (Some(a), Some(b)) => b.saturating_sub(a) as f64 / 1e9,
+        _ => 0.0,
+    }
+}
+
+/// `op3dsg record info`.
+pub(super) fn info(files: &[PathBuf], json: bool) -> Result<()> {
+    let mut summaries = Vec::new();
+    for file in files {
+        summaries.push(summarise(file)?);
+    }
+    if json {
+        println!("{}", serde_json::to_string_pretty(&summaries)?);
+        return Ok(());
+    }
+    for s in &summaries {
+        println!("{} ({:.1} MiB)", s.file, s.bytes as f64 / (1 << 20) as f64);
+        let range = seconds_between(s.first_log_time_ns, s.last_log_time_ns);
+        match (s.first_log_time_ns, s.last_log_time_ns) {
+            (Some(first), Some(last)) => {
+                println!("  time      {first} .. {last} ns (log time, Unix), {range:.2} s, {} messages", s.messages)
+            }
+            _ => println!("  no messages"),
+        }
+        match s.recorder_dropped {
+            Some(dropped) => println!("  recorder  finished; dropped {dropped} messages while recording"),
+            None => println!("  recorder  not finished (no op3dsg.recorder metadata): drops unknown"),
+        }
+        if !s.profile_recorded {
+            println!("  profile   missing (no op3dsg.profile metadata)");
+        }
+        if let Some(error) = &s.error {
+            println!("  read up to: {error}");
+        }
+        println!("  {:<22} {:<28} {:>9} {:>8}", "channel", "schema", "messages", "rate Hz");
+        for c in &s.channels {
+            let span = seconds_between(c.first_log_time_ns, c.last_log_time_ns);
+            let rate = if span > 0.0 { (c.messages.saturating_sub(1)) as f64 / span } else { 0.0 };
+            println!("  {:<22} {:<28} {:>9} {:>8.1}", c.topic, c.schema, c.messages, rate);
+        }
+    }
+    Ok(())
+}
+
+/// `op3dsg bench record`.
+pub(super) fn bench(args: RecordBenchArgs) -> Result<()> {
+    use op3dsg_runtime::record::{RecordCompression, RecordConfig, Recorder};
+    if !(args.seconds > 0.0 && args.rate_hz > 0.0) {
+        bail!("--seconds and --rate-hz must be > 0");
+    }
+    let compressions: Vec<(&str, RecordCompression)> = match args.compression.as_str() {
+        "all" => vec![("zstd", RecordCompression::Zstd), ("lz4", RecordCompression::Lz4)],
+        "zstd" => vec![("zstd", RecordCompression::Zstd)],
+        "lz4" => vec![("lz4", RecordCompression::Lz4)],
+        "none" => vec![("none", RecordCompression::None)],
+        other => bail!("--compression {other}: expected zstd, lz4, none or all"),
+    };
+    let frames = synthetic_frames(args.width, args.height, args.distinct_frames)?;
+    let graph = bench_graph(args.graph_nodes);
+    let dir = args
+        .dir
+        .clone()
+        .unwrap_or_else(|| std::env::temp_dir().join(format!("op3dsg-bench-record-{}", std::process::id())));
+    println!(
+        "recorder: {}x{} colour (rgb8) + depth (16UC1) at {} Hz for {} s, a {}-node graph every {} frames, JSON \
+         messages, chunk {} KiB; files in {}\n",
+        args.width,
+        args.height,
+        args.rate_hz,
+        args.seconds,
+        args.graph_nodes,
+        args.graph_every,
+        args.chunk_size_kib,
+        dir.display()
+    );
+    println!(
+        "| compression | frames offered | messages written | dropped | raw input MB/s | file MB/s | recorder CPU (share of one core) |"
+    );
+    println!("|---|---|---|---|---|---|---|");
+    for (name, compression) in compressions {
+        let run_dir = dir.join(name);
+        let config = RecordConfig {
+            enabled: true,
+            dir: run_dir.clone(),
+            compression,
+            chunk_size_kib: args.chunk_size_kib,
+            ..RecordConfig::default()
+        };
+        let recorder = Recorder::start(&config, String::new(), frames[0].intrinsics)
+            .with_context(|| format!("starting the recorder in {}", run_dir.display()))?;
+        let mut sender = recorder.sender().context("recorder sender")?;
+        let period = Duration::from_secs_f64(1.0 / args.rate_hz);
+        let total = (args.seconds * args.rate_hz).round() as u64;
+        let started = Instant::now();
+        let mut raw_bytes = 0u64;
+        let mut version = 0;
+        for i in 0..total {
+            let due = started + period * i as u32;
+            if let Some(wait) = due.checked_duration_since(Instant::now()) {
+                std::thread::sleep(wait);
+            }
+            let mut frame = frames[i as usize % frames.len()].clone();
+            frame.seq = i;
+            frame.stamp_ns = i * period.as_nanos() as u64;
+            sender.offer_frame(&frame, &mut []);
+            raw_bytes += (frame.rgb.len() + frame.depth.len() * 2) as u64;
+            if args.graph_every > 0 && i % args.graph_every == 0 {
+                if let Some(pose) = frame.world_from_camera {
+                    sender.offer_keyframe(frame.stamp_ns, &pose);
+                }
+                version += 1;
+                let mut g = graph.clone();
+                g.version = version;
+                g.stamp_ns = frame.stamp_ns;
+                sender.offer_graph(g);
+            }
+        }
+        drop(sender);
+        let produced_s = started.elapsed().as_secs_f64();
+        let health = recorder.finish();
+        let wall_s = started.elapsed().as_secs_f64();
+        println!(
+            "| {name} | {total} | {} | {} | {:.1} | {:.1} | {:.0} % ({:.2} s CPU over {:.2} s) |",
+            health.messages_written,
+            health.messages_dropped,
+            raw_bytes as f64 / 1e6 / produced_s,
+            health.bytes_written as f64 / 1e6 / produced_s,
+            100.0 * health.cpu_ns as f64 / 1e9 / wall_s,
+            health.cpu_ns as f64 / 1e9,
+            wall_s
+        );
+        if !args.keep {
+            let _ = std::fs::remove_dir_all(&run_dir);
+        }
+    }
+    if !args.keep {
+        let _ = std::fs::remove_dir(&dir);
+    }
+    println!("\nCPU: the recorder thread's own time (/proc/thread-self/schedstat) over the run's wall time.");
+    Ok(())
+}
+
+/// Frames of the synthetic kitchen at the bench's size (rendered once, replayed in a loop).
+fn synthetic_frames(width: u32, height: u32, count: u64) -> Result<Vec<op3dsg_drivers::frame::Frame>> {
+    use op3dsg_drivers::frame::{Frame, Intrinsics};
+    use op3dsg_drivers::source::{FrameSource, SourceStatus};
+    let mut profile = op3dsg_sim::load_profile(None, &[]).map_err(|e| anyhow::anyhow!("{e}"))?.profile;
+    let scale = width as f32 / 640.0;
+    op3dsg_sim::backends::edit_synthetic(&mut profile, |s| {
+        s.intrinsics = Intrinsics {
+            width,
+            height,
+            fx: 615.0 * scale,
+            fy: 615.0 * scale,
+            cx: width as f32 / 2.0,
+            cy: height as f32 / 2.0,
+        };
+        s.frame_count = Some(count * 10);
+    });
+    let config = op3dsg_sim::backends::synthetic_config(&profile)?;
+    let mut source = op3dsg_synthetic::SyntheticSource::new(&config)?;
+    let mut frames = Vec::new();
+    let mut frame = Frame::new(source.intrinsics());
+    // Every 10th frame of the path, so consecutive frames differ like a moving camera's.
+    for i in 0..count * 10 {
+        if source.next_frame(&mut frame)? != SourceStatus::Frame {
+            break;
+        }
+        if i % 10 == 0 {
+            frames.push(frame.clone());
+        }
+    }
+    if frames.is_empty() {
+        bail!("the synthetic source gave no frame");
+    }
+    Ok(frames)
+}
+
+fn bench_graph(nodes: usize) -> op3dsg_runtime::graph::SceneGraph {
+    use op3dsg_ipc_types::{EdgeKind, EdgeOrigin, NodeKind};
+    use op3dsg_runtime::graph::{GraphEdge, GraphNode, SceneGraph};
+    let mut graph = SceneGraph::default();
+    for i in 0..nodes as u32 {
+        let x = (i % 10) as f32 * 0.5;
+        let y = (i / 10) as f32 * 0.5;
+        graph.nodes.push(GraphNode {
+            id: i + 1,
+            kind: if i % 3 == 2 { NodeKind::Part } else { NodeKind::Object },
+            parent_id: (i % 3 == 2).then_some(i),
+            label: format!("object {i}"),
+            confidence: 0.9,
+            centre_m: [x, y, 0.5],
+            box_min_m: [x - 0.2, y - 0.2, 0.3],
+            box_max_m: [x + 0.2, y + 0.2, 0.7],
+            observation_count: 5,
+            affordance_bits: 0,
+            last_seen_stamp_ns: 0,
+        });
+        if i > 0 {
+            graph.edges.push(GraphEdge {
+                source_id: i + 1,
+                target_id: i,
+                kind: if i % 2 == 0 { EdgeKind::Spatial } else { EdgeKind::Functional },
+                relation_id: 0,
+                confidence: 0.8,
+                origin: EdgeOrigin::Geometry,
+            });
+        }
+    }
+    graph
+}

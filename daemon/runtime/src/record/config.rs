@@ -1,0 +1,217 @@
+//! `[record]`: what the recorder writes, where, and how files rotate.
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+
+/// Chunk compression.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RecordCompression {
+    /// zstd (default level): smaller files, more CPU.
+    #[default]
+    Zstd,
+    /// lz4: less CPU, larger files.
+    Lz4,
+    /// Uncompressed chunks.
+    None,
+}
+
+/// One channel's switch and rate limit.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChannelConfig {
+    /// Whether the channel is written.
+    pub enabled: bool,
+    /// At most this many messages per second (wall clock; the rest are skipped, not counted as
+    /// drops); 0 = every message.
+    #[serde(default)]
+    pub max_rate_hz: f64,
+}
+
+impl ChannelConfig {
+    const fn on() -> Self {
+        Self { enabled: true, max_rate_hz: 0.0 }
+    }
+}
+
+impl Default for ChannelConfig {
+    fn default() -> Self {
+        Self::on()
+    }
+}
+
+/// `[record.channels]`: one entry per channel (topics in `op3dsg_drivers::mcap`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecordChannels {
+    /// `/op3dsg/graph`: the graph JSON of every published version.
+    #[serde(default)]
+    pub graph: ChannelConfig,
+    /// `/op3dsg/scene`: `foxglove.SceneUpdate` of every published version.
+    #[serde(default)]
+    pub scene: ChannelConfig,
+    /// `/tf`: `foxglove.FrameTransform` world → camera per keyframe.
+    #[serde(default)]
+    pub transforms: ChannelConfig,
+    /// `/camera/calibration`: `foxglove.CameraCalibration` (first frame of a file and changes;
+    /// the rate limit does not apply). Replay needs it.
+    #[serde(default)]
+    pub calibration: ChannelConfig,
+    /// `/op3dsg/health`: every health record.
+    #[serde(default)]
+    pub health: ChannelConfig,
+    /// `/camera/colour`: `foxglove.RawImage` rgb8 of every frame the keyframe gate received.
+    #[serde(default)]
+    pub colour: ChannelConfig,
+    /// `/camera/depth`: `foxglove.RawImage` 16UC1 of every such frame.
+    #[serde(default)]
+    pub depth: ChannelConfig,
+    /// `/op3dsg/frame`: seq, stamp, depth scale and pose of every such frame. Replay needs
+    /// colour, depth and frame of every frame (no rate limit on them).
+    #[serde(default)]
+    pub frame: ChannelConfig,
+    /// Side channels the source offers (the simulator's `/sim/instance_ids`), with the frames.
+    #[serde(default)]
+    pub side_channels: ChannelConfig,
+}
+
+impl Default for RecordChannels {
+    fn default() -> Self {
+        let on = ChannelConfig::on();
+        Self {
+            graph: on,
+            scene: on,
+            transforms: on,
+            calibration: on,
+            health: on,
+            colour: on,
+            depth: on,
+            frame: on,
+            side_channels: on,
+        }
+    }
+}
+
+impl RecordChannels {
+    /// `(name, config)` of every channel, in profile order.
+    pub fn entries(&self) -> [(&'static str, ChannelConfig); 9] {
+        [
+            ("graph", self.graph),
+            ("scene", self.scene),
+            ("transforms", self.transforms),
+            ("calibration", self.calibration),
+            ("health", self.health),
+            ("colour", self.colour),
+            ("depth", self.depth),
+            ("frame", self.frame),
+            ("side_channels", self.side_channels),
+        ]
+    }
+}
+
+/// `[record]`: the MCAP recorder (`crate::record`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecordConfig {
+    /// Whether the daemon records (`op3dsgd --record DIR` sets it and `dir`).
+    pub enabled: bool,
+    /// Folder for the files (created if missing). Relative: to the profile file that sets it
+    /// (to the working directory with `--set` or `--record`).
+    pub dir: PathBuf,
+    /// Chunk compression: `zstd`, `lz4` or `none`.
+    pub compression: RecordCompression,
+    /// Uncompressed chunk size, KiB: a chunk is compressed and written when it reaches this.
+    pub chunk_size_kib: u64,
+    /// Finish the current chunk and flush the file at least this often, milliseconds: after a
+    /// kill -9 or a power cut, at most this much is lost.
+    pub flush_interval_ms: u64,
+    /// Start a new file when the current one reaches this size, MiB.
+    pub max_file_mib: u64,
+    /// Start a new file when the current one is this old, seconds.
+    pub max_file_s: f64,
+    /// Raw frames waiting for the recorder; their buffers are allocated at start-up. A frame
+    /// that finds none free is dropped and counted.
+    pub frame_queue: usize,
+    /// Graph versions, keyframe poses and health records waiting; when full, dropped and counted.
+    pub event_queue: usize,
+    /// Per-channel switches and rate limits.
+    #[serde(default)]
+    pub channels: RecordChannels,
+}
+
+impl Default for RecordConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            dir: PathBuf::from("recordings"),
+            compression: RecordCompression::Zstd,
+            chunk_size_kib: 4096,
+            flush_interval_ms: 1000,
+            max_file_mib: 2048,
+            max_file_s: 600.0,
+            frame_queue: 4,
+            event_queue: 64,
+            channels: RecordChannels::default(),
+        }
+    }
+}
+
+impl RecordConfig {
+    /// Checks ranges; errors name the field prefixed with `path` (`record.max_file_mib: ...`).
+    pub fn validate(&self, path: &str) -> Result<(), String> {
+        if self.enabled && self.dir.as_os_str().is_empty() {
+            return Err(format!("{path}.dir: must name the folder for the recordings"));
+        }
+        if !(16..=1 << 20).contains(&self.chunk_size_kib) {
+            return Err(format!("{path}.chunk_size_kib: must be within [16, 1048576], got {}", self.chunk_size_kib));
+        }
+        if !(10..=600_000).contains(&self.flush_interval_ms) {
+            return Err(format!(
+                "{path}.flush_interval_ms: must be within [10, 600000], got {}",
+                self.flush_interval_ms
+            ));
+        }
+        if !(1..=1 << 24).contains(&self.max_file_mib) {
+            return Err(format!("{path}.max_file_mib: must be within [1, 16777216], got {}", self.max_file_mib));
+        }
+        if !(self.max_file_s >= 1.0 && self.max_file_s <= 86_400.0 * 7.0) {
+            return Err(format!("{path}.max_file_s: must be within [1, 604800], got {}", self.max_file_s));
+        }
+        if !(1..=256).contains(&self.frame_queue) {
+            return Err(format!("{path}.frame_queue: must be within [1, 256], got {}", self.frame_queue));
+        }
+        if !(1..=65_536).contains(&self.event_queue) {
+            return Err(format!("{path}.event_queue: must be within [1, 65536], got {}", self.event_queue));
+        }
+        for (name, channel) in self.channels.entries() {
+            let rate = channel.max_rate_hz;
+            if !(rate.is_finite() && (0.0..=1000.0).contains(&rate)) {
+                return Err(format!(
+                    "{path}.channels.{name}.max_rate_hz: must be within [0, 1000] (0 = every message), got {rate}"
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn validation_names_the_key() {
+        let mut config = RecordConfig::default();
+        assert_eq!(config.validate("record"), Ok(()));
+        config.channels.colour.max_rate_hz = -1.0;
+        assert_eq!(
+            config.validate("record").unwrap_err(),
+            "record.channels.colour.max_rate_hz: must be within [0, 1000] (0 = every message), got -1"
+        );
+        let config = RecordConfig { max_file_mib: 0, ..RecordConfig::default() };
+        assert!(config.validate("record").unwrap_err().starts_with("record.max_file_mib: "));
+        let config = RecordConfig { enabled: true, dir: PathBuf::new(), ..RecordConfig::default() };
+        assert!(config.validate("record").unwrap_err().starts_with("record.dir: "));
+    }
+}

@@ -1,0 +1,301 @@
+//! `foxglove.SceneUpdate` of a graph version: a cube per node at its box (objects blue-grey and
+//! translucent, parts orange), its label as a billboard text above it, and the edges as lines
+//! between node centres: spatial edges grey, functional edges green, each kind one entity
+//! (`edges/spatial`, `edges/functional`) so Foxglove's topic settings can hide one.
+//!
+//! Each update first deletes every entity of the topic (`ALL`), so removed nodes disappear; the
+//! scene at any time is exactly the graph version written last.
+
+use serde::Serialize;
+
+use op3dsg_drivers::mcap::WORLD_FRAME;
+use op3dsg_drivers::mcap::messages::Time;
+use op3dsg_ipc_types::{EdgeKind, NodeKind};
+
+use crate::graph::SceneGraph;
+
+/// Object cubes.
+pub const OBJECT_COLOUR: Colour = Colour { r: 0.45, g: 0.58, b: 0.72, a: 0.35 };
+/// Part cubes.
+pub const PART_COLOUR: Colour = Colour { r: 1.0, g: 0.55, b: 0.1, a: 0.6 };
+/// Spatial edges.
+pub const SPATIAL_EDGE_COLOUR: Colour = Colour { r: 0.75, g: 0.75, b: 0.75, a: 0.9 };
+/// Functional edges.
+pub const FUNCTIONAL_EDGE_COLOUR: Colour = Colour { r: 0.2, g: 0.85, b: 0.3, a: 1.0 };
+const TEXT_COLOUR: Colour = Colour { r: 1.0, g: 1.0, b: 1.0, a: 1.0 };
+
+/// `foxglove.Color`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Colour {
+    r: f32,
+    g: f32,
+    b: f32,
+    a: f32,
+}
+
+#[derive(Debug, Serialize)]
+struct Vector3 {
+    x: f64,
+    y: f64,
+    z: f64,
+}
+
+#[derive(Debug, Serialize)]
+struct Quaternion {
+    x: f64,
+    y: f64,
+    z: f64,
+    w: f64,
+}
+
+#[derive(Debug, Serialize)]
+struct Pose {
+    position: Vector3,
+    orientation: Quaternion,
+}
+
+impl Pose {
+    fn at(position: [f64; 3]) -> Self {
+        let [x, y, z] = position;
+        Self { position: Vector3 { x, y, z }, orientation: Quaternion { x: 0.0, y: 0.0, z: 0.0, w: 1.0 } }
+    }
+}
+
+#[derive(Debug, Serialize)]
+struct Cube {
+    pose: Pose,
+    size: Vector3,
+    color: Colour,
+}
+
+#[derive(Debug, Serialize)]
+struct Text {
+    pose: Pose,
+    billboard: bool,
+    font_size: f64,
+    scale_invariant: bool,
+    color: Colour,
+    text: String,
+}
+
+#[derive(Debug, Serialize)]
+struct Line {
+    #[serde(rename = "type")]
+    kind: u8,
+    pose: Pose,
+    thickness: f64,
+    scale_invariant: bool,
+    points: Vec<Vector3>,
+    color: Colour,
+    colors: Vec<Colour>,
+    indices: Vec<u32>,
+}
+
+#[derive(Debug, Serialize)]
+struct KeyValue {
+    key: &'static str,
+    value: String,
+}
+
+#[derive(Debug, Serialize)]
+struct Duration {
+    sec: i64,
+    nsec: u32,
+}
+
+#[derive(Debug, Serialize)]
+struct Entity {
+    timestamp: Time,
+    frame_id: &'static str,
+    id: String,
+    lifetime: Duration,
+    frame_locked: bool,
+    metadata: Vec<KeyValue>,
+    arrows: [(); 0],
+    cubes: Vec<Cube>,
+    spheres: [(); 0],
+    cylinders: [(); 0],
+    lines: Vec<Line>,
+    triangles: [(); 0],
+    texts: Vec<Text>,
+    models: [(); 0],
+}
+
+impl Entity {
+    fn new(timestamp: Time, id: String) -> Self {
+        Self {
+            timestamp,
+            frame_id: WORLD_FRAME,
+            id,
+            lifetime: Duration { sec: 0, nsec: 0 },
+            frame_locked: false,
+            metadata: Vec::new(),
+            arrows: [],
+            cubes: Vec::new(),
+            spheres: [],
+            cylinders: [],
+            lines: Vec::new(),
+            triangles: [],
+            texts: Vec::new(),
+            models: [],
+        }
+    }
+}
+
+#[derive(Debug, Serialize)]
+struct Deletion {
+    timestamp: Time,
+    #[serde(rename = "type")]
+    kind: u8,
+    id: &'static str,
+}
+
+#[derive(Debug, Serialize)]
+struct SceneUpdate {
+    deletions: Vec<Deletion>,
+    entities: Vec<Entity>,
+}
+
+fn v3(p: [f32; 3]) -> [f64; 3] {
+    p.map(f64::from)
+}
+
+/// Writes the `foxglove.SceneUpdate` JSON of `graph` into `out` (cleared first).
+pub fn write_scene_update(graph: &SceneGraph, out: &mut Vec<u8>) {
+    out.clear();
+    let timestamp = Time::from_ns(graph.stamp_ns);
+    let mut entities = Vec::with_capacity(graph.nodes.len() + 2);
+    for node in &graph.nodes {
+        let min = v3(node.box_min_m);
+        let max = v3(node.box_max_m);
+        let centre = [0, 1, 2].map(|i| (min[i] + max[i]) / 2.0);
+        let [sx, sy, sz] = [0, 1, 2].map(|i| (max[i] - min[i]).max(0.0));
+        let part = node.kind == NodeKind::Part;
+        let mut entity = Entity::new(timestamp, format!("node/{}", node.id));
+        entity.metadata = vec![
+            KeyValue { key: "graph_version", value: graph.version.to_string() },
+            KeyValue { key: "node_id", value: node.id.to_string() },
+            KeyValue { key: "kind", value: node.kind.as_str().to_owned() },
+            KeyValue { key: "label", value: node.label.clone() },
+        ];
+        entity.cubes.push(Cube {
+            pose: Pose::at(centre),
+            size: Vector3 { x: sx, y: sy, z: sz },
+            color: if part { PART_COLOUR } else { OBJECT_COLOUR },
+        });
+        entity.texts.push(Text {
+            pose: Pose::at([centre[0], centre[1], max[2] + 0.05]),
+            billboard: true,
+            font_size: if part { 12.0 } else { 16.0 },
+            scale_invariant: true,
+            color: TEXT_COLOUR,
+            text: node.label.clone(),
+        });
+        entities.push(entity);
+    }
+    let centre_of = |id: u32| {
+        graph.nodes.binary_search_by_key(&id, |n| n.id).ok().map(|i| {
+            let [x, y, z] = v3(graph.nodes[i].centre_m);
+            Vector3 { x, y, z }
+        })
+    };
+    for (kind, name, colour) in [
+        (EdgeKind::Spatial, "edges/spatial", SPATIAL_EDGE_COLOUR),
+        (EdgeKind::Functional, "edges/functional", FUNCTIONAL_EDGE_COLOUR),
+    ] {
+        let mut points = Vec::new();
+        for edge in graph.edges.iter().filter(|e| e.kind == kind) {
+            if let (Some(a), Some(b)) = (centre_of(edge.source_id), centre_of(edge.target_id)) {
+                points.push(a);
+                points.push(b);
+            }
+        }
+        let mut entity = Entity::new(timestamp, name.to_owned());
+        entity.metadata = vec![KeyValue { key: "graph_version", value: graph.version.to_string() }];
+        if !points.is_empty() {
+            entity.lines.push(Line {
+                kind: 2, // LINE_LIST
+                pose: Pose::at([0.0; 3]),
+                thickness: if kind == EdgeKind::Functional { 3.0 } else { 1.5 },
+                scale_invariant: true,
+                points,
+                color: colour,
+                colors: Vec::new(),
+                indices: Vec::new(),
+            });
+        }
+        entities.push(entity);
+    }
+    let update = SceneUpdate { deletions: vec![Deletion { timestamp, kind: 1, id: "" }], entities };
+    // Serialising plain structs into a Vec cannot fail.
+    let _ = serde_json::to_writer(out, &update);
+}
+
+#[cfg(test)]
+mod tests {
+    use op3dsg_ipc_types::EdgeOrigin;
+
+    use super::*;
+    use crate::graph::{GraphEdge, GraphNode};
+
+    fn node(id: u32, kind: NodeKind, min: [f32; 3], max: [f32; 3]) -> GraphNode {
+        GraphNode {
+            id,
+            kind,
+            parent_id: None,
+            label: format!("n{id}"),
+            confidence: 1.0,
+            centre_m: [0, 1, 2].map(|i| (min[i] + max[i]) / 2.0),
+            box_min_m: min,
+            box_max_m: max,
+            observation_count: 1,
+            affordance_bits: 0,
+            last_seen_stamp_ns: 0,
+        }
+    }
+
+    #[test]
+    fn cubes_sit_on_the_boxes_and_edges_split_by_kind() {
+        let graph = SceneGraph {
+            version: 7,
+            stamp_ns: 2_000_000_003,
+            nodes: vec![
+                node(1, NodeKind::Object, [0.0, 0.0, 0.0], [1.0, 2.0, 0.5]),
+                node(2, NodeKind::Part, [0.9, 0.1, 0.2], [1.0, 0.3, 0.3]),
+            ],
+            edges: vec![
+                GraphEdge {
+                    source_id: 2,
+                    target_id: 1,
+                    kind: EdgeKind::Spatial,
+                    relation_id: 0,
+                    confidence: 1.0,
+                    origin: EdgeOrigin::Geometry,
+                },
+                GraphEdge {
+                    source_id: 2,
+                    target_id: 1,
+                    kind: EdgeKind::Functional,
+                    relation_id: 0,
+                    confidence: 1.0,
+                    origin: EdgeOrigin::Knowledge,
+                },
+            ],
+        };
+        let mut out = Vec::new();
+        write_scene_update(&graph, &mut out);
+        let v: serde_json::Value = serde_json::from_slice(&out).unwrap();
+        assert_eq!(v["deletions"][0]["type"], 1);
+        let entities = v["entities"].as_array().unwrap();
+        assert_eq!(entities.len(), 4);
+        let cube = &entities[0]["cubes"][0];
+        assert_eq!(cube["pose"]["position"]["y"], 1.0);
+        assert_eq!(cube["size"]["z"], 0.5);
+        assert_ne!(entities[0]["cubes"][0]["color"], entities[1]["cubes"][0]["color"], "parts apart from objects");
+        assert_eq!(entities[1]["texts"][0]["text"], "n2");
+        assert_eq!(entities[2]["id"], "edges/spatial");
+        assert_eq!(entities[2]["lines"][0]["points"].as_array().unwrap().len(), 2);
+        assert_ne!(entities[2]["lines"][0]["color"], entities[3]["lines"][0]["color"]);
+        assert_eq!(entities[0]["timestamp"]["nsec"], 3);
+    }
+}

@@ -1,0 +1,98 @@
+//! MCAP recordings: the channels the recorder writes (`op3dsg_runtime::record`), their schemas
+//! and message encodings, and [`McapSource`], which replays the raw input of a recording as a
+//! [`FrameSource`](crate::source::FrameSource) (`source.kind = "mcap"`).
+//!
+//! # Channels
+//!
+//! Every channel is JSON-encoded (`message_encoding = "json"`, `schema encoding = "jsonschema"`),
+//! so Foxglove, the `mcap` CLI and any JSON reader open the files without generated code. The
+//! Foxglove message types follow the Foxglove schemas (`foxglove.RawImage`, `.CameraCalibration`,
+//! `.FrameTransform`, `.SceneUpdate`) as published in the foxglove-sdk repository's
+//! `schemas/jsonschema` (2025 releases, the field set shared by Foxglove 2.x); the schema texts
+//! embedded in each file ([`schemas`]) are written here for the fields op3dsg emits. Bytes
+//! (`RawImage.data`) are base64, as Foxglove's JSON encoding requires.
+//!
+//! | topic | schema | what | written |
+//! | --- | --- | --- | --- |
+//! | `/op3dsg/graph` | `op3dsg.Graph` | the graph in [`crate::graph_json`] form | every published version |
+//! | `/op3dsg/scene` | `foxglove.SceneUpdate` | a cube per node (objects blue-grey, parts orange), its label, spatial edges grey, functional edges green | every published version |
+//! | `/tf` | `foxglove.FrameTransform` | `world` → `camera` | every keyframe |
+//! | `/camera/calibration` | `foxglove.CameraCalibration` | pinhole intrinsics, no distortion | first frame of each file, then when they change |
+//! | `/camera/colour` | `foxglove.RawImage` | `rgb8` | every frame the keyframe gate received |
+//! | `/camera/depth` | `foxglove.RawImage` | `16UC1`, little-endian, sensor units | every frame the keyframe gate received |
+//! | `/op3dsg/frame` | `op3dsg.Frame` | seq, stamp, depth units per metre, `world_from_camera` | every frame the keyframe gate received |
+//! | `/op3dsg/health` | `op3dsg.Health` | counters, queues, stages, recorder state | every health period |
+//! | `/sim/instance_ids` | `foxglove.RawImage` | `16UC1` instance ids of the synthetic renderer (simulation only) | every frame, when the source has them |
+//!
+//! A raw frame is written as `/camera/colour`, `/camera/depth`, any side channel of the source,
+//! then `/op3dsg/frame` (which completes it), the images with the frame's stamp as their
+//! `timestamp`; `/camera/calibration` comes before the first frame of each file. Each file also holds metadata `op3dsg.profile` (`toml`: the effective profile)
+//! and, when finished cleanly, `op3dsg.recorder` (messages written and dropped per channel).
+//! Log times are the recorder's wall clock (Unix nanoseconds, never decreasing within a file);
+//! the `timestamp` fields are sensor time.
+
+pub mod messages;
+pub mod reader;
+pub mod schemas;
+mod source;
+#[cfg(test)]
+mod tests;
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+
+pub use source::McapSource;
+
+use crate::replay::PlaybackMode;
+
+/// The graph in [`crate::graph_json`] form.
+pub const TOPIC_GRAPH: &str = "/op3dsg/graph";
+/// `foxglove.SceneUpdate` of the graph.
+pub const TOPIC_SCENE: &str = "/op3dsg/scene";
+/// `foxglove.FrameTransform` world → camera per keyframe.
+pub const TOPIC_TF: &str = "/tf";
+/// `foxglove.CameraCalibration`.
+pub const TOPIC_CALIBRATION: &str = "/camera/calibration";
+/// `foxglove.RawImage` rgb8.
+pub const TOPIC_COLOUR: &str = "/camera/colour";
+/// `foxglove.RawImage` 16UC1.
+pub const TOPIC_DEPTH: &str = "/camera/depth";
+/// `op3dsg.Frame`: what a frame carries besides pixels.
+pub const TOPIC_FRAME: &str = "/op3dsg/frame";
+/// `op3dsg.Health`.
+pub const TOPIC_HEALTH: &str = "/op3dsg/health";
+
+/// Metadata record with the effective profile (key `toml`).
+pub const METADATA_PROFILE: &str = "op3dsg.profile";
+/// Metadata record the recorder writes when it finishes a file: per channel `<topic>.written`
+/// and `<topic>.dropped`, and `dropped_total`.
+pub const METADATA_RECORDER: &str = "op3dsg.recorder";
+
+/// Frame id of the world frame in transforms and scene entities.
+pub const WORLD_FRAME: &str = "world";
+/// Frame id of the camera (OpenCV axes: x right, y down, z forward).
+pub const CAMERA_FRAME: &str = "camera";
+
+/// `[source.mcap]`: replay of a recording the recorder wrote.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct McapReplayConfig {
+    /// An `.mcap` file, or a folder whose `*.mcap` files are played in name order (the recorder
+    /// names files by their start time, so that is recording order). In a profile, a relative
+    /// path is relative to the folder of the profile file that sets it.
+    pub path: PathBuf,
+    /// Pacing: `recorded` (by the frames' stamps), `fast`, or `stepped`, as the TUM replay.
+    #[serde(default)]
+    pub mode: PlaybackMode,
+}
+
+impl McapReplayConfig {
+    /// Checks the fields; the error names the field prefixed with `path`.
+    pub fn validate(&self, path: &str) -> Result<(), String> {
+        if self.path.as_os_str().is_empty() {
+            return Err(format!("{path}.path: must name an .mcap file or a folder of them"));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,345 @@
+//! The JSON schemas embedded in every recording, one per channel type.
+//!
+//! The `foxglove.*` ones describe the fields op3dsg writes with the names, types and required
+//! fields of Foxglove's published JSON schemas (foxglove-sdk `schemas/jsonschema`, 2025
+//! releases); Foxglove picks its panels by the schema *name*, so a file opens in Foxglove's
+//! 3D, Image and Raw Messages panels. The `op3dsg.*` ones describe our own messages.
+
+use serde_json::{Value, json};
+
+/// Schema encoding of every channel.
+pub const SCHEMA_ENCODING: &str = "jsonschema";
+/// Message encoding of every channel.
+pub const MESSAGE_ENCODING: &str = "json";
+
+/// `foxglove.RawImage`.
+pub const RAW_IMAGE: &str = "foxglove.RawImage";
+/// `foxglove.CameraCalibration`.
+pub const CAMERA_CALIBRATION: &str = "foxglove.CameraCalibration";
+/// `foxglove.FrameTransform`.
+pub const FRAME_TRANSFORM: &str = "foxglove.FrameTransform";
+/// `foxglove.SceneUpdate`.
+pub const SCENE_UPDATE: &str = "foxglove.SceneUpdate";
+/// `op3dsg.Graph`: [`crate::graph_json`].
+pub const GRAPH: &str = "op3dsg.Graph";
+/// `op3dsg.Frame`: [`super::messages::FrameMeta`].
+pub const FRAME: &str = "op3dsg.Frame";
+/// `op3dsg.Health`.
+pub const HEALTH: &str = "op3dsg.Health";
+
+/// The schema text of `name` (one of the constants above), `None` for another name.
+pub fn schema_text(name: &str) -> Option<String> {
+    let value = match name {
+        RAW_IMAGE => raw_image(),
+        CAMERA_CALIBRATION => camera_calibration(),
+        FRAME_TRANSFORM => frame_transform(),
+        SCENE_UPDATE => scene_update(),
+        GRAPH => graph(),
+        FRAME => frame(),
+        HEALTH => health(),
+        _ => return None,
+    };
+    Some(value.to_string())
+}
+
+fn object(title: &str, properties: Value, required: &[&str]) -> Value {
+    json!({ "title": title, "type": "object", "properties": properties, "required": required })
+}
+
+fn time() -> Value {
+    json!({
+        "type": "object", "title": "time",
+        "properties": {
+            "sec": { "type": "integer", "minimum": 0 },
+            "nsec": { "type": "integer", "minimum": 0, "maximum": 999_999_999 }
+        },
+        "required": ["sec", "nsec"]
+    })
+}
+
+fn duration() -> Value {
+    json!({
+        "type": "object", "title": "duration",
+        "properties": {
+            "sec": { "type": "integer" },
+            "nsec": { "type": "integer", "minimum": 0, "maximum": 999_999_999 }
+        },
+        "required": ["sec", "nsec"]
+    })
+}
+
+fn numbers(title: &str, names: &[&str]) -> Value {
+    let properties: serde_json::Map<String, Value> =
+        names.iter().map(|n| ((*n).to_owned(), json!({ "type": "number" }))).collect();
+    object(title, Value::Object(properties), names)
+}
+
+fn vector3() -> Value {
+    numbers("foxglove.Vector3", &["x", "y", "z"])
+}
+
+fn point3() -> Value {
+    numbers("foxglove.Point3", &["x", "y", "z"])
+}
+
+fn quaternion() -> Value {
+    numbers("foxglove.Quaternion", &["x", "y", "z", "w"])
+}
+
+fn color() -> Value {
+    numbers("foxglove.Color", &["r", "g", "b", "a"])
+}
+
+fn pose() -> Value {
+    object("foxglove.Pose", json!({ "position": vector3(), "orientation": quaternion() }), &["position", "orientation"])
+}
+
+fn raw_image() -> Value {
+    let mut schema = object(
+        RAW_IMAGE,
+        json!({
+            "timestamp": time(),
+            "frame_id": { "type": "string" },
+            "width": { "type": "integer", "minimum": 0 },
+            "height": { "type": "integer", "minimum": 0 },
+            "encoding": { "type": "string", "description": "rgb8, 16UC1, mono16, ..." },
+            "step": { "type": "integer", "minimum": 0, "description": "Byte length of a row" },
+            "data": { "type": "string", "contentEncoding": "base64" }
+        }),
+        &["timestamp", "frame_id", "width", "height", "encoding", "step", "data"],
+    );
+    schema["description"] = json!("A raw image");
+    schema
+}
+
+fn camera_calibration() -> Value {
+    let matrix = |n: usize| json!({ "type": "array", "items": { "type": "number" }, "minItems": n, "maxItems": n });
+    object(
+        CAMERA_CALIBRATION,
+        json!({
+            "timestamp": time(),
+            "frame_id": { "type": "string" },
+            "width": { "type": "integer", "minimum": 0 },
+            "height": { "type": "integer", "minimum": 0 },
+            "distortion_model": { "type": "string" },
+            "D": { "type": "array", "items": { "type": "number" } },
+            "K": matrix(9),
+            "R": matrix(9),
+            "P": matrix(12)
+        }),
+        &["timestamp", "frame_id", "width", "height", "distortion_model", "D", "K", "R", "P"],
+    )
+}
+
+fn frame_transform() -> Value {
+    object(
+        FRAME_TRANSFORM,
+        json!({
+            "timestamp": time(),
+            "parent_frame_id": { "type": "string" },
+            "child_frame_id": { "type": "string" },
+            "translation": vector3(),
+            "rotation": quaternion()
+        }),
+        &["timestamp", "parent_frame_id", "child_frame_id", "translation", "rotation"],
+    )
+}
+
+fn scene_update() -> Value {
+    let cube = object(
+        "foxglove.CubePrimitive",
+        json!({ "pose": pose(), "size": vector3(), "color": color() }),
+        &["pose", "size", "color"],
+    );
+    let line = object(
+        "foxglove.LinePrimitive",
+        json!({
+            "type": { "title": "foxglove.LineType", "oneOf": [
+                { "title": "LINE_STRIP", "const": 0 }, { "title": "LINE_LOOP", "const": 1 }, { "title": "LINE_LIST", "const": 2 }
+            ] },
+            "pose": pose(),
+            "thickness": { "type": "number" },
+            "scale_invariant": { "type": "boolean" },
+            "points": { "type": "array", "items": point3() },
+            "color": color(),
+            "colors": { "type": "array", "items": color() },
+            "indices": { "type": "array", "items": { "type": "integer", "minimum": 0 } }
+        }),
+        &["type", "pose", "thickness", "scale_invariant", "points", "color", "colors", "indices"],
+    );
+    let text = object(
+        "foxglove.TextPrimitive",
+        json!({
+            "pose": pose(),
+            "billboard": { "type": "boolean" },
+            "font_size": { "type": "number" },
+            "scale_invariant": { "type": "boolean" },
+            "color": color(),
+            "text": { "type": "string" }
+        }),
+        &["pose", "billboard", "font_size", "scale_invariant", "color", "text"],
+    );
+    let key_value = object(
+        "foxglove.KeyValuePair",
+        json!({ "key": { "type": "string" }, "value": { "type": "string" } }),
+        &["key", "value"],
+    );
+    let array = |items: Value| json!({ "type": "array", "items": items });
+    let entity = object(
+        "foxglove.SceneEntity",
+        json!({
+            "timestamp": time(),
+            "frame_id": { "type": "string" },
+            "id": { "type": "string" },
+            "lifetime": duration(),
+            "frame_locked": { "type": "boolean" },
+            "metadata": array(key_value),
+            "arrows": array(json!({ "type": "object" })),
+            "cubes": array(cube),
+            "spheres": array(json!({ "type": "object" })),
+            "cylinders": array(json!({ "type": "object" })),
+            "lines": array(line),
+            "triangles": array(json!({ "type": "object" })),
+            "texts": array(text),
+            "models": array(json!({ "type": "object" }))
+        }),
+        &[
+            "timestamp",
+            "frame_id",
+            "id",
+            "lifetime",
+            "frame_locked",
+            "metadata",
+            "arrows",
+            "cubes",
+            "spheres",
+            "cylinders",
+            "lines",
+            "triangles",
+            "texts",
+            "models",
+        ],
+    );
+    let deletion = object(
+        "foxglove.SceneEntityDeletion",
+        json!({
+            "timestamp": time(),
+            "type": { "title": "foxglove.SceneEntityDeletionType", "oneOf": [
+                { "title": "MATCHING_ID", "const": 0 }, { "title": "ALL", "const": 1 }
+            ] },
+            "id": { "type": "string" }
+        }),
+        &["timestamp", "type", "id"],
+    );
+    object(SCENE_UPDATE, json!({ "deletions": array(deletion), "entities": array(entity) }), &["deletions", "entities"])
+}
+
+fn graph() -> Value {
+    let xyz = json!({ "type": "array", "items": { "type": "number" }, "minItems": 3, "maxItems": 3 });
+    let node = object(
+        "op3dsg.Node",
+        json!({
+            "id": { "type": "integer", "minimum": 0 },
+            "label": { "type": "string" },
+            "kind": { "enum": ["object", "part"] },
+            "parent": { "type": ["integer", "null"] },
+            "centre_m": xyz, "box_min_m": xyz, "box_max_m": xyz,
+            "affordances": { "type": "array", "items": { "type": "string" } },
+            "confidence": { "type": "number" },
+            "observation_count": { "type": "integer", "minimum": 0 }
+        }),
+        &[
+            "id",
+            "label",
+            "kind",
+            "parent",
+            "centre_m",
+            "box_min_m",
+            "box_max_m",
+            "affordances",
+            "confidence",
+            "observation_count",
+        ],
+    );
+    let edge = object(
+        "op3dsg.Edge",
+        json!({
+            "source": { "type": "integer" }, "target": { "type": "integer" },
+            "kind": { "enum": ["spatial", "functional"] },
+            "relation": { "type": "string" },
+            "confidence": { "type": "number" },
+            "origin": { "type": "string" }
+        }),
+        &["source", "target", "kind", "relation", "confidence", "origin"],
+    );
+    let mut schema = object(
+        GRAPH,
+        json!({
+            "schema": { "const": crate::graph_json::GRAPH_JSON_SCHEMA },
+            "source": { "type": "string" },
+            "graph_version": { "type": "integer", "minimum": 0 },
+            "stamp_ns": { "type": "integer", "minimum": 0 },
+            "nodes": { "type": "array", "items": node },
+            "edges": { "type": "array", "items": edge }
+        }),
+        &["schema", "source", "graph_version", "stamp_ns", "nodes", "edges"],
+    );
+    schema["description"] = json!("op3dsg scene graph, one published version (drivers/src/graph_json.rs)");
+    schema
+}
+
+fn frame() -> Value {
+    let pose = object(
+        "op3dsg.Isometry",
+        json!({
+            "translation_m": { "type": "array", "items": { "type": "number" }, "minItems": 3, "maxItems": 3 },
+            "rotation_xyzw": { "type": "array", "items": { "type": "number" }, "minItems": 4, "maxItems": 4 }
+        }),
+        &["translation_m", "rotation_xyzw"],
+    );
+    object(
+        FRAME,
+        json!({
+            "seq": { "type": "integer", "minimum": 0 },
+            "stamp_ns": { "type": "integer", "minimum": 0 },
+            "depth_units_per_m": { "type": "number" },
+            "world_from_camera": { "oneOf": [pose, { "type": "null" }] }
+        }),
+        &["seq", "stamp_ns", "depth_units_per_m", "world_from_camera"],
+    )
+}
+
+fn health() -> Value {
+    let mut schema = object(
+        HEALTH,
+        json!({
+            "stamp_ns": { "type": "integer" },
+            "uptime_ns": { "type": "integer" },
+            "frames_captured": { "type": "integer" },
+            "keyframes": { "type": "integer" },
+            "graph_version": { "type": "integer" },
+            "map_node_count": { "type": "integer" },
+            "stages": { "type": "array", "items": { "type": "object" } },
+            "queues": { "type": "array", "items": { "type": "object" } },
+            "recorder": { "type": "object" }
+        }),
+        &["stamp_ns", "frames_captured", "keyframes", "graph_version", "stages", "queues", "recorder"],
+    );
+    schema["description"] = json!("op3dsg health record (ipc_types/src/health_types.rs), as JSON");
+    schema
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_schema_is_json_titled_by_its_name() {
+        for name in [RAW_IMAGE, CAMERA_CALIBRATION, FRAME_TRANSFORM, SCENE_UPDATE, GRAPH, FRAME, HEALTH] {
+            let text = schema_text(name).unwrap();
+            let value: Value = serde_json::from_str(&text).unwrap();
+            assert_eq!(value["title"], name);
+        }
+        assert!(schema_text("foxglove.Nope").is_none());
+    }
+}

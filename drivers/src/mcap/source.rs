@@ -1,0 +1,450 @@
+//! [`McapSource`]: plays the raw input of recordings the recorder wrote.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use tracing::info;
+
+use super::messages::{CameraCalibration, FrameMeta, RawImageIn};
+use super::reader::{ChannelInfo, Item, McapReader, MessageAt, ReadError};
+use super::{McapReplayConfig, TOPIC_CALIBRATION, TOPIC_COLOUR, TOPIC_DEPTH, TOPIC_FRAME, schemas};
+use crate::frame::{Frame, Intrinsics};
+use crate::pose::Isometry;
+use crate::replay::{MAX_BLOCK, PlaybackMode};
+use crate::source::{FrameSource, SourceError, SourceStatus, StepControl};
+
+/// Receives a side channel's message of each frame (the bytes of the JSON message) after the
+/// frame's pixels and meta are in place; an error stops the replay naming the channel.
+pub type SideChannelHandler = Box<dyn FnMut(&mut Frame, &[u8]) -> Result<(), String> + Send>;
+
+struct SideChannel {
+    topic: String,
+    handler: SideChannelHandler,
+    data: Vec<u8>,
+    present: bool,
+}
+
+/// The messages of the next frame, read ahead of its delivery.
+#[derive(Default)]
+struct Staged {
+    meta: Option<FrameMeta>,
+    colour: Vec<u8>,
+    colour_at: Option<MessageAt>,
+    depth: Vec<u8>,
+    depth_at: Option<MessageAt>,
+}
+
+/// A [`FrameSource`] over recordings of the recorder (`source.kind = "mcap"`, [the
+/// module](super)): frames as the keyframe gate received them while recording, with their seqs,
+/// stamps, poses and depth scale, the intrinsics from `/camera/calibration`.
+///
+/// Errors name the file, the channel and the message index: a channel whose schema or encoding
+/// is not the recorder's, a frame without a calibration before it, an image of another size, a
+/// frame whose colour or depth is missing, a file cut off (after a crash or a full disk: the
+/// frames before the cut are delivered first, then the stream ends with the error).
+pub struct McapSource {
+    config: McapReplayConfig,
+    files: Vec<PathBuf>,
+    next_file: usize,
+    reader: Option<McapReader>,
+    intrinsics: Intrinsics,
+    has_poses: bool,
+    side_channels: Vec<SideChannel>,
+    staged: Staged,
+    ready: bool,
+    scratch: Vec<u8>,
+    step: Option<StepControl>,
+    origin: Option<(Instant, u64)>,
+    delivered: u64,
+    finished: bool,
+}
+
+impl std::fmt::Debug for McapSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("McapSource").field("files", &self.files).field("delivered", &self.delivered).finish()
+    }
+}
+
+fn source_error(e: ReadError) -> SourceError {
+    SourceError::File { path: e.path, reason: e.reason }
+}
+
+fn at_error(path: &Path, channel: &ChannelInfo, at: MessageAt, reason: impl std::fmt::Display) -> SourceError {
+    SourceError::File {
+        path: path.display().to_string(),
+        reason: format!("channel {} message {}: {reason}", channel.topic, at.index),
+    }
+}
+
+/// The schema a raw-input topic must have.
+fn expected_schema(topic: &str) -> Option<&'static str> {
+    match topic {
+        TOPIC_COLOUR | TOPIC_DEPTH => Some(schemas::RAW_IMAGE),
+        TOPIC_CALIBRATION => Some(schemas::CAMERA_CALIBRATION),
+        TOPIC_FRAME => Some(schemas::FRAME),
+        _ => None,
+    }
+}
+
+/// The `.mcap` files of `path`: the file itself, or a folder's `*.mcap` in name order.
+fn recording_files(path: &Path) -> Result<Vec<PathBuf>, SourceError> {
+    let file_error = |reason: String| SourceError::File { path: path.display().to_string(), reason };
+    if path.is_file() {
+        return Ok(vec![path.to_owned()]);
+    }
+    if !path.is_dir() {
+        return Err(file_error("no such file or folder (expected an .mcap recording)".to_owned()));
+    }
+    let mut files: Vec<PathBuf> = std::fs::read_dir(path)
+        .map_err(|e| file_error(format!("cannot list: {e}")))?
+        .filter_map(|entry| entry.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|ext| ext == "mcap") && p.is_file())
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        return Err(file_error("no .mcap files in this folder".to_owned()));
+    }
+    Ok(files)
+}
+
+impl McapSource {
+    /// Opens the recording and reads up to its first frame for the intrinsics (from
+    /// `/camera/calibration`) and whether frames carry poses.
+    pub fn new(config: &McapReplayConfig) -> Result<Self, SourceError> {
+        config.validate("source.mcap").map_err(SourceError::Config)?;
+        let files = recording_files(&config.path)?;
+        let mut source = Self {
+            config: config.clone(),
+            files,
+            next_file: 0,
+            reader: None,
+            intrinsics: Intrinsics::d435i_640x480(),
+            has_poses: false,
+            side_channels: Vec::new(),
+            staged: Staged::default(),
+            ready: false,
+            scratch: Vec::new(),
+            step: (config.mode == PlaybackMode::Stepped).then(StepControl::new),
+            origin: None,
+            delivered: 0,
+            finished: false,
+        };
+        // The intrinsics are needed before the first frame (the frame pool is sized by them).
+        source.intrinsics = source.probe()?;
+        source.next_file = 0;
+        source.reader = None;
+        source.staged = Staged::default();
+        source.ready = false;
+        info!(path = %config.path.display(), files = source.files.len(), "mcap recording opened");
+        Ok(source)
+    }
+
+    /// Whether the recording declares a channel `topic` (in its first file).
+    pub fn has_channel(&self, topic: &str) -> Result<bool, SourceError> {
+        let mut reader = McapReader::open(&self.files[0]).map_err(source_error)?;
+        let mut data = Vec::new();
+        loop {
+            if reader.channels().any(|c| c.topic == topic) {
+                return Ok(true);
+            }
+            match reader.next(&mut data) {
+                Ok(Some(Item::Message(at)))
+                    if reader.channel(at.channel_id).is_some_and(|c| c.topic == TOPIC_FRAME) =>
+                {
+                    // The recorder declares every channel of a frame before its meta.
+                    return Ok(reader.channels().any(|c| c.topic == topic));
+                }
+                Ok(Some(_)) => {}
+                Ok(None) | Err(_) => return Ok(reader.channels().any(|c| c.topic == topic)),
+            }
+        }
+    }
+
+    /// The effective profile the recording was made with (metadata `op3dsg.profile`, key
+    /// `toml`), from the first file.
+    pub fn recorded_profile(&self) -> Result<Option<String>, SourceError> {
+        let mut reader = McapReader::open(&self.files[0]).map_err(source_error)?;
+        let mut data = Vec::new();
+        loop {
+            match reader.next(&mut data) {
+                Ok(Some(Item::Metadata { name, mut entries })) if name == super::METADATA_PROFILE => {
+                    return Ok(entries.remove("toml"));
+                }
+                Ok(Some(Item::Message(at)))
+                    if reader.channel(at.channel_id).is_some_and(|c| c.topic == TOPIC_FRAME) =>
+                {
+                    return Ok(None);
+                }
+                Ok(Some(_)) => {}
+                Ok(None) => return Ok(None),
+                Err(e) => return Err(source_error(e)),
+            }
+        }
+    }
+
+    /// Hands each frame's message on `topic` to `handler` (a side channel of the source that
+    /// recorded, e.g. the simulator's instance ids). A frame without one is delivered without
+    /// calling it.
+    pub fn with_side_channel(mut self, topic: &str, handler: SideChannelHandler) -> Self {
+        self.side_channels.push(SideChannel { topic: topic.to_owned(), handler, data: Vec::new(), present: false });
+        self
+    }
+
+    fn probe(&mut self) -> Result<Intrinsics, SourceError> {
+        match self.read_frame(None)? {
+            true => {
+                let meta = self.staged.meta.as_ref();
+                self.has_poses = meta.is_some_and(|m| m.world_from_camera.is_some());
+                Ok(self.intrinsics)
+            }
+            false => Err(SourceError::File {
+                path: self.files[0].display().to_string(),
+                reason: format!("no frame in the recording (no message on {TOPIC_FRAME})"),
+            }),
+        }
+    }
+
+    /// Reads messages until the next complete frame is staged; `false` at the end of the last
+    /// file. `expected` is the intrinsics every calibration must match (`None` while probing).
+    fn read_frame(&mut self, expected: Option<Intrinsics>) -> Result<bool, SourceError> {
+        self.staged.meta = None;
+        self.staged.colour_at = None;
+        self.staged.depth_at = None;
+        for side in &mut self.side_channels {
+            side.present = false;
+        }
+        let mut calibration: Option<Intrinsics> = expected;
+        loop {
+            if self.reader.is_none() {
+                let Some(path) = self.files.get(self.next_file) else { return Ok(false) };
+                self.reader = Some(McapReader::open(path).map_err(source_error)?);
+                self.next_file += 1;
+                if expected.is_none() {
+                    calibration = None;
+                }
+            }
+            let Some(reader) = self.reader.as_mut() else { return Ok(false) };
+            let item = match reader.next(&mut self.scratch) {
+                Ok(Some(item)) => item,
+                Ok(None) => {
+                    self.reader = None;
+                    continue;
+                }
+                Err(e) => return Err(source_error(e)),
+            };
+            let Item::Message(at) = item else { continue };
+            let path = reader.path().to_owned();
+            let Some(channel) = reader.channel(at.channel_id).cloned() else { continue };
+            if let Some(schema) = expected_schema(&channel.topic)
+                && (channel.schema_name != schema || channel.message_encoding != schemas::MESSAGE_ENCODING)
+            {
+                return Err(at_error(
+                    &path,
+                    &channel,
+                    at,
+                    format!(
+                        "schema \"{}\" encoded \"{}\", expected \"{schema}\" encoded \"{}\"",
+                        channel.schema_name,
+                        channel.message_encoding,
+                        schemas::MESSAGE_ENCODING
+                    ),
+                ));
+            }
+            match channel.topic.as_str() {
+                TOPIC_CALIBRATION => {
+                    let calib: CameraCalibration = serde_json::from_slice(&self.scratch)
+                        .map_err(|e| at_error(&path, &channel, at, format!("not a foxglove.CameraCalibration: {e}")))?;
+                    let k = calib.intrinsics().map_err(|e| at_error(&path, &channel, at, e))?;
+                    if let Some(expected) = expected
+                        && k != expected
+                    {
+                        return Err(at_error(
+                            &path,
+                            &channel,
+                            at,
+                            format!("intrinsics changed to {k:?} from {expected:?}; a replay has one camera"),
+                        ));
+                    }
+                    calibration = Some(k);
+                    self.intrinsics = k;
+                }
+                TOPIC_COLOUR => {
+                    std::mem::swap(&mut self.staged.colour, &mut self.scratch);
+                    self.staged.colour_at = Some(at);
+                }
+                TOPIC_DEPTH => {
+                    std::mem::swap(&mut self.staged.depth, &mut self.scratch);
+                    self.staged.depth_at = Some(at);
+                }
+                TOPIC_FRAME => {
+                    let meta: FrameMeta = serde_json::from_slice(&self.scratch)
+                        .map_err(|e| at_error(&path, &channel, at, format!("not an op3dsg.Frame: {e}")))?;
+                    if calibration.is_none() {
+                        return Err(at_error(
+                            &path,
+                            &channel,
+                            at,
+                            format!("frame seq {} has no {TOPIC_CALIBRATION} before it in this file", meta.seq),
+                        ));
+                    }
+                    for (topic, present) in
+                        [(TOPIC_COLOUR, self.staged.colour_at.is_some()), (TOPIC_DEPTH, self.staged.depth_at.is_some())]
+                    {
+                        if !present {
+                            return Err(at_error(
+                                &path,
+                                &channel,
+                                at,
+                                format!(
+                                    "frame seq {} has no {topic} message before it (was the channel off or \
+                                     rate-limited while recording? replay needs every frame's colour and depth)",
+                                    meta.seq
+                                ),
+                            ));
+                        }
+                    }
+                    self.staged.meta = Some(meta);
+                    return Ok(true);
+                }
+                topic => {
+                    if let Some(side) = self.side_channels.iter_mut().find(|s| s.topic == topic) {
+                        std::mem::swap(&mut side.data, &mut self.scratch);
+                        side.present = true;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Decodes the staged frame into `frame`.
+    fn deliver(&mut self, frame: &mut Frame) -> Result<(), SourceError> {
+        let path = self.files[self.next_file.saturating_sub(1)].clone();
+        let Some(meta) = self.staged.meta.take() else {
+            return Err(SourceError::Frame { seq: self.delivered, reason: "no staged frame".to_owned() });
+        };
+        let image_error = |topic: &str, at: Option<MessageAt>, reason: String| SourceError::File {
+            path: path.display().to_string(),
+            reason: format!("channel {topic} message {}: frame seq {}: {reason}", at.map_or(0, |a| a.index), meta.seq),
+        };
+        for (topic, bytes, at, encodings, bpp) in [
+            (TOPIC_COLOUR, &self.staged.colour, self.staged.colour_at, &["rgb8"][..], 3u32),
+            (TOPIC_DEPTH, &self.staged.depth, self.staged.depth_at, &["16UC1", "mono16"][..], 2u32),
+        ] {
+            let image = RawImageIn::parse(bytes).map_err(|e| image_error(topic, at, e))?;
+            if image.timestamp.to_ns() != meta.stamp_ns {
+                return Err(image_error(
+                    topic,
+                    at,
+                    format!("image stamp {} ns, the frame's is {} ns", image.timestamp.to_ns(), meta.stamp_ns),
+                ));
+            }
+            let out: &mut [u8] =
+                if bpp == 3 { &mut frame.rgb } else { bytemuck::cast_slice_mut(frame.depth.as_mut_slice()) };
+            image.decode_into(encodings, bpp, out).map_err(|e| image_error(topic, at, e))?;
+        }
+        frame.seq = meta.seq;
+        frame.stamp_ns = meta.stamp_ns;
+        frame.intrinsics = self.intrinsics;
+        frame.depth_units_per_m = meta.depth_units_per_m as f32;
+        frame.world_from_camera = meta.world_from_camera.as_ref().map(Isometry::from);
+        for side in &mut self.side_channels {
+            if side.present {
+                (side.handler)(frame, &side.data).map_err(|e| SourceError::File {
+                    path: path.display().to_string(),
+                    reason: format!("channel {}: frame seq {}: {e}", side.topic, meta.seq),
+                })?;
+            }
+        }
+        Ok(())
+    }
+
+    fn wait_for_due(&self, stamp_ns: u64, at_most: Duration) -> bool {
+        let Some((origin_at, origin_stamp_ns)) = self.origin else { return true };
+        let due = origin_at + Duration::from_nanos(stamp_ns.saturating_sub(origin_stamp_ns));
+        let now = Instant::now();
+        if due <= now {
+            return true;
+        }
+        let wait = due - now;
+        std::thread::sleep(wait.min(at_most));
+        wait <= at_most
+    }
+}
+
+impl FrameSource for McapSource {
+    fn intrinsics(&self) -> Intrinsics {
+        self.intrinsics
+    }
+
+    fn has_poses(&self) -> bool {
+        self.has_poses
+    }
+
+    fn next_frame(&mut self, frame: &mut Frame) -> Result<SourceStatus, SourceError> {
+        if self.finished {
+            return Ok(SourceStatus::EndOfStream);
+        }
+        let pixels = self.intrinsics.pixel_count();
+        if frame.rgb.len() != pixels * 3 || frame.depth.len() != pixels {
+            return Err(SourceError::Frame {
+                seq: self.delivered,
+                reason: format!(
+                    "frame buffers hold {} colour bytes and {} depth values; the recording's {}x{} need {} and {}",
+                    frame.rgb.len(),
+                    frame.depth.len(),
+                    self.intrinsics.width,
+                    self.intrinsics.height,
+                    pixels * 3,
+                    pixels
+                ),
+            });
+        }
+        if !self.ready {
+            match self.read_frame(Some(self.intrinsics)) {
+                Ok(true) => self.ready = true,
+                Ok(false) => {
+                    self.finished = true;
+                    return Ok(SourceStatus::EndOfStream);
+                }
+                Err(e) => {
+                    self.finished = true;
+                    return Err(e);
+                }
+            }
+        }
+        let stamp_ns = self.staged.meta.as_ref().map_or(0, |m| m.stamp_ns);
+        match self.config.mode {
+            PlaybackMode::Recorded => {
+                if !self.wait_for_due(stamp_ns, MAX_BLOCK) {
+                    return Ok(SourceStatus::Pending);
+                }
+            }
+            PlaybackMode::Stepped => {
+                if !self.step.as_ref().is_some_and(|step| step.take(MAX_BLOCK)) {
+                    return Ok(SourceStatus::Pending);
+                }
+            }
+            PlaybackMode::Fast => {}
+        }
+        self.ready = false;
+        if let Err(e) = self.deliver(frame) {
+            self.finished = true;
+            return Err(e);
+        }
+        self.origin.get_or_insert((Instant::now(), stamp_ns));
+        self.delivered += 1;
+        Ok(SourceStatus::Frame)
+    }
+
+    fn describe(&self) -> String {
+        format!("mcap {}", self.config.path.display())
+    }
+
+    fn stops_on_error(&self) -> bool {
+        true
+    }
+
+    fn step_control(&self) -> Option<StepControl> {
+        self.step.clone()
+    }
+}
