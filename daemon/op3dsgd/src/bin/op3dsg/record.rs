@@ -240,7 +240,7 @@ fn synthetic_frames(width: u32, height: u32, count: u64) -> Result<Vec<op3dsg_dr
             cy: height as f32 / 2.0,
         };
         s.frame_count = Some(count * 10);
-    });
+    })?;
     let config = op3dsg_sim::backends::synthetic_config(&profile)?;
     let mut source = op3dsg_synthetic::SyntheticSource::new(&config)?;
     let mut frames = Vec::new();
