@@ -250,8 +250,18 @@ impl Pipeline {
             let stop = stop.clone();
             let config = profile.keyframe.clone();
             let pose_config = profile.pose.clone();
+            let frame_clock = source.stamp_clock();
             handles.push(spawn_stage("keyframe", &finished_tx, move || {
-                crate::keyframe::thread::keyframe_loop(&config, &pose_config, frames_rx, kf_tx, pose_rx, &stats, &stop);
+                crate::keyframe::thread::keyframe_loop(
+                    &config,
+                    &pose_config,
+                    frame_clock,
+                    frames_rx,
+                    kf_tx,
+                    pose_rx,
+                    &stats,
+                    &stop,
+                );
             })?);
             running.push("keyframe");
         }
