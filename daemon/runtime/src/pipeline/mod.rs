@@ -129,7 +129,7 @@ fn spawn_stage(
 /// The map the profile asks for. The pipeline and the batch runner both construct their fusion
 /// here, so swapping the fusion implementation is this one line.
 pub fn make_fusion(profile: &Profile) -> Box<dyn Fusion> {
-    crate::fusion::build(&profile.fusion)
+    crate::fusion::build(&profile.fusion, profile.world.up_axis)
 }
 
 /// The prior graph + reasoner the profile asks for (`[reasoner]`), shared by the pipeline and
