@@ -11,6 +11,7 @@
 //!   "nodes": [
 //!     { "id": 1, "label": "cabinet", "kind": "object", "parent": null,
 //!       "centre_m": [1.0, 0.3, 0.45], "box_min_m": [0.7, 0.0, 0.0], "box_max_m": [1.3, 0.6, 0.9],
+//!       "obb": { "centre_m": [1.0, 0.3, 0.45], "size_m": [0.6, 0.6, 0.9], "yaw_rad": 0.0 },
 //!       "affordances": [], "confidence": 1.0, "observation_count": 0 },
 //!     { "id": 2, "label": "cabinet handle", "kind": "part", "parent": 1, ...,
 //!       "affordances": ["hook_pull"] }
@@ -32,7 +33,15 @@
 //! - `nodes[].id`: unique within the file. `label`: text; a label of the form `a / b` means
 //!   either name is correct (ground truth only). `kind`: `object` or `part`. `parent`: the id of
 //!   a part's object, `null` otherwise. `centre_m`, `box_min_m`, `box_max_m`: world frame,
-//!   metres, axis-aligned. `affordances`: names from the 9 canonical affordances.
+//!   metres, axis-aligned. `obb` (optional; published graphs have it, the synthetic ground truth,
+//!   whose furniture is axis-aligned, does not): the gravity-aligned oriented box around the same
+//!   points, `centre_m` (world, metres), `size_m` (extent along the box's first and second
+//!   horizontal axes and along up, metres) and `yaw_rad` (the box's first axis turned from the
+//!   world's first horizontal axis towards its second about the up axis, in (-pi/2, pi/2]; the
+//!   axes per `world.up_axis` are in `op3dsg_runtime::fusion::oriented_box`). The evaluation
+//!   (`op3dsg eval`) scores boxes by their axis-aligned `box_min_m`/`box_max_m`: the ground truth
+//!   carries no orientation, so an oriented IoU would compare against boxes that have none.
+//!   `affordances`: names from the 9 canonical affordances.
 //!   `confidence` in [0, 1] (1 in ground truth). `observation_count`: keyframe detections fused
 //!   (0 in ground truth).
 //! - `edges[].source`, `target`: node ids; the source relates to the target as `relation`
@@ -85,6 +94,9 @@ pub struct NodeJson {
     pub box_min_m: [f32; 3],
     /// Axis-aligned box maximum corner, world frame, metres.
     pub box_max_m: [f32; 3],
+    /// Gravity-aligned oriented box (module docs); absent in ground truth without orientation.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub obb: Option<OrientedBoxJson>,
     /// Canonical affordance names.
     #[serde(default)]
     pub affordances: Vec<String>,
@@ -94,6 +106,18 @@ pub struct NodeJson {
     /// Keyframe detections fused into the node.
     #[serde(default)]
     pub observation_count: u32,
+}
+
+/// A gravity-aligned oriented box in JSON form (module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OrientedBoxJson {
+    /// Centre, world frame, metres.
+    pub centre_m: [f32; 3],
+    /// Extent along the box's two horizontal axes and along up, metres.
+    pub size_m: [f32; 3],
+    /// Turn about the up axis, radians in (-pi/2, pi/2].
+    pub yaw_rad: f32,
 }
 
 /// An edge in JSON form.
@@ -154,6 +178,18 @@ impl GraphJson {
             if node.kind != "object" && node.kind != "part" {
                 return Err(format!("nodes[{i}].kind: expected \"object\" or \"part\", found \"{}\"", node.kind));
             }
+            if let Some(obb) = &node.obb {
+                if !obb.size_m.iter().all(|v| v.is_finite() && *v >= 0.0) {
+                    return Err(format!("nodes[{i}].obb.size_m: expected finite sizes >= 0, found {:?}", obb.size_m));
+                }
+                let half_turn = std::f32::consts::FRAC_PI_2 + 1e-4;
+                if !(obb.yaw_rad.is_finite() && obb.yaw_rad.abs() <= half_turn) {
+                    return Err(format!(
+                        "nodes[{i}].obb.yaw_rad: expected within [-pi/2, pi/2], found {}",
+                        obb.yaw_rad
+                    ));
+                }
+            }
         }
         for (i, edge) in self.edges.iter().enumerate() {
             for (field, id) in [("source", edge.source), ("target", edge.target)] {
@@ -192,6 +228,7 @@ mod tests {
             centre_m: [0.0; 3],
             box_min_m: [0.0; 3],
             box_max_m: [1.0; 3],
+            obb: None,
             affordances: vec![],
             confidence: 1.0,
             observation_count: 0,
@@ -207,8 +244,13 @@ mod tests {
         });
         assert_eq!(g.check().unwrap_err(), "edges[0].target: no node with id 7");
         g.edges.clear();
-        g.nodes.push(node);
+        g.nodes.push(node.clone());
         assert_eq!(g.check().unwrap_err(), "nodes[1].id: duplicate id 1");
+        g.nodes.truncate(1);
+        g.nodes[0].obb = Some(OrientedBoxJson { centre_m: [0.5; 3], size_m: [1.0, -1.0, 1.0], yaw_rad: 0.3 });
+        assert_eq!(g.check().unwrap_err(), "nodes[0].obb.size_m: expected finite sizes >= 0, found [1.0, -1.0, 1.0]");
+        g.nodes[0].obb = Some(OrientedBoxJson { centre_m: [0.5; 3], size_m: [1.0; 3], yaw_rad: 2.0 });
+        assert_eq!(g.check().unwrap_err(), "nodes[0].obb.yaw_rad: expected within [-pi/2, pi/2], found 2");
     }
 
     #[test]
@@ -216,5 +258,15 @@ mod tests {
         let g = GraphJson::new("x");
         let text = serde_json::to_string(&g).unwrap();
         assert_eq!(serde_json::from_str::<GraphJson>(&text).unwrap(), g);
+        // A node with an oriented box, and one without (ground truth): both read back as written.
+        let node = r#"{"id": 1, "label": "counter", "kind": "object", "centre_m": [0, 0, 0],
+            "box_min_m": [-1, -1, 0], "box_max_m": [1, 1, 1],
+            "obb": {"centre_m": [0, 0, 0.5], "size_m": [2.2, 0.6, 1], "yaw_rad": 0.785}}"#;
+        let parsed: NodeJson = serde_json::from_str(node).unwrap();
+        assert_eq!(parsed.obb.map(|b| b.yaw_rad), Some(0.785));
+        let text = serde_json::to_string(&parsed).unwrap();
+        assert_eq!(serde_json::from_str::<NodeJson>(&text).unwrap(), parsed);
+        let plain = NodeJson { obb: None, ..parsed };
+        assert!(!serde_json::to_string(&plain).unwrap().contains("obb"), "absent, not null");
     }
 }

@@ -53,6 +53,36 @@ pub enum SourceError {
     Config(String),
 }
 
+/// The clock a source stamps its frames on (`Frame::stamp_ns`). Poses sent on `<prefix>/pose`
+/// must be stamped on the same clock: they are looked up by the frame's stamp.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StampClock {
+    /// The host's clock through librealsense's global time (the camera's hardware timestamps
+    /// mapped to the host's system clock, nanoseconds since the Unix epoch): the clock a
+    /// navigation stack on the same computer stamps with.
+    HostGlobalTime,
+    /// The stamps stored in the recording (whatever clock it was recorded on); poses for a
+    /// replay come from the recording or are stamped on its clock.
+    Recording,
+    /// Scene time of the synthetic source: 0 at the first frame, frame `k` at
+    /// `k / frame_rate_hz`, independent of the wall clock and of the delivery rate.
+    SceneTime,
+    /// Not stated by the source.
+    Unspecified,
+}
+
+impl StampClock {
+    /// How the clock reads in logs and docs.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Self::HostGlobalTime => "the host clock (librealsense global time, ns since the Unix epoch)",
+            Self::Recording => "the recording's own stamps",
+            Self::SceneTime => "synthetic scene time (0 at the first frame, frame k at k / frame_rate_hz)",
+            Self::Unspecified => "the source's clock (not stated)",
+        }
+    }
+}
+
 /// A source of RGB-D frames. Runs on the capture thread; `next_frame` fills a pooled buffer.
 pub trait FrameSource: Send {
     /// Intrinsics of every frame this source delivers (fixed for the source's lifetime).
@@ -67,6 +97,11 @@ pub trait FrameSource: Send {
     /// reconnected says `false`); the pipeline reports it as health's `source_connected`.
     fn connected(&self) -> bool {
         true
+    }
+
+    /// The clock of the frames' stamps ([`StampClock`]); poses from `<prefix>/pose` must use it.
+    fn stamp_clock(&self) -> StampClock {
+        StampClock::Unspecified
     }
 
     /// Fills `frame` with the next frame. A live source may block up to its frame period.

@@ -1,6 +1,11 @@
 //! A stand-in navigation stack: sends `world_from_base` at 10 Hz for a base driving a 1 m circle
 //! (facing along it), stamped with the wall clock.
 //!
+//! The wall clock is the camera source's clock (librealsense global time), so this suits a daemon
+//! on the camera with `pose.source = "ipc"` and a `pose.base_from_camera`. The built-in synthetic
+//! source stamps frames with scene time from 0 instead: there the daemon refuses these poses as
+//! `future` and warns that the clocks differ.
+//!
 //! `cargo run -p op3dsg-ipc-types --example pose_publisher -- [--prefix P] [--seconds S]`
 //! The prefix is `--prefix`, else `$OP3DSG_PREFIX`, else `op3dsg`; `--seconds` defaults to 10.
 

@@ -180,7 +180,18 @@ impl EdgeOrigin {
     }
 }
 
-/// One node of the scene graph (size 120 bytes, alignment 8, no implicit padding).
+/// One node of the scene graph (size 144 bytes, alignment 8, no implicit padding).
+///
+/// Byte offsets: `id` 0, `parent_id` 4, `kind` 8, `observation_count` 12, `label` 16,
+/// `confidence` 64, `centre_m` 68, `box_min_m` 80, `box_max_m` 92, `affordance_bits` 104,
+/// `obb_yaw_rad` 108, `last_seen_stamp_ns` 112, `obb_centre_m` 120, `obb_size_m` 132.
+///
+/// Two boxes around the node's points: the axis-aligned `box_min_m`..`box_max_m`, and the
+/// gravity-aligned oriented box (`obb_*`, schema 5): its third axis is the world's up axis (the
+/// daemon profile's `world.up_axis`, +z on a robot), its first axis is the world's first
+/// horizontal axis turned by `obb_yaw_rad` about up towards the second (for +z up: x turned
+/// towards y), its second axis is `up × first`. With +z up the world corners are
+/// `obb_centre_m + R_z(obb_yaw_rad) * (±sx/2, ±sy/2, ±sz/2)` for `obb_size_m = [sx, sy, sz]`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, ZeroCopySend, PlacementDefault, bytemuck::Pod, bytemuck::Zeroable)]
 #[type_name("op3dsg::Node")]
@@ -209,9 +220,17 @@ pub struct Node {
     /// Bit set over [`AFFORDANCES`] (bit `i` = `AFFORDANCES[i]`).
     pub affordance_bits: u16,
     /// Reserved, zero.
-    pub reserved2: [u8; 6],
+    pub reserved2: [u8; 2],
+    /// Yaw of the oriented box about the world's up axis, radians in `(-pi/2, pi/2]` (see the
+    /// type's docs; 0 when the box is axis-aligned).
+    pub obb_yaw_rad: f32,
     /// Stamp of the last keyframe that observed this node, nanoseconds.
     pub last_seen_stamp_ns: u64,
+    /// Centre of the oriented box, world frame, metres.
+    pub obb_centre_m: [f32; 3],
+    /// Extent of the oriented box along its first, second (horizontal) and third (up) axes,
+    /// metres.
+    pub obb_size_m: [f32; 3],
 }
 
 impl Default for Node {
@@ -228,8 +247,11 @@ impl Default for Node {
             box_min_m: [0.0; 3],
             box_max_m: [0.0; 3],
             affordance_bits: 0,
-            reserved2: [0; 6],
+            reserved2: [0; 2],
+            obb_yaw_rad: 0.0,
             last_seen_stamp_ns: 0,
+            obb_centre_m: [0.0; 3],
+            obb_size_m: [0.0; 3],
         }
     }
 }
@@ -293,7 +315,7 @@ impl Edge {
 }
 
 /// Bytes of one node in the graph payload: [`Node`]'s layout, little-endian.
-pub const NODE_BYTES: usize = 120;
+pub const NODE_BYTES: usize = 144;
 /// Bytes of one edge in the graph payload: [`Edge`]'s layout, little-endian.
 pub const EDGE_BYTES: usize = 64;
 
@@ -321,8 +343,12 @@ impl Node {
             b[68 + 4 * i..72 + 4 * i].copy_from_slice(&v.to_le_bytes());
         }
         b[104..106].copy_from_slice(&self.affordance_bits.to_le_bytes());
-        b[106..112].copy_from_slice(&self.reserved2);
+        b[106..108].copy_from_slice(&self.reserved2);
+        b[108..112].copy_from_slice(&self.obb_yaw_rad.to_le_bytes());
         b[112..120].copy_from_slice(&self.last_seen_stamp_ns.to_le_bytes());
+        for (i, v) in self.obb_centre_m.iter().chain(&self.obb_size_m).enumerate() {
+            b[120 + 4 * i..124 + 4 * i].copy_from_slice(&v.to_le_bytes());
+        }
     }
 
     /// Appends this node's [`NODE_BYTES`] bytes to `out` (see [`Node::write_bytes`]).
@@ -348,8 +374,7 @@ impl Node {
         let vec3_at = |o: usize| [f32_at(o), f32_at(o + 4), f32_at(o + 8)];
         let mut label = [0u8; LABEL_CAPACITY_BYTES];
         label.copy_from_slice(&b[16..64]);
-        let mut reserved2 = [0u8; 6];
-        reserved2.copy_from_slice(&b[106..112]);
+        let reserved2 = [b[106], b[107]];
         let mut last_seen = [0u8; 8];
         last_seen.copy_from_slice(&b[112..120]);
         Self {
@@ -365,7 +390,10 @@ impl Node {
             box_max_m: vec3_at(92),
             affordance_bits: u16::from_le_bytes([b[104], b[105]]),
             reserved2,
+            obb_yaw_rad: f32_at(108),
             last_seen_stamp_ns: u64::from_le_bytes(last_seen),
+            obb_centre_m: vec3_at(120),
+            obb_size_m: vec3_at(132),
         }
     }
 }

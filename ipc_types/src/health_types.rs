@@ -133,11 +133,12 @@ pub struct PoseHealth {
     pub no_base_from_camera: u64,
     /// Stamped before the newest adopted pose (the buffer only grows forwards).
     pub out_of_order: u64,
-    /// Stamped more than `pose.tolerance_ms` before the newest frame the gate has seen: no later
-    /// frame can use it.
+    /// Stamped more than `max(pose.max_interpolation_gap_ms, pose.tolerance_ms)` before the
+    /// oldest frame still waiting for a pose (the newest frame the gate has seen when none
+    /// waits): no frame can use it.
     pub stale: u64,
-    /// Stamped more than [`FUTURE_POSE_LIMIT_NS`] after the newest frame the gate has seen; not
-    /// adopted, so it cannot hold back the poses that follow.
+    /// Stamped more than `pose.future_tolerance_ms` (default [`FUTURE_POSE_LIMIT_NS`]) after the
+    /// newest frame the gate has seen; not adopted, so it cannot hold back the poses that follow.
     pub future: u64,
     /// Dropped between the receiving thread and the gate because the hand-over queue (capacity
     /// `pose.buffer_len`) was full.
@@ -146,8 +147,9 @@ pub struct PoseHealth {
     pub reserved: [u64; 3],
 }
 
-/// A pose stamped this far (nanoseconds) after the newest frame the keyframe gate has seen is
-/// counted as [`PoseHealth::future`] and not adopted (1 s: far beyond any camera latency).
+/// The default of the profile's `pose.future_tolerance_ms`, nanoseconds: a pose stamped further
+/// after the newest frame the keyframe gate has seen is counted as [`PoseHealth::future`] and not
+/// adopted (1 s: far beyond any camera latency).
 pub const FUTURE_POSE_LIMIT_NS: u64 = 1_000_000_000;
 
 /// One model's ONNX Runtime sessions on one execution provider (size 40 bytes).

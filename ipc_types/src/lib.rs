@@ -77,10 +77,10 @@
 //! `<prefix>/graph` is an iceoryx2 slice service: payload `[u8]`, user header [`GraphHeader`]
 //! (type name `op3dsg::GraphHeader`). The payload is exactly
 //! `node_count * NODE_BYTES + edge_count * EDGE_BYTES` bytes: the nodes (sorted by id), then the
-//! edges, each record laid out as its struct ([`Node`], 120 bytes; [`Edge`], 64 bytes),
-//! little-endian. So a sample costs what the graph holds: a 100-node graph is about 25 KB, not
+//! edges, each record laid out as its struct ([`Node`], 144 bytes; [`Edge`], 64 bytes),
+//! little-endian. So a sample costs what the graph holds: a 100-node graph is about 27 KB, not
 //! the daemon's maximum (set by the profile's `ipc.max_nodes` / `ipc.max_edges`, default
-//! [`MAX_NODES`] / [`MAX_EDGES`], about 3.9 MiB). A Python or C client reads the header, then views
+//! [`MAX_NODES`] / [`MAX_EDGES`], about 4.3 MiB). A Python or C client reads the header, then views
 //! the payload as `node_count` node records followed by `edge_count` edge records.
 //!
 //! **Restarts**: [`GraphHeader::instance_id`] is drawn anew (never 0) each time the daemon starts.
@@ -94,7 +94,7 @@
 //! use op3dsg_ipc_types::{Graph, Node, SCHEMA_VERSION, ServiceNames, graph_payload_bytes};
 //! let names = ServiceNames::new("op3dsg");
 //! assert_eq!(names.graph, "op3dsg/graph");
-//! // A sample holds what the graph holds: here 3 nodes, 360 bytes of payload.
+//! // A sample holds what the graph holds: here 3 nodes, 432 bytes of payload.
 //! let mut buffer = GraphBuffer::new();
 //! buffer.header.schema_version = SCHEMA_VERSION;
 //! buffer.header.node_capacity = 16_384;
@@ -143,7 +143,11 @@ pub use text::{fixed_str, write_fixed_str};
 ///
 /// 4: the graph is a slice sample sized to the graph (bytes + [`GraphHeader`] user header) instead
 /// of a fixed `GraphSnapshot`; the header gained `instance_id`, `node_capacity`, `edge_capacity`.
-pub const SCHEMA_VERSION: u32 = 4;
+///
+/// 5: [`Node`] grew from 120 to 144 bytes with its gravity-aligned oriented box: `obb_yaw_rad`
+/// at offset 108 (where 4 reserved bytes were; `reserved2` is 2 bytes now), `obb_centre_m` at 120
+/// and `obb_size_m` at 132, after `last_seen_stamp_ns`; every other offset is unchanged.
+pub const SCHEMA_VERSION: u32 = 5;
 
 /// Bytes in a frame id (`PoseStamped::frame_id`), a stage or a queue name.
 pub const NAME_CAPACITY_BYTES: usize = 32;
@@ -155,7 +159,11 @@ mod tests {
 
     #[test]
     fn layouts_are_the_documented_ones() {
-        assert_eq!(size_of::<Node>(), 120);
+        assert_eq!(size_of::<Node>(), 144);
+        assert_eq!(core::mem::offset_of!(Node, obb_yaw_rad), 108);
+        assert_eq!(core::mem::offset_of!(Node, last_seen_stamp_ns), 112);
+        assert_eq!(core::mem::offset_of!(Node, obb_centre_m), 120);
+        assert_eq!(core::mem::offset_of!(Node, obb_size_m), 132);
         assert_eq!(align_of::<Node>(), 8);
         assert_eq!(size_of::<Edge>(), 64);
         assert_eq!(size_of::<GraphHeader>(), 80);
@@ -199,6 +207,9 @@ mod tests {
         node.box_max_m = [4.0, 5.0, 6.0];
         node.affordance_bits = 0b1001;
         node.last_seen_stamp_ns = 0x0102_0304_0506_0708;
+        node.obb_yaw_rad = 0.25;
+        node.obb_centre_m = [1.5, 1.5, 1.5];
+        node.obb_size_m = [0.5, 0.75, 9.0];
         let mut bytes = Vec::new();
         node.append_bytes(&mut bytes);
         assert_eq!(bytes.len(), NODE_BYTES);
@@ -207,12 +218,15 @@ mod tests {
         assert_eq!(bytes[core::mem::offset_of!(Node, kind)], 1);
         assert_eq!(f32::from_bits(u32_at(&bytes, core::mem::offset_of!(Node, box_max_m) + 8)), 6.0);
         assert_eq!(bytes[core::mem::offset_of!(Node, last_seen_stamp_ns)], 0x08);
+        assert_eq!(f32::from_bits(u32_at(&bytes, core::mem::offset_of!(Node, obb_yaw_rad))), 0.25);
+        assert_eq!(f32::from_bits(u32_at(&bytes, core::mem::offset_of!(Node, obb_size_m) + 8)), 9.0);
         let back = Node::from_bytes(&bytes.as_chunks::<NODE_BYTES>().0[0]);
         assert_eq!(
             (back.id, back.label_str(), back.box_max_m, back.last_seen_stamp_ns),
             (7, "cabinet handle", [4.0, 5.0, 6.0], node.last_seen_stamp_ns)
         );
         assert_eq!((back.affordance_bits, back.observation_count, back.confidence), (0b1001, 9, 0.5));
+        assert_eq!((back.obb_yaw_rad, back.obb_centre_m, back.obb_size_m), (0.25, [1.5; 3], [0.5, 0.75, 9.0]));
 
         let mut edge = Edge {
             source_id: 7,

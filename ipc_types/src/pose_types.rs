@@ -38,7 +38,10 @@ impl PoseKind {
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend, PlacementDefault)]
 #[type_name("op3dsg::PoseStamped")]
 pub struct PoseStamped {
-    /// Time the pose is valid at, nanoseconds, on the same clock as the camera frames.
+    /// Time the pose is valid at, nanoseconds, on the same clock as the camera frames: the host
+    /// clock (librealsense global time, ns since the Unix epoch) for the camera, the recording's
+    /// stamps for a replay, scene time from 0 for the synthetic source. The daemon interpolates
+    /// between the poses around each frame's stamp (its keyframe gate's docs give the rules).
     pub stamp_ns: u64,
     /// [`PoseKind`] as `u8`.
     pub kind: u8,

@@ -49,7 +49,7 @@
 //! - Borrow 1: a subscriber holds at most one graph sample at a time, which bounds the shared
 //!   memory the daemon maps to `max_subscribers * (buffer + 1) + history + 1` samples.
 //! - Graph sample size: the publisher is created with `initial_max_slice_len` equal to the
-//!   profile's maximum (`ipc.max_nodes * NODE_BYTES + ipc.max_edges * EDGE_BYTES`, 3.9 MiB by
+//!   profile's maximum (`ipc.max_nodes * NODE_BYTES + ipc.max_edges * EDGE_BYTES`, 4.3 MiB by
 //!   default) and iceoryx2's static allocation strategy: the data segment is reserved once at
 //!   start with that many sample slots and never grows or moves, so a late joiner maps one
 //!   segment and gets the history sample, and a subscriber's mapped memory is bounded by the

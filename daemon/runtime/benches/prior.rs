@@ -38,6 +38,7 @@ fn graph(kb: &KnowledgeBase) -> SceneGraph {
             centre_m: centre,
             box_min_m: std::array::from_fn(|i| centre[i] - half[i]),
             box_max_m: std::array::from_fn(|i| centre[i] + half[i]),
+            obb: Default::default(),
             observation_count: 5,
             affordance_bits: 0,
             last_seen_stamp_ns: 0,
@@ -63,6 +64,7 @@ fn graph(kb: &KnowledgeBase) -> SceneGraph {
             centre_m: c,
             box_min_m: c.map(|v| v - 0.02),
             box_max_m: c.map(|v| v + 0.02),
+            obb: Default::default(),
             ..parent_node
         });
         graph.edges.push(GraphEdge {

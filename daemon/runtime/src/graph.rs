@@ -3,8 +3,10 @@
 //! ([`op3dsg_ipc_types::GraphHeader`] and node and edge records) and `op3dsg dump --json` writes
 //! its JSON form.
 
-use op3dsg_drivers::graph_json::{EdgeJson, GraphJson, NodeJson};
+use op3dsg_drivers::graph_json::{EdgeJson, GraphJson, NodeJson, OrientedBoxJson};
 use op3dsg_ipc_types::{EdgeKind, EdgeOrigin, NodeKind};
+
+pub use crate::fusion::oriented_box::OrientedBox;
 
 /// One node of the graph.
 #[derive(Debug, Clone, PartialEq)]
@@ -25,6 +27,9 @@ pub struct GraphNode {
     pub box_min_m: [f32; 3],
     /// Axis-aligned box, world, metres.
     pub box_max_m: [f32; 3],
+    /// Gravity-aligned oriented box around the same points (yaw about `world.up_axis`; see
+    /// [`crate::fusion::oriented_box`]).
+    pub obb: OrientedBox,
     /// Keyframe detections fused.
     pub observation_count: u32,
     /// Bit set over `op3dsg_ipc_types::AFFORDANCES`.
@@ -90,6 +95,7 @@ impl SceneGraph {
                 centre_m: n.centre_m,
                 box_min_m: n.box_min_m,
                 box_max_m: n.box_max_m,
+                obb: Some(OrientedBoxJson { centre_m: n.obb.centre_m, size_m: n.obb.size_m, yaw_rad: n.obb.yaw_rad }),
                 affordances: op3dsg_ipc_types::affordance_names(n.affordance_bits).map(str::to_owned).collect(),
                 confidence: n.confidence,
                 observation_count: n.observation_count,

@@ -511,6 +511,7 @@ mod tests {
             centre_m: centre.to_array(),
             box_min_m: min,
             box_max_m: max,
+            obb: Default::default(),
             observation_count: 5,
             affordance_bits: 0,
             last_seen_stamp_ns: 0,

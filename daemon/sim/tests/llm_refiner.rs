@@ -196,6 +196,7 @@ fn node(id: u32, label: &str, kind: NodeKind, parent: Option<u32>, min: [f32; 3]
         centre_m: std::array::from_fn(|i| (min[i] + max[i]) * 0.5),
         box_min_m: min,
         box_max_m: max,
+        obb: Default::default(),
         observation_count: 5,
         affordance_bits: 0,
         last_seen_stamp_ns: 0,

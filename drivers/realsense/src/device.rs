@@ -34,7 +34,7 @@ use std::time::{Duration, Instant};
 
 use op3dsg_drivers::frame::{Frame, Intrinsics};
 use op3dsg_drivers::pose::Isometry;
-use op3dsg_drivers::source::{FrameSource, SourceError, SourceStatus};
+use op3dsg_drivers::source::{FrameSource, SourceError, SourceStatus, StampClock};
 use realsense_rust::config::Config;
 use realsense_rust::context::Context;
 use realsense_rust::frame::{ColorFrame, CompositeFrame, DepthFrame, FrameEx};
@@ -586,6 +586,10 @@ impl FrameSource for RealsenseSource {
 
     fn connected(&self) -> bool {
         self.connected
+    }
+
+    fn stamp_clock(&self) -> StampClock {
+        if self.bag.is_some() { StampClock::Recording } else { StampClock::HostGlobalTime }
     }
 
     fn next_frame(&mut self, frame: &mut Frame) -> Result<SourceStatus, SourceError> {

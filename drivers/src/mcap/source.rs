@@ -11,7 +11,7 @@ use super::{McapReplayConfig, TOPIC_CALIBRATION, TOPIC_COLOUR, TOPIC_DEPTH, TOPI
 use crate::frame::{Frame, Intrinsics};
 use crate::pose::Isometry;
 use crate::replay::{MAX_BLOCK, PlaybackMode};
-use crate::source::{FrameSource, SourceError, SourceStatus, StepControl};
+use crate::source::{FrameSource, SourceError, SourceStatus, StampClock, StepControl};
 
 /// Receives a side channel's message of each frame (the bytes of the JSON message) after the
 /// frame's pixels and meta are in place; an error stops the replay naming the channel.
@@ -374,6 +374,10 @@ impl McapSource {
 impl FrameSource for McapSource {
     fn intrinsics(&self) -> Intrinsics {
         self.intrinsics
+    }
+
+    fn stamp_clock(&self) -> StampClock {
+        StampClock::Recording
     }
 
     fn has_poses(&self) -> bool {

@@ -194,6 +194,10 @@ impl FrameSource for ReplaySource {
         self.index.ground_truth.is_some()
     }
 
+    fn stamp_clock(&self) -> crate::source::StampClock {
+        crate::source::StampClock::Recording
+    }
+
     fn next_frame(&mut self, frame: &mut Frame) -> Result<SourceStatus, SourceError> {
         if self.finished {
             return Ok(SourceStatus::EndOfStream);

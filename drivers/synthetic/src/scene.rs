@@ -304,6 +304,7 @@ impl Scene {
                 centre_m: centre.to_array(),
                 box_min_m: info.box_min_m.to_array(),
                 box_max_m: info.box_max_m.to_array(),
+                obb: None,
                 affordances: self.affordances(info.id).iter().map(|a| (*a).to_owned()).collect(),
                 confidence: 1.0,
                 observation_count: 0,

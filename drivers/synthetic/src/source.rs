@@ -9,7 +9,7 @@ use super::scene::Scene;
 use super::side_channel::{GroundTruth, InstanceIdChannel};
 use super::{DepthNoiseConfig, SyntheticConfig};
 use op3dsg_drivers::frame::{Frame, Intrinsics};
-use op3dsg_drivers::source::{FrameSource, SourceError, SourceStatus};
+use op3dsg_drivers::source::{FrameSource, SourceError, SourceStatus, StampClock};
 
 /// A [`FrameSource`] over a procedural room: RGB, noisy depth, instance ids and exact poses.
 #[derive(Debug)]
@@ -144,6 +144,10 @@ impl FrameSource for SyntheticSource {
 
     fn has_poses(&self) -> bool {
         true
+    }
+
+    fn stamp_clock(&self) -> StampClock {
+        StampClock::SceneTime
     }
 
     fn next_frame(&mut self, frame: &mut Frame) -> Result<SourceStatus, SourceError> {

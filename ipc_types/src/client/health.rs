@@ -11,7 +11,7 @@ use crate::services::{HISTORY_SIZE, IpcService, ServiceKind, service_name};
 use crate::{Health, SCHEMA_VERSION};
 
 /// Reads the daemon's [`Health`] records. It opens `<prefix>/health` only, so a monitor works
-/// when every `graph` subscriber slot is taken, and it holds no 3.9 MiB graph sample.
+/// when every `graph` subscriber slot is taken, and it holds no 4.3 MiB graph sample.
 ///
 /// A client that joins late receives the newest record from the service's history when the
 /// daemon next updates its connections (within ~100 ms).

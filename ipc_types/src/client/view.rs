@@ -472,6 +472,26 @@ impl<'a> NodeView<'a> {
         [max[0] - min[0], max[1] - min[1], max[2] - min[2]]
     }
 
+    /// The gravity-aligned oriented box: its centre (world frame, metres), its size along its
+    /// first, second and up axes (metres) and its yaw about the world's up axis (radians in
+    /// `(-pi/2, pi/2]`); [`Node`]'s docs define the axes.
+    pub fn oriented_box(&self) -> ([f32; 3], [f32; 3], f32) {
+        let n = self.wire();
+        (n.obb_centre_m, n.obb_size_m, n.obb_yaw_rad)
+    }
+
+    /// The oriented box's four bottom corners, counter-clockwise seen from above, for a world
+    /// with +z up (a robot's map frame): the node's footprint on the floor, world frame, metres.
+    pub fn footprint_z_up_m(&self) -> [[f32; 2]; 4] {
+        let ([cx, cy, _], [sx, sy, _], yaw) = self.oriented_box();
+        let (sin, cos) = yaw.sin_cos();
+        let corner = |a: f32, b: f32| {
+            let (u, v) = (a * sx * 0.5, b * sy * 0.5);
+            [cx + cos * u - sin * v, cy + sin * u + cos * v]
+        };
+        [corner(-1.0, -1.0), corner(1.0, -1.0), corner(1.0, 1.0), corner(-1.0, 1.0)]
+    }
+
     /// Keyframe detections fused into this node.
     pub fn observation_count(&self) -> u32 {
         self.wire().observation_count

@@ -197,14 +197,29 @@ impl TransformConfig {
     }
 }
 
-/// `[pose]`.
+/// `[pose]`: where a frame's `world_from_camera` comes from and how received poses are used
+/// (the rules are in [`crate::keyframe`]'s docs).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PoseConfig {
     /// Where poses come from.
     pub source: PoseSourceKind,
-    /// A frame without a pose within this many milliseconds is dropped and counted.
+    /// Hold tolerance, milliseconds: without two poses around a frame close enough to
+    /// interpolate, the nearest pose is used when it is at most this far from the frame's stamp
+    /// (never further: no extrapolation); otherwise the frame is dropped and counted.
     pub tolerance_ms: f64,
+    /// Two poses at most this far apart (milliseconds) are interpolated to the stamp of a frame
+    /// between them (a 10 Hz stream is 100 ms apart; the default also bridges one lost pose).
+    pub max_interpolation_gap_ms: f64,
+    /// A frame stamped after the newest pose waits up to this long (milliseconds, host clock)
+    /// for the pose after it before it is held within `tolerance_ms` or dropped (0 = never wait).
+    pub max_wait_ms: f64,
+    /// A pose stamped more than this (milliseconds) after the newest frame is refused as
+    /// `future`, and not adopted, so it cannot block the poses that follow.
+    pub future_tolerance_ms: f64,
+    /// When frame and pose stamps disagree by more than the tolerances for this long (seconds),
+    /// the daemon warns that their clocks differ (then again at most once per this period).
+    pub clock_warning_after_s: f64,
     /// Poses kept for interpolation.
     pub buffer_len: usize,
     /// Fixed `base_from_camera` for `world_from_base` poses (rigid mounts only).
@@ -339,10 +354,30 @@ impl Profile {
         check(self.pose.tolerance_ms > 0.0 && self.pose.tolerance_ms <= 5000.0, "pose.tolerance_ms", || {
             format!("must be within (0, 5000], got {}", self.pose.tolerance_ms)
         })?;
+        let p = &self.pose;
+        check(
+            p.max_interpolation_gap_ms > 0.0 && p.max_interpolation_gap_ms <= 10_000.0,
+            "pose.max_interpolation_gap_ms",
+            || format!("must be within (0, 10000] milliseconds, got {}", p.max_interpolation_gap_ms),
+        )?;
+        check((0.0..=5000.0).contains(&p.max_wait_ms), "pose.max_wait_ms", || {
+            format!("must be within [0, 5000] milliseconds (0 = never wait), got {}", p.max_wait_ms)
+        })?;
+        check(p.future_tolerance_ms > 0.0 && p.future_tolerance_ms <= 3_600_000.0, "pose.future_tolerance_ms", || {
+            format!("must be within (0, 3600000] milliseconds, got {}", p.future_tolerance_ms)
+        })?;
+        check(
+            p.clock_warning_after_s > 0.0 && p.clock_warning_after_s <= 3600.0,
+            "pose.clock_warning_after_s",
+            || format!("must be within (0, 3600] seconds, got {}", p.clock_warning_after_s),
+        )?;
         check((2..=100_000).contains(&self.pose.buffer_len), "pose.buffer_len", || {
             format!("must be within [2, 100000], got {}", self.pose.buffer_len)
         })?;
         if let Some(t) = &self.pose.base_from_camera {
+            check(t.translation_m.iter().all(|v| v.is_finite()), "pose.base_from_camera.translation_m", || {
+                format!("must be finite metres, got {:?}", t.translation_m)
+            })?;
             let norm = t.rotation_xyzw.iter().map(|v| v * v).sum::<f64>().sqrt();
             check((norm - 1.0).abs() < 1e-3, "pose.base_from_camera.rotation_xyzw", || {
                 format!("must be a unit quaternion, norm is {norm}")
@@ -441,6 +476,7 @@ impl Profile {
             + self.detector.workers
             + 3
             + self.source.pool_headroom
+            + if self.pose.source == PoseSourceKind::Ipc { crate::keyframe::MAX_PENDING_FRAMES } else { 0 }
     }
 }
 
@@ -614,6 +650,47 @@ mod tests {
         // Fast mode is paced by source.rate_hz like the synthetic source.
         let path = write(&dir, "fast.toml", &format!("{REPLAY}mode = \"fast\"\n"));
         assert!(load(Some(&path), &["source.rate_hz=15".to_owned()]).is_ok());
+    }
+
+    #[test]
+    fn pose_keys_are_checked_by_name() {
+        let dir = tempfile::tempdir().unwrap();
+        let cases = [
+            (
+                "[pose]\nmax_interpolation_gap_ms = 0.0\n",
+                "pose.max_interpolation_gap_ms: must be within (0, 10000] milliseconds, got 0",
+            ),
+            (
+                "[pose]\nmax_wait_ms = -5.0\n",
+                "pose.max_wait_ms: must be within [0, 5000] milliseconds (0 = never wait), got -5",
+            ),
+            (
+                "[pose]\nfuture_tolerance_ms = 0.0\n",
+                "pose.future_tolerance_ms: must be within (0, 3600000] milliseconds, got 0",
+            ),
+            (
+                "[pose]\nclock_warning_after_s = 0.0\n",
+                "pose.clock_warning_after_s: must be within (0, 3600] seconds, got 0",
+            ),
+            ("[pose]\nmax_wait = 5.0\n", "pose.max_wait: unknown field `max_wait`"),
+            (
+                "[pose]\nbase_from_camera = { translation_m = [0.0, 0.0, nan], rotation_xyzw = [0.0, 0.0, 0.0, 1.0] }\n",
+                "pose.base_from_camera.translation_m: must be finite metres, got [0.0, 0.0, NaN]",
+            ),
+            (
+                "[pose]\nbase_from_camera = { translation_m = [0.0, 0.0, 1.3], rotation_xyzw = [0.0, 0.0, 0.0, 2.0] }\n",
+                "pose.base_from_camera.rotation_xyzw: must be a unit quaternion, norm is 2",
+            ),
+        ];
+        for (i, (text, expected)) in cases.iter().enumerate() {
+            let path = write(&dir, &format!("p{i}.toml"), text);
+            let err = load(Some(&path), &[]).unwrap_err();
+            assert_eq!(err.file, path.display().to_string(), "{err}");
+            assert!(err.message.starts_with(expected), "case {i}: {err}");
+        }
+        let pose = load(None, &[]).unwrap().profile.pose;
+        assert_eq!((pose.max_interpolation_gap_ms, pose.max_wait_ms, pose.tolerance_ms), (250.0, 200.0, 50.0));
+        assert_eq!(pose.future_tolerance_ms * 1e6, op3dsg_ipc_types::FUTURE_POSE_LIMIT_NS as f64);
     }
 
     #[test]

@@ -14,6 +14,7 @@ use crate::perception::Detection;
 
 pub mod colour;
 pub mod multiview;
+pub mod oriented_box;
 pub(crate) mod thread;
 
 use colour::ColourParams;
@@ -220,7 +221,7 @@ pub trait Fusion: Send {
     }
 }
 
-/// The fusion the profile asks for.
-pub fn build(config: &FusionConfig) -> Box<dyn Fusion> {
-    Box::new(multiview::MultiViewFusion::new(config.clone()))
+/// The fusion the profile asks for; `up_axis` (`world.up_axis`) orients the nodes' boxes.
+pub fn build(config: &FusionConfig, up_axis: crate::config::UpAxis) -> Box<dyn Fusion> {
+    Box::new(multiview::MultiViewFusion::new(config.clone()).with_up_axis(up_axis))
 }

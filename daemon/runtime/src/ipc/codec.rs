@@ -10,7 +10,7 @@ use op3dsg_ipc_types::{
 };
 use rustc_hash::FxHashMap;
 
-use crate::graph::{GraphEdge, GraphNode, SceneGraph};
+use crate::graph::{GraphEdge, GraphNode, OrientedBox, SceneGraph};
 #[cfg(doc)]
 use crate::ipc::GraphServer;
 
@@ -319,8 +319,11 @@ fn write_records(
             box_min_m: node.box_min_m,
             box_max_m: node.box_max_m,
             affordance_bits: node.affordance_bits,
-            reserved2: [0; 6],
+            reserved2: [0; 2],
+            obb_yaw_rad: node.obb.yaw_rad,
             last_seen_stamp_ns: node.last_seen_stamp_ns,
+            obb_centre_m: node.obb.centre_m,
+            obb_size_m: node.obb.size_m,
             ..WireNode::default()
         };
         if !op3dsg_ipc_types::write_fixed_str(&mut wire.label, &node.label) {
@@ -390,6 +393,7 @@ fn node_from_wire(n: &WireNode) -> GraphNode {
         centre_m: n.centre_m,
         box_min_m: n.box_min_m,
         box_max_m: n.box_max_m,
+        obb: OrientedBox { centre_m: n.obb_centre_m, size_m: n.obb_size_m, yaw_rad: n.obb_yaw_rad },
         observation_count: n.observation_count,
         affordance_bits: n.affordance_bits,
         last_seen_stamp_ns: n.last_seen_stamp_ns,
@@ -422,6 +426,7 @@ mod tests {
             centre_m: [id as f32, 0.0, 0.0],
             box_min_m: [0.0; 3],
             box_max_m: [1.0; 3],
+            obb: Default::default(),
             observation_count: 3,
             affordance_bits: 0,
             last_seen_stamp_ns: last_seen,
@@ -462,7 +467,7 @@ mod tests {
         let report = encoder.encode(&graph);
         assert!(!report.truncated);
         assert_eq!((report.nodes_written, report.edges_written), (2, 1));
-        assert_eq!(report.payload_bytes, 2 * 120 + 64, "the sample holds what the graph holds");
+        assert_eq!(report.payload_bytes, 2 * 144 + 64, "the sample holds what the graph holds");
         let header = encoder.header();
         assert_eq!(header.capacity_exceeded, 0);
         assert_eq!((header.object_count, header.part_count), (1, 1));
@@ -517,7 +522,7 @@ mod tests {
         let report = encoder.encode(&graph);
         assert!(report.truncated);
         assert_eq!(node_ids(&encoder), [2, 3, 4], "the three most recently seen");
-        assert_eq!((report.edges_written, report.payload_bytes), (2, 3 * 120 + 2 * 64));
+        assert_eq!((report.edges_written, report.payload_bytes), (2, 3 * 144 + 2 * 64));
         let header = *encoder.header();
         assert_eq!((header.capacity_exceeded, header.node_capacity, header.edge_capacity), (1, 3, 2));
         assert_eq!((header.total_node_count, header.total_edge_count), (5, 4));
@@ -561,7 +566,7 @@ mod tests {
         assert_eq!(client.edges_to(3).map(|e| e.source_id()).collect::<Vec<_>>(), [4_000_000_000]);
         // A dense graph after a sparse one reuses the encoder.
         let dense = SceneGraph { version: 2, stamp_ns: 0, nodes: vec![node(0, NodeKind::Object, 1)], edges: vec![] };
-        assert_eq!(encoder.encode(&dense).payload_bytes, 120);
+        assert_eq!(encoder.encode(&dense).payload_bytes, 144);
         assert_eq!(node_ids(&encoder), [0]);
     }
 
@@ -614,13 +619,13 @@ mod tests {
         encoder.encode(&graph);
         let mut header = *encoder.header();
         let mut payload = encoder.payload().to_vec();
-        payload[120 + 8] = 9; // the kind of node 1
+        payload[144 + 8] = 9; // the kind of node 1
         assert_eq!(
             message_to_scene_graph(&GraphMessage::new(&header, &payload)),
             Err(SnapshotError::UnknownNodeKind { index: 1, value: 9 })
         );
-        payload[120 + 8] = 1;
-        payload[2 * 120 + 9] = 7; // the origin of edge 0
+        payload[144 + 8] = 1;
+        payload[2 * 144 + 9] = 7; // the origin of edge 0
         let err = message_to_scene_graph(&GraphMessage::new(&header, &payload)).expect_err("bad origin");
         assert_eq!(err.to_string(), "edges[0].origin: unknown value 7 (0..=3)");
         let other = op3dsg_ipc_types::SCHEMA_VERSION + 1;

@@ -23,7 +23,7 @@
 //! | `<prefix>/pose`          | publish-subscribe | `PoseStamped`                      | if op3dsg creates it: safe overflow, buffer 64, 4 publishers, 4 subscribers; any creator's QoS is accepted (input to the daemon) |
 //!
 //! A graph sample is a [`GraphHeader`](op3dsg_ipc_types::GraphHeader) (counts, version, the
-//! daemon's `instance_id`, stamps, capacity flag) and exactly `node_count * 120 + edge_count * 64`
+//! daemon's `instance_id`, stamps, capacity flag) and exactly `node_count * 144 + edge_count * 64`
 //! bytes of node and edge records: it costs what the graph holds. The header's `instance_id` is
 //! drawn at every start ([`new_instance_id`]), so a planner tells a restarted daemon (versions
 //! from 1 again) from an old sample.
@@ -55,7 +55,7 @@
 //! - A subscriber borrows at most one sample at a time (the service is created with
 //!   `subscriber_max_borrowed_samples = 1`), which keeps the shared memory the daemon reserves to
 //!   `max_subscribers * (buffer + 1) + history + 1` samples of the maximum size (26 samples,
-//!   about 100 MiB of address space, with the defaults; only written pages are resident).
+//!   about 110 MiB of address space, with the defaults; only written pages are resident).
 //!
 //! Who creates what: the daemon creates `graph`, `graph_updated` and `health` (or opens them if a
 //! previous instance's survivors still hold them, stating its QoS as minimums); clients only open
@@ -87,8 +87,8 @@
 //! subscriber = service.subscriber_builder().create()
 //! sample = subscriber.receive()            # None until the daemon has published
 //! if sample is not None:
-//!     header = sample.user_header().contents   # check header.schema_version == 4 first
-//!     # node_count records of 120 bytes, then edge_count records of 64 bytes (numpy dtypes
+//!     header = sample.user_header().contents   # check header.schema_version == 5 first
+//!     # node_count records of 144 bytes, then edge_count records of 64 bytes (numpy dtypes
 //!     # mirroring Node and Edge view them without copying)
 //! ```
 //! The `type_name()` strings must match exactly (`op3dsg::GraphHeader`, `op3dsg::Health`,
@@ -185,7 +185,7 @@ impl IpcConfig {
     }
 }
 
-/// Largest accepted `ipc.max_nodes` (1 Mi nodes: a 120 MiB sample).
+/// Largest accepted `ipc.max_nodes` (1 Mi nodes: a 144 MiB sample).
 pub const MAX_CONFIGURABLE_NODES: usize = 1 << 20;
 /// Largest accepted `ipc.max_edges` (4 Mi edges: a 256 MiB sample).
 pub const MAX_CONFIGURABLE_EDGES: usize = 1 << 22;
@@ -327,7 +327,7 @@ mod tests {
         assert_eq!(c.validate("ipc").expect_err("big"), "ipc.max_edges: must be between 1 and 4194304, found 4194305");
         c.max_edges = 200;
         assert_eq!(c.validate("ipc"), Ok(()));
-        assert_eq!(c.graph_capacity().max_payload_bytes(), 100 * 120 + 200 * 64);
+        assert_eq!(c.graph_capacity().max_payload_bytes(), 100 * 144 + 200 * 64);
         let parsed: Result<IpcConfig, _> = toml::from_str("prefix = \"x\"\nbogus = 1\n");
         assert!(parsed.is_err());
         let parsed: IpcConfig = toml::from_str("prefix = \"x\"\n").expect("partial table");

@@ -133,7 +133,7 @@ fn spawn_stage(
 /// The map the profile asks for. The pipeline and the batch runner both construct their fusion
 /// here, so swapping the fusion implementation is this one line.
 pub fn make_fusion(profile: &Profile) -> Box<dyn Fusion> {
-    crate::fusion::build(&profile.fusion)
+    crate::fusion::build(&profile.fusion, profile.world.up_axis)
 }
 
 /// The prior graph + reasoner the profile asks for (`[reasoner]`), shared by the pipeline and
@@ -318,10 +318,12 @@ impl Pipeline {
             let config = profile.keyframe.clone();
             let pose_config = profile.pose.clone();
             let recorder = recorder.map(|sender| (sender, side_taps));
+            let frame_clock = source.stamp_clock();
             handles.push(spawn_stage("keyframe", &finished_tx, move || {
                 crate::keyframe::thread::keyframe_loop(
                     &config,
                     &pose_config,
+                    frame_clock,
                     frames_rx,
                     kf_tx,
                     pose_rx,

@@ -187,6 +187,7 @@ mod tests {
             centre_m: centre,
             box_min_m: (c - h).to_array(),
             box_max_m: (c + h).to_array(),
+            obb: Default::default(),
             observation_count: 3,
             affordance_bits: 0,
             last_seen_stamp_ns: 0,

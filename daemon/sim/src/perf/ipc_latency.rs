@@ -127,6 +127,7 @@ pub fn synthetic_graph(nodes: usize, version: u64) -> SceneGraph {
             centre_m: centre,
             box_min_m: centre.map(|v| v - half),
             box_max_m: centre.map(|v| v + half),
+            obb: Default::default(),
             observation_count: 5,
             affordance_bits: if part { 0b1 } else { 0 },
             last_seen_stamp_ns: u64::from(i),
@@ -513,7 +514,7 @@ mod tests {
         assert_eq!(g.part_count(), 500);
         assert!(g.edges.iter().all(|e| (e.source_id as usize) < 2_000 && (e.target_id as usize) < 2_000));
         assert!(g.nodes.iter().filter(|n| n.kind == NodeKind::Part).all(|n| n.parent_id.is_some()));
-        assert_eq!(filled_bytes(&g), size_of::<GraphHeader>() + 2_000 * 120 + 4_000 * 64);
+        assert_eq!(filled_bytes(&g), size_of::<GraphHeader>() + 2_000 * 144 + 4_000 * 64);
         assert_eq!(synthetic_graph(MAX_NODES + 10, 1).nodes.len(), MAX_NODES);
     }
 }

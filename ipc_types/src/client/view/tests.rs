@@ -188,7 +188,7 @@ fn contract_breaks_are_named_and_leave_the_graph_as_it_was() {
     let mut header = *message.header;
     header.edge_count += 1;
     let err = graph.copy_from(&GraphMessage::new(&header, message.payload)).expect_err("short payload");
-    assert_eq!(err, SnapshotError::PayloadSize { found: 6 * 120 + 6 * 64, expected: 6 * 120 + 7 * 64 });
+    assert_eq!(err, SnapshotError::PayloadSize { found: 6 * 144 + 6 * 64, expected: 6 * 144 + 7 * 64 });
     let err = graph.copy_from(&GraphMessage::new(message.header, &message.payload[1..])).expect_err("cut payload");
     assert!(matches!(err, SnapshotError::PayloadSize { .. }), "{err}");
     assert_eq!(graph.version(), 5, "still unchanged");
@@ -225,9 +225,9 @@ fn a_three_node_sample_is_small() {
     push_node(&mut s, 3, NodeKind::Part, 1, "knob", &["rotate"]);
     push_edge(&mut s, 2, 1, "part of", EdgeOrigin::Geometry);
     let message = s.encode();
-    // Header and payload together: what the graph holds, not the 3.9 MiB maximum.
-    assert_eq!(message.payload.len(), 3 * 120 + 64);
-    assert_eq!(core::mem::size_of::<GraphHeader>() + message.payload.len(), 504);
+    // Header and payload together: what the graph holds, not the 4.3 MiB maximum.
+    assert_eq!(message.payload.len(), 3 * 144 + 64);
+    assert_eq!(core::mem::size_of::<GraphHeader>() + message.payload.len(), 576);
     let graph = Graph::from_message(&message).expect("valid");
     assert_eq!(ids(graph.parts_of(1)), [2, 3]);
 }
@@ -247,4 +247,22 @@ fn another_instance_id_marks_a_restart() {
     assert_eq!((graph.instance_id(), graph.version()), (0xdef, 1));
     graph.copy_from(&kitchen(2).encode()).map(|_| ()).expect("valid");
     assert!(graph.restarted(), "0xabc again is another instance than 0xdef");
+}
+
+#[test]
+fn the_oriented_box_and_its_footprint_come_through() {
+    let mut s = empty(1);
+    push_node(&mut s, 1, NodeKind::Object, NO_NODE, "counter", &[]);
+    // A 2 m x 0.6 m counter turned 90 degrees: its footprint runs along y.
+    s.nodes[0].obb_centre_m = [1.0, 2.0, 0.45];
+    s.nodes[0].obb_size_m = [2.0, 0.6, 0.9];
+    s.nodes[0].obb_yaw_rad = std::f32::consts::FRAC_PI_2;
+    let graph = graph_of(&mut s);
+    let counter = graph.node(1).expect("node 1");
+    assert_eq!(counter.oriented_box(), ([1.0, 2.0, 0.45], [2.0, 0.6, 0.9], std::f32::consts::FRAC_PI_2));
+    let footprint = counter.footprint_z_up_m();
+    let expected = [[1.3, 1.0], [1.3, 3.0], [0.7, 3.0], [0.7, 1.0]];
+    for (corner, want) in footprint.iter().zip(expected) {
+        assert!((corner[0] - want[0]).abs() < 1e-5 && (corner[1] - want[1]).abs() < 1e-5, "{footprint:?}");
+    }
 }

@@ -73,7 +73,9 @@ use op3dsg_ipc_types::NodeKind;
 use rustc_hash::{FxHashMap, FxHashSet};
 
 use super::colour::{self, ColourFeature};
+use super::oriented_box::OrientedBox;
 use super::{Fusion, FusionConfig, FusionReport};
+use crate::config::UpAxis;
 use crate::graph::{GraphNode, SceneGraph};
 use crate::perception::{Detection, dot, normalise};
 
@@ -141,6 +143,8 @@ pub struct MultiViewFusion {
     next_id: u32,
     keyframe: u64,
     scratch: Scratch,
+    /// Up axis of the nodes' gravity-aligned boxes.
+    up_axis: UpAxis,
 }
 
 impl MultiViewFusion {
@@ -162,7 +166,15 @@ impl MultiViewFusion {
             next_id: 1,
             keyframe: 0,
             scratch: Scratch::default(),
+            up_axis: UpAxis::Z,
         }
+    }
+
+    /// The same map with its nodes' oriented boxes turning about `up_axis` (`world.up_axis`;
+    /// +z unless set).
+    pub fn with_up_axis(mut self, up_axis: UpAxis) -> Self {
+        self.up_axis = up_axis;
+        self
     }
 
     fn geometry(&self, kind: NodeKind) -> KindGeometry {
@@ -472,6 +484,9 @@ impl Fusion for MultiViewFusion {
                 centre_m: node.cloud.centre().to_array(),
                 box_min_m: node.cloud.min.to_array(),
                 box_max_m: node.cloud.max.to_array(),
+                obb: OrientedBox::fit(&node.cloud.points, self.up_axis).unwrap_or_else(|| {
+                    OrientedBox::axis_aligned(node.cloud.min.to_array(), node.cloud.max.to_array(), self.up_axis)
+                }),
                 observation_count: node.observation_count,
                 affordance_bits: 0,
                 last_seen_stamp_ns: node.last_seen_stamp_ns,

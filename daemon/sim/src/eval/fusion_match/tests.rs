@@ -29,6 +29,7 @@ fn fused(id: u32, kind: NodeKind, label: &str, lo: [f32; 3], hi: [f32; 3]) -> Gr
         centre_m: ((Vec3::from(lo) + Vec3::from(hi)) * 0.5).to_array(),
         box_min_m: lo,
         box_max_m: hi,
+        obb: Default::default(),
         observation_count: 3,
         affordance_bits: 0,
         last_seen_stamp_ns: 0,

@@ -28,6 +28,13 @@ pub(super) struct Overlap {
 }
 
 /// Intersection volume, IoU and IoP (intersection over `pred`'s volume) of two boxes.
+///
+/// The boxes are the nodes' axis-aligned `box_min_m`/`box_max_m`, also for predictions that
+/// carry a gravity-aligned oriented box (`obb` in the graph JSON): the ground truth this
+/// evaluator reads (the synthetic scenes, the benchmark's axis-aligned annotations) carries no
+/// orientation, and an IoU between an oriented prediction and an axis-aligned ground-truth box
+/// would score the orientation against a box that has none. Ground truth with `obb` would call
+/// for an oriented IoU here; none is read today.
 pub fn box_overlap(pred_min: Vec3, pred_max: Vec3, gt_min: Vec3, gt_max: Vec3) -> (f32, f32, f32) {
     let size = |min: Vec3, max: Vec3| (max - min).max(Vec3::ZERO);
     let inter = size(pred_min.max(gt_min), pred_max.min(gt_max));

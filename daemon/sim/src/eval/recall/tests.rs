@@ -97,6 +97,7 @@ fn node(id: u32, label: &str, kind: &str, min: [f32; 3], max: [f32; 3]) -> NodeJ
         centre_m: [(min[0] + max[0]) / 2.0, (min[1] + max[1]) / 2.0, (min[2] + max[2]) / 2.0],
         box_min_m: min,
         box_max_m: max,
+        obb: None,
         affordances: Vec::new(),
         confidence: 1.0,
         observation_count: 0,
