@@ -82,7 +82,10 @@ fn main() {
             box_max_m,
             affordance_bits,
             reserved2,
+            obb_yaw_rad,
             last_seen_stamp_ns,
+            obb_centre_m,
+            obb_size_m,
         }
     );
     layout!(types, Edge { source_id, target_id, kind, origin, relation_id, confidence, phrase });

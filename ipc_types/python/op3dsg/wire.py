@@ -20,7 +20,7 @@ from typing import Iterator, List
 import numpy as np
 
 #: Version of the wire contract this package reads (``SCHEMA_VERSION`` in ``ipc_types/src/lib.rs``).
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 
 #: Bytes in a node label buffer.
 LABEL_CAPACITY_BYTES = 48
@@ -137,7 +137,9 @@ class _Wire(ctypes.Structure):
 
 
 class Node(_Wire):
-    """One node of the scene graph (120 bytes, alignment 8): ``op3dsg::Node``."""
+    """One node of the scene graph (144 bytes, alignment 8): ``op3dsg::Node``. Besides the
+    axis-aligned box, a gravity-aligned oriented box: ``obb_centre_m``, ``obb_size_m`` (extent
+    along the box's own axes) and ``obb_yaw_rad`` (rotation about the world's up axis)."""
 
     _fields_ = [
         ("id", _u32),
@@ -151,8 +153,11 @@ class Node(_Wire):
         ("box_min_m", _f32 * 3),
         ("box_max_m", _f32 * 3),
         ("affordance_bits", _u16),
-        ("reserved2", _u8 * 6),
+        ("reserved2", _u8 * 2),
+        ("obb_yaw_rad", _f32),
         ("last_seen_stamp_ns", _u64),
+        ("obb_centre_m", _f32 * 3),
+        ("obb_size_m", _f32 * 3),
     ]
 
     @staticmethod
