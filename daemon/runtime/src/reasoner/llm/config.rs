@@ -34,6 +34,10 @@ pub struct LlmConfig {
     pub api_key_file: Option<PathBuf>,
     /// `json_schema` or `json_object`.
     pub response_format: ResponseFormat,
+    /// Fields an answer or one of its items carries beyond the schema's are ignored (`true`);
+    /// `false`: such an item (or answer) is rejected as `malformed`.
+    #[serde(default = "default_true")]
+    pub ignore_unknown_fields: bool,
     /// Sampling temperature.
     pub temperature: f32,
     /// Upper bound of answer tokens per call.
@@ -77,6 +81,7 @@ impl Default for LlmConfig {
             api_key_env: "OP3DSG_LLM_API_KEY".to_owned(),
             api_key_file: None,
             response_format: ResponseFormat::JsonSchema,
+            ignore_unknown_fields: true,
             temperature: 0.0,
             max_tokens: 4096,
             request_timeout_s: 60.0,
@@ -94,6 +99,10 @@ impl Default for LlmConfig {
             max_prompt_items: 400,
         }
     }
+}
+
+fn default_true() -> bool {
+    true
 }
 
 fn seconds(s: f64) -> Duration {
