@@ -656,6 +656,21 @@ mod tests {
     }
 
     #[test]
+    fn rejections_are_logged_once_per_interval_per_reason() {
+        let mut limiter = RateLimitedRejections::default();
+        let mut log = RejectionLog::default();
+        log.reject(Rejection::Malformed, || "local_relations: no JSON object".to_owned());
+        log.reject(Rejection::UnknownNode, || "affordances: node 9 is not in the graph".to_owned());
+        assert_eq!(limiter.report(1, &log), 2, "one line per reason");
+        assert_eq!(limiter.report(2, &log), 0, "within the interval: carried over");
+        assert_eq!(limiter.pending[Rejection::Malformed as usize], 1);
+        limiter.last[Rejection::Malformed as usize] = Instant::now().checked_sub(REJECTION_LOG_INTERVAL);
+        assert_eq!(limiter.report(3, &log), 1, "the interval passed for malformed only");
+        assert_eq!(limiter.pending[Rejection::Malformed as usize], 0);
+        assert_eq!(limiter.pending[Rejection::UnknownNode as usize], 2);
+    }
+
+    #[test]
     fn health_reports_the_state_and_the_rejections() {
         let stats = RefinerStats::default();
         assert_eq!(stats.health().state, RefinerState::Off as u8);
