@@ -77,8 +77,18 @@ pub const REFINER_STATES: [&str; 6] = ["off", "idle", "calling", "backoff", "bre
 /// `unknown_node` (an id not in that graph version), `wrong_kind` (a local relation off a
 /// part-of pair, a remote one between nodes the knowledge base does not allow),
 /// `non_canonical` (a relation or affordance label that maps onto no canonical one),
-/// `stale` (accepted, but its nodes were gone when the result reached the graph).
+/// `stale` (accepted, but when the result was applied to a later graph its nodes were gone, had
+/// changed kind, or the part had left its object).
 pub const REFINER_REJECTIONS: [&str; 5] = ["malformed", "unknown_node", "wrong_kind", "non_canonical", "stale"];
+
+/// Kinds of failed LLM calls ([`RefinerHealth::last_error`] indexes this): `none` (no call
+/// failed yet), `timeout`, transport errors by cause (`refused`: nothing listens there, `dns`:
+/// the host did not resolve, `tls`: handshake or certificate, `connect`: other connect failures,
+/// `transport`: the connection broke later), `http_status` (an error status other than 429),
+/// `rate_limited` (429), `not_chat` (a 2xx that is not a chat completion: an HTML page, no
+/// choices, null content).
+pub const REFINER_ERRORS: [&str; 10] =
+    ["none", "timeout", "refused", "dns", "tls", "connect", "transport", "http_status", "rate_limited", "not_chat"];
 
 /// The LLM refiner (size 128 bytes); all zero (state `off`) when no LLM is configured.
 #[repr(C)]
@@ -89,15 +99,19 @@ pub struct RefinerHealth {
     pub state: u8,
     /// 1 while the circuit breaker is open (no calls until its cool-down ends).
     pub breaker_open: u8,
+    /// Index into [`REFINER_ERRORS`]: what the last failed call failed of (kept after later
+    /// successes; `none` until a call fails).
+    pub last_error: u8,
     /// Reserved, zero.
-    pub reserved: [u8; 2],
+    pub reserved: [u8; 1],
     /// Latency of the last completed call (success or failure), microseconds.
     pub last_latency_us: u32,
     /// Refreshes started (each sends one prompt per agent).
     pub refreshes: u64,
     /// HTTP requests sent, retries included (each counts against the hourly budget).
     pub calls: u64,
-    /// Requests that failed (timeout, transport error, HTTP error status).
+    /// Requests that failed (timeout, transport error, HTTP error status, a 2xx that is not a
+    /// chat completion).
     pub failures: u64,
     /// Of `failures`: timeouts.
     pub timeouts: u64,

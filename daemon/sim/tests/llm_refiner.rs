@@ -44,6 +44,22 @@ enum Mode {
     },
     /// Answers after 30 s.
     Stall,
+    /// The answer inside a markdown code fence (```` ```json ````).
+    Fenced,
+    /// The answer with a sentence before and after it.
+    Prose,
+    /// Each item (and the answer) carries a field the schema does not name.
+    ExtraFields,
+    /// Ids and confidences written as strings.
+    StringNumbers,
+    /// A 200 with an HTML page.
+    Html,
+    /// A 200 chat completion with an empty `choices` list.
+    EmptyChoices,
+    /// A 200 chat completion whose message content is null.
+    NullContent,
+    /// Good answers, except every second call of this agent gets a 500.
+    Flaky(&'static str),
 }
 
 #[derive(Debug, Clone)]
@@ -58,6 +74,12 @@ struct Recorded {
 struct ServerState {
     mode: Mode,
     requests: Vec<Recorded>,
+}
+
+impl ServerState {
+    fn calls_of(&self, agent: &str) -> usize {
+        self.requests.iter().filter(|r| r.agent == agent).count()
+    }
 }
 
 type Shared = Arc<Mutex<ServerState>>;
@@ -106,7 +128,14 @@ async fn handle(State(state): State<Shared>, headers: HeaderMap, body: String) -
         if let Mode::Status { status, retry_after_s, n } = mode {
             s.mode = if n > 1 { Mode::Status { status, retry_after_s, n: n - 1 } } else { Mode::Good };
         }
-        mode
+        if let Mode::Flaky(flaky) = mode
+            && flaky == agent
+            && s.calls_of(&agent) % 2 == 0
+        {
+            Mode::Status { status: 500, retry_after_s: None, n: 1 }
+        } else {
+            mode
+        }
     };
     match mode {
         Mode::Status { status, retry_after_s, .. } => {
@@ -117,15 +146,26 @@ async fn handle(State(state): State<Shared>, headers: HeaderMap, body: String) -
             return response;
         }
         Mode::Stall => tokio::time::sleep(Duration::from_secs(30)).await,
+        Mode::Html => {
+            let page = "<!DOCTYPE html><html><body><h1>Welcome to nginx!</h1></body></html>";
+            return (StatusCode::OK, [("content-type", "text/html")], page).into_response();
+        }
         _ => {}
     }
     let user: Value = serde_json::from_str(request["messages"][1]["content"].as_str().unwrap_or("null")).unwrap();
     let content = answer(&agent, &user, mode);
+    let choices = match mode {
+        Mode::EmptyChoices => json!([]),
+        Mode::NullContent => {
+            json!([{"index": 0, "message": {"role": "assistant", "content": null}, "finish_reason": "length"}])
+        }
+        _ => json!([{"index": 0, "message": {"role": "assistant", "content": content}, "finish_reason": "stop"}]),
+    };
     let completion = json!({
         "id": "chatcmpl-test",
         "object": "chat.completion",
         "model": request["model"],
-        "choices": [{"index": 0, "message": {"role": "assistant", "content": content}, "finish_reason": "stop"}],
+        "choices": choices,
         "usage": {"prompt_tokens": 1, "completion_tokens": 1, "total_tokens": 2}
     });
     (StatusCode::OK, [("content-type", "application/json")], completion.to_string()).into_response()
@@ -138,7 +178,11 @@ fn answer(agent: &str, user: &Value, mode: Mode) -> String {
     }
     let id_shift = if mode == Mode::UnknownIds { 100_000 } else { 0 };
     let relation = |canonical: &'static str| if mode == Mode::NonCanonical { "opens it by yanking" } else { canonical };
-    let id = |v: &Value| v["id"].as_u64().unwrap() + id_shift;
+    let id = |v: &Value| {
+        let id = v["id"].as_u64().unwrap() + id_shift;
+        if mode == Mode::StringNumbers { json!(id.to_string()) } else { json!(id) }
+    };
+    let conf = |c: f64| if mode == Mode::StringNumbers { json!(c.to_string()) } else { json!(c) };
     let answer = match agent {
         "local_relations" => {
             let mut items = Vec::new();
@@ -148,10 +192,10 @@ fn answer(agent: &str, user: &Value, mode: Mode) -> String {
                     if mode == Mode::WrongKinds { (id(object), id(part)) } else { (id(part), id(object)) };
                 let label = part["label"].as_str().unwrap();
                 if label.ends_with("handle") {
-                    items.push(json!({"part_id": part_id, "object_id": object_id, "relation": relation("pull to open or close"), "confidence": 0.9}));
-                    items.push(json!({"part_id": part_id, "object_id": object_id, "relation": relation("push or press to open"), "confidence": 0.6}));
+                    items.push(json!({"part_id": part_id, "object_id": object_id, "relation": relation("pull to open or close"), "confidence": conf(0.9)}));
+                    items.push(json!({"part_id": part_id, "object_id": object_id, "relation": relation("push or press to open"), "confidence": conf(0.6)}));
                 } else if label.ends_with("knob") {
-                    items.push(json!({"part_id": part_id, "object_id": object_id, "relation": relation("rotate to adjust the setting or temperature"), "confidence": 0.8}));
+                    items.push(json!({"part_id": part_id, "object_id": object_id, "relation": relation("rotate to adjust the setting or temperature"), "confidence": conf(0.8)}));
                 }
             }
             json!({"relations": items})
@@ -160,8 +204,9 @@ fn answer(agent: &str, user: &Value, mode: Mode) -> String {
             let mut items = Vec::new();
             for source in user["sources"].as_array().unwrap() {
                 let source_id = id(&source["source"]);
-                let target_id = if mode == Mode::WrongKinds { source_id } else { id(&source["candidate_targets"][0]) };
-                items.push(json!({"source_id": source_id, "target_id": target_id, "relation": relation("remote to control"), "confidence": 0.9}));
+                let target_id =
+                    if mode == Mode::WrongKinds { source_id.clone() } else { id(&source["candidate_targets"][0]) };
+                items.push(json!({"source_id": source_id, "target_id": target_id, "relation": relation("remote to control"), "confidence": conf(0.9)}));
             }
             json!({"relations": items})
         }
@@ -178,12 +223,30 @@ fn answer(agent: &str, user: &Value, mode: Mode) -> String {
                 } else {
                     continue;
                 };
-                items.push(json!({"node_id": id(node), "affordances": names, "confidence": 0.8}));
+                items.push(json!({"node_id": id(node), "affordances": names, "confidence": conf(0.8)}));
             }
             json!({"affordances": items})
         }
     };
-    answer.to_string()
+    dress(answer, mode)
+}
+
+/// The answer as the mode's model writes it around the JSON.
+fn dress(mut answer: Value, mode: Mode) -> String {
+    match mode {
+        Mode::Fenced => format!("```json\n{answer:#}\n```"),
+        Mode::Prose => format!("Here is the JSON you asked for:\n{answer}\nI left out anything I was unsure of."),
+        Mode::ExtraFields => {
+            for list in answer.as_object_mut().unwrap().values_mut() {
+                for item in list.as_array_mut().unwrap() {
+                    item["reasoning"] = json!("handles are usually pulled");
+                }
+            }
+            answer["notes"] = json!("all ids are from the prompt");
+            answer.to_string()
+        }
+        _ => answer.to_string(),
+    }
 }
 
 fn node(id: u32, label: &str, kind: NodeKind, parent: Option<u32>, min: [f32; 3], max: [f32; 3]) -> GraphNode {
@@ -553,4 +616,109 @@ fn paraphrased_labels_map_to_the_nearest_canonical_phrase_with_the_text_encoder(
     assert_eq!(mapper.affordance("hook pulling"), Some(3));
     let mut plain = LabelMapper::new(None, 0.8);
     assert_eq!(plain.relation("pull to open or shut"), None, "no encoder: rejected");
+}
+
+/// A functional edge as the tests compare them: source, target, phrase, origin.
+type Functional = (u32, u32, &'static str, EdgeOrigin);
+
+/// The LLM's contribution to a graph: its functional edges and every node's affordances.
+fn llm_view(graph: &SceneGraph) -> (Vec<Functional>, Vec<(u32, u16)>) {
+    let affordances = graph.nodes.iter().map(|n| (n.id, n.affordance_bits)).collect();
+    (functional(graph), affordances)
+}
+
+#[test]
+fn fenced_prose_extra_field_and_string_number_answers_give_the_same_edges() {
+    let server = TestServer::start(Mode::Good);
+    let (mut plain_enricher, _) = enricher(&overrides(&server, &[]));
+    let plain = llm_view(&refine(&mut plain_enricher));
+    assert!(plain.0.iter().any(|e| e.3 == EdgeOrigin::Llm), "the plain answers were applied: {plain:?}");
+    for mode in [Mode::Fenced, Mode::Prose, Mode::ExtraFields, Mode::StringNumbers] {
+        let server = TestServer::start(mode);
+        let (mut enricher, stats) = enricher(&overrides(&server, &[]));
+        assert_eq!(llm_view(&refine(&mut enricher)), plain, "{mode:?}");
+        assert_eq!(stats.health().rejections, [0; 8], "{mode:?}");
+        assert_eq!(stats.accepted.load(Ordering::Relaxed), 6, "{mode:?}");
+        assert_eq!(stats.failures.load(Ordering::Relaxed), 0, "{mode:?}");
+    }
+}
+
+#[test]
+fn extra_fields_are_malformed_when_the_profile_asks_for_strict_items() {
+    let server = TestServer::start(Mode::ExtraFields);
+    let (mut enricher, stats) = enricher(&overrides(&server, &["reasoner.llm.ignore_unknown_fields=false"]));
+    let graph = refine(&mut enricher);
+    assert!(functional(&graph).iter().all(|e| e.3 != EdgeOrigin::Llm));
+    // The answer objects carry "notes": each of the three answers is unusable as a whole.
+    assert_eq!(stats.rejections(Rejection::Malformed), 3);
+}
+
+#[test]
+fn non_chat_200s_are_failures_that_open_the_breaker() {
+    for mode in [Mode::Html, Mode::EmptyChoices, Mode::NullContent] {
+        let server = TestServer::start(mode);
+        let (mut enricher, stats) = enricher(&overrides(&server, &["reasoner.llm.breaker_failures=3"]));
+        let mut graph = corner();
+        let prior = enricher.enrich(&mut graph);
+        assert!(enricher.refine_now(&mut graph, prior.clone(), Duration::from_secs(30)), "{mode:?}");
+        assert!(graph.edges.iter().all(|e| e.origin != EdgeOrigin::Llm), "{mode:?}");
+        // Not retried (the server answered, just not with a completion): one failed call per agent.
+        assert_eq!(stats.calls.load(Ordering::Relaxed), 3, "{mode:?}");
+        assert_eq!(stats.failures.load(Ordering::Relaxed), 3, "{mode:?}");
+        assert!(stats.breaker_open(), "{mode:?}");
+        assert_eq!(stats.state(), RefinerState::BreakerOpen as u8, "{mode:?}");
+        assert_eq!(stats.last_error(), "not_chat", "{mode:?}");
+        assert_eq!(stats.health().rejections, [0; 8], "no answer reached the gate: {mode:?}");
+        let report = op3dsg_runtime::ipc::HealthReport::from(&op3dsg_ipc_types::Health {
+            refiner: stats.health(),
+            ..op3dsg_ipc_types::Health::default()
+        });
+        assert_eq!(report.refiner.last_error, "not_chat");
+        assert!(enricher.refine_now(&mut graph, prior, Duration::from_secs(30)));
+        assert_eq!(server.requests().len(), 3, "the open breaker sends nothing: {mode:?}");
+    }
+}
+
+#[test]
+fn with_a_flaky_agent_no_accepted_edge_disappears_while_its_nodes_exist() {
+    let server = TestServer::start(Mode::Flaky("local_relations"));
+    let (mut enricher, stats) = enricher(&overrides(&server, &["reasoner.llm.max_retries=0"]));
+    let mut seen: Vec<Functional> = Vec::new();
+    for round in 0..8u64 {
+        let mut graph = corner();
+        graph.version = 12 + round;
+        let prior = enricher.enrich(&mut graph);
+        assert!(enricher.refine_now(&mut graph, prior, Duration::from_secs(30)));
+        let now = functional(&graph);
+        for edge in &seen {
+            assert!(now.contains(edge), "round {round}: {edge:?} disappeared; now {now:?}");
+        }
+        for edge in now.into_iter().filter(|e| matches!(e.3, EdgeOrigin::Llm | EdgeOrigin::KnowledgeAndLlm)) {
+            if !seen.contains(&edge) {
+                seen.push(edge);
+            }
+        }
+    }
+    // The local agent failed on every second call, the others never.
+    assert_eq!(stats.failures.load(Ordering::Relaxed), 4);
+    assert!(seen.contains(&(5, 1, "push or press to open", EdgeOrigin::Llm)), "{seen:?}");
+    assert!(seen.contains(&(4, 3, "remote to control", EdgeOrigin::KnowledgeAndLlm)), "{seen:?}");
+    assert_eq!(stats.rejections(Rejection::Stale), 0);
+
+    // When the knob and its stove go while every call fails, their LLM edge and the knob's
+    // affordances go (counted stale) and the rest stays.
+    server.set_mode(Mode::Status { status: 500, retry_after_s: None, n: 3 });
+    let mut graph = corner();
+    graph.version = 30;
+    graph.nodes.retain(|n| n.id != 6 && n.id != 2);
+    graph.edges.retain(|e| e.source_id != 6);
+    let prior = enricher.enrich(&mut graph);
+    assert!(enricher.refine_now(&mut graph, prior, Duration::from_secs(30)));
+    let now = functional(&graph);
+    assert!(!now.iter().any(|e| e.0 == 6), "{now:?}");
+    assert!(now.contains(&(5, 1, "push or press to open", EdgeOrigin::Llm)), "{now:?}");
+    assert!(now.contains(&(4, 3, "remote to control", EdgeOrigin::KnowledgeAndLlm)), "{now:?}");
+    assert_eq!(stats.failures.load(Ordering::Relaxed), 4 + 3);
+    // The knob's local relation and its affordances.
+    assert_eq!(stats.rejections(Rejection::Stale), 2);
 }

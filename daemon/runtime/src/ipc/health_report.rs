@@ -136,6 +136,11 @@ pub struct RefinerReport {
     pub accepted: u64,
     /// Rejections by reason (`malformed`, `unknown_node`, `wrong_kind`, `non_canonical`, `stale`).
     pub rejections: std::collections::BTreeMap<String, u64>,
+    /// What the last failed call failed of (`none`, `timeout`, `refused`, `dns`, `tls`,
+    /// `connect`, `transport`, `http_status`, `rate_limited`, `not_chat`; see
+    /// `op3dsg_ipc_types::REFINER_ERRORS`).
+    #[serde(default)]
+    pub last_error: String,
     /// Latency of the last call, microseconds.
     pub last_latency_us: u32,
     /// Graph version of the last verified result.
@@ -158,6 +163,11 @@ impl From<&op3dsg_ipc_types::RefinerHealth> for RefinerReport {
                 .zip(r.rejections)
                 .map(|(name, n)| ((*name).to_owned(), n))
                 .collect(),
+            last_error: op3dsg_ipc_types::REFINER_ERRORS
+                .get(r.last_error as usize)
+                .copied()
+                .unwrap_or("unknown")
+                .to_owned(),
             last_latency_us: r.last_latency_us,
             last_graph_version: r.last_graph_version,
         }

@@ -58,10 +58,10 @@ pub struct GraphEnricher {
     prior_builder: prior::PriorBuilder,
     reasoner: Box<dyn Reasoner>,
     refiner: Option<llm::LlmRefiner>,
-    /// The refiner's latest verified result, applied to every graph until a newer one arrives.
-    llm_output: Option<ReasonerOutput>,
-    /// `llm_output` not yet applied (its stale items are counted once).
-    llm_output_new: bool,
+    /// Every LLM agent's last accepted result, re-checked against and applied to every graph
+    /// until a newer one arrives (items whose nodes are gone or changed kind are dropped and
+    /// counted `stale` once).
+    llm_result: Option<llm::LlmResult>,
     /// Batch runs: the refiner only refreshes through [`GraphEnricher::refine_now`].
     synchronous: bool,
     setup: ReasoningSetup,
@@ -106,8 +106,7 @@ impl GraphEnricher {
             prior_builder: prior::PriorBuilder::default(),
             reasoner,
             refiner,
-            llm_output: None,
-            llm_output_new: false,
+            llm_result: None,
             synchronous: false,
             setup: ReasoningSetup::Split,
         }))
@@ -168,8 +167,7 @@ impl GraphEnricher {
         apply(graph, &output, EdgeOrigin::Knowledge);
         if self.refiner.is_some() && !self.synchronous {
             if let Some(result) = self.refiner.as_ref().and_then(llm::LlmRefiner::try_result) {
-                self.llm_output = Some(result);
-                self.llm_output_new = true;
+                self.llm_result = Some(result);
             }
             self.apply_llm(graph);
             if let Some(refiner) = &self.refiner {
@@ -197,8 +195,7 @@ impl GraphEnricher {
         refiner.offer_forced(prior);
         match refiner.wait_result(timeout) {
             Some(result) => {
-                self.llm_output = Some(result);
-                self.llm_output_new = true;
+                self.llm_result = Some(result);
                 self.apply_llm(graph);
                 true
             }
@@ -206,17 +203,17 @@ impl GraphEnricher {
         }
     }
 
+    /// Applies every agent's last accepted result to `graph`, each item re-checked against it
+    /// first (its nodes there with the kind they had; a local relation's part still on its
+    /// object). Items that fail are dropped here and counted `stale` by the refiner, which
+    /// prunes its own copy against the same graph's prior.
     fn apply_llm(&mut self, graph: &mut SceneGraph) {
-        let (Some(output), Some(refiner)) = (&self.llm_output, &self.refiner) else { return };
-        let stale = apply(graph, output, EdgeOrigin::Llm);
-        if self.llm_output_new {
-            self.llm_output_new = false;
-            if stale > 0 {
-                let mut rejections = llm::gate::Rejections::default();
-                rejections.0[llm::gate::Rejection::Stale as usize] = stale as u64;
-                refiner.stats().add_rejections(&rejections);
-            }
-        }
+        let Some(result) = &mut self.llm_result else { return };
+        let nodes = &graph.nodes;
+        result.retain_valid(|id| {
+            nodes.binary_search_by_key(&id, |n| n.id).ok().map(|i| (nodes[i].kind, nodes[i].parent_id))
+        });
+        apply(graph, &result.merged(), EdgeOrigin::Llm);
     }
 }
 

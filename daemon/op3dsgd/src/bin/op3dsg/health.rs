@@ -92,7 +92,7 @@ fn health_text(h: &HealthReport) -> String {
     if r.state != "off" {
         let _ = writeln!(
             s,
-            "llm refiner {}{}  refreshes {}  calls {}  failures {} (timeouts {}, 429 {})  accepted {}  last latency {:.0} ms  last graph version {}",
+            "llm refiner {}{}  refreshes {}  calls {}  failures {} (timeouts {}, 429 {}, last {})  accepted {}  last latency {:.0} ms  last graph version {}",
             r.state,
             if r.breaker_open { " (breaker open)" } else { "" },
             r.refreshes,
@@ -100,6 +100,7 @@ fn health_text(h: &HealthReport) -> String {
             r.failures,
             r.timeouts,
             r.rate_limited,
+            r.last_error,
             r.accepted,
             f64::from(r.last_latency_us) / 1000.0,
             r.last_graph_version
@@ -125,12 +126,14 @@ mod tests {
         health.refiner.calls = 6;
         health.refiner.failures = 6;
         health.refiner.rejections[1] = 2;
+        health.refiner.last_error = 2;
         health.pose.accepted = 5;
         health.pose.out_of_order = 1;
         let text = health_text(&HealthReport::from(&health));
         assert!(text.contains("poses  accepted 5  out_of_order 1\n"), "{text}");
         assert!(text.contains("llm refiner breaker_open (breaker open)  refreshes 0  calls 6  failures 6"), "{text}");
         assert!(text.contains("unknown_node 2"), "{text}");
+        assert!(text.contains("failures 6 (timeouts 0, 429 0, last refused)"), "{text}");
         let json = serde_json::to_value(HealthReport::from(&health)).unwrap();
         assert_eq!(json["refiner"]["rejections"]["unknown_node"], 2);
     }

@@ -87,15 +87,48 @@ pub fn load_api_key_from(
     Ok(env(&config.api_key_env).as_deref().and_then(ApiKey::new))
 }
 
+/// What a transport error came from, found by walking the error's source chain.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TransportCause {
+    /// Nothing listens at the address (`ECONNREFUSED`).
+    Refused,
+    /// The host name did not resolve.
+    Dns,
+    /// TLS handshake or certificate failure.
+    Tls,
+    /// Any other failure to connect (unreachable network, ...).
+    Connect,
+    /// The connection broke after it was made (reset, closed early, protocol error).
+    Other,
+}
+
+impl TransportCause {
+    /// Short name for logs and health (`op3dsg_ipc_types::REFINER_ERRORS`).
+    pub fn name(self) -> &'static str {
+        match self {
+            TransportCause::Refused => "refused",
+            TransportCause::Dns => "dns",
+            TransportCause::Tls => "tls",
+            TransportCause::Connect => "connect",
+            TransportCause::Other => "transport",
+        }
+    }
+}
+
 /// Why a call failed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum CallError {
     /// No answer within `request_timeout_s` (or no connection within `connect_timeout_s`).
     #[error("timed out")]
     Timeout,
-    /// Connection or protocol failure.
-    #[error("transport error: {0}")]
-    Transport(String),
+    /// Connection or protocol failure; `detail` is the whole source chain.
+    #[error("transport error ({}): {detail}", cause.name())]
+    Transport {
+        /// What it came from.
+        cause: TransportCause,
+        /// The error and its sources, `: `-separated.
+        detail: String,
+    },
     /// An HTTP error status.
     #[error("HTTP status {status}")]
     Status {
@@ -104,7 +137,8 @@ pub enum CallError {
         /// `Retry-After` in seconds, when the server sent one.
         retry_after: Option<Duration>,
     },
-    /// A 2xx answer that is not a chat completion with a text message.
+    /// A 2xx answer that is not a chat completion with a text message (an HTML page, an empty
+    /// `choices` list, null content): a failure like any other, it feeds the breaker.
     #[error("not a chat completion: {0}")]
     BadEnvelope(String),
 }
@@ -113,11 +147,67 @@ impl CallError {
     /// Timeouts, transport errors, 429 and 5xx are worth another try.
     pub fn retryable(&self) -> bool {
         match self {
-            CallError::Timeout | CallError::Transport(_) => true,
+            CallError::Timeout | CallError::Transport { .. } => true,
             CallError::Status { status, .. } => *status == 429 || *status >= 500,
             CallError::BadEnvelope(_) => false,
         }
     }
+
+    /// Short name of the kind of failure (`op3dsg_ipc_types::REFINER_ERRORS`).
+    pub fn name(&self) -> &'static str {
+        match self {
+            CallError::Timeout => "timeout",
+            CallError::Transport { cause, .. } => cause.name(),
+            CallError::Status { status: 429, .. } => "rate_limited",
+            CallError::Status { .. } => "http_status",
+            CallError::BadEnvelope(_) => "not_chat",
+        }
+    }
+}
+
+/// A reqwest error as a [`CallError`]: timeouts apart, the cause is read off the source chain
+/// (an `io::Error` of kind `ConnectionRefused`, a resolver or TLS error), and the detail lists
+/// every source (reqwest's own message alone is "error sending request").
+fn classify(error: reqwest::Error) -> CallError {
+    use std::error::Error as _;
+    if error.is_timeout() {
+        return CallError::Timeout;
+    }
+    let mut messages = Vec::new();
+    let mut refused = false;
+    let mut source: Option<&(dyn std::error::Error + 'static)> = error.source();
+    while let Some(e) = source {
+        if let Some(io) = e.downcast_ref::<std::io::Error>() {
+            refused |= io.kind() == std::io::ErrorKind::ConnectionRefused;
+            if io.kind() == std::io::ErrorKind::TimedOut {
+                return CallError::Timeout;
+            }
+        }
+        let text = e.to_string();
+        if messages.last() != Some(&text) {
+            messages.push(text);
+        }
+        source = e.source();
+    }
+    let chain = messages.join(": ").to_lowercase();
+    let cause = if refused || chain.contains("connection refused") {
+        TransportCause::Refused
+    } else if chain.contains("dns error") || chain.contains("failed to lookup address") || chain.contains("resolve") {
+        TransportCause::Dns
+    } else if chain.contains("tls") || chain.contains("certificate") || chain.contains("handshake") {
+        TransportCause::Tls
+    } else if error.is_connect() {
+        TransportCause::Connect
+    } else {
+        TransportCause::Other
+    };
+    // Without the URL: it is in the profile already, and keeps messages short.
+    let mut detail = error.without_url().to_string();
+    for m in messages {
+        detail.push_str(": ");
+        detail.push_str(&m);
+    }
+    CallError::Transport { cause, detail }
 }
 
 #[derive(Deserialize)]
@@ -202,14 +292,6 @@ impl ChatClient {
         if let Some(value) = &self.authorization {
             request = request.header(AUTHORIZATION, value.clone());
         }
-        let classify = |e: reqwest::Error| {
-            if e.is_timeout() {
-                CallError::Timeout
-            } else {
-                // Without the URL: it is in the profile already, and keeps messages short.
-                CallError::Transport(e.without_url().to_string())
-            }
-        };
         let response = request.send().await.map_err(classify)?;
         let status = response.status();
         if !status.is_success() {
@@ -223,14 +305,14 @@ impl ChatClient {
             return Err(CallError::Status { status: status.as_u16(), retry_after });
         }
         let bytes = response.bytes().await.map_err(classify)?;
-        let completion: Completion =
-            serde_json::from_slice(&bytes).map_err(|e| CallError::BadEnvelope(e.to_string()))?;
-        completion
-            .choices
-            .into_iter()
-            .next()
-            .and_then(|c| c.message.content)
-            .ok_or_else(|| CallError::BadEnvelope("no choice with a text message".to_owned()))
+        let completion: Completion = serde_json::from_slice(&bytes).map_err(|e| {
+            let body = String::from_utf8_lossy(&bytes[..bytes.len().min(60)]).replace(char::is_control, " ");
+            CallError::BadEnvelope(format!("{e} (body starts {body:?})"))
+        })?;
+        let Some(choice) = completion.choices.into_iter().next() else {
+            return Err(CallError::BadEnvelope("empty \"choices\" list".to_owned()));
+        };
+        choice.message.content.ok_or_else(|| CallError::BadEnvelope("the message's content is null".to_owned()))
     }
 }
 
@@ -244,6 +326,54 @@ mod tests {
         assert_eq!(format!("{key} {key:?}"), "<redacted> <redacted>");
         let client = ChatClient::new(&LlmConfig::default(), Some(&key)).unwrap();
         assert!(!format!("{client:?}").contains("sk-secret-123"), "{client:?}");
+    }
+
+    fn call(base_url: String) -> Result<String, CallError> {
+        let config = LlmConfig { base_url, model: "m".to_owned(), connect_timeout_s: 5.0, ..LlmConfig::default() };
+        let client = ChatClient::new(&config, None).unwrap();
+        let prompt = Prompt {
+            agent: super::super::prompt::Agent::Local,
+            system: "s".to_owned(),
+            user: "{}".to_owned(),
+            schema: json!({}),
+        };
+        let runtime = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+        runtime.block_on(client.complete(&prompt))
+    }
+
+    #[test]
+    fn a_refused_connection_names_its_cause() {
+        let port = {
+            let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+            listener.local_addr().unwrap().port()
+        };
+        let error = call(format!("http://127.0.0.1:{port}/v1")).unwrap_err();
+        let CallError::Transport { cause, detail } = &error else { panic!("{error:?}") };
+        assert_eq!(*cause, TransportCause::Refused, "{detail}");
+        assert_eq!(error.name(), "refused");
+        let text = error.to_string();
+        assert!(text.starts_with("transport error (refused): error sending request"), "{text}");
+        assert!(text.to_lowercase().contains("refused"), "the source chain is in the message: {text}");
+        assert!(!text.contains(&port.to_string()), "no URL: {text}");
+    }
+
+    #[test]
+    fn every_failure_kind_has_a_health_name() {
+        let errors = [
+            CallError::Timeout,
+            CallError::Transport { cause: TransportCause::Dns, detail: String::new() },
+            CallError::Transport { cause: TransportCause::Tls, detail: String::new() },
+            CallError::Transport { cause: TransportCause::Connect, detail: String::new() },
+            CallError::Transport { cause: TransportCause::Other, detail: String::new() },
+            CallError::Transport { cause: TransportCause::Refused, detail: String::new() },
+            CallError::Status { status: 500, retry_after: None },
+            CallError::Status { status: 429, retry_after: None },
+            CallError::BadEnvelope(String::new()),
+        ];
+        for e in &errors {
+            assert!(op3dsg_ipc_types::REFINER_ERRORS[1..].contains(&e.name()), "{e:?}");
+        }
+        assert_eq!(errors.len(), op3dsg_ipc_types::REFINER_ERRORS.len() - 1);
     }
 
     #[test]

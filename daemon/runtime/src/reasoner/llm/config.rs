@@ -40,6 +40,10 @@ pub struct LlmConfig {
     pub api_key_credential: String,
     /// `json_schema` or `json_object`.
     pub response_format: ResponseFormat,
+    /// Fields an answer or one of its items carries beyond the schema's are ignored (`true`);
+    /// `false`: such an item (or answer) is rejected as `malformed`.
+    #[serde(default = "default_true")]
+    pub ignore_unknown_fields: bool,
     /// Sampling temperature.
     pub temperature: f32,
     /// Upper bound of answer tokens per call.
@@ -91,6 +95,7 @@ impl Default for LlmConfig {
             api_key_file: None,
             api_key_credential: default_api_key_credential(),
             response_format: ResponseFormat::JsonSchema,
+            ignore_unknown_fields: true,
             temperature: 0.0,
             max_tokens: 4096,
             request_timeout_s: 60.0,
@@ -108,6 +113,10 @@ impl Default for LlmConfig {
             max_prompt_items: 400,
         }
     }
+}
+
+fn default_true() -> bool {
+    true
 }
 
 fn seconds(s: f64) -> Duration {

@@ -9,19 +9,22 @@
 //! - [`client`]: the HTTP client (reqwest on tokio, structured JSON output);
 //! - [`gate`]: strict parsing, endpoint and kind checks, canonical label mapping, rejections
 //!   counted by reason;
-//! - [`refiner`]: the refiner thread (latest snapshot in, verified [`ReasonerOutput`]s out).
+//! - [`refiner`]: the refiner thread (latest snapshot in, verified results out);
+//! - [`result`]: each agent's last accepted result, kept per agent and re-checked against the
+//!   graph it is applied to.
 //!
 //! With `reasoner.kind = "llm"` the knowledge reasoner still runs on every published graph; the
 //! refiner's latest verified result is applied on top ([`crate::reasoner::apply`], origin
-//! `llm`, or `knowledge+llm` where both agree), to the nodes that still exist.
-//!
-//! [`ReasonerOutput`]: crate::reasoner::ReasonerOutput
+//! `llm`, or `knowledge+llm` where both agree), to the nodes that still exist with the kind they
+//! had.
 
 pub mod client;
 pub mod config;
 pub mod gate;
 pub mod prompt;
 pub mod refiner;
+pub mod result;
 
 pub use config::{LlmConfig, ResponseFormat};
 pub use refiner::{LlmRefiner, RefinerParts, RefinerState, RefinerStats};
+pub use result::{AgentResult, LlmResult};

@@ -29,8 +29,9 @@ use tracing::{debug, info, warn};
 
 use super::client::{ApiKey, CallError, ChatClient};
 use super::config::LlmConfig;
-use super::gate::{self, LabelMapper, Rejection, Rejections};
+use super::gate::{self, LabelMapper, ParseOptions, Rejection, RejectionLog, Rejections};
 use super::prompt::{self, Prompt, PromptSet};
+use super::result::{AgentResult, LlmResult};
 use crate::knowledge::KnowledgeBase;
 use crate::prior::PriorGraph;
 use crate::reasoner::ReasonerOutput;
@@ -58,6 +59,7 @@ pub enum RefinerState {
 pub struct RefinerStats {
     state: AtomicU8,
     breaker_open: AtomicBool,
+    last_error: AtomicU8,
     last_latency_us: AtomicU32,
     /// Refreshes started.
     pub refreshes: AtomicU64,
@@ -96,6 +98,18 @@ impl RefinerStats {
             slot.fetch_add(n, Ordering::Relaxed);
         }
     }
+    /// What the last failed call failed of (`op3dsg_ipc_types::REFINER_ERRORS`; `none` until
+    /// one fails).
+    pub fn last_error(&self) -> &'static str {
+        op3dsg_ipc_types::REFINER_ERRORS
+            .get(self.last_error.load(Ordering::Relaxed) as usize)
+            .copied()
+            .unwrap_or("none")
+    }
+    fn set_last_error(&self, error: &CallError) {
+        let i = op3dsg_ipc_types::REFINER_ERRORS.iter().position(|n| *n == error.name()).unwrap_or(0);
+        self.last_error.store(i as u8, Ordering::Relaxed);
+    }
     /// Whether the breaker is open.
     pub fn breaker_open(&self) -> bool {
         self.breaker_open.load(Ordering::Relaxed)
@@ -105,6 +119,7 @@ impl RefinerStats {
         let mut h = RefinerHealth {
             state: self.state(),
             breaker_open: u8::from(self.breaker_open()),
+            last_error: self.last_error.load(Ordering::Relaxed),
             last_latency_us: self.last_latency_us.load(Ordering::Relaxed),
             refreshes: self.refreshes.load(Ordering::Relaxed),
             calls: self.calls.load(Ordering::Relaxed),
@@ -147,7 +162,7 @@ struct Shared {
 /// Handle of the refiner thread, owned by the fusion thread (or the batch runner).
 pub struct LlmRefiner {
     shared: Arc<Shared>,
-    results: Receiver<ReasonerOutput>,
+    results: Receiver<LlmResult>,
     stats: Arc<RefinerStats>,
     thread: Option<std::thread::JoinHandle<()>>,
 }
@@ -173,7 +188,7 @@ impl LlmRefiner {
         let stats = Arc::new(RefinerStats::default());
         stats.set_state(RefinerState::Idle);
         // Results: latest wins (the refiner pops an unread older one before pushing).
-        let (results_tx, results_rx) = crossbeam_channel::bounded::<ReasonerOutput>(1);
+        let (results_tx, results_rx) = crossbeam_channel::bounded::<LlmResult>(1);
         let worker = Worker {
             config: config.clone(),
             client,
@@ -183,10 +198,12 @@ impl LlmRefiner {
             stats: stats.clone(),
             results_tx,
             results_rx: results_rx.clone(),
+            held: LlmResult::default(),
             calls_in_hour: Mutex::new(VecDeque::new()),
             consecutive_failures: AtomicU32::new(0),
             breaker_until: Mutex::new(None),
             permits: Semaphore::new(config.max_concurrent_calls as usize),
+            rejection_log: RateLimitedRejections::default(),
         };
         let runtime = tokio::runtime::Builder::new_current_thread()
             .enable_all()
@@ -208,8 +225,9 @@ impl LlmRefiner {
         self.shared.wake.notify_one();
     }
 
-    /// Hands `prior` over for an immediate refresh whatever changed; its result (empty when
-    /// every call failed or was refused) follows on the results channel (the batch runner).
+    /// Hands `prior` over for an immediate refresh whatever changed; its result (every agent's
+    /// last accepted one, unchanged where calls failed or were refused) follows on the results
+    /// channel (the batch runner).
     pub fn offer_forced(&self, prior: Arc<PriorGraph>) {
         if let Ok(mut slot) = self.shared.slot.lock() {
             *slot = Some(prior);
@@ -224,13 +242,14 @@ impl LlmRefiner {
         self.shared.synchronous.store(synchronous, Ordering::SeqCst);
     }
 
-    /// The latest verified result, if one arrived since the last call.
-    pub fn try_result(&self) -> Option<ReasonerOutput> {
+    /// The latest verified result (every agent's last accepted one), if one arrived since the
+    /// last call.
+    pub fn try_result(&self) -> Option<LlmResult> {
         self.results.try_recv().ok()
     }
 
     /// Waits up to `timeout` for a result (the batch runner; never the fusion thread).
-    pub fn wait_result(&self, timeout: Duration) -> Option<ReasonerOutput> {
+    pub fn wait_result(&self, timeout: Duration) -> Option<LlmResult> {
         self.results.recv_timeout(timeout).ok()
     }
 
@@ -258,12 +277,56 @@ struct Worker {
     mapper: LabelMapper,
     shared: Arc<Shared>,
     stats: Arc<RefinerStats>,
-    results_tx: Sender<ReasonerOutput>,
-    results_rx: Receiver<ReasonerOutput>,
+    results_tx: Sender<LlmResult>,
+    results_rx: Receiver<LlmResult>,
+    /// Each agent's last accepted result.
+    held: LlmResult,
     calls_in_hour: Mutex<VecDeque<Instant>>,
     consecutive_failures: AtomicU32,
     breaker_until: Mutex<Option<Instant>>,
     permits: Semaphore,
+    rejection_log: RateLimitedRejections,
+}
+
+/// The gate's rejections in the log: per reason at most one line every
+/// [`REJECTION_LOG_INTERVAL`], with the count since the last line and the first example's
+/// detail (serde's message for `malformed`).
+#[derive(Debug, Default)]
+struct RateLimitedRejections {
+    last: [Option<Instant>; op3dsg_ipc_types::REFINER_REJECTIONS.len()],
+    pending: [u64; op3dsg_ipc_types::REFINER_REJECTIONS.len()],
+}
+
+/// How often each rejection reason may be logged.
+const REJECTION_LOG_INTERVAL: Duration = Duration::from_secs(10);
+
+impl RateLimitedRejections {
+    /// Logs what `log` holds where its reason's interval has passed; the rest is carried over.
+    fn report(&mut self, graph_version: u64, log: &RejectionLog) -> usize {
+        let mut lines = 0;
+        for (i, reason) in op3dsg_ipc_types::REFINER_REJECTIONS.iter().enumerate() {
+            let n = log.counts.0[i];
+            if n == 0 {
+                continue;
+            }
+            self.pending[i] += n;
+            if self.last[i].is_some_and(|t| t.elapsed() < REJECTION_LOG_INTERVAL) {
+                continue;
+            }
+            let example = log.examples[i].as_deref().unwrap_or("");
+            warn!(
+                graph_version,
+                reason,
+                rejected = self.pending[i],
+                example,
+                "LLM answer items rejected by the verification gate"
+            );
+            self.last[i] = Some(Instant::now());
+            self.pending[i] = 0;
+            lines += 1;
+        }
+        lines
+    }
 }
 
 /// How a refresh went.
@@ -304,11 +367,16 @@ impl Worker {
                 break;
             }
             let mut forced = false;
-            if let Ok(mut slot) = self.shared.slot.lock()
-                && let Some(prior) = slot.take()
-            {
+            // The prior and its `forced` flag are taken together, under the lock that set them.
+            let offered = shared
+                .slot
+                .lock()
+                .ok()
+                .and_then(|mut slot| slot.take().map(|prior| (prior, shared.forced.swap(false, Ordering::SeqCst))));
+            if let Some((prior, was_forced)) = offered {
+                self.prune_held(&prior);
                 latest = Some(prior);
-                forced = self.shared.forced.swap(false, Ordering::SeqCst);
+                forced = was_forced;
             }
             if self.stats.state() == RefinerState::BudgetExhausted as u8 && self.budget_left() > 0 {
                 self.stats.set_state(RefinerState::Idle);
@@ -339,7 +407,8 @@ impl Worker {
             };
             if refused {
                 if forced {
-                    self.send(ReasonerOutput { graph_version: prior.version, ..ReasonerOutput::default() });
+                    // Refused calls change nothing accepted.
+                    self.send_held(&prior);
                 }
                 continue;
             }
@@ -376,8 +445,29 @@ impl Worker {
         self.calls_in_hour.lock().map(|mut c| c.push_back(Instant::now())).is_ok()
     }
 
+    /// Sends every agent's last accepted result, re-checked against `prior` (the newest graph
+    /// the refiner has), to the fusion thread.
+    /// Drops the held items whose nodes `prior` no longer has with the kind they had (counted
+    /// `stale`, once: they are gone from the held results for good).
+    fn prune_held(&mut self, prior: &PriorGraph) {
+        let stale =
+            self.held.retain_valid(|id| prior.index_of(id).map(|i| (prior.nodes[i].kind, prior.nodes[i].parent_id)));
+        if stale > 0 {
+            let mut rejections = Rejections::default();
+            rejections.0[Rejection::Stale as usize] = stale as u64;
+            self.stats.add_rejections(&rejections);
+            debug!(graph_version = prior.version, stale, "LLM results dropped: their nodes are gone or changed");
+        }
+    }
+
+    fn send_held(&mut self, prior: &PriorGraph) {
+        self.prune_held(prior);
+        self.held.graph_version = prior.version;
+        self.send(self.held.clone());
+    }
+
     /// Sends a result to the fusion thread; latest wins (an unread older result is replaced).
-    fn send(&self, output: ReasonerOutput) {
+    fn send(&self, output: LlmResult) {
         let _ = self.results_rx.try_recv();
         if self.results_tx.try_send(output).is_ok() {
             self.stats.results.fetch_add(1, Ordering::Relaxed);
@@ -388,7 +478,7 @@ impl Worker {
         let prompts: PromptSet = prompt::build(prior, &self.knowledge, self.config.max_prompt_items as usize);
         if prompts.prompts.is_empty() {
             if forced {
-                self.send(ReasonerOutput { graph_version: prior.version, ..ReasonerOutput::default() });
+                self.send_held(prior);
             }
             return Outcome::Answered;
         }
@@ -400,36 +490,33 @@ impl Worker {
             let calls = prompts.prompts.iter().map(|p| this.call_with_retries(p));
             futures_join_all(calls).await
         };
-        let mut output = ReasonerOutput { graph_version: prior.version, ..ReasonerOutput::default() };
-        let mut rejections = Rejections::default();
+        let mut log = RejectionLog::default();
         let mut accepted = 0;
         let mut answered = false;
+        let options = ParseOptions { ignore_unknown_fields: self.config.ignore_unknown_fields };
         for (prompt, answer) in prompts.prompts.iter().zip(answers) {
+            // A failed call leaves the agent's last accepted result as it was.
             let Some(answer) = answer else { continue };
+            let mut output = ReasonerOutput { graph_version: prior.version, ..ReasonerOutput::default() };
+            let checked =
+                gate::check(prompt.agent, &answer, prior, &prompts, &mut self.mapper, options, &mut output, &mut log);
+            // So does an answer with no usable JSON object in it.
+            let Some(n) = checked else { continue };
             answered = true;
-            accepted +=
-                gate::check(prompt.agent, &answer, prior, &prompts, &mut self.mapper, &mut output, &mut rejections);
+            accepted += n;
+            self.held.accept(AgentResult::new(prompt.agent, prior, output));
         }
-        self.stats.add_rejections(&rejections);
+        self.stats.add_rejections(&log.counts);
         self.stats.accepted.fetch_add(accepted, Ordering::Relaxed);
-        if rejections.total() > 0 {
-            warn!(
-                graph_version = prior.version,
-                malformed = rejections.get(Rejection::Malformed),
-                unknown_node = rejections.get(Rejection::UnknownNode),
-                wrong_kind = rejections.get(Rejection::WrongKind),
-                non_canonical = rejections.get(Rejection::NonCanonical),
-                "LLM answers rejected by the verification gate"
-            );
-        }
+        self.rejection_log.report(prior.version, &log);
         if !answered {
             if forced {
-                self.send(output);
+                self.send_held(prior);
             }
             return Outcome::Failed;
         }
         self.stats.last_graph_version.store(prior.version, Ordering::Relaxed);
-        self.send(output);
+        self.send_held(prior);
         Outcome::Answered
     }
 
@@ -465,14 +552,12 @@ impl Worker {
                     self.stats.breaker_open.store(false, Ordering::Relaxed);
                     return Some(answer);
                 }
-                // A 2xx that is not a completion: the gate counts it as malformed.
-                Err(CallError::BadEnvelope(reason)) => {
-                    debug!(agent = prompt.agent.name(), %reason, "LLM answer is no chat completion");
-                    return Some(String::new());
-                }
+                // A 2xx that is not a chat completion (an HTML page, no choices, null content)
+                // is a failure like a 5xx: it counts, and feeds the breaker.
                 Err(e) => e,
             };
             self.stats.failures.fetch_add(1, Ordering::Relaxed);
+            self.stats.set_last_error(&error);
             let retry_after = match &error {
                 CallError::Timeout => {
                     self.stats.timeouts.fetch_add(1, Ordering::Relaxed);
@@ -485,7 +570,7 @@ impl Worker {
                 CallError::Status { retry_after, .. } => *retry_after,
                 _ => None,
             };
-            warn!(agent = prompt.agent.name(), attempt, error = %error, "LLM call failed");
+            warn!(agent = prompt.agent.name(), attempt, cause = error.name(), error = %error, "LLM call failed");
             if !error.retryable() || attempt == self.config.max_retries {
                 break;
             }
@@ -568,6 +653,21 @@ mod tests {
         assert_eq!(changed_nodes(&before, &prior(&[(1, "cabinet"), (2, "stove"), (3, "tv")])), 0);
         // 2 relabelled, 3 removed, 4 added.
         assert_eq!(changed_nodes(&before, &prior(&[(1, "cabinet"), (2, "oven"), (4, "sink")])), 3);
+    }
+
+    #[test]
+    fn rejections_are_logged_once_per_interval_per_reason() {
+        let mut limiter = RateLimitedRejections::default();
+        let mut log = RejectionLog::default();
+        log.reject(Rejection::Malformed, || "local_relations: no JSON object".to_owned());
+        log.reject(Rejection::UnknownNode, || "affordances: node 9 is not in the graph".to_owned());
+        assert_eq!(limiter.report(1, &log), 2, "one line per reason");
+        assert_eq!(limiter.report(2, &log), 0, "within the interval: carried over");
+        assert_eq!(limiter.pending[Rejection::Malformed as usize], 1);
+        limiter.last[Rejection::Malformed as usize] = Instant::now().checked_sub(REJECTION_LOG_INTERVAL);
+        assert_eq!(limiter.report(3, &log), 1, "the interval passed for malformed only");
+        assert_eq!(limiter.pending[Rejection::Malformed as usize], 0);
+        assert_eq!(limiter.pending[Rejection::UnknownNode as usize], 2);
     }
 
     #[test]
