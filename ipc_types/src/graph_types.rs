@@ -619,8 +619,11 @@ mod record_tests {
             box_min_m: [f(5), f(6), f(7)],
             box_max_m: [f(8), f(9), f(10)],
             affordance_bits: 0x1ff & (seed as u16 * 37),
-            reserved2: [4, 5, 6, 7, 8, 9],
+            reserved2: [4, 5],
+            obb_yaw_rad: f(11),
             last_seen_stamp_ns: u64::from(seed) * 1_000_000_007 + 0x0102_0304_0506_0708,
+            obb_centre_m: [f(12), f(13), f(14)],
+            obb_size_m: [f(15), f(16), f(17)],
         }
     }
 

@@ -46,6 +46,6 @@ pub mod pipeline;
 pub mod prior;
 pub mod queue;
 pub mod reasoner;
-pub mod service;
 pub mod record;
+pub mod service;
 pub mod stats;

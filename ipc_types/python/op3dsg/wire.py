@@ -78,6 +78,7 @@ FUTURE_POSE_LIMIT_NS = 1_000_000_000
 EXECUTION_PROVIDERS = ("unknown", "cpu", "cuda", "openvino")
 REFINER_STATES = ("off", "idle", "calling", "backoff", "breaker_open", "budget_exhausted")
 RECORDER_STATES = ("off", "recording", "failed", "finished")
+REFINER_ERRORS = ("none", "timeout", "refused", "dns", "tls", "connect", "transport", "http_status", "rate_limited", "not_chat")
 REFINER_REJECTIONS = ("malformed", "unknown_node", "wrong_kind", "non_canonical", "stale")
 
 # QoS of the services (``ipc_types/src/services.rs``).
@@ -275,7 +276,8 @@ class RefinerHealth(_Wire):
     _fields_ = [
         ("state", _u8),
         ("breaker_open", _u8),
-        ("reserved", _u8 * 2),
+        ("last_error", _u8),
+        ("reserved", _u8 * 1),
         ("last_latency_us", _u32),
         ("refreshes", _u64),
         ("calls", _u64),

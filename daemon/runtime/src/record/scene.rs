@@ -251,6 +251,7 @@ mod tests {
             observation_count: 1,
             affordance_bits: 0,
             last_seen_stamp_ns: 0,
+            obb: Default::default(),
         }
     }
 

@@ -279,6 +279,7 @@ fn bench_graph(nodes: usize) -> op3dsg_runtime::graph::SceneGraph {
             observation_count: 5,
             affordance_bits: 0,
             last_seen_stamp_ns: 0,
+            obb: Default::default(),
         });
         if i > 0 {
             graph.edges.push(GraphEdge {
