@@ -184,6 +184,11 @@ class _GraphData:
             "centre_m": [_f32(v) for v in n["centre_m"]],
             "box_min_m": [_f32(v) for v in n["box_min_m"]],
             "box_max_m": [_f32(v) for v in n["box_max_m"]],
+            "obb": {
+                "centre_m": [_f32(v) for v in n["obb_centre_m"]],
+                "size_m": [_f32(v) for v in n["obb_size_m"]],
+                "yaw_rad": _f32(n["obb_yaw_rad"]),
+            },
             "affordances": list(affordance_names(int(n["affordance_bits"]))),
             "confidence": _f32(n["confidence"]),
             "observation_count": int(n["observation_count"]),

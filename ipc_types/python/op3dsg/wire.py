@@ -469,7 +469,7 @@ def _name_of(names, index: int) -> str:
 #: Every mirrored structure, by its Rust name.
 WIRE_TYPES = {
     cls.__name__: cls
-    for cls in (Node, Edge, GraphHeader, PoseStamped, StageHealth, QueueHealth, RefinerHealth, PoseHealth, ModelHealth, Health)
+    for cls in (Node, Edge, GraphHeader, PoseStamped, StageHealth, QueueHealth, RefinerHealth, PoseHealth, ModelHealth, RecorderHealth, Health)
 }
 
 NODE_BYTES = ctypes.sizeof(Node)
