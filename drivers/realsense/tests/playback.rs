@@ -94,7 +94,7 @@ const FIRST_DELIVERED: usize = 1;
 #[test]
 fn playback_delivers_the_recorded_frames_exactly() {
     let rec = record(FRAMES);
-    let mut source = RealsenseSource::open(&config(&rec, false, Rotation::None), None).expect("open the bag");
+    let mut source = RealsenseSource::open(&config(&rec, true, Rotation::None), None).expect("open the bag");
     assert_eq!(source.intrinsics(), rec.intrinsics, "intrinsics from the recording");
     assert!(!source.has_poses());
     let frames = play(&mut source);
@@ -131,7 +131,7 @@ fn playback_delivers_the_recorded_frames_exactly() {
 #[test]
 fn rotation_puts_a_known_pixel_where_it_belongs() {
     let rec = record(3);
-    let mut source = RealsenseSource::open(&config(&rec, false, Rotation::Cw90), None).expect("open the bag");
+    let mut source = RealsenseSource::open(&config(&rec, true, Rotation::Cw90), None).expect("open the bag");
     let upright = Rotation::Cw90.intrinsics(&rec.intrinsics);
     assert_eq!(source.intrinsics(), upright);
     assert_eq!((upright.width, upright.height), (H, W));
