@@ -198,6 +198,27 @@ impl StepControl {
     }
 }
 
+/// Checks that `frame`'s buffers fit `intrinsics` (RGB8 colour and one depth value per pixel), as
+/// a source must before it fills them; the error names frame `seq` and both sizes.
+pub fn check_frame_buffers(frame: &Frame, intrinsics: &Intrinsics, seq: u64) -> Result<(), SourceError> {
+    let pixels = intrinsics.pixel_count();
+    if frame.rgb.len() == pixels * 3 && frame.depth.len() == pixels {
+        return Ok(());
+    }
+    Err(SourceError::Frame {
+        seq,
+        reason: format!(
+            "frame buffers hold {} colour bytes and {} depth values; the source's {}x{} need {} and {}",
+            frame.rgb.len(),
+            frame.depth.len(),
+            intrinsics.width,
+            intrinsics.height,
+            pixels * 3,
+            pixels
+        ),
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -388,21 +388,7 @@ impl FrameSource for McapSource {
         if self.finished {
             return Ok(SourceStatus::EndOfStream);
         }
-        let pixels = self.intrinsics.pixel_count();
-        if frame.rgb.len() != pixels * 3 || frame.depth.len() != pixels {
-            return Err(SourceError::Frame {
-                seq: self.delivered,
-                reason: format!(
-                    "frame buffers hold {} colour bytes and {} depth values; the recording's {}x{} need {} and {}",
-                    frame.rgb.len(),
-                    frame.depth.len(),
-                    self.intrinsics.width,
-                    self.intrinsics.height,
-                    pixels * 3,
-                    pixels
-                ),
-            });
-        }
+        crate::source::check_frame_buffers(frame, &self.intrinsics, self.delivered)?;
         if !self.ready {
             match self.read_frame(Some(self.intrinsics)) {
                 Ok(true) => self.ready = true,

@@ -202,21 +202,7 @@ impl FrameSource for ReplaySource {
         if self.finished {
             return Ok(SourceStatus::EndOfStream);
         }
-        let pixels = self.intrinsics.pixel_count();
-        if frame.rgb.len() != pixels * 3 || frame.depth.len() != pixels {
-            return Err(SourceError::Frame {
-                seq: self.delivered,
-                reason: format!(
-                    "frame buffers hold {} colour bytes and {} depth values; {}x{} intrinsics need {} and {}",
-                    frame.rgb.len(),
-                    frame.depth.len(),
-                    self.intrinsics.width,
-                    self.intrinsics.height,
-                    pixels * 3,
-                    pixels
-                ),
-            });
-        }
+        crate::source::check_frame_buffers(frame, &self.intrinsics, self.delivered)?;
         let mut stepped = false;
         loop {
             if self.next_entry == self.index.entries.len() {
