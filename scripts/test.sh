@@ -31,6 +31,8 @@ FEATURES=(--features op3dsgd/realsense)
 # iceoryx2 keeps its state in /tmp/iceoryx2 and /dev/shm; every test uses its own service
 # prefix, so parallel tests and a daemon running on this machine do not interfere.
 export RUST_BACKTRACE=1
+# One build, used once: incremental state would only cost disk (gigabytes across ~50 binaries).
+export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 export OP3DSG_LOG="${OP3DSG_LOG:-warn}"
 
 # What review used to check by hand: formatting and lints (warnings are errors), before any
