@@ -21,7 +21,8 @@ use op3dsg_ipc_types::{
     FUTURE_POSE_LIMIT_NS, GraphHeader, Health, LABEL_CAPACITY_BYTES, MAX_EDGES, MAX_MODELS, MAX_NODES, MAX_QUEUES,
     MAX_STAGES, MAX_WORKERS, ModelHealth, NAME_CAPACITY_BYTES, NO_NODE, NODE_BYTES, Node, PHRASE_CAPACITY_BYTES,
     PoseHealth, PoseStamped, QueueHealth, RECORDER_STATES, REFINER_ERRORS, REFINER_REJECTIONS, REFINER_STATES,
-    RecorderHealth, RefinerHealth, SCHEMA_VERSION, SPATIAL_RELATIONS, StageHealth, ZeroCopySend,
+    RecorderHealth, RefinerHealth, SCHEMA_VERSION, SNAPSHOT_STATES, SPATIAL_RELATIONS, SnapshotHealth, StageHealth,
+    ZeroCopySend,
 };
 
 /// The JSON object of one type: `"Name": {"type_name", "size", "align", "fields": [...]}`.
@@ -153,6 +154,21 @@ fn main() {
     );
     layout!(
         types,
+        SnapshotHealth {
+            state,
+            reserved,
+            write_p99_us,
+            restored_version,
+            version,
+            last_written_unix_ms,
+            last_bytes,
+            written,
+            failures,
+            skipped,
+        }
+    );
+    layout!(
+        types,
         Health {
             schema_version,
             stage_count,
@@ -176,6 +192,7 @@ fn main() {
             reserved_models,
             models,
             recorder,
+            snapshot,
         }
     );
 
@@ -205,6 +222,7 @@ fn main() {
     constant("EXECUTION_PROVIDERS", json_strings(&EXECUTION_PROVIDERS));
     constant("REFINER_STATES", json_strings(&REFINER_STATES));
     constant("RECORDER_STATES", json_strings(&RECORDER_STATES));
+    constant("SNAPSHOT_STATES", json_strings(&SNAPSHOT_STATES));
     constant("REFINER_ERRORS", json_strings(&REFINER_ERRORS));
     constant("REFINER_REJECTIONS", json_strings(&REFINER_REJECTIONS));
     constant("DEFAULT_PREFIX", format!("\"{DEFAULT_PREFIX}\""));

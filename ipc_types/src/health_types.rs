@@ -233,6 +233,8 @@ pub struct Health {
     pub models: [ModelHealth; MAX_MODELS],
     /// The MCAP recorder (`[record]`).
     pub recorder: RecorderHealth,
+    /// The map snapshots (`[snapshot]`).
+    pub snapshot: SnapshotHealth,
 }
 
 impl Default for Health {
@@ -260,6 +262,7 @@ impl Default for Health {
             reserved_models: 0,
             models: [ModelHealth::default(); MAX_MODELS],
             recorder: RecorderHealth::default(),
+            snapshot: SnapshotHealth::default(),
         }
     }
 }
@@ -281,6 +284,38 @@ impl Health {
 
 /// Names of [`RecorderHealth::state`], by value.
 pub const RECORDER_STATES: [&str; 4] = ["off", "recording", "failed", "finished"];
+
+/// Map snapshot states, as [`SnapshotHealth::state`].
+pub const SNAPSHOT_STATES: [&str; 4] = ["off", "started_empty", "restored", "moved_aside"];
+
+/// The map snapshots' state and counters (`[snapshot]`, `daemon/runtime/src/service/snapshot.rs`).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, PlacementDefault)]
+#[type_name("op3dsg::SnapshotHealth")]
+pub struct SnapshotHealth {
+    /// Index into [`SNAPSHOT_STATES`]: 0 off (no snapshot directory), 1 on and started with an
+    /// empty map (no snapshot there), 2 on and the map was restored from the snapshot at start,
+    /// 3 on, the snapshot found at start could not be used (moved aside; started empty).
+    pub state: u8,
+    /// Reserved, zero.
+    pub reserved: [u8; 3],
+    /// Write time of the snapshots written in the last health period, p99, microseconds (0: none).
+    pub write_p99_us: u32,
+    /// Graph version of the map restored at start (0: none).
+    pub restored_version: u64,
+    /// Graph version of the last snapshot written, or restored when none was written yet (0: none).
+    pub version: u64,
+    /// Wall-clock time of the last snapshot written, milliseconds since the Unix epoch (0: none).
+    pub last_written_unix_ms: u64,
+    /// Size of the last snapshot written, bytes.
+    pub last_bytes: u64,
+    /// Snapshots written.
+    pub written: u64,
+    /// Snapshot writes that failed (the previous snapshot is kept).
+    pub failures: u64,
+    /// Periods skipped because the previous write was still going on.
+    pub skipped: u64,
+}
 
 /// The MCAP recorder's state and counters (`[record]`, `daemon/runtime/src/record/`).
 #[repr(C)]

@@ -132,7 +132,7 @@ pub use graph_types::{
 pub use health_types::{
     EXECUTION_PROVIDERS, FIXED_STAGES, FUTURE_POSE_LIMIT_NS, Health, MAX_MODELS, MAX_QUEUES, MAX_STAGES, MAX_WORKERS,
     ModelHealth, PoseHealth, QueueHealth, RECORDER_STATES, REFINER_ERRORS, REFINER_REJECTIONS, REFINER_STATES,
-    RecorderHealth, RefinerHealth, StageHealth,
+    RecorderHealth, RefinerHealth, SNAPSHOT_STATES, SnapshotHealth, StageHealth,
 };
 pub use pose_types::{PoseError, PoseKind, PoseStamped, check_pose};
 pub use services::{IpcService, PrefixError, ServiceKind, ServiceNames, validate_prefix};
@@ -147,7 +147,10 @@ pub use text::{fixed_str, write_fixed_str};
 /// 5: [`Node`] grew from 120 to 144 bytes with its gravity-aligned oriented box: `obb_yaw_rad`
 /// at offset 108 (where 4 reserved bytes were; `reserved2` is 2 bytes now), `obb_centre_m` at 120
 /// and `obb_size_m` at 132, after `last_seen_stamp_ns`; every other offset is unchanged.
-pub const SCHEMA_VERSION: u32 = 5;
+///
+/// 6: [`Health`] gained `snapshot` ([`SnapshotHealth`], 64 bytes) after `recorder`; the graph's
+/// layout is unchanged.
+pub const SCHEMA_VERSION: u32 = 6;
 
 /// Bytes in a frame id (`PoseStamped::frame_id`), a stage or a queue name.
 pub const NAME_CAPACITY_BYTES: usize = 32;
@@ -176,7 +179,11 @@ mod tests {
         assert_eq!(size_of::<PoseHealth>(), 96);
         assert_eq!(size_of::<ModelHealth>(), 40);
         assert_eq!(MAX_STAGES, 72);
-        assert_eq!(size_of::<Health>(), 88 + MAX_STAGES * 64 + MAX_QUEUES * 56 + 128 + 96 + 8 + MAX_MODELS * 40 + 40);
+        assert_eq!(
+            size_of::<Health>(),
+            88 + MAX_STAGES * 64 + MAX_QUEUES * 56 + 128 + 96 + 8 + MAX_MODELS * 40 + 40 + 64
+        );
+        assert_eq!(size_of::<SnapshotHealth>(), 64);
         assert_eq!(core::mem::offset_of!(GraphHeader, instance_id), 16);
         assert_eq!(core::mem::offset_of!(GraphHeader, capacity_exceeded), 52);
         assert_eq!(core::mem::offset_of!(GraphHeader, node_capacity), 64);
@@ -193,6 +200,7 @@ mod tests {
             assert_eq!(<RefinerHealth as ZeroCopySend>::type_name(), "op3dsg::RefinerHealth");
             assert_eq!(<PoseHealth as ZeroCopySend>::type_name(), "op3dsg::PoseHealth");
             assert_eq!(<ModelHealth as ZeroCopySend>::type_name(), "op3dsg::ModelHealth");
+            assert_eq!(<SnapshotHealth as ZeroCopySend>::type_name(), "op3dsg::SnapshotHealth");
             assert_eq!(<PoseStamped as ZeroCopySend>::type_name(), "op3dsg::PoseStamped");
         }
     }

@@ -8,6 +8,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
+use op3dsg_ipc_types::SNAPSHOT_STATES;
 use op3dsg_tests::{Daemon, binary, unique_prefix, wait_for};
 
 /// (ids, labels) of a graph's nodes, sorted by id.
@@ -86,6 +87,15 @@ fn after_kill_9_the_first_graph_holds_the_snapshot_and_versions_go_on() {
         (settled && again.version() == graph.version()).then_some(graph)
     });
     let before_instance = before.instance_id();
+    // Health tells how the map started and what was last written, without a graph subscriber.
+    let mut health = first.health_subscriber("snap-restart-health");
+    let written = wait_for("health to report the settled snapshot", Duration::from_secs(30), || {
+        health.latest().ok().flatten().map(|h| h.snapshot).filter(|s| s.version == before.version())
+    });
+    assert_eq!(SNAPSHOT_STATES[written.state as usize], "started_empty", "{written:?}");
+    assert!(written.written > 0 && written.last_bytes > 0 && written.last_written_unix_ms > 0, "{written:?}");
+    assert_eq!((written.restored_version, written.failures), (0, 0), "{written:?}");
+    drop(health);
     let first_pid = first.child.id();
     assert!(iceoryx2_nodes_of(first_pid) > 0, "the running daemon has iceoryx2 nodes");
     first.kill_9();
@@ -96,7 +106,7 @@ fn after_kill_9_the_first_graph_holds_the_snapshot_and_versions_go_on() {
     // version before this subscriber polls (it takes the newest sample queued).
     let mut slow = args.clone();
     slow.extend(["--set".to_owned(), "source.rate_hz=2".to_owned()]);
-    let _second = start(&prefix, &slow, &[]);
+    let second = start(&prefix, &slow, &[]);
     let after = wait_for("a graph from the restarted daemon", Duration::from_secs(60), || {
         graphs.latest().ok().flatten().filter(|g| g.instance_id() != before_instance).cloned()
     });
@@ -111,6 +121,12 @@ fn after_kill_9_the_first_graph_holds_the_snapshot_and_versions_go_on() {
     );
     assert_eq!(nodes(&after), nodes(&before), "the first graph after the restart holds the snapshot's nodes");
     assert_eq!(iceoryx2_nodes_of(first_pid), 0, "the killed daemon's iceoryx2 resources were cleaned at restart");
+    let mut health = second.health_subscriber("snap-restart-health-2");
+    let restored = wait_for("health from the restarted daemon", Duration::from_secs(30), || {
+        health.latest().ok().flatten().map(|h| h.snapshot)
+    });
+    assert_eq!(SNAPSHOT_STATES[restored.state as usize], "restored", "{restored:?}");
+    assert_eq!(restored.restored_version, before.version(), "{restored:?}");
 }
 
 #[test]

@@ -20,7 +20,7 @@ from typing import Iterator, List
 import numpy as np
 
 #: Version of the wire contract this package reads (``SCHEMA_VERSION`` in ``ipc_types/src/lib.rs``).
-SCHEMA_VERSION = 5
+SCHEMA_VERSION = 6
 
 #: Bytes in a node label buffer.
 LABEL_CAPACITY_BYTES = 48
@@ -78,6 +78,7 @@ FUTURE_POSE_LIMIT_NS = 1_000_000_000
 EXECUTION_PROVIDERS = ("unknown", "cpu", "cuda", "openvino")
 REFINER_STATES = ("off", "idle", "calling", "backoff", "breaker_open", "budget_exhausted")
 RECORDER_STATES = ("off", "recording", "failed", "finished")
+SNAPSHOT_STATES = ("off", "started_empty", "restored", "moved_aside")
 REFINER_ERRORS = ("none", "timeout", "refused", "dns", "tls", "connect", "transport", "http_status", "rate_limited", "not_chat")
 REFINER_REJECTIONS = ("malformed", "unknown_node", "wrong_kind", "non_canonical", "stale")
 
@@ -353,6 +354,27 @@ class RecorderHealth(_Wire):
         return "op3dsg::RecorderHealth"
 
 
+class SnapshotHealth(_Wire):
+    """The map snapshots' state and counters (64 bytes): ``op3dsg::SnapshotHealth``."""
+
+    _fields_ = [
+        ("state", _u8),
+        ("reserved", _u8 * 3),
+        ("write_p99_us", _u32),
+        ("restored_version", _u64),
+        ("version", _u64),
+        ("last_written_unix_ms", _u64),
+        ("last_bytes", _u64),
+        ("written", _u64),
+        ("failures", _u64),
+        ("skipped", _u64),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "op3dsg::SnapshotHealth"
+
+
 class Health(_Wire):
     """Daemon health, published on ``<prefix>/health`` every health period: ``op3dsg::Health``.
 
@@ -382,6 +404,7 @@ class Health(_Wire):
         ("reserved_models", _u32),
         ("models", ModelHealth * MAX_MODELS),
         ("recorder", RecorderHealth),
+        ("snapshot", SnapshotHealth),
     ]
 
     @staticmethod
@@ -442,6 +465,17 @@ class Health(_Wire):
                 "bytes_written": self.recorder.bytes_written,
                 "cpu_ns": self.recorder.cpu_ns,
             },
+            "snapshot": {
+                "state": _name_of(SNAPSHOT_STATES, self.snapshot.state),
+                "restored_version": self.snapshot.restored_version,
+                "version": self.snapshot.version,
+                "last_written_unix_ms": self.snapshot.last_written_unix_ms,
+                "last_bytes": self.snapshot.last_bytes,
+                "written": self.snapshot.written,
+                "failures": self.snapshot.failures,
+                "skipped": self.snapshot.skipped,
+                "write_p99_us": self.snapshot.write_p99_us,
+            },
             "models": [
                 {
                     "name": fixed_str(m.name),
@@ -469,7 +503,7 @@ def _name_of(names, index: int) -> str:
 #: Every mirrored structure, by its Rust name.
 WIRE_TYPES = {
     cls.__name__: cls
-    for cls in (Node, Edge, GraphHeader, PoseStamped, StageHealth, QueueHealth, RefinerHealth, PoseHealth, ModelHealth, RecorderHealth, Health)
+    for cls in (Node, Edge, GraphHeader, PoseStamped, StageHealth, QueueHealth, RefinerHealth, PoseHealth, ModelHealth, RecorderHealth, SnapshotHealth, Health)
 }
 
 NODE_BYTES = ctypes.sizeof(Node)

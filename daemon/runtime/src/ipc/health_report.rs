@@ -48,6 +48,49 @@ pub struct HealthReport {
     /// The MCAP recorder (see `op3dsg_ipc_types::RecorderHealth`).
     #[serde(default)]
     pub recorder: RecorderReport,
+    /// The map snapshots (see `op3dsg_ipc_types::SnapshotHealth`).
+    #[serde(default)]
+    pub snapshot: SnapshotReport,
+}
+
+/// The map snapshots of a [`HealthReport`].
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SnapshotReport {
+    /// `off`, `started_empty`, `restored` or `moved_aside` (how the daemon started).
+    pub state: String,
+    /// Graph version restored at start (0: none).
+    pub restored_version: u64,
+    /// Graph version of the last snapshot written (or restored).
+    pub version: u64,
+    /// When the last snapshot was written, ms since the Unix epoch (0: none yet).
+    pub last_written_unix_ms: u64,
+    /// Size of the last snapshot written, bytes.
+    pub last_bytes: u64,
+    /// Snapshots written.
+    pub written: u64,
+    /// Writes that failed.
+    pub failures: u64,
+    /// Periods skipped while a write was still going on.
+    pub skipped: u64,
+    /// Write time p99 over the last health period, microseconds (0: no write).
+    pub write_p99_us: u32,
+}
+
+impl From<&op3dsg_ipc_types::SnapshotHealth> for SnapshotReport {
+    fn from(s: &op3dsg_ipc_types::SnapshotHealth) -> Self {
+        Self {
+            state: op3dsg_ipc_types::SNAPSHOT_STATES.get(s.state as usize).copied().unwrap_or("unknown").to_owned(),
+            restored_version: s.restored_version,
+            version: s.version,
+            last_written_unix_ms: s.last_written_unix_ms,
+            last_bytes: s.last_bytes,
+            written: s.written,
+            failures: s.failures,
+            skipped: s.skipped,
+            write_p99_us: s.write_p99_us,
+        }
+    }
 }
 
 /// The recorder of a [`HealthReport`].
@@ -247,6 +290,7 @@ impl From<&Health> for HealthReport {
                 .collect(),
             refiner: RefinerReport::from(&h.refiner),
             recorder: RecorderReport::from(&h.recorder),
+            snapshot: SnapshotReport::from(&h.snapshot),
             poses: pose_counters(&h.pose).iter().map(|(name, n)| ((*name).to_owned(), *n)).collect(),
             models: h
                 .valid_models()

@@ -190,8 +190,7 @@ impl Pipeline {
             }
             Some(dir) => {
                 let store = crate::service::snapshot::SnapshotStore::open(&dir)?;
-                if let Some(restored) = store.restore(fusion.as_mut()) {
-                    stats.snapshot.version.store(restored.graph_version, std::sync::atomic::Ordering::Relaxed);
+                if let Some(restored) = store.restore(fusion.as_mut(), &stats.snapshot) {
                     resume = crate::fusion::thread::Resume {
                         graph_version: restored.graph_version,
                         stamp_ns: restored.stamp_ns,

@@ -124,6 +124,7 @@ impl PipelineStats {
         h.refiner = self.refiner.health();
         h.pose = self.pose.health();
         h.recorder = self.recorder.health();
+        h.snapshot = self.snapshot.health();
         h.model_count = crate::onnx::fill_model_health(&mut h.models) as u32;
         h
     }

@@ -42,7 +42,7 @@ use std::fs::{File, OpenOptions};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicU64, Ordering};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use crossbeam_channel::{Receiver, Sender, TrySendError};
@@ -332,13 +332,30 @@ impl SnapshotStore {
         &self.dir
     }
 
-    /// Restores `map.snapshot` into `fusion`. `Ok(None)`: there is none. A snapshot that cannot
-    /// be used is moved aside with a warning and `Ok(None)` returned: the daemon starts empty.
-    pub fn restore(&self, fusion: &mut dyn Fusion) -> Option<Snapshot> {
+    /// Restores `map.snapshot` into `fusion` and records the outcome in `stats` (state,
+    /// restored version). `None`: there is none, or it cannot be used: then it is moved aside with
+    /// a warning and the daemon starts empty.
+    pub fn restore(&self, fusion: &mut dyn Fusion, stats: &SnapshotStats) -> Option<Snapshot> {
+        let restored = self.restore_map(fusion);
+        match &restored {
+            Ok(snapshot) => {
+                stats.state.store(STATE_RESTORED, Ordering::Relaxed);
+                stats.restored_version.store(snapshot.graph_version, Ordering::Relaxed);
+                stats.version.store(snapshot.graph_version, Ordering::Relaxed);
+            }
+            Err(moved_aside) => {
+                stats.state.store(if *moved_aside { STATE_MOVED_ASIDE } else { STATE_STARTED_EMPTY }, Ordering::Relaxed)
+            }
+        }
+        restored.ok()
+    }
+
+    /// `Err(true)`: a snapshot was there and moved aside; `Err(false)`: there was none.
+    fn restore_map(&self, fusion: &mut dyn Fusion) -> Result<Snapshot, bool> {
         let path = self.dir.join(SNAPSHOT_FILE);
         if !path.exists() {
             info!(dir = %self.dir.display(), "no map snapshot: starting with an empty map");
-            return None;
+            return Err(false);
         }
         let snapshot = read(&path).and_then(|snapshot| {
             fusion
@@ -357,7 +374,7 @@ impl SnapshotStore {
                     age_s = unix_ms().saturating_sub(snapshot.taken_unix_ms) / 1000,
                     "map restored from snapshot"
                 );
-                Some(snapshot)
+                Ok(snapshot)
             }
             Err(e) => {
                 // A half-restored map is discarded with the fusion's own reset in restore_state.
@@ -369,7 +386,7 @@ impl SnapshotStore {
                         warn!(error = %e, move_error = %move_error, "map snapshot unusable and could not be moved aside; starting with an empty map")
                     }
                 }
-                None
+                Err(true)
             }
         }
     }
@@ -518,6 +535,7 @@ impl SnapshotWriter {
                 stats.snapshot.version.store(snapshot.graph_version, Ordering::Relaxed);
                 stats.snapshot.written.fetch_add(1, Ordering::Relaxed);
                 stats.snapshot.last_bytes.store(bytes as u64, Ordering::Relaxed);
+                stats.snapshot.last_written_unix_ms.store(unix_ms(), Ordering::Relaxed);
                 debug!(
                     graph_version = snapshot.graph_version,
                     nodes = snapshot.map.nodes.len(),
@@ -534,11 +552,26 @@ impl SnapshotWriter {
     }
 }
 
+/// [`SnapshotStats::state`] values: the index into `op3dsg_ipc_types::SNAPSHOT_STATES`.
+pub const STATE_OFF: u8 = 0;
+/// On; there was no snapshot at start.
+pub const STATE_STARTED_EMPTY: u8 = 1;
+/// On; the map was restored at start.
+pub const STATE_RESTORED: u8 = 2;
+/// On; the snapshot at start could not be used and was moved aside.
+pub const STATE_MOVED_ASIDE: u8 = 3;
+
 /// Counters of the snapshot writer.
 #[derive(Debug)]
 pub struct SnapshotStats {
+    /// One of the `STATE_*` values.
+    pub state: AtomicU8,
+    /// Graph version restored at start (0 = none).
+    pub restored_version: AtomicU64,
     /// Graph version of the last snapshot written or restored (0 = none).
     pub version: AtomicU64,
+    /// When the last snapshot was written, ms since the Unix epoch (0 = none).
+    pub last_written_unix_ms: AtomicU64,
     /// Snapshots written.
     pub written: AtomicU64,
     /// Snapshots that failed to write.
@@ -554,12 +587,33 @@ pub struct SnapshotStats {
 impl Default for SnapshotStats {
     fn default() -> Self {
         Self {
+            state: AtomicU8::new(STATE_OFF),
+            restored_version: AtomicU64::new(0),
             version: AtomicU64::new(0),
+            last_written_unix_ms: AtomicU64::new(0),
             written: AtomicU64::new(0),
             failures: AtomicU64::new(0),
             skipped: AtomicU64::new(0),
             last_bytes: AtomicU64::new(0),
             write: crate::stats::StageStats::new("snapshot"),
+        }
+    }
+}
+
+impl SnapshotStats {
+    /// The health record (starts a new write-time period).
+    pub fn health(&self) -> op3dsg_ipc_types::SnapshotHealth {
+        op3dsg_ipc_types::SnapshotHealth {
+            state: self.state.load(Ordering::Relaxed),
+            write_p99_us: self.write.take_figures().p99_us as u32,
+            restored_version: self.restored_version.load(Ordering::Relaxed),
+            version: self.version.load(Ordering::Relaxed),
+            last_written_unix_ms: self.last_written_unix_ms.load(Ordering::Relaxed),
+            last_bytes: self.last_bytes.load(Ordering::Relaxed),
+            written: self.written.load(Ordering::Relaxed),
+            failures: self.failures.load(Ordering::Relaxed),
+            skipped: self.skipped.load(Ordering::Relaxed),
+            ..Default::default()
         }
     }
 }

@@ -88,6 +88,28 @@ fn health_text(h: &HealthReport) -> String {
             rec.bytes_written as f64 / (1 << 20) as f64
         );
     }
+    let snap = &h.snapshot;
+    if snap.state != "off" {
+        let age = if snap.last_written_unix_ms == 0 {
+            "none written yet".to_owned()
+        } else {
+            let now_ms =
+                std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis() as u64);
+            format!("last written {} s ago", now_ms.saturating_sub(snap.last_written_unix_ms) / 1000)
+        };
+        let _ = writeln!(
+            s,
+            "snapshots {} (restored version {})  {}  version {}  {:.1} KiB  written {}  failed {}  skipped {}",
+            snap.state,
+            snap.restored_version,
+            age,
+            snap.version,
+            snap.last_bytes as f64 / 1024.0,
+            snap.written,
+            snap.failures,
+            snap.skipped
+        );
+    }
     let r = &h.refiner;
     if r.state != "off" {
         let _ = writeln!(
