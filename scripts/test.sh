@@ -18,6 +18,11 @@ echo "== models =="
 echo "== python venv =="
 ./scripts/setup-python.sh
 
+# Foxglove's published JSON schemas (npm @foxglove/schemas into .deps/foxglove-schemas/): the
+# recorder tests validate every foxglove.* message of a recording against them.
+echo "== foxglove schemas =="
+./scripts/setup-foxglove-schemas.sh
+
 # librealsense (from PyPI pyrealsense2 into .deps/realsense/; fast when already there): the
 # feature `realsense` of op3dsgd is built and tested with the rest, in the same debug build.
 echo "== librealsense sysroot =="

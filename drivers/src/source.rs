@@ -107,6 +107,15 @@ pub trait FrameSource: Send {
     /// Fills `frame` with the next frame. A live source may block up to its frame period.
     fn next_frame(&mut self, frame: &mut Frame) -> Result<SourceStatus, SourceError>;
 
+    /// Poses of the daemon's pose input that a recording holds before the frame
+    /// [`FrameSource::next_frame`] just delivered (an MCAP replay of a run with
+    /// `pose.source = "ipc"`), moved into `out`; the pipeline hands them to the keyframe gate
+    /// before that frame, as if the navigation stack had sent them. After `EndOfStream`: the
+    /// poses after the last frame. Default: none.
+    fn take_input_poses(&mut self, out: &mut Vec<crate::mcap::messages::InputPose>) {
+        let _ = out;
+    }
+
     /// Total number of frames for a finite source.
     fn len_hint(&self) -> Option<u64> {
         None

@@ -89,6 +89,8 @@ fn synthetic_kitchen_recorded_then_replayed_gives_the_identical_graph() {
         ("/camera/depth", "foxglove.RawImage"),
         ("/op3dsg/frame", "op3dsg.Frame"),
         ("/sim/instance_ids", "foxglove.RawImage"),
+        ("/op3dsg/detections", "foxglove.ImageAnnotations"),
+        ("/op3dsg/node_points", "foxglove.PointCloud"),
     ] {
         let channel = &channels[topic];
         assert_eq!(channel["schema"], schema, "{topic}: {channel}");
@@ -108,7 +110,34 @@ fn synthetic_kitchen_recorded_then_replayed_gives_the_identical_graph() {
         assert_eq!(ordered, true, "{topic} stamps go backwards");
     }
     assert!(recorded["scene_versions_checked"].as_u64().unwrap() >= 1, "{recorded}");
-    assert_eq!(recorded["scene_mismatches"], Value::Array(vec![]), "SceneUpdate boxes = graph boxes");
+    assert_eq!(recorded["scene_mismatches"], Value::Array(vec![]), "SceneUpdate boxes = graph oriented boxes");
+    // Every foxglove.* message against Foxglove's published JSON schemas (npm @foxglove/schemas,
+    // applied strictly: no field they do not define), every message against the file's own.
+    assert_eq!(recorded["foxglove_errors"], Value::Array(vec![]), "Foxglove schema violations");
+    for schema in [
+        "foxglove.SceneUpdate",
+        "foxglove.FrameTransform",
+        "foxglove.CameraCalibration",
+        "foxglove.RawImage",
+        "foxglove.ImageAnnotations",
+        "foxglove.PointCloud",
+    ] {
+        let n = recorded["foxglove_validated"][schema].as_u64().unwrap_or(0);
+        assert!(n >= 1, "{schema}: {n} messages validated ({})", recorded["foxglove_validated"]);
+    }
+    assert_eq!(recorded["embedded_errors"], Value::Array(vec![]), "violations of the file's own schemas");
+    assert!(recorded["embedded_validated"].as_u64().unwrap() > 45 * 4);
+    // Detections per keyframe, stamped as the keyframes; node points matching their graph.
+    assert_eq!(channels["/op3dsg/detections"]["count"], channels["/tf"]["count"], "one per keyframe");
+    assert!(recorded["detections"].as_u64().unwrap() >= 3, "{}", recorded["detections"]);
+    assert_eq!(recorded["detections_off_keyframes"], Value::Array(vec![]));
+    assert!(recorded["point_clouds_checked"].as_u64().unwrap() >= 1, "{recorded}");
+    assert_eq!(recorded["point_cloud_mismatches"], Value::Array(vec![]));
+    // Per-channel drop counts of the finished file.
+    let meta = &recorded["metadata"]["op3dsg.recorder"];
+    for topic in ["/camera/colour", "/camera/depth", "/op3dsg/frame", "/op3dsg/scene", "/op3dsg/detections"] {
+        assert_eq!(meta[format!("{topic}.dropped")], "0", "{topic}: {meta}");
+    }
     assert_eq!(recorded["metadata"]["op3dsg.recorder"]["dropped_total"], "0");
     assert!(recorded["metadata"]["op3dsg.profile"].is_object());
 
@@ -218,4 +247,129 @@ fn a_failing_disk_stops_the_recording_not_the_daemon() {
     assert!(!files.is_empty());
     let summary = check(&files[0]);
     assert!(summary["channels"]["/op3dsg/frame"]["count"].as_u64().unwrap_or(0) >= 1, "{summary}");
+}
+
+/// The stand-in navigation stack (`op3dsg-test-nav`: the synthetic robot's true path at 10 Hz
+/// through the client library's `PosePublisher`), killed on drop.
+struct Navigation(std::process::Child);
+
+impl Navigation {
+    fn start(prefix: &str) -> Self {
+        let child = Command::new(binary("op3dsg-test-nav"))
+            .args(["--prefix", prefix, "--frame-rate-hz", "30", "--pose-rate-hz", "10"])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::null())
+            .spawn()
+            .expect("spawn op3dsg-test-nav");
+        Self(child)
+    }
+}
+
+impl Drop for Navigation {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+#[test]
+fn a_recording_with_poses_from_the_pose_input_replays_with_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let profile = format!("{}/../profiles/sim-clean.toml", env!("CARGO_MANIFEST_DIR"));
+    // 46 frames at 30 Hz scene time: the last one is stamped at a 10 Hz pose, so every frame has
+    // a pose after it; frames wait up to 3 s for it (the navigation stack follows the frames).
+    let mut common = vec![
+        "--profile",
+        &profile,
+        "--set",
+        "source.synthetic.frame_count=46",
+        "--set",
+        "source.synthetic.intrinsics={ width = 320, height = 240, fx = 307.5, fy = 307.5, cx = 160.0, cy = 120.0 }",
+        "--set",
+        "pose.source=\"ipc\"",
+        "--set",
+        "pose.max_wait_ms=3000",
+        "--set",
+        "health.period_ms=100",
+    ];
+    common.extend_from_slice(DETERMINISTIC);
+    let first_dir = dir.path().join("first");
+    let mut args = common.clone();
+    args.extend_from_slice(&["--set", "source.rate_hz=15", "--set", "record.frame_queue=32"]);
+    args.extend_from_slice(&["--record", first_dir.to_str().unwrap(), "--exit-at-end"]);
+    let prefix = unique_prefix("rec-pose-a");
+    let mut daemon = Daemon::start(&prefix, &args);
+    let _navigation = Navigation::start(&prefix);
+    let status = daemon.wait_exit(Duration::from_secs(180)).expect("the recording run ends with its source");
+    assert!(status.success(), "{status}");
+    let files = mcap_files(&first_dir);
+    assert_eq!(files.len(), 1, "{files:?}");
+    let recorded = check(&files[0]);
+    assert_eq!(recorded["error"], Value::Null, "{recorded}");
+    let channels = &recorded["channels"];
+    assert_eq!(channels["/op3dsg/input_pose"]["schema"], "op3dsg.InputPose", "{channels}");
+    let poses = channels["/op3dsg/input_pose"]["count"].as_u64().unwrap_or(0);
+    assert!(poses >= 16, "16 poses of 10 Hz over 1.5 s at least: {poses}");
+    assert_eq!(channels["/op3dsg/frame"]["count"], 46);
+    assert_eq!(recorded["embedded_errors"], Value::Array(vec![]));
+    assert_eq!(recorded["metadata"]["op3dsg.recorder"]["dropped_total"], "0");
+    assert_eq!(recorded["metadata"]["op3dsg.recorder"]["/op3dsg/input_pose.dropped"], "0");
+    let keyframes = channels["/tf"]["count"].as_u64().unwrap();
+    assert!(keyframes >= 3, "keyframes: {keyframes}");
+
+    // The replay, with no navigation stack: the recorded poses reach the keyframe gate.
+    let second_dir = dir.path().join("second");
+    let replay_path = format!("source.mcap.path=\"{}\"", files[0].display());
+    let mut args = common.clone();
+    args.extend_from_slice(&["--set", "source.kind=mcap", "--set", &replay_path, "--set", "source.mcap.mode=fast"]);
+    args.extend_from_slice(&["--record", second_dir.to_str().unwrap()]);
+    run_to_end(&unique_prefix("rec-pose-b"), &args);
+    let files = mcap_files(&second_dir);
+    assert_eq!(files.len(), 1, "{files:?}");
+    let replayed = check(&files[0]);
+    assert_eq!(replayed["channels"]["/op3dsg/input_pose"]["count"], poses, "the gate got every recorded pose");
+    assert_eq!(replayed["channels"]["/tf"]["count"], keyframes, "the same keyframes");
+    let (a, b) = (recorded["last_graph"].as_str().unwrap(), replayed["last_graph"].as_str().unwrap());
+    let nodes = serde_json::from_str::<Value>(a).unwrap()["nodes"].as_array().unwrap().len();
+    assert!(nodes >= 3, "the final graph has {nodes} nodes");
+    assert_eq!(a, b, "final graph JSON of the replay differs from the recording run's");
+}
+
+/// The schema check itself can fail: a file written with PyPI `mcap`'s writer, holding a
+/// FrameTransform with an extra field and a missing one, and a `foxglove.*` name Foxglove does
+/// not publish.
+#[test]
+fn the_foxglove_schema_check_finds_violations() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("bad.mcap");
+    let script = r#"
+import json, sys
+from mcap.writer import Writer
+with open(sys.argv[1], "wb") as f:
+    w = Writer(f)
+    w.start(profile="op3dsg", library="test")
+    sid = w.register_schema(name="foxglove.FrameTransform", encoding="jsonschema", data=b'{"type":"object"}')
+    cid = w.register_channel(topic="/tf", message_encoding="json", schema_id=sid)
+    good = {"timestamp": {"sec": 1, "nsec": 0}, "parent_frame_id": "world", "child_frame_id": "camera",
+            "translation": {"x": 0, "y": 0, "z": 0}, "rotation": {"x": 0, "y": 0, "z": 0, "w": 1}}
+    bad = dict(good, rotation={"x": 0, "y": 0, "z": 0, "w": 1, "colour": 2}, translation={"x": 0, "y": 0})
+    for i, m in enumerate([good, bad]):
+        w.add_message(channel_id=cid, log_time=i, publish_time=i, data=json.dumps(m).encode())
+    sid2 = w.register_schema(name="foxglove.Scene", encoding="jsonschema", data=b'{"type":"object"}')
+    cid2 = w.register_channel(topic="/scene", message_encoding="json", schema_id=sid2)
+    w.add_message(channel_id=cid2, log_time=3, publish_time=3, data=b'{}')
+    w.finish()
+"#;
+    let status = Command::new(python()).arg("-c").arg(script).arg(&file).status().expect("run the mcap writer");
+    assert!(status.success());
+    let summary = check(&file);
+    assert_eq!(summary["foxglove_validated"]["foxglove.FrameTransform"], 2);
+    assert_eq!(
+        summary["foxglove_errors"],
+        serde_json::json!([
+            "/tf[1]: rotation: Additional properties are not allowed ('colour' was unexpected)",
+            "/tf[1]: translation: 'z' is a required property",
+            "/scene[0]: schema foxglove.Scene is not one Foxglove publishes"
+        ])
+    );
 }

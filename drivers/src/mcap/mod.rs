@@ -22,11 +22,16 @@
 //! | `/camera/depth` | `foxglove.RawImage` | `16UC1`, little-endian, sensor units | every frame the keyframe gate received |
 //! | `/op3dsg/frame` | `op3dsg.Frame` | seq, stamp, depth units per metre, `world_from_camera` | every frame the keyframe gate received |
 //! | `/op3dsg/health` | `op3dsg.Health` | counters, queues, stages, recorder state | every health period |
+//! | `/op3dsg/detections` | `foxglove.ImageAnnotations` | a box outline per detection of a keyframe (objects blue-grey, parts orange) with label and score, over `/camera/colour` | every keyframe fused |
+//! | `/op3dsg/node_points` | `foxglove.PointCloud` | the published nodes' points, world frame, fields x, y, z (float32), node_id (uint32), at most `record.node_points_per_node` per node | graph versions, at most `max_rate_hz` (1 Hz by default) |
+//! | `/op3dsg/input_pose` | `op3dsg.InputPose` | a pose from the pose input (`pose.source = "ipc"`): stamp, kind, child frame, translation, rotation | every pose the keyframe gate received |
 //! | `/sim/instance_ids` | `foxglove.RawImage` | `16UC1` instance ids of the synthetic renderer (simulation only) | every frame, when the source has them |
 //!
 //! A raw frame is written as `/camera/colour`, `/camera/depth`, any side channel of the source,
 //! then `/op3dsg/frame` (which completes it), the images with the frame's stamp as their
-//! `timestamp`; `/camera/calibration` comes before the first frame of each file. Each file also holds metadata `op3dsg.profile` (`toml`: the effective profile)
+//! `timestamp`; `/camera/calibration` comes before the first frame of each file. Frames and
+//! input poses keep the order the keyframe gate received them in (one queue carries both), so
+//! the replay hands each pose to the gate before the frame that followed it. Each file also holds metadata `op3dsg.profile` (`toml`: the effective profile)
 //! and, when finished cleanly, `op3dsg.recorder` (messages written and dropped per channel).
 //! Log times are the recorder's wall clock (Unix nanoseconds, never decreasing within a file);
 //! the `timestamp` fields are sensor time.
@@ -62,11 +67,18 @@ pub const TOPIC_DEPTH: &str = "/camera/depth";
 pub const TOPIC_FRAME: &str = "/op3dsg/frame";
 /// `op3dsg.Health`.
 pub const TOPIC_HEALTH: &str = "/op3dsg/health";
+/// `foxglove.ImageAnnotations`: every keyframe's detections.
+pub const TOPIC_DETECTIONS: &str = "/op3dsg/detections";
+/// `foxglove.PointCloud`: the published nodes' points.
+pub const TOPIC_NODE_POINTS: &str = "/op3dsg/node_points";
+/// `op3dsg.InputPose`: every pose the keyframe gate received from the pose input.
+pub const TOPIC_INPUT_POSE: &str = "/op3dsg/input_pose";
 
 /// Metadata record with the effective profile (key `toml`).
 pub const METADATA_PROFILE: &str = "op3dsg.profile";
 /// Metadata record the recorder writes when it finishes a file: per channel `<topic>.written`
-/// and `<topic>.dropped`, and `dropped_total`.
+/// and `<topic>.dropped` (messages the recorder had no room or no disk for), and
+/// `dropped_total`.
 pub const METADATA_RECORDER: &str = "op3dsg.recorder";
 
 /// Frame id of the world frame in transforms and scene entities.

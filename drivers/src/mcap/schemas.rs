@@ -20,12 +20,18 @@ pub const CAMERA_CALIBRATION: &str = "foxglove.CameraCalibration";
 pub const FRAME_TRANSFORM: &str = "foxglove.FrameTransform";
 /// `foxglove.SceneUpdate`.
 pub const SCENE_UPDATE: &str = "foxglove.SceneUpdate";
+/// `foxglove.ImageAnnotations`.
+pub const IMAGE_ANNOTATIONS: &str = "foxglove.ImageAnnotations";
+/// `foxglove.PointCloud`.
+pub const POINT_CLOUD: &str = "foxglove.PointCloud";
 /// `op3dsg.Graph`: [`crate::graph_json`].
 pub const GRAPH: &str = "op3dsg.Graph";
 /// `op3dsg.Frame`: [`super::messages::FrameMeta`].
 pub const FRAME: &str = "op3dsg.Frame";
 /// `op3dsg.Health`.
 pub const HEALTH: &str = "op3dsg.Health";
+/// `op3dsg.InputPose`: [`super::messages::InputPose`].
+pub const INPUT_POSE: &str = "op3dsg.InputPose";
 
 /// The schema text of `name` (one of the constants above), `None` for another name.
 pub fn schema_text(name: &str) -> Option<String> {
@@ -34,9 +40,12 @@ pub fn schema_text(name: &str) -> Option<String> {
         CAMERA_CALIBRATION => camera_calibration(),
         FRAME_TRANSFORM => frame_transform(),
         SCENE_UPDATE => scene_update(),
+        IMAGE_ANNOTATIONS => image_annotations(),
+        POINT_CLOUD => point_cloud(),
         GRAPH => graph(),
         FRAME => frame(),
         HEALTH => health(),
+        INPUT_POSE => input_pose(),
         _ => return None,
     };
     Some(value.to_string())
@@ -234,6 +243,91 @@ fn scene_update() -> Value {
     object(SCENE_UPDATE, json!({ "deletions": array(deletion), "entities": array(entity) }), &["deletions", "entities"])
 }
 
+fn point2() -> Value {
+    numbers("foxglove.Point2", &["x", "y"])
+}
+
+fn key_values() -> Value {
+    let pair = object(
+        "foxglove.KeyValuePair",
+        json!({ "key": { "type": "string" }, "value": { "type": "string" } }),
+        &["key", "value"],
+    );
+    json!({ "type": "array", "items": pair })
+}
+
+fn image_annotations() -> Value {
+    let points = object(
+        "foxglove.PointsAnnotation",
+        json!({
+            "timestamp": time(),
+            "type": { "title": "foxglove.PointsAnnotationType", "oneOf": [
+                { "title": "UNKNOWN", "const": 0 }, { "title": "POINTS", "const": 1 }, { "title": "LINE_LOOP", "const": 2 },
+                { "title": "LINE_STRIP", "const": 3 }, { "title": "LINE_LIST", "const": 4 }
+            ] },
+            "points": { "type": "array", "items": point2() },
+            "outline_color": color(),
+            "outline_colors": { "type": "array", "items": color() },
+            "fill_color": color(),
+            "thickness": { "type": "number" },
+            "metadata": key_values()
+        }),
+        &["timestamp", "type", "points", "outline_color", "outline_colors", "fill_color", "thickness"],
+    );
+    let text = object(
+        "foxglove.TextAnnotation",
+        json!({
+            "timestamp": time(),
+            "position": point2(),
+            "text": { "type": "string" },
+            "font_size": { "type": "number" },
+            "text_color": color(),
+            "background_color": color(),
+            "metadata": key_values()
+        }),
+        &["timestamp", "position", "text", "font_size", "text_color", "background_color"],
+    );
+    object(
+        IMAGE_ANNOTATIONS,
+        json!({
+            "timestamp": time(),
+            "circles": { "type": "array", "items": { "type": "object" } },
+            "points": { "type": "array", "items": points },
+            "texts": { "type": "array", "items": text },
+            "metadata": key_values()
+        }),
+        &["circles", "points", "texts"],
+    )
+}
+
+fn point_cloud() -> Value {
+    let field = object(
+        "foxglove.PackedElementField",
+        json!({
+            "name": { "type": "string" },
+            "offset": { "type": "integer", "minimum": 0 },
+            "type": { "title": "foxglove.NumericType", "oneOf": [
+                { "title": "UNKNOWN", "const": 0 }, { "title": "UINT8", "const": 1 }, { "title": "INT8", "const": 2 },
+                { "title": "UINT16", "const": 3 }, { "title": "INT16", "const": 4 }, { "title": "UINT32", "const": 5 },
+                { "title": "INT32", "const": 6 }, { "title": "FLOAT32", "const": 7 }, { "title": "FLOAT64", "const": 8 }
+            ] }
+        }),
+        &["name", "offset", "type"],
+    );
+    object(
+        POINT_CLOUD,
+        json!({
+            "timestamp": time(),
+            "frame_id": { "type": "string" },
+            "pose": pose(),
+            "point_stride": { "type": "integer", "minimum": 0 },
+            "fields": { "type": "array", "items": field },
+            "data": { "type": "string", "contentEncoding": "base64" }
+        }),
+        &["timestamp", "frame_id", "pose", "point_stride", "fields", "data"],
+    )
+}
+
 fn graph() -> Value {
     let xyz = json!({ "type": "array", "items": { "type": "number" }, "minItems": 3, "maxItems": 3 });
     let node = object(
@@ -309,6 +403,22 @@ fn frame() -> Value {
     )
 }
 
+fn input_pose() -> Value {
+    let mut schema = object(
+        INPUT_POSE,
+        json!({
+            "stamp_ns": { "type": "integer", "minimum": 0 },
+            "kind": { "enum": ["world_from_camera", "world_from_base"] },
+            "frame_id": { "type": "string" },
+            "translation_m": { "type": "array", "items": { "type": "number" }, "minItems": 3, "maxItems": 3 },
+            "rotation_xyzw": { "type": "array", "items": { "type": "number" }, "minItems": 4, "maxItems": 4 }
+        }),
+        &["stamp_ns", "kind", "frame_id", "translation_m", "rotation_xyzw"],
+    );
+    schema["description"] = json!("a pose the daemon received on <prefix>/pose (pose.source = \"ipc\")");
+    schema
+}
+
 fn health() -> Value {
     let mut schema = object(
         HEALTH,
@@ -335,7 +445,18 @@ mod tests {
 
     #[test]
     fn every_schema_is_json_titled_by_its_name() {
-        for name in [RAW_IMAGE, CAMERA_CALIBRATION, FRAME_TRANSFORM, SCENE_UPDATE, GRAPH, FRAME, HEALTH] {
+        for name in [
+            RAW_IMAGE,
+            CAMERA_CALIBRATION,
+            FRAME_TRANSFORM,
+            SCENE_UPDATE,
+            IMAGE_ANNOTATIONS,
+            POINT_CLOUD,
+            GRAPH,
+            FRAME,
+            HEALTH,
+            INPUT_POSE,
+        ] {
             let text = schema_text(name).unwrap();
             let value: Value = serde_json::from_str(&text).unwrap();
             assert_eq!(value["title"], name);

@@ -5,9 +5,9 @@ use std::time::{Duration, Instant};
 
 use tracing::info;
 
-use super::messages::{CameraCalibration, FrameMeta, RawImageIn};
+use super::messages::{CameraCalibration, FrameMeta, InputPose, RawImageIn};
 use super::reader::{ChannelInfo, Item, McapReader, MessageAt, ReadError};
-use super::{McapReplayConfig, TOPIC_CALIBRATION, TOPIC_COLOUR, TOPIC_DEPTH, TOPIC_FRAME, schemas};
+use super::{McapReplayConfig, TOPIC_CALIBRATION, TOPIC_COLOUR, TOPIC_DEPTH, TOPIC_FRAME, TOPIC_INPUT_POSE, schemas};
 use crate::frame::{Frame, Intrinsics};
 use crate::pose::Isometry;
 use crate::replay::{MAX_BLOCK, PlaybackMode};
@@ -32,6 +32,8 @@ struct Staged {
     colour_at: Option<MessageAt>,
     depth: Vec<u8>,
     depth_at: Option<MessageAt>,
+    /// Input poses read before this frame.
+    poses: Vec<InputPose>,
 }
 
 /// A [`FrameSource`] over recordings of the recorder (`source.kind = "mcap"`, [the
@@ -57,6 +59,9 @@ pub struct McapSource {
     origin: Option<(Instant, u64)>,
     delivered: u64,
     finished: bool,
+    /// Input poses that came before the frames delivered so far, not yet taken.
+    poses: Vec<InputPose>,
+    poses_replayed: u64,
 }
 
 impl std::fmt::Debug for McapSource {
@@ -82,6 +87,7 @@ fn expected_schema(topic: &str) -> Option<&'static str> {
         TOPIC_COLOUR | TOPIC_DEPTH => Some(schemas::RAW_IMAGE),
         TOPIC_CALIBRATION => Some(schemas::CAMERA_CALIBRATION),
         TOPIC_FRAME => Some(schemas::FRAME),
+        TOPIC_INPUT_POSE => Some(schemas::INPUT_POSE),
         _ => None,
     }
 }
@@ -128,6 +134,8 @@ impl McapSource {
             origin: None,
             delivered: 0,
             finished: false,
+            poses: Vec::new(),
+            poses_replayed: 0,
         };
         // The intrinsics are needed before the first frame (the frame pool is sized by them).
         source.intrinsics = source.probe()?;
@@ -268,6 +276,11 @@ impl McapSource {
                     calibration = Some(k);
                     self.intrinsics = k;
                 }
+                TOPIC_INPUT_POSE => {
+                    let pose: InputPose = serde_json::from_slice(&self.scratch)
+                        .map_err(|e| at_error(&path, &channel, at, format!("not an op3dsg.InputPose: {e}")))?;
+                    self.staged.poses.push(pose);
+                }
                 TOPIC_COLOUR => {
                     std::mem::swap(&mut self.staged.colour, &mut self.scratch);
                     self.staged.colour_at = Some(at);
@@ -342,6 +355,7 @@ impl McapSource {
                 if bpp == 3 { &mut frame.rgb } else { bytemuck::cast_slice_mut(frame.depth.as_mut_slice()) };
             image.decode_into(encodings, bpp, out).map_err(|e| image_error(topic, at, e))?;
         }
+        self.poses.append(&mut self.staged.poses);
         frame.seq = meta.seq;
         frame.stamp_ns = meta.stamp_ns;
         frame.intrinsics = self.intrinsics;
@@ -393,6 +407,8 @@ impl FrameSource for McapSource {
             match self.read_frame(Some(self.intrinsics)) {
                 Ok(true) => self.ready = true,
                 Ok(false) => {
+                    // Poses after the last frame (the one it waited for, often) still go.
+                    self.poses.append(&mut self.staged.poses);
                     self.finished = true;
                     return Ok(SourceStatus::EndOfStream);
                 }
@@ -424,6 +440,16 @@ impl FrameSource for McapSource {
         self.origin.get_or_insert((Instant::now(), stamp_ns));
         self.delivered += 1;
         Ok(SourceStatus::Frame)
+    }
+
+    fn take_input_poses(&mut self, out: &mut Vec<InputPose>) {
+        if !self.poses.is_empty() && self.poses_replayed == 0 {
+            info!(
+                "the recording holds poses of the pose input (/op3dsg/input_pose): replaying them to the keyframe gate"
+            );
+        }
+        self.poses_replayed += self.poses.len() as u64;
+        out.append(&mut self.poses);
     }
 
     fn describe(&self) -> String {

@@ -4,8 +4,11 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use crossbeam_channel::Sender;
 use op3dsg_drivers::frame::FramePool;
+use op3dsg_drivers::mcap::messages::{InputPose, InputPoseKind};
 use op3dsg_drivers::source::{FrameSource, SourceStatus};
+use op3dsg_ipc_types::{PoseKind, PoseStamped, write_fixed_str};
 use tracing::{error, info, warn};
 
 use crate::pipeline::PipelineStats;
@@ -13,15 +16,52 @@ use crate::pipeline::items::CapturedFrame;
 use crate::queue::QueueSender;
 use crate::service::notify::WatchedStage;
 
+/// Hands the poses of the pose input a recording holds before a frame, or after its last one
+/// (MCAP replay, see [`FrameSource::take_input_poses`]), to the keyframe gate, as the publisher
+/// hands it live ones.
+fn replay_input_poses(
+    source: &mut dyn FrameSource,
+    pose_tx: &Sender<PoseStamped>,
+    buf: &mut Vec<InputPose>,
+    stats: &PipelineStats,
+) {
+    source.take_input_poses(buf);
+    for recorded in buf.drain(..) {
+        let kind = match recorded.kind {
+            InputPoseKind::WorldFromCamera => PoseKind::WorldFromCamera,
+            InputPoseKind::WorldFromBase => PoseKind::WorldFromBase,
+        };
+        let mut pose = PoseStamped {
+            stamp_ns: recorded.stamp_ns,
+            kind: kind as u8,
+            translation_m: recorded.translation_m,
+            rotation_xyzw: recorded.rotation_xyzw,
+            ..PoseStamped::default()
+        };
+        // A recorded name fits: it came from a frame id of the same capacity.
+        let _ = write_fixed_str(&mut pose.frame_id, &recorded.frame_id);
+        if pose_tx.try_send(pose).is_err() {
+            let dropped = stats.pose.queue_full.fetch_add(1, Ordering::Relaxed) + 1;
+            if dropped.is_power_of_two() {
+                warn!(dropped, "pose hand-over queue to the keyframe gate full; recorded pose dropped");
+            }
+        }
+    }
+}
+
+/// `pose_tx`: where recorded input poses go (`pose.source = "ipc"`), `None` otherwise.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn capture_loop(
     source: &mut dyn FrameSource,
     pool: &FramePool,
     frames_tx: QueueSender<CapturedFrame>,
+    pose_tx: Option<Sender<PoseStamped>>,
     rate_hz: f64,
     max_frames: u64,
     stats: &PipelineStats,
     stop: &AtomicBool,
 ) {
+    let mut input_poses = Vec::new();
     let stage = stats.stage("capture");
     let period = (rate_hz > 0.0).then(|| Duration::from_secs_f64(1.0 / rate_hz));
     let mut next_due = Instant::now();
@@ -70,10 +110,16 @@ pub(crate) fn capture_loop(
                 stats.frames_captured.fetch_add(1, Ordering::Relaxed);
                 stage.record(started);
                 tracing::trace!(frame_seq = frame.seq, "captured");
+                if let Some(pose_tx) = &pose_tx {
+                    replay_input_poses(source, pose_tx, &mut input_poses, stats);
+                }
                 frames_tx.push(CapturedFrame { frame, captured_at: Instant::now() });
             }
             Ok(SourceStatus::Pending) => {}
             Ok(SourceStatus::EndOfStream) => {
+                if let Some(pose_tx) = &pose_tx {
+                    replay_input_poses(source, pose_tx, &mut input_poses, stats);
+                }
                 info!(frames = delivered, source = %source.describe(), "source ended");
                 stats.source_finished.store(true, Ordering::Relaxed);
                 break;

@@ -193,6 +193,15 @@ pub struct FusionReport {
     pub pruned: u32,
 }
 
+/// One point of a node's cloud, world frame (the recorder's `/op3dsg/node_points`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NodePoint {
+    /// The node's id (as in the graph).
+    pub node_id: u32,
+    /// Position, world, metres.
+    pub position_m: [f32; 3],
+}
+
 /// A map that fuses keyframe detections.
 pub trait Fusion: Send {
     /// Fuses the detections of one keyframe taken at `world_from_camera`.
@@ -207,6 +216,12 @@ pub trait Fusion: Send {
 
     /// Heap bytes the map holds (capacity, not length), for health and memory benchmarks.
     fn memory_bytes(&self) -> usize;
+
+    /// Appends the points of the nodes [`Fusion::build_graph`] publishes, at most
+    /// `max_per_node` of each (evenly spaced through its cloud). Default: none.
+    fn node_points(&self, max_per_node: usize, out: &mut Vec<NodePoint>) {
+        let _ = (max_per_node, out);
+    }
 
     /// The map's saved form for a snapshot (`crate::service::snapshot`); `None` when this
     /// fusion cannot be saved.

@@ -12,6 +12,7 @@ use crate::pipeline::PipelineStats;
 use crate::pipeline::items::{DetectionBatch, GraphItem, POLL};
 use crate::queue::{Popped, QueueReceiver, QueueSender};
 use crate::reasoner::GraphEnricher;
+use crate::record::RecordSender;
 use crate::service::notify::WatchedStage;
 use crate::service::snapshot::{self, Snapshot, SnapshotSink};
 
@@ -49,6 +50,7 @@ pub(crate) fn fusion_loop(
     min_interval: Duration,
     mut snapshots: Option<SnapshotSink>,
     resume: Resume,
+    mut recorder: Option<RecordSender>,
 ) {
     let stage = stats.stage("fusion");
     let prior_stage = stats.stage("prior");
@@ -65,6 +67,8 @@ pub(crate) fn fusion_loop(
     // A restored map is published at once: planners see it again before the first keyframe.
     let mut dirty = resume.restored;
     let mut last_publish: Option<Instant> = None;
+    // The nodes' points of published versions (rate-limited by the recorder's channel).
+    let mut points_recorder = recorder.clone();
     let mut publish = |fusion: &dyn Fusion, version: &mut u64, stamp_ns: u64, newest_capture: Option<Instant>| {
         *version += 1;
         let mut graph = keyframe_path::map_graph(fusion, *version, stamp_ns);
@@ -76,6 +80,9 @@ pub(crate) fn fusion_loop(
         stats.graph_version.store(*version, Ordering::Relaxed);
         stats.map_node_count.store(fusion.node_count() as u64, Ordering::Relaxed);
         stats.map_memory_bytes.store(fusion.memory_bytes() as u64, Ordering::Relaxed);
+        if let Some(recorder) = points_recorder.as_mut() {
+            recorder.offer_node_points(stamp_ns, |max_per_node, out| fusion.node_points(max_per_node, out));
+        }
         graph_tx.push(GraphItem { graph, newest_capture });
     };
     loop {
@@ -104,6 +111,9 @@ pub(crate) fn fusion_loop(
             let started = Instant::now();
             let fused = keyframe_path::fuse(fusion.as_mut(), &batch.frame, &batch.world_from_camera, &batch.detections);
             let report = fused.report;
+            if let Some(recorder) = recorder.as_mut() {
+                recorder.offer_detections(batch.frame.stamp_ns, &batch.detections);
+            }
             stats.detections_fused.fetch_add(batch.detections.len() as u64, Ordering::Relaxed);
             stamp_ns = stamp_ns.max(batch.frame.stamp_ns);
             newest_capture = newest_capture.max(Some(batch.captured_at));

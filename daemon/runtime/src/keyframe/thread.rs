@@ -107,6 +107,10 @@ pub(crate) fn keyframe_loop(
             }
         }
         for pose in pose_rx.try_iter() {
+            // Recorded as received, in order with the frames: a replay gives the gate the same.
+            if let Some((sender, _)) = recorder.as_mut() {
+                sender.offer_input_pose(&pose);
+            }
             let outcome = gate.add_pose(&pose);
             stats.pose.count_gate(outcome);
             if let Err(reason) = outcome {

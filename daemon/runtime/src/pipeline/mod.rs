@@ -170,6 +170,7 @@ impl Pipeline {
         let (det_tx, det_rx, det_stats) = queue::<DetectionBatch>("detections", q.detections, stop.clone());
         let (graph_tx, graph_rx, graph_stats) = queue::<GraphItem>("graph", q.graph, stop.clone());
         let (pose_tx, pose_rx) = crossbeam_channel::bounded::<PoseStamped>(profile.pose.buffer_len);
+        let replay_pose_tx = pose_tx.clone();
 
         // Before the counters: the LLM refiner (if any) owns its own.
         let enricher = make_enricher(profile)?;
@@ -215,6 +216,7 @@ impl Pipeline {
                 &profile.record,
                 crate::record::effective_toml(profile),
                 source.intrinsics(),
+                profile.world.up_axis,
                 side_topics,
                 stats.recorder.clone(),
             )
@@ -280,6 +282,7 @@ impl Pipeline {
         {
             let stats = stats.clone();
             let min_interval = Duration::from_millis(profile.run.min_publish_interval_ms);
+            let fusion_recorder = recorder.clone();
             handles.push(spawn_stage("fusion", &finished_tx, move || {
                 crate::fusion::thread::fusion_loop(
                     fusion,
@@ -290,6 +293,7 @@ impl Pipeline {
                     min_interval,
                     snapshot_sink,
                     resume,
+                    fusion_recorder,
                 );
             })?);
             running.push("fusion");
@@ -341,8 +345,19 @@ impl Pipeline {
             let pool = FramePool::new(profile.frame_pool_capacity(), source.intrinsics());
             let rate_hz = profile.source.rate_hz;
             let max_frames = profile.run.max_frames;
+            // A replayed recording's input poses go where the pose input's go.
+            let replay_poses = (profile.pose.source == PoseSourceKind::Ipc).then(|| replay_pose_tx.clone());
             handles.push(spawn_stage("capture", &finished_tx, move || {
-                crate::capture::capture_loop(source.as_mut(), &pool, frames_tx, rate_hz, max_frames, &stats, &stop);
+                crate::capture::capture_loop(
+                    source.as_mut(),
+                    &pool,
+                    frames_tx,
+                    replay_poses,
+                    rate_hz,
+                    max_frames,
+                    &stats,
+                    &stop,
+                );
             })?);
             running.push("capture");
         }

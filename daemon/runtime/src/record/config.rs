@@ -33,6 +33,10 @@ impl ChannelConfig {
     const fn on() -> Self {
         Self { enabled: true, max_rate_hz: 0.0 }
     }
+
+    const fn once_a_second() -> Self {
+        Self { enabled: true, max_rate_hz: 1.0 }
+    }
 }
 
 impl Default for ChannelConfig {
@@ -74,6 +78,18 @@ pub struct RecordChannels {
     /// Side channels the source offers (the simulator's `/sim/instance_ids`), with the frames.
     #[serde(default)]
     pub side_channels: ChannelConfig,
+    /// `/op3dsg/input_pose`: every pose the keyframe gate received from the pose input
+    /// (`pose.source = "ipc"`). Replay of such a recording needs it (no rate limit then).
+    #[serde(default)]
+    pub input_poses: ChannelConfig,
+    /// `/op3dsg/detections`: `foxglove.ImageAnnotations` of every keyframe's detections (box,
+    /// label, score), drawn over `/camera/colour`.
+    #[serde(default)]
+    pub detections: ChannelConfig,
+    /// `/op3dsg/node_points`: `foxglove.PointCloud` of the published nodes' points (at most
+    /// `node_points_per_node` each), on graph versions at most `max_rate_hz` (default 1).
+    #[serde(default = "ChannelConfig::once_a_second")]
+    pub node_points: ChannelConfig,
 }
 
 impl Default for RecordChannels {
@@ -89,13 +105,16 @@ impl Default for RecordChannels {
             depth: on,
             frame: on,
             side_channels: on,
+            input_poses: on,
+            detections: on,
+            node_points: ChannelConfig::once_a_second(),
         }
     }
 }
 
 impl RecordChannels {
     /// `(name, config)` of every channel, in profile order.
-    pub fn entries(&self) -> [(&'static str, ChannelConfig); 9] {
+    pub fn entries(&self) -> [(&'static str, ChannelConfig); 12] {
         [
             ("graph", self.graph),
             ("scene", self.scene),
@@ -106,6 +125,9 @@ impl RecordChannels {
             ("depth", self.depth),
             ("frame", self.frame),
             ("side_channels", self.side_channels),
+            ("input_poses", self.input_poses),
+            ("detections", self.detections),
+            ("node_points", self.node_points),
         ]
     }
 }
@@ -135,6 +157,9 @@ pub struct RecordConfig {
     pub frame_queue: usize,
     /// Graph versions, keyframe poses and health records waiting; when full, dropped and counted.
     pub event_queue: usize,
+    /// `/op3dsg/node_points` keeps at most this many points of each node (evenly spaced through
+    /// its cloud).
+    pub node_points_per_node: usize,
     /// Per-channel switches and rate limits.
     #[serde(default)]
     pub channels: RecordChannels,
@@ -152,6 +177,7 @@ impl Default for RecordConfig {
             max_file_s: 600.0,
             frame_queue: 4,
             event_queue: 64,
+            node_points_per_node: 256,
             channels: RecordChannels::default(),
         }
     }
@@ -183,6 +209,12 @@ impl RecordConfig {
         }
         if !(1..=65_536).contains(&self.event_queue) {
             return Err(format!("{path}.event_queue: must be within [1, 65536], got {}", self.event_queue));
+        }
+        if !(1..=1 << 20).contains(&self.node_points_per_node) {
+            return Err(format!(
+                "{path}.node_points_per_node: must be within [1, 1048576], got {}",
+                self.node_points_per_node
+            ));
         }
         for (name, channel) in self.channels.entries() {
             let rate = channel.max_rate_hz;

@@ -24,6 +24,7 @@
 //! flushed before stays readable), sets its health state to `failed` and takes no more input;
 //! producers see the state and stop copying frames. The pipeline goes on publishing.
 
+mod annotations;
 mod config;
 pub mod scene;
 mod writer;
@@ -41,6 +42,7 @@ use tracing::warn;
 
 pub use config::{ChannelConfig, RecordChannels, RecordCompression, RecordConfig};
 
+use crate::config::UpAxis;
 use crate::graph::SceneGraph;
 
 /// A side channel of the source recorded with each frame (the simulator's instance ids): a
@@ -69,6 +71,60 @@ pub enum RecorderState {
     Finished = 3,
 }
 
+/// The channels whose drops are counted apart ([`RecorderStats::dropped_by_channel`]); side
+/// channels share one count.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Channel {
+    Graph,
+    Scene,
+    Transforms,
+    Health,
+    Colour,
+    Depth,
+    Frame,
+    SideChannels,
+    InputPoses,
+    Detections,
+    NodePoints,
+}
+
+/// Number of [`Channel`]s.
+pub(crate) const CHANNEL_COUNT: usize = 11;
+
+impl Channel {
+    const ALL: [Channel; CHANNEL_COUNT] = [
+        Channel::Graph,
+        Channel::Scene,
+        Channel::Transforms,
+        Channel::Health,
+        Channel::Colour,
+        Channel::Depth,
+        Channel::Frame,
+        Channel::SideChannels,
+        Channel::InputPoses,
+        Channel::Detections,
+        Channel::NodePoints,
+    ];
+
+    /// The channel's topic (side channels: their own topics, [`None`] here).
+    pub(crate) fn topic(self) -> Option<&'static str> {
+        use op3dsg_drivers::mcap as t;
+        Some(match self {
+            Channel::Graph => t::TOPIC_GRAPH,
+            Channel::Scene => t::TOPIC_SCENE,
+            Channel::Transforms => t::TOPIC_TF,
+            Channel::Health => t::TOPIC_HEALTH,
+            Channel::Colour => t::TOPIC_COLOUR,
+            Channel::Depth => t::TOPIC_DEPTH,
+            Channel::Frame => t::TOPIC_FRAME,
+            Channel::SideChannels => return None,
+            Channel::InputPoses => t::TOPIC_INPUT_POSE,
+            Channel::Detections => t::TOPIC_DETECTIONS,
+            Channel::NodePoints => t::TOPIC_NODE_POINTS,
+        })
+    }
+}
+
 /// The recorder's counters, shared with the health reporter.
 #[derive(Debug, Default)]
 pub struct RecorderStats {
@@ -76,6 +132,7 @@ pub struct RecorderStats {
     files: AtomicU64,
     written: AtomicU64,
     dropped: AtomicU64,
+    dropped_by: [AtomicU64; CHANNEL_COUNT],
     bytes: AtomicU64,
     cpu_ns: AtomicU64,
 }
@@ -95,8 +152,15 @@ impl RecorderStats {
         self.state.store(state as u8, Ordering::Relaxed);
     }
 
-    fn count_drop(&self) -> u64 {
-        self.dropped.fetch_add(1, Ordering::Relaxed) + 1
+    /// Counts `n` messages of `channel` dropped; returns the total dropped so far.
+    fn count_drop(&self, channel: Channel, n: u64) -> u64 {
+        self.dropped_by[channel as usize].fetch_add(n, Ordering::Relaxed);
+        self.dropped.fetch_add(n, Ordering::Relaxed) + n
+    }
+
+    /// Messages dropped so far per channel, in [`Channel`] order.
+    pub(crate) fn dropped_by_channel(&self) -> [(Channel, u64); CHANNEL_COUNT] {
+        Channel::ALL.map(|c| (c, self.dropped_by[c as usize].load(Ordering::Relaxed)))
     }
 
     /// For the health record.
@@ -130,11 +194,20 @@ pub(crate) struct RawFrame {
     sides: Vec<(Vec<u16>, bool)>,
 }
 
+/// What the keyframe gate hands the recorder, in the order it received it: frames and the poses
+/// of the pose input between them (one queue keeps the order, so a replay can restore it).
+pub(crate) enum RawInput {
+    Frame(Box<RawFrame>),
+    Pose { log_time_ns: u64, pose: op3dsg_drivers::mcap::messages::InputPose },
+}
+
 /// What the recorder writes besides raw frames.
 pub(crate) enum Event {
     Graph { log_time_ns: u64, graph: SceneGraph, json: bool, scene: bool },
     Keyframe { log_time_ns: u64, stamp_ns: u64, world_from_camera: Isometry },
     Health { log_time_ns: u64, health: Box<Health> },
+    Detections { log_time_ns: u64, stamp_ns: u64, boxes: Vec<annotations::DetectionBox> },
+    NodePoints { log_time_ns: u64, stamp_ns: u64, points: Vec<crate::fusion::NodePoint> },
 }
 
 /// Wall clock, Unix nanoseconds.
@@ -176,7 +249,7 @@ impl Limiter {
 /// its own). Every call returns at once.
 #[derive(Clone)]
 pub struct RecordSender {
-    frames_tx: Sender<Box<RawFrame>>,
+    frames_tx: Sender<RawInput>,
     events_tx: Sender<Event>,
     pool_rx: Receiver<Box<RawFrame>>,
     pool_tx: Sender<Box<RawFrame>>,
@@ -189,6 +262,10 @@ pub struct RecordSender {
     depth: Limiter,
     frame: Limiter,
     sides: Limiter,
+    poses: Limiter,
+    detections: Limiter,
+    node_points: Limiter,
+    node_points_per_node: usize,
 }
 
 impl std::fmt::Debug for RecordSender {
@@ -202,9 +279,12 @@ impl RecordSender {
         self.stats.state() == RecorderState::Recording
     }
 
-    fn drop_counted(&self, what: &str) {
-        let dropped = self.stats.count_drop();
-        if dropped.is_power_of_two() {
+    fn drop_counted(&self, what: &str, drops: &[(Channel, u64)]) {
+        let mut dropped = 0;
+        for &(channel, n) in drops.iter().filter(|(_, n)| *n > 0) {
+            dropped = self.stats.count_drop(channel, n);
+        }
+        if dropped > 0 && (dropped.is_power_of_two() || dropped < 4) {
             warn!(dropped, what, "recorder queue full (the disk is slower than the input); message dropped");
         }
     }
@@ -224,8 +304,15 @@ impl RecordSender {
         if !(colour || depth || meta || sides) {
             return;
         }
+        let n = |due: bool| u64::from(due);
+        let drops = [
+            (Channel::Colour, n(colour)),
+            (Channel::Depth, n(depth)),
+            (Channel::Frame, n(meta)),
+            (Channel::SideChannels, if sides { taps.len() as u64 } else { 0 }),
+        ];
         let Ok(mut raw) = self.pool_rx.try_recv() else {
-            self.drop_counted("frame");
+            self.drop_counted("frame", &drops);
             return;
         };
         raw.log_time_ns = now_ns();
@@ -255,13 +342,36 @@ impl RecordSender {
                 *filled = tap.copy(frame, buf);
             }
         }
-        if let Err(e) = self.frames_tx.try_send(raw) {
-            let raw = match e {
-                TrySendError::Full(raw) | TrySendError::Disconnected(raw) => raw,
-            };
-            // Back to the pool (it has room: the buffer came from it).
-            let _ = self.pool_tx.try_send(raw);
-            self.drop_counted("frame");
+        if let Err(e) = self.frames_tx.try_send(RawInput::Frame(raw)) {
+            if let TrySendError::Full(RawInput::Frame(raw)) | TrySendError::Disconnected(RawInput::Frame(raw)) = e {
+                // Back to the pool (it has room: the buffer came from it).
+                let _ = self.pool_tx.try_send(raw);
+            }
+            self.drop_counted("frame", &drops);
+        }
+    }
+
+    /// Offers a pose the keyframe gate received from the pose input (`/op3dsg/input_pose`), in
+    /// order with the frames.
+    pub fn offer_input_pose(&mut self, pose: &op3dsg_ipc_types::PoseStamped) {
+        if !self.accepting() || !self.poses.due(Instant::now()) {
+            return;
+        }
+        use op3dsg_drivers::mcap::messages::{InputPose, InputPoseKind};
+        let kind = match op3dsg_ipc_types::PoseKind::from_u8(pose.kind) {
+            Some(op3dsg_ipc_types::PoseKind::WorldFromBase) => InputPoseKind::WorldFromBase,
+            // The gate refuses an unknown kind; the replay would refuse it as camera too.
+            _ => InputPoseKind::WorldFromCamera,
+        };
+        let pose = InputPose {
+            stamp_ns: pose.stamp_ns,
+            kind,
+            frame_id: op3dsg_ipc_types::fixed_str(&pose.frame_id).to_owned(),
+            translation_m: pose.translation_m,
+            rotation_xyzw: pose.rotation_xyzw,
+        };
+        if self.frames_tx.try_send(RawInput::Pose { log_time_ns: now_ns(), pose }).is_err() {
+            self.drop_counted("input pose", &[(Channel::InputPoses, 1)]);
         }
     }
 
@@ -272,7 +382,7 @@ impl RecordSender {
         }
         let event = Event::Keyframe { log_time_ns: now_ns(), stamp_ns, world_from_camera: *world_from_camera };
         if self.events_tx.try_send(event).is_err() {
-            self.drop_counted("keyframe");
+            self.drop_counted("keyframe", &[(Channel::Transforms, 1)]);
         }
     }
 
@@ -288,7 +398,46 @@ impl RecordSender {
             return;
         }
         if self.events_tx.try_send(Event::Graph { log_time_ns: now_ns(), graph, json, scene }).is_err() {
-            self.drop_counted("graph");
+            self.drop_counted("graph", &[(Channel::Graph, u64::from(json)), (Channel::Scene, u64::from(scene))]);
+        }
+    }
+
+    /// Offers a keyframe's detections (`/op3dsg/detections`), fused at `stamp_ns`.
+    pub fn offer_detections(&mut self, stamp_ns: u64, detections: &[crate::perception::Detection]) {
+        if !self.accepting() || !self.detections.due(Instant::now()) {
+            return;
+        }
+        let boxes = detections
+            .iter()
+            .map(|d| annotations::DetectionBox {
+                label: d.label.clone(),
+                kind: d.kind,
+                score: d.score,
+                x0: d.mask.x0,
+                y0: d.mask.y0,
+                width: d.mask.width,
+                height: d.mask.height,
+            })
+            .collect();
+        if self.events_tx.try_send(Event::Detections { log_time_ns: now_ns(), stamp_ns, boxes }).is_err() {
+            self.drop_counted("detections", &[(Channel::Detections, 1)]);
+        }
+    }
+
+    /// Offers the nodes' points of a published graph version (`/op3dsg/node_points`) when the
+    /// channel is due: `collect(max_per_node, out)` fills them (called only then).
+    pub fn offer_node_points(
+        &mut self,
+        stamp_ns: u64,
+        collect: impl FnOnce(usize, &mut Vec<crate::fusion::NodePoint>),
+    ) {
+        if !self.accepting() || !self.node_points.due(Instant::now()) {
+            return;
+        }
+        let mut points = Vec::new();
+        collect(self.node_points_per_node, &mut points);
+        if self.events_tx.try_send(Event::NodePoints { log_time_ns: now_ns(), stamp_ns, points }).is_err() {
+            self.drop_counted("node points", &[(Channel::NodePoints, 1)]);
         }
     }
 
@@ -299,7 +448,7 @@ impl RecordSender {
         }
         let event = Event::Health { log_time_ns: now_ns(), health: Box::new(*health) };
         if self.events_tx.try_send(event).is_err() {
-            self.drop_counted("health");
+            self.drop_counted("health", &[(Channel::Health, 1)]);
         }
     }
 }
@@ -321,9 +470,10 @@ pub fn effective_toml(profile: &crate::config::Profile) -> String {
 /// What the recorder thread needs.
 pub(crate) struct RecorderParts {
     pub(crate) config: RecordConfig,
+    pub(crate) up_axis: UpAxis,
     pub(crate) profile_toml: String,
     pub(crate) side_topics: Vec<String>,
-    pub(crate) frames_rx: Receiver<Box<RawFrame>>,
+    pub(crate) frames_rx: Receiver<RawInput>,
     pub(crate) events_rx: Receiver<Event>,
     pub(crate) pool_tx: Sender<Box<RawFrame>>,
     pub(crate) stats: Arc<RecorderStats>,
@@ -341,17 +491,21 @@ pub struct RecordStartError {
 
 /// Makes the queues and the frame-buffer pool (buffers sized for `intrinsics` now, so the hot
 /// path does not allocate) and checks that the folder can be created. Returns the producers'
-/// sender and what the thread runs with ([`run`]).
+/// sender and what the thread runs with ([`run`]). `up_axis` is the world's (`world.up_axis`),
+/// for the scene's oriented boxes.
 pub(crate) fn prepare(
     config: &RecordConfig,
     profile_toml: String,
     intrinsics: Intrinsics,
+    up_axis: UpAxis,
     side_topics: Vec<String>,
     stats: Arc<RecorderStats>,
 ) -> Result<(RecordSender, RecorderParts), RecordStartError> {
     std::fs::create_dir_all(&config.dir)
         .map_err(|e| RecordStartError { dir: config.dir.clone(), reason: format!("cannot create: {e}") })?;
-    let (frames_tx, frames_rx) = crossbeam_channel::bounded(config.frame_queue);
+    // Frames are bounded by the pool (`frame_queue` + 1 buffers); the queue also carries the
+    // input poses between them, which get the event queue's room.
+    let (frames_tx, frames_rx) = crossbeam_channel::bounded(config.frame_queue + config.event_queue);
     let (events_tx, events_rx) = crossbeam_channel::bounded(config.event_queue);
     // One buffer more than the queue holds: the one being written.
     let (pool_tx, pool_rx) = crossbeam_channel::bounded(config.frame_queue + 1);
@@ -389,9 +543,21 @@ pub(crate) fn prepare(
         depth: Limiter::new(c.depth),
         frame: Limiter::new(c.frame),
         sides: Limiter::new(c.side_channels),
+        poses: Limiter::new(c.input_poses),
+        detections: Limiter::new(c.detections),
+        node_points: Limiter::new(c.node_points),
+        node_points_per_node: config.node_points_per_node,
     };
-    let parts =
-        RecorderParts { config: config.clone(), profile_toml, side_topics, frames_rx, events_rx, pool_tx, stats };
+    let parts = RecorderParts {
+        config: config.clone(),
+        up_axis,
+        profile_toml,
+        side_topics,
+        frames_rx,
+        events_rx,
+        pool_tx,
+        stats,
+    };
     Ok((sender, parts))
 }
 
@@ -415,14 +581,15 @@ impl std::fmt::Debug for Recorder {
 }
 
 impl Recorder {
-    /// Starts thread `op3dsg-record` writing into `config.dir`.
+    /// Starts thread `op3dsg-record` writing into `config.dir`; `up_axis` is the world's.
     pub fn start(
         config: &RecordConfig,
         profile_toml: String,
         intrinsics: Intrinsics,
+        up_axis: UpAxis,
     ) -> Result<Self, RecordStartError> {
         let stats = Arc::new(RecorderStats::default());
-        let (sender, parts) = prepare(config, profile_toml, intrinsics, Vec::new(), stats.clone())?;
+        let (sender, parts) = prepare(config, profile_toml, intrinsics, up_axis, Vec::new(), stats.clone())?;
         let thread = std::thread::Builder::new()
             .name("op3dsg-record".to_owned())
             .spawn(move || run(parts))

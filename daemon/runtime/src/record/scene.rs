@@ -1,5 +1,7 @@
-//! `foxglove.SceneUpdate` of a graph version: a cube per node at its box (objects blue-grey and
-//! translucent, parts orange), its label as a billboard text above it, and the edges as lines
+//! `foxglove.SceneUpdate` of a graph version: a cube per node at its gravity-aligned oriented box
+//! (`obb`: centre, size along the box's own axes, turned by its yaw about the world's up axis;
+//! objects blue-grey and translucent, parts orange), its label as a billboard text above the
+//! box's top, and the edges as lines
 //! between node centres: spatial edges grey, functional edges green, each kind one entity
 //! (`edges/spatial`, `edges/functional`) so Foxglove's topic settings can hide one.
 //!
@@ -12,7 +14,9 @@ use op3dsg_drivers::mcap::WORLD_FRAME;
 use op3dsg_drivers::mcap::messages::Time;
 use op3dsg_ipc_types::{EdgeKind, NodeKind};
 
-use crate::graph::SceneGraph;
+use crate::config::UpAxis;
+use crate::fusion::oriented_box::{OrientedBox, horizontal_frame};
+use crate::graph::{GraphNode, SceneGraph};
 
 /// Object cubes.
 pub const OBJECT_COLOUR: Colour = Colour { r: 0.45, g: 0.58, b: 0.72, a: 0.35 };
@@ -27,10 +31,10 @@ const TEXT_COLOUR: Colour = Colour { r: 1.0, g: 1.0, b: 1.0, a: 1.0 };
 /// `foxglove.Color`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Colour {
-    r: f32,
-    g: f32,
-    b: f32,
-    a: f32,
+    pub(crate) r: f32,
+    pub(crate) g: f32,
+    pub(crate) b: f32,
+    pub(crate) a: f32,
 }
 
 #[derive(Debug, Serialize)]
@@ -56,9 +60,33 @@ struct Pose {
 
 impl Pose {
     fn at(position: [f64; 3]) -> Self {
-        let [x, y, z] = position;
-        Self { position: Vector3 { x, y, z }, orientation: Quaternion { x: 0.0, y: 0.0, z: 0.0, w: 1.0 } }
+        Self::new(position, glam::DQuat::IDENTITY)
     }
+
+    fn new(position: [f64; 3], rotation: glam::DQuat) -> Self {
+        let [x, y, z] = position;
+        let glam::DQuat { x: qx, y: qy, z: qz, w: qw } = rotation;
+        Self { position: Vector3 { x, y, z }, orientation: Quaternion { x: qx, y: qy, z: qz, w: qw } }
+    }
+}
+
+/// The node's oriented box; its axis-aligned box (yaw 0) when it has none (size all zero: a node
+/// restored from a map written before nodes had one).
+fn node_box(node: &GraphNode, up_axis: UpAxis) -> OrientedBox {
+    if node.obb.size_m == [0.0; 3] && node.box_max_m != node.box_min_m {
+        OrientedBox::axis_aligned(node.box_min_m, node.box_max_m, up_axis)
+    } else {
+        node.obb
+    }
+}
+
+/// The rotation taking the cube's x, y, z to the box's first axis, second axis and up (world).
+fn box_rotation(obb: &OrientedBox, up_axis: UpAxis) -> (glam::DQuat, glam::DVec3) {
+    let [first, second, up] = horizontal_frame(up_axis).map(|v| v.as_dvec3());
+    let (sin, cos) = f64::from(obb.yaw_rad).sin_cos();
+    let axis_a = first * cos + second * sin;
+    let axis_b = up.cross(axis_a);
+    (glam::DQuat::from_mat3(&glam::DMat3::from_cols(axis_a, axis_b, up)).normalize(), up)
 }
 
 #[derive(Debug, Serialize)]
@@ -160,16 +188,18 @@ fn v3(p: [f32; 3]) -> [f64; 3] {
     p.map(f64::from)
 }
 
-/// Writes the `foxglove.SceneUpdate` JSON of `graph` into `out` (cleared first).
-pub fn write_scene_update(graph: &SceneGraph, out: &mut Vec<u8>) {
+/// Writes the `foxglove.SceneUpdate` JSON of `graph` into `out` (cleared first); `up_axis` is the
+/// world's (`world.up_axis`), about which the boxes' yaw turns.
+pub fn write_scene_update(graph: &SceneGraph, up_axis: UpAxis, out: &mut Vec<u8>) {
     out.clear();
     let timestamp = Time::from_ns(graph.stamp_ns);
     let mut entities = Vec::with_capacity(graph.nodes.len() + 2);
     for node in &graph.nodes {
-        let min = v3(node.box_min_m);
-        let max = v3(node.box_max_m);
-        let centre = [0, 1, 2].map(|i| (min[i] + max[i]) / 2.0);
-        let [sx, sy, sz] = [0, 1, 2].map(|i| (max[i] - min[i]).max(0.0));
+        let obb = node_box(node, up_axis);
+        let (rotation, up) = box_rotation(&obb, up_axis);
+        let centre = v3(obb.centre_m);
+        let [sx, sy, sz] = v3(obb.size_m).map(|v| v.max(0.0));
+        let top = glam::DVec3::from_array(centre) + up * (sz / 2.0 + 0.05);
         let part = node.kind == NodeKind::Part;
         let mut entity = Entity::new(timestamp, format!("node/{}", node.id));
         entity.metadata = vec![
@@ -177,14 +207,15 @@ pub fn write_scene_update(graph: &SceneGraph, out: &mut Vec<u8>) {
             KeyValue { key: "node_id", value: node.id.to_string() },
             KeyValue { key: "kind", value: node.kind.as_str().to_owned() },
             KeyValue { key: "label", value: node.label.clone() },
+            KeyValue { key: "yaw_rad", value: obb.yaw_rad.to_string() },
         ];
         entity.cubes.push(Cube {
-            pose: Pose::at(centre),
+            pose: Pose::new(centre, rotation),
             size: Vector3 { x: sx, y: sy, z: sz },
             color: if part { PART_COLOUR } else { OBJECT_COLOUR },
         });
         entity.texts.push(Text {
-            pose: Pose::at([centre[0], centre[1], max[2] + 0.05]),
+            pose: Pose::at(top.to_array()),
             billboard: true,
             font_size: if part { 12.0 } else { 16.0 },
             scale_invariant: true,
@@ -251,7 +282,7 @@ mod tests {
             observation_count: 1,
             affordance_bits: 0,
             last_seen_stamp_ns: 0,
-            obb: Default::default(),
+            obb: OrientedBox::axis_aligned(min, max, UpAxis::Z),
         }
     }
 
@@ -284,7 +315,7 @@ mod tests {
             ],
         };
         let mut out = Vec::new();
-        write_scene_update(&graph, &mut out);
+        write_scene_update(&graph, UpAxis::Z, &mut out);
         let v: serde_json::Value = serde_json::from_slice(&out).unwrap();
         assert_eq!(v["deletions"][0]["type"], 1);
         let entities = v["entities"].as_array().unwrap();
@@ -298,5 +329,61 @@ mod tests {
         assert_eq!(entities[2]["lines"][0]["points"].as_array().unwrap().len(), 2);
         assert_ne!(entities[2]["lines"][0]["color"], entities[3]["lines"][0]["color"]);
         assert_eq!(entities[0]["timestamp"]["nsec"], 3);
+    }
+
+    fn cube_axes(cube: &serde_json::Value) -> (glam::DVec3, [glam::DVec3; 3]) {
+        let p = &cube["pose"]["position"];
+        let q = &cube["pose"]["orientation"];
+        let f = |v: &serde_json::Value| v.as_f64().unwrap();
+        let rotation = glam::DQuat::from_xyzw(f(&q["x"]), f(&q["y"]), f(&q["z"]), f(&q["w"]));
+        let centre = glam::DVec3::new(f(&p["x"]), f(&p["y"]), f(&p["z"]));
+        (centre, [glam::DVec3::X, glam::DVec3::Y, glam::DVec3::Z].map(|a| rotation * a))
+    }
+
+    #[test]
+    fn cubes_are_the_oriented_boxes_turned_about_the_world_up_axis() {
+        let yaw = 0.5f32;
+        for up_axis in [UpAxis::Z, UpAxis::Y, UpAxis::NegY] {
+            let mut n = node(3, NodeKind::Object, [0.0; 3], [2.0, 2.0, 2.0]);
+            n.obb = OrientedBox { centre_m: [1.0, 1.5, 0.5], size_m: [1.2, 0.4, 0.9], yaw_rad: yaw };
+            let graph = SceneGraph { version: 1, stamp_ns: 0, nodes: vec![n.clone()], edges: vec![] };
+            let mut out = Vec::new();
+            write_scene_update(&graph, up_axis, &mut out);
+            let v: serde_json::Value = serde_json::from_slice(&out).unwrap();
+            let cube = &v["entities"][0]["cubes"][0];
+            assert_eq!(cube["size"]["x"], f64::from(1.2f32));
+            let (centre, axes) = cube_axes(cube);
+            assert_eq!(centre, glam::DVec3::from_array(n.obb.centre_m.map(f64::from)));
+            // The cube's corners are the box's corners.
+            let half = glam::DVec3::new(0.6, 0.2, 0.45);
+            let corners = n.obb.corners(up_axis);
+            let signs = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)];
+            for (level, z) in [-1.0f64, 1.0].into_iter().enumerate() {
+                for (i, (a, b)) in signs.iter().enumerate() {
+                    let got = centre + axes[0] * (a * half.x) + axes[1] * (b * half.y) + axes[2] * (z * half.z);
+                    let want = glam::DVec3::from_array(corners[level * 4 + i].map(f64::from));
+                    assert!(got.distance(want) < 1e-5, "{up_axis:?} corner {}: {got} vs {want}", level * 4 + i);
+                }
+            }
+            // The label sits above the box's top along up.
+            let text = &v["entities"][0]["texts"][0]["pose"]["position"];
+            let text =
+                glam::DVec3::new(text["x"].as_f64().unwrap(), text["y"].as_f64().unwrap(), text["z"].as_f64().unwrap());
+            assert!((text - centre).dot(axes[2]) > 0.45, "{up_axis:?}: label above the top");
+        }
+    }
+
+    #[test]
+    fn a_node_without_an_oriented_box_gets_its_axis_aligned_one() {
+        let mut n = node(4, NodeKind::Part, [1.0, 2.0, 3.0], [1.5, 2.5, 4.0]);
+        n.obb = OrientedBox::default();
+        let graph = SceneGraph { version: 1, stamp_ns: 0, nodes: vec![n], edges: vec![] };
+        let mut out = Vec::new();
+        write_scene_update(&graph, UpAxis::Z, &mut out);
+        let v: serde_json::Value = serde_json::from_slice(&out).unwrap();
+        let cube = &v["entities"][0]["cubes"][0];
+        assert_eq!(cube["pose"]["position"]["z"], 3.5);
+        assert_eq!(cube["size"]["z"], 1.0);
+        assert_eq!(cube["pose"]["orientation"]["w"], 1.0);
     }
 }

@@ -16,7 +16,10 @@ use op3dsg_ipc_types::{Health, RECORDER_STATES, fixed_str};
 use tracing::{info, warn};
 
 use super::scene::write_scene_update;
-use super::{Event, RawFrame, RecordCompression, RecordConfig, RecorderParts, RecorderState, RecorderStats};
+use super::{
+    Channel, Event, RawFrame, RawInput, RecordCompression, RecordConfig, RecorderParts, RecorderState, RecorderStats,
+};
+use crate::config::UpAxis;
 
 type McapWriter = mcap::Writer<BufWriter<File>>;
 
@@ -28,11 +31,43 @@ struct OpenFile {
     channels: HashMap<String, u16>,
     written: BTreeMap<String, u64>,
     dropped_at_open: u64,
+    dropped_by_at_open: [(Channel, u64); super::CHANNEL_COUNT],
     calibration: Option<Intrinsics>,
+}
+
+/// The messages of `raw` by channel (for counting them dropped).
+fn frame_messages(raw: &RawFrame) -> [(Channel, u64); 4] {
+    let sides = raw.sides.iter().filter(|(_, filled)| *filled).count() as u64;
+    [
+        (Channel::Colour, u64::from(raw.has_colour)),
+        (Channel::Depth, u64::from(raw.has_depth)),
+        (Channel::Frame, u64::from(raw.has_meta)),
+        (Channel::SideChannels, sides),
+    ]
+}
+
+/// The messages of `event` by channel.
+fn event_messages(event: &Event) -> [(Channel, u64); 2] {
+    match event {
+        Event::Graph { json, scene, .. } => [(Channel::Graph, u64::from(*json)), (Channel::Scene, u64::from(*scene))],
+        Event::Keyframe { .. } => [(Channel::Transforms, 1), (Channel::Graph, 0)],
+        Event::Health { .. } => [(Channel::Health, 1), (Channel::Graph, 0)],
+        Event::Detections { .. } => [(Channel::Detections, 1), (Channel::Graph, 0)],
+        Event::NodePoints { .. } => [(Channel::NodePoints, 1), (Channel::Graph, 0)],
+    }
+}
+
+fn count_drops(stats: &RecorderStats, drops: &[(Channel, u64)]) {
+    for &(channel, n) in drops {
+        if n > 0 {
+            stats.count_drop(channel, n);
+        }
+    }
 }
 
 struct Recorder {
     config: RecordConfig,
+    up_axis: UpAxis,
     profile_toml: String,
     side_topics: Vec<String>,
     stats: std::sync::Arc<RecorderStats>,
@@ -154,6 +189,7 @@ impl Recorder {
             channels: HashMap::new(),
             written: BTreeMap::new(),
             dropped_at_open: self.stats.dropped.load(Ordering::Relaxed),
+            dropped_by_at_open: self.stats.dropped_by_channel(),
             calibration: None,
         });
         Ok(())
@@ -284,6 +320,16 @@ impl Recorder {
         Ok(())
     }
 
+    fn write_input_pose(
+        &mut self,
+        log_time_ns: u64,
+        pose: &op3dsg_drivers::mcap::messages::InputPose,
+    ) -> Result<(), String> {
+        self.bytes.clear();
+        serde_json::to_writer(&mut self.bytes, pose).map_err(|e| e.to_string())?;
+        self.write(topics::TOPIC_INPUT_POSE, schemas::INPUT_POSE, log_time_ns)
+    }
+
     fn write_event(&mut self, event: Event) -> Result<(), String> {
         match event {
             Event::Graph { log_time_ns, graph, json, scene } => {
@@ -294,7 +340,7 @@ impl Recorder {
                 }
                 if scene {
                     let mut bytes = std::mem::take(&mut self.bytes);
-                    write_scene_update(&graph, &mut bytes);
+                    write_scene_update(&graph, self.up_axis, &mut bytes);
                     self.bytes = bytes;
                     self.write(topics::TOPIC_SCENE, schemas::SCENE_UPDATE, log_time_ns)?;
                 }
@@ -312,6 +358,18 @@ impl Recorder {
                 self.bytes.clear();
                 serde_json::to_writer(&mut self.bytes, &value).map_err(|e| e.to_string())?;
                 self.write(topics::TOPIC_TF, schemas::FRAME_TRANSFORM, log_time_ns)?;
+            }
+            Event::Detections { log_time_ns, stamp_ns, boxes } => {
+                let mut bytes = std::mem::take(&mut self.bytes);
+                super::annotations::write_detections(stamp_ns, &boxes, &mut bytes);
+                self.bytes = bytes;
+                self.write(topics::TOPIC_DETECTIONS, schemas::IMAGE_ANNOTATIONS, log_time_ns)?;
+            }
+            Event::NodePoints { log_time_ns, stamp_ns, points } => {
+                let mut bytes = std::mem::take(&mut self.bytes);
+                super::annotations::write_node_points(stamp_ns, &points, &mut self.scratch, &mut bytes);
+                self.bytes = bytes;
+                self.write(topics::TOPIC_NODE_POINTS, schemas::POINT_CLOUD, log_time_ns)?;
             }
             Event::Health { log_time_ns, health } => {
                 let mut health = *health;
@@ -347,6 +405,21 @@ impl Recorder {
         let dropped = self.stats.dropped.load(Ordering::Relaxed) - file.dropped_at_open;
         let mut entries: BTreeMap<String, String> =
             file.written.iter().map(|(topic, n)| (format!("{topic}.written"), n.to_string())).collect();
+        // Drops per channel: every channel written in this file or with drops gets its count.
+        let now = self.stats.dropped_by_channel();
+        for ((channel, total), (_, at_open)) in now.iter().zip(file.dropped_by_at_open.iter()) {
+            let n = total - at_open;
+            let topics: Vec<&str> = match channel.topic() {
+                Some(topic) => vec![topic],
+                None => self.side_topics.iter().map(String::as_str).collect(),
+            };
+            let per_topic = n / (topics.len().max(1) as u64);
+            for topic in topics {
+                if per_topic > 0 || file.written.contains_key(topic) {
+                    entries.insert(format!("{topic}.dropped"), per_topic.to_string());
+                }
+            }
+        }
         entries.insert("dropped_total".to_owned(), dropped.to_string());
         entries.insert("finished_utc".to_owned(), utc_stamp(super::now_ns()));
         let metadata = Metadata { name: topics::METADATA_RECORDER.to_owned(), metadata: entries };
@@ -364,10 +437,11 @@ impl Recorder {
 }
 
 pub(super) fn recorder_loop(parts: RecorderParts) {
-    let RecorderParts { config, profile_toml, side_topics, frames_rx, events_rx, pool_tx, stats } = parts;
+    let RecorderParts { config, up_axis, profile_toml, side_topics, frames_rx, events_rx, pool_tx, stats } = parts;
     let flush_every = Duration::from_millis(config.flush_interval_ms);
     let mut rec = Recorder {
         config,
+        up_axis,
         profile_toml,
         side_topics,
         stats,
@@ -391,15 +465,31 @@ pub(super) fn recorder_loop(parts: RecorderParts) {
         let timeout = next_flush.saturating_duration_since(Instant::now());
         let result = crossbeam_channel::select! {
             recv(frames_rx.as_ref().unwrap_or(&never_frames)) -> msg => match msg {
-                Ok(raw) => {
-                    let result = if rec.failed { rec.stats.count_drop(); Ok(()) } else { rec.write_frame(&raw) };
+                Ok(RawInput::Frame(raw)) => {
+                    let result = if rec.failed {
+                        count_drops(&rec.stats, &frame_messages(&raw));
+                        Ok(())
+                    } else {
+                        rec.write_frame(&raw)
+                    };
                     let _ = pool_tx.try_send(raw);
                     result
                 }
+                Ok(RawInput::Pose { log_time_ns, pose }) => if rec.failed {
+                    count_drops(&rec.stats, &[(Channel::InputPoses, 1)]);
+                    Ok(())
+                } else {
+                    rec.write_input_pose(log_time_ns, &pose)
+                },
                 Err(_) => { frames_rx = None; Ok(()) }
             },
             recv(events_rx.as_ref().unwrap_or(&never_events)) -> msg => match msg {
-                Ok(event) => if rec.failed { rec.stats.count_drop(); Ok(()) } else { rec.write_event(event) },
+                Ok(event) => if rec.failed {
+                    count_drops(&rec.stats, &event_messages(&event));
+                    Ok(())
+                } else {
+                    rec.write_event(event)
+                },
                 Err(_) => { events_rx = None; Ok(()) }
             },
             default(timeout) => Ok(()),

@@ -116,11 +116,22 @@ pub(super) fn info(files: &[PathBuf], json: bool) -> Result<()> {
         if let Some(error) = &s.error {
             println!("  read up to: {error}");
         }
-        println!("  {:<22} {:<28} {:>9} {:>8}", "channel", "schema", "messages", "rate Hz");
+        println!("  {:<22} {:<28} {:>9} {:>8} {:>8}", "channel", "schema", "messages", "rate Hz", "dropped");
         for c in &s.channels {
             let span = seconds_between(c.first_log_time_ns, c.last_log_time_ns);
             let rate = if span > 0.0 { (c.messages.saturating_sub(1)) as f64 / span } else { 0.0 };
-            println!("  {:<22} {:<28} {:>9} {:>8.1}", c.topic, c.schema, c.messages, rate);
+            // Per-channel drops are in the metadata of a finished file only.
+            let dropped = s.recorder_metadata.get(&format!("{}.dropped", c.topic)).map_or("-", String::as_str);
+            println!("  {:<22} {:<28} {:>9} {:>8.1} {:>8}", c.topic, c.schema, c.messages, rate, dropped);
+        }
+        // Channels with drops but no message in the file.
+        for (key, value) in &s.recorder_metadata {
+            if let Some(topic) = key.strip_suffix(".dropped")
+                && value != "0"
+                && !s.channels.iter().any(|c| c.topic == topic)
+            {
+                println!("  {topic:<22} {:<28} {:>9} {:>8} {value:>8}", "(none written)", 0, "-");
+            }
         }
     }
     Ok(())
@@ -170,7 +181,7 @@ pub(super) fn bench(args: RecordBenchArgs) -> Result<()> {
             chunk_size_kib: args.chunk_size_kib,
             ..RecordConfig::default()
         };
-        let recorder = Recorder::start(&config, String::new(), frames[0].intrinsics)
+        let recorder = Recorder::start(&config, String::new(), frames[0].intrinsics, op3dsg_runtime::config::UpAxis::Z)
             .with_context(|| format!("starting the recorder in {}", run_dir.display()))?;
         let mut sender = recorder.sender().context("recorder sender")?;
         let period = Duration::from_secs_f64(1.0 / args.rate_hz);

@@ -496,6 +496,16 @@ impl Fusion for MultiViewFusion {
         attach_parts(out, self.config.part_attach_margin_m);
     }
 
+    fn node_points(&self, max_per_node: usize, out: &mut Vec<super::NodePoint>) {
+        for node in self.nodes.iter().filter(|n| n.alive && self.confirmed(n)) {
+            let points = &node.cloud.points;
+            let step = points.len().div_ceil(max_per_node.max(1)).max(1);
+            out.extend(
+                points.iter().step_by(step).map(|p| super::NodePoint { node_id: node.id, position_m: p.to_array() }),
+            );
+        }
+    }
+
     fn node_count(&self) -> usize {
         self.alive
     }
