@@ -266,6 +266,33 @@ pub struct QualityReport {
     pub vocabulary_labels: usize,
     /// Ground truth vs knowledge base over all scenes ([`super::agreement`]).
     pub agreement: Agreement,
+    /// How much of the rooms the scores cover.
+    pub coverage: Coverage,
+}
+
+/// Ground-truth nodes scored (seen in enough keyframes) out of all nodes of the scenes.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct Coverage {
+    /// Nodes scored.
+    pub scored: usize,
+    /// Nodes of the scenes' ground truth.
+    pub total: usize,
+}
+
+impl Coverage {
+    /// Percent, `None` without nodes.
+    pub fn percent(&self) -> Option<f64> {
+        (self.total > 0).then(|| 100.0 * self.scored as f64 / self.total as f64)
+    }
+
+    fn text(&self) -> String {
+        format!(
+            "{} of {} ground-truth nodes ({}) seen in at least 3 keyframes and scored; recall is over these",
+            self.scored,
+            self.total,
+            self.percent().map_or_else(|| "-".to_owned(), |p| format!("{p:.1} %"))
+        )
+    }
 }
 
 /// Scores scene runs with `evaluator`'s embedder (the vocabulary is the scenes' labels).
@@ -278,8 +305,11 @@ pub fn score(runs: &[SceneRun], embedder: &mut dyn super::recall::PhraseEmbedder
     let mut losses = Losses::default();
     let mut mix = BTreeMap::new();
     let mut agreement = Agreement::default();
+    let mut coverage = Coverage::default();
     for run in runs {
         agreement.add(&run.agreement);
+        coverage.scored += run.ground_truth.nodes.iter().filter(|n| run.scored_ids.contains(&n.id)).count();
+        coverage.total += run.ground_truth.nodes.len();
         let scored = |id: u32| run.scored_ids.contains(&id);
         for (row, prediction) in rows.iter_mut().zip(&run.predictions) {
             let report = evaluator
@@ -326,6 +356,7 @@ pub fn score(runs: &[SceneRun], embedder: &mut dyn super::recall::PhraseEmbedder
         mix,
         vocabulary_labels,
         agreement,
+        coverage,
     })
 }
 
@@ -430,6 +461,7 @@ pub fn text(report: &QualityReport) -> String {
             report.vocabulary_labels
         );
     }
+    let _ = writeln!(s, "coverage: {}", report.coverage.text());
     let l = &report.losses;
     let _ = writeln!(s, "\nwhere the full row loses recall at R@3:");
     let _ = writeln!(s, "  object nodes: {}", sorted(&l.object));
@@ -504,6 +536,7 @@ pub fn markdown(report: &QualityReport) -> String {
             pct(&f.overall_iop25, K3)
         );
     }
+    let _ = writeln!(s, "\nCoverage: {}.", report.coverage.text());
     let a = &report.agreement;
     let share = |x: &agreement::Share| x.percent().map_or_else(|| "-".to_owned(), |p| format!("{p:.1} %"));
     let _ = writeln!(
