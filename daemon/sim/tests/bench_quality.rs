@@ -40,6 +40,14 @@ fn a_small_benchmark_scores_every_row_and_repeats() {
         assert!(r.total > 5, "{name}: {r:?}");
         assert!(r.percent(K3).unwrap() > 50.0, "{name}: {r:?}\n{}", benchmark::text(&report));
     }
+    // Coverage: the scored nodes are those seen in enough keyframes, fewer than the room has.
+    let scored: usize = runs.iter().map(|r| r.scored_ids.len()).sum();
+    let nodes: usize = runs.iter().map(|r| r.ground_truth.nodes.len()).sum();
+    assert_eq!((report.coverage.scored, report.coverage.total), (scored, nodes));
+    assert!(scored > 0 && scored < nodes, "{:?}", report.coverage);
+    // The knowledge base's agreement with the ground truth is measured on every scene.
+    assert!(report.agreement.functional.total > 10 && report.agreement.affordance.total > 10, "{:?}", report.agreement);
+    assert!(benchmark::text(&report).contains("ground truth vs knowledge base"));
     // Without knowledge-guided part candidates, generic part names lose part recall at R@3.
     let generic = &report.rows[1].1;
     assert!(generic.part.percent(K3).unwrap() + 10.0 < full.part.percent(K3).unwrap(), "{}", benchmark::text(&report));

@@ -40,6 +40,7 @@ mod side_channel;
 mod source;
 #[cfg(test)]
 mod tests;
+pub mod truth;
 
 pub use catalog::{FUNCTIONAL_RELATIONS, SPATIAL_RELATIONS};
 pub use path::{CameraPath, inside_furniture, look_rotation};

@@ -229,6 +229,7 @@ pub struct Scene {
     /// Floor, wall, ceiling materials.
     pub(crate) structure: [Material; 3],
     pub(crate) light_m: Vec3,
+    pub(crate) deviations: Vec<crate::truth::SceneDeviation>,
 }
 
 impl Scene {
@@ -260,6 +261,12 @@ impl Scene {
     /// Ground-truth edges (instance ids).
     pub fn edges(&self) -> &[GtEdge] {
         &self.edges
+    }
+
+    /// Where this room differs from the usual ground truth ([`crate::truth::DEVIATIONS`]), in
+    /// the order the catalog drew them.
+    pub fn deviations(&self) -> &[crate::truth::SceneDeviation] {
+        &self.deviations
     }
 
     /// Render primitives with their instance ids.

@@ -252,9 +252,20 @@ fn every_room_is_well_formed() {
                     _ => assert!(SPATIAL_RELATIONS.contains(&edge.relation.as_str()), "{what}: {}", edge.relation),
                 }
             }
-            assert!(functional >= parts.len(), "{what}: every part acts on something");
+            // Every part acts on something, except where the room's deviation says it acts on
+            // nothing here (a switch for the next room, an empty outlet).
+            let idle: Vec<u16> = scene
+                .deviations()
+                .iter()
+                .filter(|d| {
+                    truth::DEVIATIONS.iter().any(|x| x.name == d.name && x.truth.is_some_and(|t| t.relation.is_none()))
+                })
+                .map(|d| d.instance)
+                .collect();
+            assert!(functional + idle.len() >= parts.len(), "{what}: every part acts on something");
             for part in &parts {
-                assert!(gt.edges.iter().any(|e| e.kind == "functional" && e.source == u32::from(part.id)));
+                let acts = gt.edges.iter().any(|e| e.kind == "functional" && e.source == u32::from(part.id));
+                assert_eq!(acts, !idle.contains(&part.id), "{what}: {} {}", part.label, part.id);
                 if let Some(parent) = part.parent {
                     assert!(gt.edges.iter().any(|e| e.relation == "part of"
                         && e.source == u32::from(part.id)
@@ -441,5 +452,63 @@ fn colour_panel_needs_colour_and_is_seen_from_several_views() {
             let spread = places.iter().map(|p| (*p - places[0]).length()).fold(0.0f32, f32::max);
             assert!(places.len() >= 6 && spread > 1.0, "seed {seed}: part {} seen from {places:?}", part.id);
         }
+    }
+}
+
+/// The rooms' deviations from the usual ground truth occur in the benchmark's scenes (room
+/// `ALL[i % 4]`, seed `i / 4 + 1` for 24 scenes) and shape the ground truth as documented.
+#[test]
+fn deviations_occur_in_the_benchmark_rooms_and_shape_the_ground_truth() {
+    let mut drawn = std::collections::BTreeMap::new();
+    for i in 0..24 {
+        let (room, seed) = (RoomKind::ALL[i % 4], (i / 4 + 1) as u64);
+        let scene = Scene::generate(room, seed);
+        let gt = scene.ground_truth();
+        let what = format!("{room:?} seed {seed}");
+        let functional = |id: u16| -> Vec<(&str, &str)> {
+            gt.edges
+                .iter()
+                .filter(|e| e.kind == "functional" && e.source == u32::from(id))
+                .map(|e| (e.relation.as_str(), scene.instance(e.target as u16).map_or("?", |t| t.label.as_str())))
+                .collect()
+        };
+        for d in scene.deviations() {
+            *drawn.entry(d.name).or_insert(0) += 1;
+            let info = scene.instance(d.instance).unwrap();
+            let edges = functional(d.instance);
+            match d.name {
+                n if n == truth::EMPTY_OUTLET.name => {
+                    assert_eq!(info.label, "power outlet", "{what}");
+                    assert!(edges.is_empty(), "{what}: empty outlet powers {edges:?}");
+                    assert_eq!(scene.affordances(d.instance), ["plug_in"], "{what}");
+                }
+                n if n == truth::SWITCH_FOR_NEXT_ROOM.name => {
+                    assert_eq!(info.label, "light switch", "{what}");
+                    assert!(edges.is_empty(), "{what}: next-room switch controls {edges:?}");
+                }
+                n if n == truth::SWITCH_FOR_FAR_LAMP.name => {
+                    assert_eq!(edges, [("turn on or turn off", "floor lamp")], "{what}");
+                }
+                n if n == truth::OVEN_DOOR_KNOB.name => {
+                    assert_eq!(info.label, "oven knob", "{what}");
+                    assert_eq!(edges, [("pull to open or close", "stove")], "{what}");
+                }
+                n if n == truth::TURN_LATCH_KNOB.name => {
+                    assert_eq!(edges, [("rotate to open or close", "cabinet")], "{what}");
+                    assert_eq!(scene.affordances(d.instance), ["rotate", "pinch_pull"], "{what}");
+                }
+                n if n == truth::REMOTE_AWAY_FROM_TV.name => {
+                    assert_eq!(edges, [("remote to control", "tv")], "{what}");
+                    let tv = scene.instances().iter().find(|i| i.label == "tv").unwrap();
+                    let centre = |i: &InstanceInfo| (i.box_min_m + i.box_max_m) * 0.5;
+                    let distance = centre(info).distance(centre(tv));
+                    assert!(distance > 2.5, "{what}: remote {distance:.2} m from the TV");
+                }
+                other => panic!("{what}: unknown deviation {other}"),
+            }
+        }
+    }
+    for d in truth::DEVIATIONS {
+        assert!(drawn.get(d.name).is_some_and(|n| *n > 0), "{} never drawn in the benchmark rooms: {drawn:?}", d.name);
     }
 }

@@ -25,6 +25,12 @@
 //! keyframes are not scored (see [`super::recall`]); the vocabulary is the labels of all
 //! scenes of the run.
 //!
+//! ## Ground truth and knowledge base
+//!
+//! The rooms' functional relations and affordances come from `op3dsg_synthetic::truth`, not
+//! from the knowledge base; [`super::agreement`] measures, per scene on every ground-truth node,
+//! how often the knowledge base gives the same answer (reported with the table).
+//!
 //! ## Where recall is lost
 //!
 //! For the full row, every scored item not retrieved at R@3 is attributed to a stage: nodes to
@@ -42,6 +48,7 @@ use op3dsg_drivers::graph_json::GraphJson;
 use op3dsg_synthetic::RoomKind;
 use serde::Serialize;
 
+use super::agreement::{self, Agreement};
 use super::fusion_match::{self, FusionMatchReport, MatchCriteria};
 use super::recall::{AffordanceMiss, EdgeMiss, K3, K5, K10, Recall, RecallEvaluator, RecallFigures, Vocabulary};
 use crate::backends::{oracle_config, set_oracle_config, set_synthetic_config, synthetic_config};
@@ -108,6 +115,8 @@ pub struct SceneRun {
     pub fusion: FusionMatchReport,
     /// Keyframes.
     pub keyframes: u64,
+    /// How often the knowledge base gives the ground truth's answer on this scene's nodes.
+    pub agreement: Agreement,
 }
 
 /// Runs one scene: the full system and the ablations over one rendering pass.
@@ -168,15 +177,11 @@ pub fn run_scene(base: &Profile, room: RoomKind, seed: u64) -> Result<SceneRun, 
         })
         .map(|i| u32::from(i.id))
         .collect();
-    Ok(SceneRun {
-        room,
-        seed,
-        ground_truth: scene.ground_truth(),
-        scored_ids,
-        predictions,
-        fusion,
-        keyframes: full_run.keyframes,
-    })
+    let ground_truth = scene.ground_truth();
+    let deviations: Vec<(u32, &str)> = scene.deviations().iter().map(|d| (u32::from(d.instance), d.name)).collect();
+    let agreement =
+        agreement::measure(&ground_truth, &deviations, &profile).map_err(|e| format!("{name}: agreement: {e}"))?;
+    Ok(SceneRun { room, seed, ground_truth, agreement, scored_ids, predictions, fusion, keyframes: full_run.keyframes })
 }
 
 /// Runs scenes `0..scenes` on `threads` named threads; `progress` is called after each scene.
@@ -259,6 +264,35 @@ pub struct QualityReport {
     pub mix: BTreeMap<String, u32>,
     /// Vocabulary size (node labels).
     pub vocabulary_labels: usize,
+    /// Ground truth vs knowledge base over all scenes ([`super::agreement`]).
+    pub agreement: Agreement,
+    /// How much of the rooms the scores cover.
+    pub coverage: Coverage,
+}
+
+/// Ground-truth nodes scored (seen in enough keyframes) out of all nodes of the scenes.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct Coverage {
+    /// Nodes scored.
+    pub scored: usize,
+    /// Nodes of the scenes' ground truth.
+    pub total: usize,
+}
+
+impl Coverage {
+    /// Percent, `None` without nodes.
+    pub fn percent(&self) -> Option<f64> {
+        (self.total > 0).then(|| 100.0 * self.scored as f64 / self.total as f64)
+    }
+
+    fn text(&self) -> String {
+        format!(
+            "{} of {} ground-truth nodes ({}) seen in at least 3 keyframes and scored; recall is over these",
+            self.scored,
+            self.total,
+            self.percent().map_or_else(|| "-".to_owned(), |p| format!("{p:.1} %"))
+        )
+    }
 }
 
 /// Scores scene runs with `evaluator`'s embedder (the vocabulary is the scenes' labels).
@@ -270,7 +304,12 @@ pub fn score(runs: &[SceneRun], embedder: &mut dyn super::recall::PhraseEmbedder
         ROWS.iter().map(|r| ((*r).to_owned(), RecallFigures::default())).collect();
     let mut losses = Losses::default();
     let mut mix = BTreeMap::new();
+    let mut agreement = Agreement::default();
+    let mut coverage = Coverage::default();
     for run in runs {
+        agreement.add(&run.agreement);
+        coverage.scored += run.ground_truth.nodes.iter().filter(|n| run.scored_ids.contains(&n.id)).count();
+        coverage.total += run.ground_truth.nodes.len();
         let scored = |id: u32| run.scored_ids.contains(&id);
         for (row, prediction) in rows.iter_mut().zip(&run.predictions) {
             let report = evaluator
@@ -316,6 +355,8 @@ pub fn score(runs: &[SceneRun], embedder: &mut dyn super::recall::PhraseEmbedder
         losses,
         mix,
         vocabulary_labels,
+        agreement,
+        coverage,
     })
 }
 
@@ -420,6 +461,7 @@ pub fn text(report: &QualityReport) -> String {
             report.vocabulary_labels
         );
     }
+    let _ = writeln!(s, "coverage: {}", report.coverage.text());
     let l = &report.losses;
     let _ = writeln!(s, "\nwhere the full row loses recall at R@3:");
     let _ = writeln!(s, "  object nodes: {}", sorted(&l.object));
@@ -436,6 +478,7 @@ pub fn text(report: &QualityReport) -> String {
         let list: Vec<String> = missed.iter().map(|(n, v, t)| format!("{n} {v:.1} < {t:.0}")).collect();
         let _ = writeln!(s, "\ntargets (full, R@3) missed: {}", list.join("; "));
     }
+    s.push_str(&agreement::text(&report.agreement));
     s.push_str(&mix_text(&report.mix));
     s
 }
@@ -493,5 +536,21 @@ pub fn markdown(report: &QualityReport) -> String {
             pct(&f.overall_iop25, K3)
         );
     }
+    let _ = writeln!(s, "\nCoverage: {}.", report.coverage.text());
+    let a = &report.agreement;
+    let share = |x: &agreement::Share| x.percent().map_or_else(|| "-".to_owned(), |p| format!("{p:.1} %"));
+    let _ = writeln!(
+        s,
+        "\nGround truth vs knowledge base (reasoner on ground-truth nodes): functional triplets {} of {} agree ({}), \
+         affordance sets {} of {} ({}); on the rooms' deviations {} / {}.",
+        a.functional.agree,
+        a.functional.total,
+        share(&a.functional),
+        a.affordance.agree,
+        a.affordance.total,
+        share(&a.affordance),
+        share(&a.functional_deviations),
+        share(&a.affordance_deviations)
+    );
     s
 }

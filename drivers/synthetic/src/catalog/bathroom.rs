@@ -9,7 +9,6 @@ use super::furniture::{Grip, cabinet, ceiling_light, door_and_switches, drawer_s
 use super::materials::{
     BLACK_PLASTIC, BRASS, CERAMIC, CHROME, FRONTS, LIGHT_DIFFUSER, MIRROR, RED_PLASTIC, WHITE_LACQUER, WHITE_PLASTIC,
 };
-use super::relations::{FLOW_SETTING, FLUSH, WATER};
 use crate::scene::{Axis, Shape};
 
 pub(super) fn bathroom(b: &mut Builder, base: usize) {
@@ -32,7 +31,7 @@ pub(super) fn bathroom(b: &mut Builder, base: usize) {
     let faucet_metal = b.pick(&[CHROME, BRASS]);
     let mixer = tub_wall.knob(sm, 0.0, 0.85, 0.03, 0.05);
     let spout = tub_wall.cuboid([sm - 0.02, sm + 0.02], [0.0, 0.15], [0.72, 0.76]);
-    b.part(Some(tub), "faucet", faucet_metal, &["rotate", "hook_turn"], tub, WATER, &[mixer, spout]);
+    b.part(Some(tub), "faucet", faucet_metal, tub, &[mixer, spout]);
 
     // Toilet, vanity with sink, drawers, mirror and its light along the second wall.
     let toilet = b.object("toilet", &["wc", "toilet bowl"], CERAMIC);
@@ -48,7 +47,7 @@ pub(super) fn bathroom(b: &mut Builder, base: usize) {
         radius: 0.025,
         half_length: 0.006,
     };
-    b.part(Some(toilet), "flush button", CHROME, &["tip_push"], toilet, FLUSH, &[button]);
+    b.part(Some(toilet), "flush button", CHROME, toilet, &[button]);
 
     let v0 = t0 + 0.7;
     let vanity = cabinet(b, vanity_wall, v0, 0.8, 0.5, [0.0, 0.8], front, Grip::Handle, metals, &mut metal_counter);
@@ -72,7 +71,7 @@ pub(super) fn bathroom(b: &mut Builder, base: usize) {
         outlet(b, vanity_wall, d0 + 0.2, 1.05, dryer);
     }
 
-    door_and_switches(b, door_wall, 0.7, &[light, wall_light]);
+    door_and_switches(b, door_wall, 0.7, &[light, wall_light], None);
 
     // Radiator with its valve; a wall cabinet with knobs above it.
     let rs = radiator_wall.len * 0.5;
@@ -81,7 +80,7 @@ pub(super) fn bathroom(b: &mut Builder, base: usize) {
     b.add(radiator, panel, WHITE_LACQUER);
     b.claim(&panel);
     let valve = radiator_wall.post(rs + 0.45, 0.08, [0.12, 0.2], 0.022);
-    b.part(Some(radiator), "radiator valve", WHITE_PLASTIC, &["rotate"], radiator, FLOW_SETTING, &[valve]);
+    b.part(Some(radiator), "radiator valve", WHITE_PLASTIC, radiator, &[valve]);
     let knobs = [metals[1], metals[0]];
     let mut counter = 0;
     cabinet(b, radiator_wall, rs - 0.3, 0.7, 0.25, [1.4, 2.0], front, Grip::Knob, knobs, &mut counter);

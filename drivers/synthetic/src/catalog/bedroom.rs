@@ -9,7 +9,6 @@ use super::materials::{
     BLACK_METAL, BLUE_FABRIC, GREY_FABRIC, HANDLE_METALS, LAMP_SHADE, LINEN, WHITE_LACQUER, WHITE_PLASTIC, WOOD_DARK,
     WOOD_LIGHT,
 };
-use super::relations::{PULL, SWITCH};
 
 pub(super) fn bedroom(b: &mut Builder, base: usize) {
     let bed_wall = b.wall(base);
@@ -46,14 +45,14 @@ pub(super) fn bedroom(b: &mut Builder, base: usize) {
         let metal = metals[metal_counter % 2];
         metal_counter += 1;
         let knob = bed_wall.knob(ns, 0.4, 0.44, 0.015, 0.025);
-        b.part(Some(stand), "drawer knob", metal, &["pinch_pull"], stand, PULL, &[knob]);
+        b.part(Some(stand), "drawer knob", metal, stand, &[knob]);
         let lamp = b.object("lamp", &["table lamp", "bedside lamp"], LAMP_SHADE);
         b.add(lamp, bed_wall.post(ns, 0.2, [0.55, 0.6], 0.07), BLACK_METAL);
         b.add(lamp, bed_wall.post(ns, 0.2, [0.6, 0.85], 0.01), BLACK_METAL);
         b.add(lamp, bed_wall.post(ns, 0.2, [0.85, 1.05], 0.12), LAMP_SHADE);
         b.spatial(lamp, stand, "on");
         let switch = bed_wall.post(ns + side * 0.04, 0.2, [0.6, 0.615], 0.012);
-        b.part(Some(lamp), "lamp switch", WHITE_PLASTIC, &["tip_push"], lamp, SWITCH, &[switch]);
+        b.part(Some(lamp), "lamp switch", WHITE_PLASTIC, lamp, &[switch]);
         outlet(b, bed_wall, ns + side * 0.14, 0.7, lamp);
     }
 
@@ -75,11 +74,11 @@ pub(super) fn bedroom(b: &mut Builder, base: usize) {
                 match grip {
                     Grip::Handle => {
                         let bar = dresser_wall.cuboid([s - 0.06, s + 0.06], [0.5, 0.525], [zc - 0.01, zc + 0.01]);
-                        b.part(Some(dresser), "drawer handle", metal, &["hook_pull"], dresser, PULL, &[bar]);
+                        b.part(Some(dresser), "drawer handle", metal, dresser, &[bar]);
                     }
                     Grip::Knob => {
                         let knob = dresser_wall.knob(s, 0.5, zc, 0.015, 0.025);
-                        b.part(Some(dresser), "drawer knob", metal, &["pinch_pull"], dresser, PULL, &[knob]);
+                        b.part(Some(dresser), "drawer knob", metal, dresser, &[knob]);
                     }
                 }
             }
@@ -87,7 +86,7 @@ pub(super) fn bedroom(b: &mut Builder, base: usize) {
     }
     window(b, dresser_wall, (dresser_wall.len - 1.0) * 0.5, 1.0);
 
-    door_and_switches(b, door_wall, door_wall.len * 0.5 - 0.45, &[light]);
+    door_and_switches(b, door_wall, door_wall.len * 0.5 - 0.45, &[light], None);
 
     let body = wardrobe_wall.cuboid([0.3, 1.3], [0.0, 0.6], [0.0, 2.0]);
     if b.fits(&body) {
@@ -97,7 +96,7 @@ pub(super) fn bedroom(b: &mut Builder, base: usize) {
         let metal = b.pick(&HANDLE_METALS);
         for s in [0.76, 0.84] {
             let bar = wardrobe_wall.cuboid([s - 0.01, s + 0.01], [0.6, 0.625], [0.95, 1.25]);
-            b.part(Some(wardrobe), "wardrobe handle", metal, &["hook_pull"], wardrobe, PULL, &[bar]);
+            b.part(Some(wardrobe), "wardrobe handle", metal, wardrobe, &[bar]);
         }
     }
 }

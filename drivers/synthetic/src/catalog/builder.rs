@@ -9,6 +9,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::materials::HANDLE_METALS;
 use crate::scene::{Axis, CEILING_HEIGHT_M, GtEdge, Material, Primitive, Scene, Shape};
+use crate::truth::{self, Deviation, PartTruth, SceneDeviation};
 use crate::{InstanceInfo, InstanceKind, RoomKind};
 
 /// A wall's local frame.
@@ -54,6 +55,10 @@ impl Wall {
 /// Accumulates instances, primitives and edges.
 pub(super) struct Builder {
     pub(super) rng: ChaCha8Rng,
+    /// The stream the [`truth::DEVIATIONS`] are drawn from (its own, so that drawing one does
+    /// not change the rest of the layout).
+    deviation_rng: ChaCha8Rng,
+    deviations: Vec<SceneDeviation>,
     /// Room box size (width, depth, ceiling height), metres.
     pub(super) size: Vec3,
     instances: Vec<InstanceInfo>,
@@ -67,10 +72,13 @@ pub(super) struct Builder {
 }
 
 impl Builder {
-    /// An empty room of `size` whose layout draws from `rng`.
-    pub(super) fn new(rng: ChaCha8Rng, size: Vec3) -> Self {
+    /// An empty room of `size` whose layout draws from `rng` and whose deviations from the
+    /// usual ground truth from `deviation_rng`.
+    pub(super) fn new(rng: ChaCha8Rng, deviation_rng: ChaCha8Rng, size: Vec3) -> Self {
         Self {
             rng,
+            deviation_rng,
+            deviations: Vec::new(),
             size,
             instances: Vec::new(),
             affordances: Vec::new(),
@@ -130,24 +138,63 @@ impl Builder {
         self.instance(label, InstanceKind::Object, None, synonyms, material, &[])
     }
 
-    /// A part with its functional relation to `target`.
-    #[allow(clippy::too_many_arguments)]
+    /// A part with the ground truth of its label on its parent ([`truth::PARTS`]; wall plates
+    /// without a parent look up `on = ""`) and its functional relation to `target`.
+    ///
+    /// Panics when the table has no entry for the pair: every part the catalog builds must have
+    /// its documented truth (the catalog tests generate every room).
     pub(super) fn part(
         &mut self,
         parent: Option<u16>,
         label: &str,
         material: Material,
-        affordances: &[&'static str],
         target: u16,
-        relation: &'static str,
         shapes: &[Shape],
     ) -> u16 {
-        let id = self.instance(label, InstanceKind::Part, parent, &[], material, affordances);
-        self.functional(id, target, relation);
+        let on = parent.map_or(String::new(), |p| self.instances[p as usize - 1].label.clone());
+        let truth = truth::part_truth(label, &on)
+            .unwrap_or_else(|| panic!("ground truth: no entry for part \"{label}\" on \"{on}\" in truth::PARTS"));
+        self.part_as(parent, truth, material, Some(target), shapes)
+    }
+
+    /// A part with the given truth (a deviation's); the functional edge goes to `target` when the
+    /// truth has a relation and a target is given.
+    pub(super) fn part_as(
+        &mut self,
+        parent: Option<u16>,
+        truth: &PartTruth,
+        material: Material,
+        target: Option<u16>,
+        shapes: &[Shape],
+    ) -> u16 {
+        let id = self.instance(truth.part, InstanceKind::Part, parent, &[], material, truth.affordances);
+        if let (Some(relation), Some(target)) = (truth.relation, target) {
+            self.functional(id, target, relation);
+        }
         for shape in shapes {
             self.add(id, *shape, material);
         }
         id
+    }
+
+    /// Gives object `id` the truth of an object that acts on another ([`truth::OBJECTS`]) and
+    /// its functional relation to `target`.
+    pub(super) fn acts_on(&mut self, id: u16, target: u16) {
+        let label = self.instances[id as usize - 1].label.clone();
+        let truth = truth::object_truth(&label)
+            .unwrap_or_else(|| panic!("ground truth: no entry for object \"{label}\" in truth::OBJECTS"));
+        self.affordances[id as usize - 1] = truth.affordances.to_vec();
+        self.functional(id, target, truth.relation);
+    }
+
+    /// Whether this occasion of `deviation` happens (drawn from the deviation stream).
+    pub(super) fn deviates(&mut self, deviation: &Deviation) -> bool {
+        self.deviation_rng.random_bool(deviation.probability)
+    }
+
+    /// Records that `deviation` concerns instance `id`.
+    pub(super) fn record(&mut self, deviation: &Deviation, id: u16) {
+        self.deviations.push(SceneDeviation { name: deviation.name, instance: id });
     }
 
     pub(super) fn add(&mut self, id: u16, shape: Shape, material: Material) {
@@ -231,6 +278,7 @@ impl Builder {
             materials: self.materials,
             structure,
             light_m,
+            deviations: self.deviations,
         }
     }
 }

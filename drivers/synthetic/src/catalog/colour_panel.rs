@@ -5,7 +5,6 @@ use rand::seq::SliceRandom;
 
 use super::builder::Builder;
 use super::furniture::ceiling_light;
-use super::relations::{ADJUST, PRESS_START};
 use crate::scene::Material;
 
 // Saturated, nearly matte plastics for the colour panel. Lit and shaded they keep HSV
@@ -48,11 +47,11 @@ pub(super) fn colour_panel(b: &mut Builder, base: usize) {
             let offset = k as f32 - 2.5;
             if knobs {
                 let knob = wall.knob(sc + offset * PANEL_KNOB_SPACING_M, DEPTH, z, 0.015, 0.025);
-                b.part(Some(panel), "knob", colour, &["rotate"], panel, ADJUST, &[knob]);
+                b.part(Some(panel), "knob", colour, panel, &[knob]);
             } else {
                 let s = sc + offset * PANEL_BUTTON_SPACING_M;
                 let button = wall.cuboid([s - 0.0125, s + 0.0125], [DEPTH, DEPTH + 0.012], [z - 0.0125, z + 0.0125]);
-                b.part(Some(panel), "push button", colour, &["tip_push"], panel, PRESS_START, &[button]);
+                b.part(Some(panel), "push button", colour, panel, &[button]);
             }
         }
     }

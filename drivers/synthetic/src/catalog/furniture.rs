@@ -8,8 +8,8 @@ use super::materials::{
     BLACK_METAL, BRASS, CHROME, GREY_LAMINATE, HANDLE_METALS, LIGHT_DIFFUSER, STEEL, WHITE_LACQUER, WHITE_PLASTIC,
     WINDOW_GLASS, WOOD_DARK, WOOD_LIGHT,
 };
-use super::relations::{POWER, PULL, ROTATE_OPEN, SWITCH, WATER};
 use crate::scene::{Axis, CEILING_HEIGHT_M, Material, Shape};
+use crate::truth::{EMPTY_OUTLET, SWITCH_FOR_FAR_LAMP, SWITCH_FOR_NEXT_ROOM, TURN_LATCH_KNOB};
 
 pub(super) fn ceiling_light(b: &mut Builder, x: f32, y: f32) -> u16 {
     let id = b.object("ceiling light", &["light", "lamp", "light fixture"], LIGHT_DIFFUSER);
@@ -24,7 +24,12 @@ pub(super) fn ceiling_light(b: &mut Builder, x: f32, y: f32) -> u16 {
 }
 
 /// A door at `[s0, s0 + 0.9]` on `wall` and light switches to its side (one per light).
-pub(super) fn door_and_switches(b: &mut Builder, wall: Wall, s0: f32, lights: &[u16]) {
+///
+/// Deviations drawn here: a further switch for the next room's light
+/// ([`SWITCH_FOR_NEXT_ROOM`]); with `far_lamp`, a further switch for that lamp across the room
+/// ([`SWITCH_FOR_FAR_LAMP`]); an outlet low on the wall past the switches with nothing plugged
+/// in ([`EMPTY_OUTLET`]).
+pub(super) fn door_and_switches(b: &mut Builder, wall: Wall, s0: f32, lights: &[u16], far_lamp: Option<u16>) {
     let door_mat = b.pick(&[WOOD_LIGHT, WHITE_LACQUER, WOOD_DARK]);
     let door = b.object("door", &[], door_mat);
     let slab = wall.cuboid([s0, s0 + 0.9], [0.0, 0.04], [0.0, 2.05]);
@@ -33,18 +38,42 @@ pub(super) fn door_and_switches(b: &mut Builder, wall: Wall, s0: f32, lights: &[
     let handle_mat = b.pick(&HANDLE_METALS);
     let lever = wall.cuboid([s0 + 0.7, s0 + 0.82], [0.045, 0.075], [1.0, 1.025]);
     let rose = wall.knob(s0 + 0.8, 0.04, 1.0125, 0.025, 0.005);
-    b.part(Some(door), "door handle", handle_mat, &["hook_turn"], door, ROTATE_OPEN, &[lever, rose]);
-    for (k, light) in lights.iter().enumerate() {
+    b.part(Some(door), "door handle", handle_mat, door, &[lever, rose]);
+    let plate = |k: usize| {
         let s = s0 + 1.05 + 0.1 * k as f32;
-        let plate = wall.cuboid([s, s + 0.08], [0.0, 0.012], [1.06, 1.14]);
-        b.part(None, "light switch", WHITE_PLASTIC, &["tip_push"], *light, SWITCH, &[plate]);
+        wall.cuboid([s, s + 0.08], [0.0, 0.012], [1.06, 1.14])
+    };
+    for (k, light) in lights.iter().enumerate() {
+        b.part(None, "light switch", WHITE_PLASTIC, *light, &[plate(k)]);
+    }
+    let mut k = lights.len();
+    if let Some(lamp) = far_lamp
+        && b.deviates(&SWITCH_FOR_FAR_LAMP)
+    {
+        let id = b.part(None, "light switch", WHITE_PLASTIC, lamp, &[plate(k)]);
+        b.record(&SWITCH_FOR_FAR_LAMP, id);
+        k += 1;
+    }
+    if b.deviates(&SWITCH_FOR_NEXT_ROOM)
+        && let Some(truth) = SWITCH_FOR_NEXT_ROOM.truth.as_ref()
+    {
+        let id = b.part_as(None, truth, WHITE_PLASTIC, None, &[plate(k)]);
+        b.record(&SWITCH_FOR_NEXT_ROOM, id);
+    }
+    if b.deviates(&EMPTY_OUTLET)
+        && let Some(truth) = EMPTY_OUTLET.truth.as_ref()
+    {
+        let s = s0 + 1.6;
+        let plate = wall.cuboid([s - 0.04, s + 0.04], [0.0, 0.012], [0.26, 0.34]);
+        let id = b.part_as(None, truth, WHITE_PLASTIC, None, &[plate]);
+        b.record(&EMPTY_OUTLET, id);
     }
 }
 
 /// A wall outlet centred at `(s, z)` powering `target`.
 pub(super) fn outlet(b: &mut Builder, wall: Wall, s: f32, z: f32, target: u16) -> u16 {
     let plate = wall.cuboid([s - 0.04, s + 0.04], [0.0, 0.012], [z - 0.04, z + 0.04]);
-    b.part(None, "power outlet", WHITE_PLASTIC, &["plug_in", "unplug"], target, POWER, &[plate])
+    b.part(None, "power outlet", WHITE_PLASTIC, target, &[plate])
 }
 
 pub(super) fn window(b: &mut Builder, wall: Wall, s0: f32, width: f32) {
@@ -56,7 +85,7 @@ pub(super) fn window(b: &mut Builder, wall: Wall, s0: f32, width: f32) {
     b.add(win, glass, WINDOW_GLASS);
     let handle = wall.cuboid([s0 + width - 0.05, s0 + width - 0.025], [0.03, 0.06], [1.35, 1.47]);
     let metal = b.pick(&HANDLE_METALS);
-    b.part(Some(win), "window handle", metal, &["hook_turn"], win, ROTATE_OPEN, &[handle]);
+    b.part(Some(win), "window handle", metal, win, &[handle]);
 }
 
 /// What a cabinet door or drawer is opened by.
@@ -90,6 +119,8 @@ pub(super) fn cabinet(
     let id = b.object("cabinet", &["cupboard", "cupboard door"], front);
     b.add(id, body, front);
     let doors = if width >= 0.7 { 2 } else { 1 };
+    // A cabinet with knobs may close with turn-knob latches.
+    let latch = (grip == Grip::Knob && b.deviates(&TURN_LATCH_KNOB)).then_some(TURN_LATCH_KNOB.truth).flatten();
     // Handles sit near the top of low cabinets and near the bottom of wall cabinets.
     let zc = if z[0] > 1.0 { z[0] + 0.11 } else { z[1] - 0.12 };
     for door in 0..doors {
@@ -103,11 +134,19 @@ pub(super) fn cabinet(
         match grip {
             Grip::Handle => {
                 let bar = wall.cuboid([s - 0.01, s + 0.01], [depth, depth + 0.025], [zc - 0.06, zc + 0.06]);
-                b.part(Some(id), "cabinet handle", metal, &["hook_pull"], id, PULL, &[bar]);
+                b.part(Some(id), "cabinet handle", metal, id, &[bar]);
             }
             Grip::Knob => {
                 let knob = wall.knob(s, depth, zc, 0.015, 0.025);
-                b.part(Some(id), "cabinet knob", metal, &["rotate", "pinch_pull"], id, ROTATE_OPEN, &[knob]);
+                match latch.as_ref() {
+                    Some(truth) => {
+                        let knob = b.part_as(Some(id), truth, metal, Some(id), &[knob]);
+                        b.record(&TURN_LATCH_KNOB, knob);
+                    }
+                    None => {
+                        b.part(Some(id), "cabinet knob", metal, id, &[knob]);
+                    }
+                }
             }
         }
     }
@@ -147,11 +186,11 @@ pub(super) fn drawer_stack(
         match grip {
             Grip::Handle => {
                 let bar = wall.cuboid([sc - 0.06, sc + 0.06], [depth, depth + 0.025], [zc - 0.01, zc + 0.01]);
-                b.part(Some(id), "drawer handle", metal, &["hook_pull"], id, PULL, &[bar]);
+                b.part(Some(id), "drawer handle", metal, id, &[bar]);
             }
             Grip::Knob => {
                 let knob = wall.knob(sc, depth, zc, 0.015, 0.025);
-                b.part(Some(id), "drawer knob", metal, &["pinch_pull"], id, PULL, &[knob]);
+                b.part(Some(id), "drawer knob", metal, id, &[knob]);
             }
         }
         ids.push(id);
@@ -179,6 +218,6 @@ pub(super) fn sink_with_faucet(
     let faucet_metal = b.pick(&[CHROME, BRASS, BLACK_METAL]);
     let post = wall.post(sc, 0.09, [top + 0.04, top + 0.3], 0.015);
     let spout = wall.cuboid([sc - 0.015, sc + 0.015], [0.09, 0.26], [top + 0.27, top + 0.3]);
-    b.part(Some(sink), "faucet", faucet_metal, &["rotate", "hook_turn"], sink, WATER, &[post, spout]);
+    b.part(Some(sink), "faucet", faucet_metal, sink, &[post, spout]);
     sink
 }

@@ -11,8 +11,8 @@ use super::furniture::{
     Grip, cabinet, ceiling_light, door_and_switches, drawer_stack, outlet, sink_with_faucet, window,
 };
 use super::materials::{BLACK_PLASTIC, CHROME, DARK_GLASS, FRONTS, RED_ENAMEL, STEEL, WHITE_LACQUER, WHITE_PLASTIC};
-use super::relations::{ADJUST, PRESS_START, PULL, PUSH_OPEN};
 use crate::scene::Material;
+use crate::truth::OVEN_DOOR_KNOB;
 
 /// A base module of a kitchen run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -63,7 +63,7 @@ pub(super) fn kitchen(b: &mut Builder, base: usize) {
     let fridge_handle_mat = b.pick(&[STEEL, BLACK_PLASTIC, CHROME]);
     for z in [[0.95, 1.45], [0.45, 0.75]] {
         let bar = run1.cuboid([0.66, 0.685], [0.7, 0.735], z);
-        b.part(Some(fridge), "fridge handle", fridge_handle_mat, &["hook_pull"], fridge, PULL, &[bar]);
+        b.part(Some(fridge), "fridge handle", fridge_handle_mat, fridge, &[bar]);
     }
 
     // Run 1: sink, stove and drawers, then cabinets; wall cabinets above most.
@@ -153,7 +153,7 @@ pub(super) fn kitchen(b: &mut Builder, base: usize) {
         b.add(microwave, body, shell);
         b.add(microwave, wall.cuboid([sc - 0.22, sc + 0.08], [0.45, 0.455], [TOP + 0.04, TOP + 0.26]), DARK_GLASS);
         let button = wall.cuboid([sc + 0.12, sc + 0.19], [0.45, 0.462], [TOP + 0.06, TOP + 0.1]);
-        b.part(Some(microwave), "microwave button", BLACK_PLASTIC, &["tip_push"], microwave, PRESS_START, &[button]);
+        b.part(Some(microwave), "microwave button", BLACK_PLASTIC, microwave, &[button]);
         b.spatial(microwave, cab, "on");
         outlet(b, wall, sc + 0.33, 1.08, microwave);
     }
@@ -163,12 +163,12 @@ pub(super) fn kitchen(b: &mut Builder, base: usize) {
         let toaster = b.object("toaster", &[], toaster_mat);
         b.add(toaster, wall.cuboid([sc - 0.14, sc + 0.14], [0.15, 0.33], [TOP, TOP + 0.2]), toaster_mat);
         let lever = wall.cuboid([sc + 0.14, sc + 0.16], [0.22, 0.26], [TOP + 0.12, TOP + 0.14]);
-        b.part(Some(toaster), "toaster lever", BLACK_PLASTIC, &["tip_push"], toaster, PRESS_START, &[lever]);
+        b.part(Some(toaster), "toaster lever", BLACK_PLASTIC, toaster, &[lever]);
         b.spatial(toaster, cab, "on");
         outlet(b, wall, sc + 0.24, 1.08, toaster);
     }
 
-    door_and_switches(b, door_wall, 0.8, &[light]);
+    door_and_switches(b, door_wall, 0.8, &[light], None);
     let ww = 1.0f32.min(window_wall.len - 1.8);
     window(b, window_wall, (window_wall.len - ww) * 0.5, ww);
 }
@@ -203,10 +203,20 @@ fn stove(b: &mut Builder, wall: Wall, s0: f32) {
     let knob_mat = b.pick(&[BLACK_PLASTIC, CHROME, WHITE_PLASTIC]);
     for k in 0..4 {
         let knob = wall.knob(s0 + 0.12 + 0.12 * k as f32, 0.6, 0.8, 0.018, 0.025);
-        b.part(Some(stove), "stove knob", knob_mat, &["rotate"], stove, ADJUST, &[knob]);
+        b.part(Some(stove), "stove knob", knob_mat, stove, &[knob]);
     }
-    let bar = wall.cuboid([s0 + 0.1, s0 + 0.5], [0.615, 0.64], [0.68, 0.7]);
-    b.part(Some(stove), "oven handle", STEEL, &["hook_pull"], stove, PULL, &[bar]);
+    // The oven door opens by a bar handle, or in some cookers by a knob.
+    match OVEN_DOOR_KNOB.truth.as_ref().filter(|_| b.deviates(&OVEN_DOOR_KNOB)) {
+        Some(truth) => {
+            let knob = wall.knob(s0 + 0.3, 0.6, 0.69, 0.02, 0.03);
+            let id = b.part_as(Some(stove), truth, STEEL, Some(stove), &[knob]);
+            b.record(&OVEN_DOOR_KNOB, id);
+        }
+        None => {
+            let bar = wall.cuboid([s0 + 0.1, s0 + 0.5], [0.615, 0.64], [0.68, 0.7]);
+            b.part(Some(stove), "oven handle", STEEL, stove, &[bar]);
+        }
+    }
 }
 
 fn trash_can(b: &mut Builder, wall: Wall, s0: f32) {
@@ -219,5 +229,5 @@ fn trash_can(b: &mut Builder, wall: Wall, s0: f32) {
     let can = b.object("trash can", &["bin", "garbage can", "dustbin"], mat);
     b.add(can, body, mat);
     let pedal = wall.cuboid([s0 + 0.13, s0 + 0.27], [0.4, 0.46], [0.02, 0.05]);
-    b.part(Some(can), "pedal", BLACK_PLASTIC, &["foot_push"], can, PUSH_OPEN, &[pedal]);
+    b.part(Some(can), "pedal", BLACK_PLASTIC, can, &[pedal]);
 }

@@ -15,6 +15,9 @@
 //! | [`furniture`] | furniture every room uses: lights, doors and switches, outlets, windows, cabinets, drawers, sinks |
 //! | [`kitchen`], [`bathroom`], [`bedroom`], [`living_room`] | the benchmark rooms |
 //! | [`colour_panel`] | the colour-panel test scene |
+//!
+//! What each part does and its affordances come from [`crate::truth`] (the ground-truth table
+//! and the rooms that differ from it), never from the runtime's knowledge base.
 
 use glam::Vec3;
 use rand::{Rng, SeedableRng};
@@ -52,7 +55,9 @@ impl Scene {
         let round = |x: f32| (x * 20.0).round() / 20.0;
         let size = Vec3::new(round(w), round(d), CEILING_HEIGHT_M);
         let structure = [FLOORS[rng.random_range(0..3)], WALLS[rng.random_range(0..3)], CEILING];
-        let mut b = Builder::new(rng, size);
+        // Deviations from the usual ground truth draw from a stream of their own.
+        let deviation_rng = ChaCha8Rng::seed_from_u64(seed ^ room_salt ^ 0x5EED_D3F1_A7E0_0001);
+        let mut b = Builder::new(rng, deviation_rng, size);
         let base = b.rng.random_range(0..4usize);
         match room {
             RoomKind::Kitchen => kitchen::kitchen(&mut b, base),

@@ -1,17 +1,8 @@
 //! The canonical relation phrases the catalog writes into the ground truth.
 
-// Canonical functional relations.
-pub(super) const PULL: &str = "pull to open or close";
-pub(super) const WATER: &str = "control the water flow";
-pub(super) const ADJUST: &str = "rotate to adjust the setting or temperature";
-pub(super) const PRESS_START: &str = "press to start and operate";
-pub(super) const SWITCH: &str = "turn on or turn off";
-pub(super) const REMOTE: &str = "remote to control";
-pub(super) const FLUSH: &str = "press to flush";
-pub(super) const POWER: &str = "provide power";
-pub(super) const PUSH_OPEN: &str = "push or press to open";
-pub(super) const FLOW_SETTING: &str = "operate or adjust the flow or setting";
-pub(super) const ROTATE_OPEN: &str = "rotate to open or close";
+use crate::truth::relation::{
+    ADJUST, FLOW_SETTING, FLUSH, POWER, PRESS_START, PULL, PUSH_OPEN, REMOTE, ROTATE_OPEN, SWITCH, WATER,
+};
 
 /// The 11 canonical functional relation phrases.
 pub const FUNCTIONAL_RELATIONS: [&str; 11] =
