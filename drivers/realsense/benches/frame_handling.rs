@@ -154,7 +154,12 @@ fn room_z16(stride: usize) -> Vec<u8> {
 fn align_kernel() {
     let stride = (W * 2).div_ceil(64) * 64;
     let z16 = room_z16(stride);
-    for (cw, ch) in [(848u32, 480u32), (1280, 720)] {
+    for (cw, ch, rotation) in [
+        (848u32, 480u32, Rotation::None),
+        (848, 480, Rotation::Cw90),
+        (1280, 720, Rotation::None),
+        (1280, 720, Rotation::Cw90),
+    ] {
         let (depth, colour, extrinsics) = d435i_like(cw, ch);
         let aligner = DepthToColour::new(depth, colour, extrinsics, 0.00025).expect("calibration");
         let mut out = vec![0u16; cw as usize * ch as usize];
@@ -162,19 +167,14 @@ fn align_kernel() {
         for i in 0..660 {
             let started = Timer::start();
             aligner
-                .align(
-                    black_box(&z16),
-                    SourceLayout { width: W, height: H, stride_bytes: stride },
-                    Rotation::Cw90,
-                    &mut out,
-                )
+                .align(black_box(&z16), SourceLayout { width: W, height: H, stride_bytes: stride }, rotation, &mut out)
                 .expect("layout");
             black_box(&out);
             if i >= 60 {
                 samples.push(started.stop());
             }
         }
-        report(&format!("op3dsg align {W}x{H} -> {cw}x{ch}, rotate 90 (synthetic room)"), &samples);
+        report(&format!("op3dsg align {W}x{H} -> {cw}x{ch}, rotate {} (synthetic room)", rotation.degrees()), &samples);
     }
 }
 

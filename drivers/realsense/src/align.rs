@@ -276,7 +276,7 @@ impl Projection {
             let px = d * (rx[i] + row[0]) + tx;
             let py = d * (ry[i] + row[1]) + ty;
             let pz = d * (rz[i] + row[2]) + tz;
-            let (mut x, mut y) = (px / pz, py / pz);
+            let (mut x, mut y) = (px / pz, py / pz); // two divisions as librealsense (rounding)
             if DISTORT {
                 let r2 = x * x + y * y;
                 let f = 1.0 + c[0] * r2 + c[1] * r2 * r2 + c[4] * r2 * r2 * r2;
