@@ -102,7 +102,8 @@ impl Lens {
 
     fn check(&self, stream: &'static str) -> Result<(), AlignError> {
         let bad = |field: &'static str, value: f32| AlignError::Calibration { stream, field, value };
-        if self.width == 0 || self.height == 0 {
+        // (Output indices are i32 in the projection.)
+        if self.width == 0 || self.height == 0 || u64::from(self.width) * u64::from(self.height) > 1 << 30 {
             return Err(bad("size", self.width.min(self.height) as f32));
         }
         for (field, value) in [("fx", self.fx), ("fy", self.fy)] {
@@ -240,6 +241,13 @@ const FAR_PX: f32 = 1.0e6;
 /// (the default rounding mode; librealsense's `_mm_cvtps_epi32` rounds the same way).
 const ROUND_MAGIC: f32 = 12_582_912.0;
 
+/// `x` rounded to the nearest integer, ties to even, for `|x| < 2^22`: adding 1.5 * 2^23 leaves
+/// the rounded value in the low mantissa bits.
+#[inline(always)]
+fn round_to_i32(x: f32) -> i32 {
+    ((x + ROUND_MAGIC).to_bits() as i32).wrapping_sub(ROUND_MAGIC.to_bits() as i32)
+}
+
 /// What the projection of one corner needs.
 #[derive(Debug, Clone, Copy)]
 struct Projection {
@@ -286,10 +294,11 @@ impl Projection {
             }
             let u = x * self.fx + self.ppx + 0.5;
             let v = y * self.fy + self.ppy + 0.5;
-            // NaN (no depth, zero z) fails these comparisons too.
-            let inside = pz > 0.0 && u.abs() < FAR_PX && v.abs() < FAR_PX;
-            us[i] = if inside { ((u + ROUND_MAGIC) - ROUND_MAGIC) as i32 } else { NOWHERE };
-            vs[i] = if inside { ((v + ROUND_MAGIC) - ROUND_MAGIC) as i32 } else { NOWHERE };
+            // NaN (no depth, zero z) fails these comparisons too. `&`, not `&&`, and integer
+            // arithmetic on the bits instead of a saturating `as i32`: the loop stays vectorised.
+            let inside = (pz > 0.0) & (u.abs() < FAR_PX) & (v.abs() < FAR_PX);
+            us[i] = if inside { round_to_i32(u) } else { NOWHERE };
+            vs[i] = if inside { round_to_i32(v) } else { NOWHERE };
         }
     }
 }
@@ -500,6 +509,29 @@ impl DepthToColour {
                         &mut y1,
                     );
                 }
+                if !RECTANGLES {
+                    // One colour pixel each: its output index, worked out for the whole chunk
+                    // (vectorised; NOWHERE is out of bounds as u32 too), -1 for none.
+                    let (idxs, xs, ys) = (&mut x1[..n], &x0[..n], &y0[..n]);
+                    for i in 0..n {
+                        let (x, y) = (xs[i], ys[i]);
+                        let inside = ((x as u32) < cw) & ((y as u32) < ch) & (raw[i] != 0);
+                        let at = place.origin as i32
+                            + x.wrapping_mul(place.step_x as i32)
+                            + y.wrapping_mul(place.step_y as i32);
+                        idxs[i] = if inside { at } else { -1 };
+                    }
+                    for (&idx, &z) in idxs.iter().zip(raw.iter()) {
+                        if idx >= 0 {
+                            // Nearest wins; 0 (nothing yet) counts as farthest:
+                            // min(out - 1, z - 1) + 1 in wrapping u16 arithmetic.
+                            let at = idx as usize;
+                            out[at] = out[at].wrapping_sub(1).min(z - 1) + 1;
+                        }
+                    }
+                    start += n;
+                    continue;
+                }
                 for i in 0..n {
                     let z = raw[i];
                     if z == 0 {
@@ -509,14 +541,6 @@ impl DepthToColour {
                     // in wrapping u16 arithmetic.
                     let z1 = z - 1;
                     let (xa, ya) = (x0[i], y0[i]);
-                    if !RECTANGLES {
-                        // NOWHERE is out of bounds as u32 too.
-                        if (xa as u32) < cw && (ya as u32) < ch {
-                            let idx = (place.origin + xa as isize * place.step_x + ya as isize * place.step_y) as usize;
-                            out[idx] = out[idx].wrapping_sub(1).min(z1) + 1;
-                        }
-                        continue;
-                    }
                     let (xb, yb) = (x1[i], y1[i]);
                     if xa == NOWHERE || xb == NOWHERE {
                         continue;
@@ -525,16 +549,17 @@ impl DepthToColour {
                     // librealsense; the part inside is written.
                     let (xa, xb) = (xa.max(0), xb.min(cw as i32 - 1));
                     let (ya, yb) = (ya.max(0), yb.min(ch as i32 - 1));
-                    let mut y = ya;
-                    while y <= yb {
-                        let row_at = place.origin + y as isize * place.step_y;
-                        let mut x = xa;
-                        while x <= xb {
-                            let idx = (row_at + x as isize * place.step_x) as usize;
-                            out[idx] = out[idx].wrapping_sub(1).min(z1) + 1;
-                            x += 1;
+                    if xa > xb {
+                        continue;
+                    }
+                    let mut row_at = place.origin + xa as isize * place.step_x + ya as isize * place.step_y;
+                    for _ in ya..=yb {
+                        let mut at = row_at;
+                        for _ in xa..=xb {
+                            out[at as usize] = out[at as usize].wrapping_sub(1).min(z1) + 1;
+                            at += place.step_x;
                         }
-                        y += 1;
+                        row_at += place.step_y;
                     }
                 }
                 start += n;
@@ -758,8 +783,10 @@ mod tests {
         let [h, v] = lens.fov_deg();
         assert!((h - 90.4).abs() < 0.1 && (v - 59.4).abs() < 0.1, "{h} {v}");
         // Ties round to even, as _mm_cvtps_epi32.
-        for (x, want) in [(2.5f32, 2), (3.5, 4), (-0.5, 0), (7.49, 7), (7.51, 8)] {
-            assert_eq!(((x + ROUND_MAGIC) - ROUND_MAGIC) as i32, want, "{x}");
+        for (x, want) in
+            [(2.5f32, 2), (3.5, 4), (-0.5, 0), (-1.5, -2), (-2.7, -3), (7.49, 7), (7.51, 8), (-999_999.4, -999_999)]
+        {
+            assert_eq!(round_to_i32(x), want, "{x}");
         }
         // Coefficients of models the align does not apply are reported.
         let colour = Lens { model: Distortion::InverseBrownConrady, coeffs: [0.1, 0.0, 0.0, 0.0, 0.0], ..lens };
