@@ -77,6 +77,9 @@ impl SourceBackend for RealsenseBackend {
         let config = realsense_config(profile)?;
         // Relative `bag` paths were resolved against the profile's folder when it loaded.
         let source = RealsenseSource::open(&config, None)?;
-        Ok(OpenedSource { source: Box::new(source), side_channel: None })
+        // With `imu = true` the IMU samples (`Arc<op3dsg_realsense::imu::ImuBuffer>`) are the
+        // side channel, for the stages that know the type.
+        let side_channel = source.imu().map(|imu| imu as Arc<dyn std::any::Any + Send + Sync>);
+        Ok(OpenedSource { source: Box::new(source), side_channel })
     }
 }

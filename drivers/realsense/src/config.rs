@@ -78,6 +78,18 @@ impl Emitter {
     }
 }
 
+/// Who aligns depth to colour (`align`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AlignMode {
+    /// [`crate::align::DepthToColour`]: rays precomputed from the device's intrinsics,
+    /// extrinsics and depth scale, written straight into the pooled frame (rotated on the way).
+    #[default]
+    Op3dsg,
+    /// librealsense's align block (`rs2_create_align`), then the rotate-and-copy.
+    Librealsense,
+}
+
 /// Reconnect backoff after the camera is lost.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -116,12 +128,15 @@ pub struct RealsenseConfig {
     /// Playback of `bag` paced by its recorded timestamps (`true`) or as fast as the pipeline
     /// takes frames (`false`: `rs2_playback_device_set_real_time(0)`).
     pub bag_real_time: bool,
-    /// Depth stream (aligned to colour by librealsense's align block before anything else).
+    /// Depth stream (aligned to colour, see `align`, before anything else).
     pub depth: StreamMode,
     /// Colour stream (RGB8); frames have its size and intrinsics (rotated).
     pub colour: StreamMode,
     /// Clockwise rotation applied to colour, depth and intrinsics: 0, 90, 180 or 270.
     pub rotate: Rotation,
+    /// Depth to colour alignment: `op3dsg` (our own, from the device's calibration; the same
+    /// result as librealsense's, see `op3dsg_realsense::align`) or `librealsense` (its align block).
+    pub align: AlignMode,
     /// Depth sensor visual preset.
     pub visual_preset: VisualPreset,
     /// IR emitter.
@@ -140,6 +155,10 @@ pub struct RealsenseConfig {
     pub frame_timeout_ms: u64,
     /// Reconnect backoff.
     pub reconnect: Backoff,
+    /// Also stream the D435i's gyro and accelerometer (a recording's motion streams in
+    /// playback): samples stamped on the frames' clock go to the source's IMU buffer
+    /// (`op3dsg_realsense::imu`).
+    pub imu: bool,
     /// A fixed `world_from_camera` for every frame (a camera on a stand, tests): frames then
     /// carry their pose and `pose.source = "frame"` works; leave unset on a robot (poses come
     /// from the navigation stack). With `rotate` it is the pose of the upright image's camera.
@@ -156,6 +175,7 @@ impl Default for RealsenseConfig {
             depth: StreamMode { width: 848, height: 480, fps: 30 },
             colour: StreamMode { width: 1280, height: 720, fps: 30 },
             rotate: Rotation::None,
+            align: AlignMode::default(),
             visual_preset: VisualPreset::Unchanged,
             emitter: Emitter::Unchanged,
             laser_power_mw: None,
@@ -163,6 +183,7 @@ impl Default for RealsenseConfig {
             usb2_mode: StreamMode { width: 640, height: 480, fps: 15 },
             frame_timeout_ms: 1000,
             reconnect: Backoff::default(),
+            imu: false,
             world_from_camera: None,
         }
     }
@@ -270,5 +291,13 @@ mod tests {
     fn rotation_parses_from_degrees() {
         assert_eq!(parse("rotate = 90").rotate, Rotation::Cw90);
         assert_eq!(serde_json::to_value(parse("rotate = 270")).unwrap()["rotate"], 270);
+    }
+
+    #[test]
+    fn align_is_ours_unless_librealsense_is_asked_for() {
+        assert_eq!(parse("").align, AlignMode::Op3dsg);
+        assert_eq!(parse("align = \"librealsense\"").align, AlignMode::Librealsense);
+        let e = toml::from_str::<RealsenseConfig>("align = \"gpu\"").unwrap_err().to_string();
+        assert!(e.contains("op3dsg") && e.contains("librealsense"), "{e}");
     }
 }

@@ -1,6 +1,7 @@
 //! The librealsense part: a live camera or a `.bag` recording through `realsense-rust`'s
-//! pipeline, depth aligned to colour by librealsense's align block, rotated and copied into the
-//! pooled frame.
+//! pipeline, depth aligned to colour (by [`crate::align::DepthToColour`] from the streams'
+//! calibration, written straight into the pooled frame, or with `align = "librealsense"` by
+//! librealsense's align block), rotated and copied into the pooled frame.
 //!
 //! **Clock.** A live camera's frames are stamped in librealsense's *global time* domain
 //! (`RS2_OPTION_GLOBAL_TIME_ENABLED`, switched on at start for every sensor that has it): the
@@ -30,6 +31,7 @@ use std::collections::HashSet;
 use std::ffi::{CStr, CString};
 use std::path::{Path, PathBuf};
 use std::ptr::NonNull;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use op3dsg_drivers::frame::{Frame, Intrinsics};
@@ -37,14 +39,16 @@ use op3dsg_drivers::pose::Isometry;
 use op3dsg_drivers::source::{FrameSource, SourceError, SourceStatus, StampClock};
 use realsense_rust::config::Config;
 use realsense_rust::context::Context;
-use realsense_rust::frame::{ColorFrame, CompositeFrame, DepthFrame, FrameEx};
+use realsense_rust::frame::{AccelFrame, ColorFrame, CompositeFrame, DepthFrame, FrameEx, GyroFrame};
 use realsense_rust::kind::{Rs2CameraInfo, Rs2Format, Rs2FrameMetadata, Rs2Option, Rs2StreamKind, Rs2TimestampDomain};
 use realsense_rust::pipeline::{ActivePipeline, InactivePipeline};
 use realsense_rust::processing_blocks::align::Align;
 use realsense_sys as sys;
 use tracing::{info, warn};
 
-use crate::config::{RealsenseConfig, StreamMode};
+use crate::align::{DepthToColour, Distortion, Extrinsics, Lens};
+use crate::config::{AlignMode, RealsenseConfig, StreamMode};
+use crate::imu::{IMU_BUFFER_LEN, ImuBuffer, ImuSample, MotionKind};
 use crate::rotate::{ColourOrder, Rotation, SourceLayout, copy_colour, copy_depth};
 
 /// Longest wait for the first frame set after a (re)start.
@@ -53,6 +57,8 @@ const FIRST_FRAME_TIMEOUT: Duration = Duration::from_secs(10);
 const END_DRAIN_TIMEOUT: Duration = Duration::from_millis(250);
 /// Longest a call to `next_frame` sleeps while waiting to retry a lost camera.
 const RETRY_SLICE: Duration = Duration::from_millis(100);
+/// IMU-only frame sets one `next_frame` takes before it returns `Pending`.
+const MOTION_SETS_PER_CALL: usize = 256;
 
 /// What the stream resolution gave at start.
 #[derive(Debug, Clone, Copy)]
@@ -70,7 +76,14 @@ pub struct RealsenseSource {
     bag: Option<PathBuf>,
     context: Context,
     pipeline: Option<ActivePipeline>,
-    align: Align,
+    /// librealsense's align block (`align = "librealsense"`).
+    align: Option<Align>,
+    /// Our alignment (`align = "op3dsg"`), made for the streams at each start.
+    aligner: Option<DepthToColour>,
+    /// IMU samples (`imu = true`).
+    imu: Option<Arc<ImuBuffer>>,
+    /// Stamp of the newest gyro and accelerometer sample taken (the pipeline repeats them).
+    last_motion_ns: [u64; 2],
     streams: Streams,
     /// Intrinsics of delivered (rotated) frames.
     intrinsics: Intrinsics,
@@ -184,7 +197,12 @@ impl RealsenseSource {
             return Err(SourceError::File { path: bag.display().to_string(), reason: format!("cannot open: {e}") });
         }
         let context = Context::new().map_err(|e| device_err(format!("librealsense context: {e}")))?;
-        let align = Align::new(Rs2StreamKind::Color, 1).map_err(|e| device_err(format!("align block: {e}")))?;
+        let align = match config.align {
+            AlignMode::Librealsense => {
+                Some(Align::new(Rs2StreamKind::Color, 1).map_err(|e| device_err(format!("align block: {e}")))?)
+            }
+            AlignMode::Op3dsg => None,
+        };
         let mut modes = (config.depth, config.colour);
         let mut serial = config.serial.clone();
         if bag.is_none() {
@@ -218,6 +236,9 @@ impl RealsenseSource {
             context,
             pipeline: None,
             align,
+            aligner: None,
+            imu: config.imu.then(|| Arc::new(ImuBuffer::new(IMU_BUFFER_LEN))),
+            last_motion_ns: [0; 2],
             streams: Streams {
                 colour: Intrinsics { width: 0, height: 0, fx: 1.0, fy: 1.0, cx: 0.0, cy: 0.0 },
                 depth_units_per_m: 1000.0,
@@ -265,6 +286,9 @@ impl RealsenseSource {
                         .map_err(|e| e.to_string())?;
                     cfg.enable_stream(Rs2StreamKind::Color, None, 0, 0, Rs2Format::Any, 0)
                         .map_err(|e| e.to_string())?;
+                    if self.config.imu {
+                        enable_motion(cfg)?;
+                    }
                 }
                 None => {
                     if !self.serial.is_empty() {
@@ -289,6 +313,9 @@ impl RealsenseSource {
                         colour.fps as usize,
                     )
                     .map_err(|e| e.to_string())?;
+                    if self.config.imu {
+                        enable_motion(cfg)?;
+                    }
                 }
             }
             Ok(())
@@ -296,13 +323,17 @@ impl RealsenseSource {
         enable(&mut cfg).map_err(|e| self.open_error(&name, e))?;
         let pipeline =
             InactivePipeline::try_from(&self.context).map_err(|e| device_err(format!("{name}: pipeline: {e}")))?;
+        let imu = if self.config.imu { " with gyro and accelerometer (imu = true)" } else { "" };
         if self.bag.is_none() && !pipeline.can_resolve(&cfg) {
             return Err(device_err(format!(
-                "{name}: cannot deliver depth {}x{}@{} Z16 with colour {}x{}@{} RGB8 (another process using it, or a mode this camera lacks)",
+                "{name}: cannot deliver depth {}x{}@{} Z16 with colour {}x{}@{} RGB8{imu} (another process using it, or a mode this camera lacks)",
                 depth.width, depth.height, depth.fps, colour.width, colour.height, colour.fps
             )));
         }
-        let pipeline = pipeline.start(Some(cfg)).map_err(|e| self.open_error(&name, e.to_string()))?;
+        let pipeline = pipeline.start(Some(cfg)).map_err(|e| {
+            let hint = if self.config.imu { " (imu = true needs its gyro and accel streams)" } else { "" };
+            self.open_error(&name, format!("{e}{hint}"))
+        })?;
         let profile = pipeline.profile();
         let colour_stream = profile.streams().iter().find(|s| s.kind() == Rs2StreamKind::Color);
         let depth_stream = profile.streams().iter().find(|s| s.kind() == Rs2StreamKind::Depth);
@@ -330,6 +361,11 @@ impl RealsenseSource {
             cy: k.ppy(),
         };
         let extrinsics = depth_stream.extrinsics(colour_stream).ok();
+        let depth_lens = depth_stream
+            .intrinsics()
+            .map(|k| lens(&k.0))
+            .map_err(|e| device_err(format!("{name}: depth intrinsics: {e}")))?;
+        let colour_lens = lens(&k.0);
         let half_period_ms = 500.0 / f64::from(colour_stream.framerate().max(1));
         // Depth units: the depth sensor's option (metres per unit); the first frame corrects it
         // when the sensor does not report it.
@@ -360,8 +396,27 @@ impl RealsenseSource {
                 set(Rs2Option::LaserPower, self.config.laser_power_mw, "laser_power_mw");
             }
         }
+        self.aligner = match self.config.align {
+            AlignMode::Librealsense => None,
+            AlignMode::Op3dsg => {
+                let Some(e) = &extrinsics else {
+                    return Err(device_err(format!(
+                        "{name}: no depth to colour extrinsics, cannot align (source.realsense.align = \"op3dsg\")"
+                    )));
+                };
+                let e = Extrinsics { rotation: e.rotation(), translation_m: e.translation() };
+                let aligner = DepthToColour::new(depth_lens, colour_lens, e, 1.0 / depth_units_per_m)
+                    .map_err(|e| device_err(format!("{name}: {e}")))?;
+                for (stream, model) in aligner.ignored_coefficients() {
+                    warn!(source = %name, stream, model = ?model, "lens coefficients not applied by the depth to colour alignment (nor by librealsense's align)");
+                }
+                Some(aligner)
+            }
+        };
         info!(
             source = %name,
+            align = ?self.config.align,
+            depth = format!("{}x{}", depth_lens.width, depth_lens.height),
             colour = format!("{}x{} {:?}", colour.width, colour.height, colour_order),
             fx = colour.fx, fy = colour.fy, cx = colour.cx, cy = colour.cy,
             depth_units_per_m,
@@ -370,6 +425,7 @@ impl RealsenseSource {
             "realsense streams started (depth aligned to colour)"
         );
         self.pipeline = Some(pipeline);
+        self.last_motion_ns = [0; 2];
         self.playback = None;
         self.last_numbers = None;
         self.delivered_any = false;
@@ -384,6 +440,35 @@ impl RealsenseSource {
             },
             None => device_err(format!("{name}: {reason}")),
         }
+    }
+
+    /// The IMU samples (`imu = true`): the buffer this source fills, for other threads to read.
+    pub fn imu(&self) -> Option<Arc<ImuBuffer>> {
+        self.imu.clone()
+    }
+
+    /// Moves the gyro and accelerometer frames of `set` into the IMU buffer (each sample once:
+    /// librealsense's pipeline puts the newest motion frames into several frame sets); how many
+    /// motion frames the set held.
+    fn take_motion(&mut self, set: &CompositeFrame) -> usize {
+        let Some(imu) = &self.imu else { return 0 };
+        let playback = self.bag.is_some();
+        let mut held = 0;
+        let mut take = |kind: MotionKind, stamp_ns: u64, xyz: [f32; 3], last_ns: &mut u64| {
+            held += 1;
+            if stamp_ns > *last_ns {
+                *last_ns = stamp_ns;
+                imu.push(ImuSample { stamp_ns, kind, xyz });
+            }
+        };
+        let [last_gyro, last_accel] = &mut self.last_motion_ns;
+        for gyro in set.frames_of_type::<GyroFrame>() {
+            take(MotionKind::Gyro, host_stamp_ns(&gyro, playback), *gyro.rotational_velocity(), last_gyro);
+        }
+        for accel in set.frames_of_type::<AccelFrame>() {
+            take(MotionKind::Accel, host_stamp_ns(&accel, playback), *accel.acceleration(), last_accel);
+        }
+        held
     }
 
     /// Frame sets passed over because they repeated the previous depth or colour frame.
@@ -451,11 +536,11 @@ impl RealsenseSource {
     }
 
     fn fill(&mut self, set: CompositeFrame, frame: &mut Frame) -> Result<SourceStatus, SourceError> {
-        let name = self.name();
+        // (The source's name is made only for messages: no allocation per frame for it.)
         let depth = set.frames_of_type::<DepthFrame>().into_iter().next();
         let colour = set.frames_of_type::<ColorFrame>().into_iter().next();
         let (Some(depth), Some(colour)) = (depth, colour) else {
-            return Err(device_err(format!("{name}: frame set without depth and colour")));
+            return Err(device_err(format!("{}: frame set without depth and colour", self.name())));
         };
         let numbers = (depth.frame_number(), colour.frame_number());
         let repeated = self.last_numbers.is_some_and(|(d, c)| numbers.0 == d || numbers.1 == c);
@@ -468,13 +553,17 @@ impl RealsenseSource {
         self.last_numbers = Some(numbers);
         let k = self.streams.colour;
         let (w, h) = (k.width as usize, k.height as usize);
-        for (what, fw, fh) in
-            [("colour", colour.width(), colour.height()), ("aligned depth", depth.width(), depth.height())]
+        let (depth_what, dw, dh) = match &self.aligner {
+            Some(aligner) => ("depth", aligner.depth().width as usize, aligner.depth().height as usize),
+            None => ("aligned depth", w, h),
+        };
+        for (what, fw, fh, sw, sh) in
+            [("colour", colour.width(), colour.height(), w, h), (depth_what, depth.width(), depth.height(), dw, dh)]
         {
-            if (fw, fh) != (w, h) {
+            if (fw, fh) != (sw, sh) {
                 return Err(SourceError::Frame {
                     seq: self.seq,
-                    reason: format!("{name}: {what} frame is {fw}x{fh}, the stream is {w}x{h}"),
+                    reason: format!("{}: {what} frame is {fw}x{fh}, the stream is {sw}x{sh}", self.name()),
                 });
             }
         }
@@ -483,9 +572,12 @@ impl RealsenseSource {
             && units > 0.0
         {
             self.streams.depth_units_per_m = units_per_m(units);
+            if let Some(aligner) = &mut self.aligner {
+                aligner.set_metres_per_unit(units);
+            }
         }
         let copy_err =
-            |e: crate::rotate::CopyError| SourceError::Frame { seq: self.seq, reason: format!("{name}: {e}") };
+            |e: crate::rotate::CopyError| SourceError::Frame { seq: self.seq, reason: format!("{}: {e}", self.name()) };
         // SAFETY: librealsense keeps each frame's buffer (get_data_size bytes) alive while the
         // frame object lives; the slices do not outlive `colour` / `depth`.
         let (colour_bytes, depth_bytes) = unsafe {
@@ -508,12 +600,11 @@ impl RealsenseSource {
             &mut frame.rgb,
         )
         .map_err(copy_err)?;
-        copy_depth(
-            depth_bytes,
-            SourceLayout { width: w, height: h, stride_bytes: depth.stride() },
-            self.rotation,
-            &mut frame.depth,
-        )
+        let depth_layout = SourceLayout { width: dw, height: dh, stride_bytes: depth.stride() };
+        match &self.aligner {
+            Some(aligner) => aligner.align(depth_bytes, depth_layout, self.rotation, &mut frame.depth),
+            None => copy_depth(depth_bytes, depth_layout, self.rotation, &mut frame.depth),
+        }
         .map_err(copy_err)?;
         let stamp_ms = match colour.timestamp_domain() {
             Rs2TimestampDomain::GlobalTime | Rs2TimestampDomain::SystemTime => colour.timestamp(),
@@ -521,7 +612,7 @@ impl RealsenseSource {
             _ => {
                 if !self.warned_hardware_clock {
                     self.warned_hardware_clock = true;
-                    warn!(camera = %name, "frames are stamped by the camera's hardware clock, not global time: using the host arrival time instead (update the firmware)");
+                    warn!(camera = %self.name(), "frames are stamped by the camera's hardware clock, not global time: using the host arrival time instead (update the firmware)");
                 }
                 colour.metadata(Rs2FrameMetadata::TimeOfArrival).map_or_else(|| colour.timestamp(), |ms| ms as f64)
             }
@@ -537,11 +628,54 @@ impl RealsenseSource {
             if self.bag.is_some() {
                 match PlaybackDevice::from_frame(depth, self.config.bag_real_time) {
                     Ok(device) => self.playback = Some(device),
-                    Err(e) => warn!(bag = %name, error = %e, "cannot control playback pacing; playing in real time"),
+                    Err(e) => {
+                        warn!(bag = %self.name(), error = %e, "cannot control playback pacing; playing in real time")
+                    }
                 }
             }
         }
         Ok(SourceStatus::Frame)
+    }
+}
+
+/// Enables the gyro and accelerometer streams (any rate the device offers first).
+fn enable_motion(cfg: &mut Config) -> Result<(), String> {
+    for kind in [Rs2StreamKind::Gyro, Rs2StreamKind::Accel] {
+        cfg.enable_stream(kind, None, 0, 0, Rs2Format::MotionXyz32F, 0).map_err(|e| format!("{kind:?}: {e}"))?;
+    }
+    Ok(())
+}
+
+/// A frame's stamp in ns on the frames' clock: global (or system) time as delivered, a
+/// recording's as recorded, else the host arrival time.
+fn host_stamp_ns(frame: &impl FrameEx, playback: bool) -> u64 {
+    let ms = match frame.timestamp_domain() {
+        Rs2TimestampDomain::GlobalTime | Rs2TimestampDomain::SystemTime => frame.timestamp(),
+        _ if playback => frame.timestamp(),
+        _ => frame.metadata(Rs2FrameMetadata::TimeOfArrival).map_or_else(|| frame.timestamp(), |ms| ms as f64),
+    };
+    (ms * 1e6).round().max(0.0) as u64
+}
+
+/// A stream's intrinsics and lens model from librealsense's.
+pub fn lens(k: &sys::rs2_intrinsics) -> Lens {
+    #[allow(non_upper_case_globals)]
+    let model = match k.model {
+        sys::rs2_distortion_RS2_DISTORTION_NONE => Distortion::None,
+        sys::rs2_distortion_RS2_DISTORTION_MODIFIED_BROWN_CONRADY => Distortion::ModifiedBrownConrady,
+        sys::rs2_distortion_RS2_DISTORTION_INVERSE_BROWN_CONRADY => Distortion::InverseBrownConrady,
+        sys::rs2_distortion_RS2_DISTORTION_BROWN_CONRADY => Distortion::BrownConrady,
+        other => Distortion::Other(other as i32),
+    };
+    Lens {
+        width: k.width.max(0) as u32,
+        height: k.height.max(0) as u32,
+        fx: k.fx,
+        fy: k.fy,
+        ppx: k.ppx,
+        ppy: k.ppy,
+        model,
+        coeffs: k.coeffs,
     }
 }
 
@@ -604,13 +738,33 @@ impl FrameSource for RealsenseSource {
         } else {
             FIRST_FRAME_TIMEOUT.max(Duration::from_millis(self.config.frame_timeout_ms))
         };
-        match pipeline.wait(Some(timeout)) {
-            Ok(set) => {
-                self.align.queue(set).map_err(|e| device_err(format!("{}: align: {e}", self.name())))?;
-                let aligned =
-                    self.align.wait(timeout).map_err(|e| device_err(format!("{}: align: {e}", self.name())))?;
-                self.fill(aligned, frame)
+        let mut waited = pipeline.wait(Some(timeout));
+        if self.imu.is_some() {
+            // IMU samples come in frame sets of their own: keep them, wait on for the next video set.
+            let mut motion_sets = 0;
+            while let Ok(set) = &waited {
+                let motion = self.take_motion(set);
+                if motion == 0 || motion < set.count() {
+                    break;
+                }
+                motion_sets += 1;
+                if motion_sets == MOTION_SETS_PER_CALL {
+                    return Ok(SourceStatus::Pending);
+                }
+                let Some(pipeline) = self.pipeline.as_mut() else { return Ok(SourceStatus::Pending) };
+                waited = pipeline.wait(Some(timeout));
             }
+        }
+        match waited {
+            Ok(set) => match &mut self.align {
+                Some(align) => {
+                    let name = || self.bag.as_ref().map_or_else(|| self.serial.clone(), |b| b.display().to_string());
+                    align.queue(set).map_err(|e| device_err(format!("{}: align: {e}", name())))?;
+                    let aligned = align.wait(timeout).map_err(|e| device_err(format!("{}: align: {e}", name())))?;
+                    self.fill(aligned, frame)
+                }
+                None => self.fill(set, frame),
+            },
             Err(e) => {
                 if self.bag.is_some() {
                     // librealsense shows the end of a non-looping file only as a timeout.

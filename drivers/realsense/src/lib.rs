@@ -2,7 +2,8 @@
 //!
 //! `source.kind = "realsense"` (`[source.realsense]`, [`RealsenseConfig`]): a live camera chosen
 //! by serial number, or a librealsense `.bag` recording played through the same code. Depth is
-//! aligned to colour by librealsense's align block; intrinsics and depth units come from the
+//! aligned to colour ([`align`]: from the device's calibration, or by librealsense's align block
+//! with `align = "librealsense"`); intrinsics and depth units come from the
 //! device (or the recording); frames are rotated upright ([`rotate`], the Stretch 3's head camera
 //! is mounted turned by 90°) while they are copied from the driver's buffers into the pooled
 //! [`op3dsg_drivers::frame::Frame`], with no per-frame buffer allocation.
@@ -22,11 +23,13 @@
 //! assert_eq!(Rotation::Cw90.map_pixel(0, 0, 848, 480), (479, 0));
 //! ```
 
+pub mod align;
 #[cfg(feature = "backend")]
 pub mod backend;
 pub mod config;
 #[cfg(feature = "librealsense")]
 pub mod device;
+pub mod imu;
 pub mod rotate;
 
 pub use config::RealsenseConfig;

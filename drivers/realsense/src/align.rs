@@ -1,0 +1,798 @@
+//! Depth aligned to colour from the streams' calibration (`source.realsense.align = "op3dsg"`):
+//! the same result as librealsense's align block, computed with rays made once at start.
+//!
+//! For each depth pixel `(x, y)` with a reading, the two corners of its footprint,
+//! `(x - 0.5, y - 0.5)` and `(x + 0.5, y + 0.5)`, are deprojected with the depth stream's
+//! intrinsics at the pixel's depth, moved into the colour camera by the depth → colour
+//! extrinsics and projected with the colour intrinsics. Each corner lands on colour pixel
+//! `round(p + 0.5)` (ties to even), as in librealsense's align. Every colour pixel of the
+//! rectangle between the two corners gets the depth pixel's raw value, the nearest (smallest
+//! non-zero) value winning where several land (a z-buffer: a near object hides what is behind
+//! it). Colour pixels that no depth pixel reaches stay 0 (no depth), as do those whose depth
+//! pixel had none. The value written is the depth sensor's own reading (its `z`, in depth
+//! units), not the distance along the colour camera's axis: librealsense does the same.
+//!
+//! When the depth stream has at least as many pixels per degree as the colour stream (in both
+//! directions, fields of view as `rs2_fov` computes them), only the top-left corner is mapped and
+//! each depth pixel fills that one colour pixel, again as librealsense decides; the Stretch's
+//! 848x480 depth to 1280x720 colour maps rectangles.
+//!
+//! **What is precomputed** ([`DepthToColour::new`], once per stream start): the ray through
+//! each corner, undistorted and rotated into the colour camera (`R * (x_n, y_n, 1)`; for a
+//! rectilinear depth lens as a table per corner column plus one per corner row, a few KiB), so
+//! a frame costs per corner a few multiply-adds, the division and the projection, vectorised
+//! over chunks of 64 depth pixels before the z-buffer writes. No buffer is allocated
+//! per frame: [`DepthToColour::align`] writes into the pooled frame's depth buffer, rotating on the
+//! way (align first, then rotate, in one pass: the z-buffer works on the rotated index of the
+//! same colour pixel).
+//!
+//! **Lens models**, as librealsense's align block (its SSE build, what the PyPI library and
+//! Intel's x86 packages run) applies them: depth rays through the inverse Brown-Conrady formula
+//! when the depth stream has that model; projection through the modified Brown-Conrady formula
+//! when the colour stream has that model (the tangential terms as `rs2_project_point_to_pixel`
+//! writes them; librealsense's SSE align uses the x term for y, so the two differ where those
+//! coefficients are not zero); the coefficients of other models are not applied (nor are they
+//! by librealsense's align): [`DepthToColour::ignored_coefficients`] says which.
+//!
+//! ```
+//! use op3dsg_realsense::align::{DepthToColour, Extrinsics, Lens};
+//! use op3dsg_realsense::rotate::{Rotation, SourceLayout};
+//!
+//! let lens = Lens::pinhole(4, 2, 2.0, 2.0, 1.5, 0.5);
+//! let align = DepthToColour::new(lens, lens, Extrinsics::IDENTITY, 0.001).unwrap();
+//! let depth: Vec<u8> = [1000u16, 0, 1200, 1300, 900, 950, 0, 1000].iter().flat_map(|d| d.to_le_bytes()).collect();
+//! let mut aligned = vec![0u16; 8];
+//! align.align(&depth, SourceLayout { width: 4, height: 2, stride_bytes: 8 }, Rotation::None, &mut aligned).unwrap();
+//! assert_eq!(aligned, [1000, 0, 1200, 1300, 900, 950, 0, 1000]); // same camera: unchanged
+//! ```
+
+use crate::rotate::{CopyError, Rotation, SourceLayout};
+
+/// A stream's lens model, as librealsense names it (`rs2_distortion`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Distortion {
+    /// Rectilinear.
+    None,
+    /// Brown-Conrady with tangential terms applied to radially distorted points (projection).
+    ModifiedBrownConrady,
+    /// Coefficients that undistort (deprojection).
+    InverseBrownConrady,
+    /// Brown-Conrady.
+    BrownConrady,
+    /// Any other model librealsense knows (F-theta, Kannala-Brandt): `rs2_distortion` value.
+    Other(i32),
+}
+
+/// A stream's intrinsics with its lens model (`rs2_intrinsics`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Lens {
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// Focal length along x, pixels.
+    pub fx: f32,
+    /// Focal length along y, pixels.
+    pub fy: f32,
+    /// Principal point x, pixels.
+    pub ppx: f32,
+    /// Principal point y, pixels.
+    pub ppy: f32,
+    /// Lens model.
+    pub model: Distortion,
+    /// The model's coefficients (k1, k2, p1, p2, k3).
+    pub coeffs: [f32; 5],
+}
+
+impl Lens {
+    /// A rectilinear lens.
+    pub fn pinhole(width: u32, height: u32, fx: f32, fy: f32, ppx: f32, ppy: f32) -> Self {
+        Self { width, height, fx, fy, ppx, ppy, model: Distortion::None, coeffs: [0.0; 5] }
+    }
+
+    /// Horizontal and vertical field of view in degrees, as librealsense's `rs2_fov`.
+    pub fn fov_deg(&self) -> [f32; 2] {
+        let (w, h) = (self.width as f32, self.height as f32);
+        let x = (self.ppx + 0.5).atan2(self.fx) + (w - (self.ppx + 0.5)).atan2(self.fx);
+        let y = (self.ppy + 0.5).atan2(self.fy) + (h - (self.ppy + 0.5)).atan2(self.fy);
+        [x.to_degrees(), y.to_degrees()]
+    }
+
+    fn has_coefficients(&self) -> bool {
+        self.coeffs.iter().any(|c| *c != 0.0)
+    }
+
+    fn check(&self, stream: &'static str) -> Result<(), AlignError> {
+        let bad = |field: &'static str, value: f32| AlignError::Calibration { stream, field, value };
+        // (Output indices are i32 in the projection.)
+        if self.width == 0 || self.height == 0 || u64::from(self.width) * u64::from(self.height) > 1 << 30 {
+            return Err(bad("size", self.width.min(self.height) as f32));
+        }
+        for (field, value) in [("fx", self.fx), ("fy", self.fy)] {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(bad(field, value));
+            }
+        }
+        for (field, value) in [("ppx", self.ppx), ("ppy", self.ppy)] {
+            if !value.is_finite() {
+                return Err(bad(field, value));
+            }
+        }
+        if let Some(c) = self.coeffs.iter().find(|c| !c.is_finite()) {
+            return Err(bad("coeffs", *c));
+        }
+        Ok(())
+    }
+}
+
+/// The depth → colour extrinsics (`rs2_extrinsics`): `p_colour = R * p_depth + t`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Extrinsics {
+    /// `R`, column-major as librealsense stores it.
+    pub rotation: [f32; 9],
+    /// `t`, metres.
+    pub translation_m: [f32; 3],
+}
+
+impl Extrinsics {
+    /// The same camera.
+    pub const IDENTITY: Self =
+        Self { rotation: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], translation_m: [0.0; 3] };
+
+    fn apply_rotation(&self, p: [f64; 3]) -> [f64; 3] {
+        let r = self.rotation.map(f64::from);
+        [
+            r[0] * p[0] + r[3] * p[1] + r[6] * p[2],
+            r[1] * p[0] + r[4] * p[1] + r[7] * p[2],
+            r[2] * p[0] + r[5] * p[1] + r[8] * p[2],
+        ]
+    }
+}
+
+/// Calibration that cannot align.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum AlignError {
+    /// A value of a stream's intrinsics is out of range.
+    #[error("{stream} intrinsics: {field} = {value} (need a finite value, focal lengths and sizes above 0)")]
+    Calibration {
+        /// `depth` or `colour`.
+        stream: &'static str,
+        /// The field.
+        field: &'static str,
+        /// What it was.
+        value: f32,
+    },
+    /// The extrinsics' rotation is not a rotation, or the translation is not finite.
+    #[error("depth to colour extrinsics: {0}")]
+    Extrinsics(String),
+    /// The depth scale is not a positive number.
+    #[error("depth units: {0} metres per unit (need a finite value above 0)")]
+    DepthScale(f32),
+}
+
+/// Rays through the pixel corners of the depth image, in the colour camera's orientation
+/// (`R * (x_n, y_n, 1)`): the ray through corner `(u - 0.5, v - 0.5)` is `column(u) + row(v)`.
+///
+/// A rectilinear depth lens needs only a table per corner column (`width + 1`) and per corner
+/// row (`height + 1`), since `R * (x_n, y_n, 1) = x_n R e_x + (y_n R e_y + R e_z)`; the bottom-right
+/// corner of pixel `(u, v)` is the top-left corner of `(u + 1, v + 1)`. A lens with inverse
+/// Brown-Conrady coefficients gets a full table per corner (rows of zeros then).
+#[derive(Debug, Clone)]
+struct Rays {
+    /// Per corner column (`width + 1`), or per corner (`(width + 1) * (height + 1)`) for a
+    /// distorted lens: x, y, z.
+    x: Vec<f32>,
+    y: Vec<f32>,
+    z: Vec<f32>,
+    /// Per corner row (`height + 1`): x, y, z (zeros with a full table).
+    row: Vec<[f32; 3]>,
+    /// Corners per table row: `width + 1` with a full table, 0 when separable.
+    full_stride: usize,
+}
+
+impl Rays {
+    fn new(depth: &Lens, extrinsics: &Extrinsics) -> Self {
+        let (w, h) = (depth.width as usize, depth.height as usize);
+        // f32 as librealsense computes the normalised coordinates.
+        let x_n = |u: usize| (u as f32 - 0.5 - depth.ppx) / depth.fx;
+        let y_n = |v: usize| (v as f32 - 0.5 - depth.ppy) / depth.fy;
+        let c = depth.coeffs;
+        let full = depth.model == Distortion::InverseBrownConrady && depth.has_coefficients();
+        let mut rays = Self { x: Vec::new(), y: Vec::new(), z: Vec::new(), row: Vec::new(), full_stride: 0 };
+        let mut push = |r: [f64; 3]| {
+            rays.x.push(r[0] as f32);
+            rays.y.push(r[1] as f32);
+            rays.z.push(r[2] as f32);
+        };
+        if full {
+            for v in 0..=h {
+                for u in 0..=w {
+                    let (x, y) = (x_n(u), y_n(v));
+                    let r2 = x * x + y * y;
+                    let f = 1.0 + c[0] * r2 + c[1] * r2 * r2 + c[4] * r2 * r2 * r2;
+                    let ux = x * f + 2.0 * c[2] * x * y + c[3] * (r2 + 2.0 * x * x);
+                    let uy = y * f + 2.0 * c[3] * x * y + c[2] * (r2 + 2.0 * y * y);
+                    push(extrinsics.apply_rotation([f64::from(ux), f64::from(uy), 1.0]));
+                }
+            }
+            rays.row = vec![[0.0; 3]; h + 1];
+            rays.full_stride = w + 1;
+        } else {
+            for u in 0..=w {
+                push(extrinsics.apply_rotation([f64::from(x_n(u)), 0.0, 0.0]));
+            }
+            rays.row =
+                (0..=h).map(|v| extrinsics.apply_rotation([0.0, f64::from(y_n(v)), 1.0]).map(|c| c as f32)).collect();
+        }
+        rays
+    }
+
+    /// Where row `v`'s corners start in the column tables.
+    fn row_start(&self, v: usize) -> usize {
+        v * self.full_stride
+    }
+}
+
+/// Depth pixels handled per pass (projection into stack arrays, then the z-buffer writes).
+const CHUNK: usize = 64;
+/// A corner that does not land in front of the colour camera.
+const NOWHERE: i32 = i32::MIN;
+/// Projections further out than this many pixels are nowhere (and stay exact in the rounding).
+const FAR_PX: f32 = 1.0e6;
+/// 1.5 * 2^23: adding and subtracting it rounds an `f32` below 2^22 to an integer, ties to even
+/// (the default rounding mode; librealsense's `_mm_cvtps_epi32` rounds the same way).
+const ROUND_MAGIC: f32 = 12_582_912.0;
+
+/// `x` rounded to the nearest integer, ties to even, for `|x| < 2^22`: adding 1.5 * 2^23 leaves
+/// the rounded value in the low mantissa bits.
+#[inline(always)]
+fn round_to_i32(x: f32) -> i32 {
+    ((x + ROUND_MAGIC).to_bits() as i32).wrapping_sub(ROUND_MAGIC.to_bits() as i32)
+}
+
+/// What the projection of one corner needs.
+#[derive(Debug, Clone, Copy)]
+struct Projection {
+    metres_per_unit: f32,
+    t: [f32; 3],
+    fx: f32,
+    fy: f32,
+    ppx: f32,
+    ppy: f32,
+    coeffs: [f32; 5],
+}
+
+impl Projection {
+    /// Colour pixel indices of one corner for each depth value of a chunk: the corner rays are
+    /// `rays.{x,y,z}[at + i] + row`.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn corners<const DISTORT: bool>(
+        &self,
+        rays: &Rays,
+        at: usize,
+        row: [f32; 3],
+        raw: &[u16],
+        us: &mut [i32; CHUNK],
+        vs: &mut [i32; CHUNK],
+    ) {
+        let n = raw.len();
+        let (rx, ry, rz) = (&rays.x[at..at + n], &rays.y[at..at + n], &rays.z[at..at + n]);
+        let (us, vs) = (&mut us[..n], &mut vs[..n]);
+        let [tx, ty, tz] = self.t;
+        let c = self.coeffs;
+        for i in 0..n {
+            let d = f32::from(raw[i]) * self.metres_per_unit;
+            let px = d * (rx[i] + row[0]) + tx;
+            let py = d * (ry[i] + row[1]) + ty;
+            let pz = d * (rz[i] + row[2]) + tz;
+            let (mut x, mut y) = (px / pz, py / pz); // two divisions as librealsense (rounding)
+            if DISTORT {
+                let r2 = x * x + y * y;
+                let f = 1.0 + c[0] * r2 + c[1] * r2 * r2 + c[4] * r2 * r2 * r2;
+                let (xf, yf) = (x * f, y * f);
+                x = xf + 2.0 * c[2] * xf * yf + c[3] * (r2 + 2.0 * xf * xf);
+                y = yf + 2.0 * c[3] * xf * yf + c[2] * (r2 + 2.0 * yf * yf);
+            }
+            let u = x * self.fx + self.ppx + 0.5;
+            let v = y * self.fy + self.ppy + 0.5;
+            // NaN (no depth, zero z) fails these comparisons too. `&`, not `&&`, and integer
+            // arithmetic on the bits instead of a saturating `as i32`: the loop stays vectorised.
+            let inside = (pz > 0.0) & (u.abs() < FAR_PX) & (v.abs() < FAR_PX);
+            us[i] = if inside { round_to_i32(u) } else { NOWHERE };
+            vs[i] = if inside { round_to_i32(v) } else { NOWHERE };
+        }
+    }
+}
+
+/// Where colour pixel `(x, y)` goes in the rotated output: `origin + x * step_x + y * step_y`.
+#[derive(Debug, Clone, Copy)]
+struct Placement {
+    origin: isize,
+    step_x: isize,
+    step_y: isize,
+}
+
+impl Placement {
+    fn new(rotation: Rotation, w: usize, h: usize) -> Self {
+        let (w, h) = (w as isize, h as isize);
+        let (origin, step_x, step_y) = match rotation {
+            Rotation::None => (0, 1, w),
+            // (x, y) -> (h-1-y, x), output width h.
+            Rotation::Cw90 => (h - 1, h, -1),
+            // (x, y) -> (w-1-x, h-1-y), output width w.
+            Rotation::Cw180 => (h * w - 1, -1, -w),
+            // (x, y) -> (y, w-1-x), output width h.
+            Rotation::Cw270 => ((w - 1) * h, -h, 1),
+        };
+        Self { origin, step_x, step_y }
+    }
+}
+
+/// Depth → colour alignment for one pair of streams (made at stream start, used per frame).
+#[derive(Debug, Clone)]
+pub struct DepthToColour {
+    depth: Lens,
+    colour: Lens,
+    extrinsics: Extrinsics,
+    rays: Rays,
+    /// Whether each depth pixel fills the rectangle between its corners (else one pixel).
+    rectangles: bool,
+    projection: Projection,
+    distort: bool,
+}
+
+impl DepthToColour {
+    /// Precomputes the rays for `depth` → `colour` with the device's extrinsics and depth scale
+    /// (metres per depth unit, librealsense's `depth_units`).
+    pub fn new(
+        depth: Lens,
+        colour: Lens,
+        depth_to_colour: Extrinsics,
+        metres_per_unit: f32,
+    ) -> Result<Self, AlignError> {
+        depth.check("depth")?;
+        colour.check("colour")?;
+        if !(metres_per_unit.is_finite() && metres_per_unit > 0.0) {
+            return Err(AlignError::DepthScale(metres_per_unit));
+        }
+        check_extrinsics(&depth_to_colour)?;
+        let [depth_fov, colour_fov] = [depth.fov_deg(), colour.fov_deg()];
+        let depth_per_deg = [depth.width as f32 / depth_fov[0], depth.height as f32 / depth_fov[1]];
+        let colour_per_deg = [colour.width as f32 / colour_fov[0], colour.height as f32 / colour_fov[1]];
+        // librealsense also maps rectangles for two resolution pairs it names.
+        let special = matches!(
+            ((depth.width, depth.height), (colour.width, colour.height)),
+            ((640, 240), (320, 180)) | ((640, 480), (640, 360))
+        );
+        let rectangles = depth_per_deg[0] < colour_per_deg[0] || depth_per_deg[1] < colour_per_deg[1] || special;
+        let distort = colour.model == Distortion::ModifiedBrownConrady && colour.has_coefficients();
+        Ok(Self {
+            depth,
+            colour,
+            extrinsics: depth_to_colour,
+            rays: Rays::new(&depth, &depth_to_colour),
+            rectangles,
+            projection: Projection {
+                metres_per_unit,
+                t: depth_to_colour.translation_m,
+                fx: colour.fx,
+                fy: colour.fy,
+                ppx: colour.ppx,
+                ppy: colour.ppy,
+                coeffs: colour.coeffs,
+            },
+            distort,
+        })
+    }
+
+    /// The depth stream's lens.
+    pub fn depth(&self) -> &Lens {
+        &self.depth
+    }
+
+    /// The colour stream's lens (the aligned depth has its size).
+    pub fn colour(&self) -> &Lens {
+        &self.colour
+    }
+
+    /// The extrinsics it was made with.
+    pub fn extrinsics(&self) -> &Extrinsics {
+        &self.extrinsics
+    }
+
+    /// Whether each depth pixel fills the rectangle between its corners (`false`: one pixel).
+    pub fn maps_rectangles(&self) -> bool {
+        self.rectangles
+    }
+
+    /// Metres per depth unit.
+    pub fn metres_per_unit(&self) -> f32 {
+        self.projection.metres_per_unit
+    }
+
+    /// Replaces the depth scale (the first frame's own depth units, when the sensor's option
+    /// disagreed); ignored unless finite and above 0.
+    pub fn set_metres_per_unit(&mut self, metres_per_unit: f32) {
+        if metres_per_unit.is_finite() && metres_per_unit > 0.0 {
+            self.projection.metres_per_unit = metres_per_unit;
+        }
+    }
+
+    /// The streams whose lens coefficients are not applied (non-zero, of a model the align does
+    /// not use for that stream), for a warning at start.
+    pub fn ignored_coefficients(&self) -> Vec<(&'static str, Distortion)> {
+        let mut ignored = Vec::new();
+        if self.depth.has_coefficients() && self.depth.model != Distortion::InverseBrownConrady {
+            ignored.push(("depth", self.depth.model));
+        }
+        if self.colour.has_coefficients() && self.colour.model != Distortion::ModifiedBrownConrady {
+            ignored.push(("colour", self.colour.model));
+        }
+        ignored
+    }
+
+    /// Aligns one Z16 depth image (little-endian `u16` per pixel, rows `layout.stride_bytes`
+    /// apart) to the colour stream and writes it, turned by `rotation`, into `out` (the pooled
+    /// frame's depth: colour width x height values). Every value of `out` is written (0 where
+    /// no depth lands).
+    pub fn align(
+        &self,
+        depth: &[u8],
+        layout: SourceLayout,
+        rotation: Rotation,
+        out: &mut [u16],
+    ) -> Result<(), CopyError> {
+        let (dw, dh) = (self.depth.width as usize, self.depth.height as usize);
+        let (cw, ch) = (self.colour.width as usize, self.colour.height as usize);
+        let SourceLayout { width, height, stride_bytes } = layout;
+        let needed = if dh == 0 { 0 } else { stride_bytes * (dh - 1) + dw * 2 };
+        if (width, height) != (dw, dh) || stride_bytes < dw * 2 || depth.len() < needed {
+            return Err(CopyError::ShortSource {
+                stream: "depth",
+                got: depth.len(),
+                needed: needed.max(dw * dh * 2),
+                width: dw,
+                height: dh,
+                stride: stride_bytes,
+            });
+        }
+        if out.len() != cw * ch {
+            return Err(CopyError::Destination {
+                stream: "aligned depth",
+                got: out.len(),
+                needed: cw * ch,
+                width: cw,
+                height: ch,
+            });
+        }
+        out.fill(0);
+        let place = Placement::new(rotation, cw, ch);
+        match (self.distort, self.rectangles) {
+            (false, false) => self.align_rows::<false, false>(depth, stride_bytes, place, out),
+            (false, true) => self.align_rows::<false, true>(depth, stride_bytes, place, out),
+            (true, false) => self.align_rows::<true, false>(depth, stride_bytes, place, out),
+            (true, true) => self.align_rows::<true, true>(depth, stride_bytes, place, out),
+        }
+        Ok(())
+    }
+
+    fn align_rows<const DISTORT: bool, const RECTANGLES: bool>(
+        &self,
+        depth: &[u8],
+        stride_bytes: usize,
+        place: Placement,
+        out: &mut [u16],
+    ) {
+        let (dw, dh) = (self.depth.width as usize, self.depth.height as usize);
+        let (cw, ch) = (self.colour.width, self.colour.height);
+        let rays = &self.rays;
+        let mut raw = [0u16; CHUNK];
+        let (mut x0, mut y0, mut x1, mut y1) = ([0i32; CHUNK], [0i32; CHUNK], [0i32; CHUNK], [0i32; CHUNK]);
+        for v in 0..dh {
+            let row = &depth[v * stride_bytes..v * stride_bytes + dw * 2];
+            let (top, bottom) = (rays.row_start(v), rays.row_start(v + 1));
+            let mut start = 0;
+            while start < dw {
+                let n = CHUNK.min(dw - start);
+                let raw = &mut raw[..n];
+                for (r, px) in raw.iter_mut().zip(row[start * 2..(start + n) * 2].chunks_exact(2)) {
+                    *r = u16::from_le_bytes([px[0], px[1]]);
+                }
+                self.projection.corners::<DISTORT>(rays, top + start, rays.row[v], raw, &mut x0, &mut y0);
+                if RECTANGLES {
+                    // Bottom-right of pixel (u, v): the corner of column u + 1 on row v + 1.
+                    self.projection.corners::<DISTORT>(
+                        rays,
+                        bottom + start + 1,
+                        rays.row[v + 1],
+                        raw,
+                        &mut x1,
+                        &mut y1,
+                    );
+                }
+                if !RECTANGLES {
+                    // One colour pixel each: its output index, worked out for the whole chunk
+                    // (vectorised; NOWHERE is out of bounds as u32 too), -1 for none.
+                    let (idxs, xs, ys) = (&mut x1[..n], &x0[..n], &y0[..n]);
+                    for i in 0..n {
+                        let (x, y) = (xs[i], ys[i]);
+                        let inside = ((x as u32) < cw) & ((y as u32) < ch) & (raw[i] != 0);
+                        let at = place.origin as i32
+                            + x.wrapping_mul(place.step_x as i32)
+                            + y.wrapping_mul(place.step_y as i32);
+                        idxs[i] = if inside { at } else { -1 };
+                    }
+                    for (&idx, &z) in idxs.iter().zip(raw.iter()) {
+                        if idx >= 0 {
+                            // Nearest wins; 0 (nothing yet) counts as farthest:
+                            // min(out - 1, z - 1) + 1 in wrapping u16 arithmetic.
+                            let at = idx as usize;
+                            out[at] = out[at].wrapping_sub(1).min(z - 1) + 1;
+                        }
+                    }
+                    start += n;
+                    continue;
+                }
+                for i in 0..n {
+                    let z = raw[i];
+                    if z == 0 {
+                        continue;
+                    }
+                    // Nearest wins; 0 (nothing yet) counts as farthest: min(out - 1, z - 1) + 1
+                    // in wrapping u16 arithmetic.
+                    let z1 = z - 1;
+                    let (xa, ya) = (x0[i], y0[i]);
+                    let (xb, yb) = (x1[i], y1[i]);
+                    if xa == NOWHERE || xb == NOWHERE {
+                        continue;
+                    }
+                    // Pixels of the rectangle outside the colour image are skipped, as by
+                    // librealsense; the part inside is written.
+                    let (xa, xb) = (xa.max(0), xb.min(cw as i32 - 1));
+                    let (ya, yb) = (ya.max(0), yb.min(ch as i32 - 1));
+                    if xa > xb {
+                        continue;
+                    }
+                    let mut row_at = place.origin + xa as isize * place.step_x + ya as isize * place.step_y;
+                    for _ in ya..=yb {
+                        let mut at = row_at;
+                        for _ in xa..=xb {
+                            out[at as usize] = out[at as usize].wrapping_sub(1).min(z1) + 1;
+                            at += place.step_x;
+                        }
+                        row_at += place.step_y;
+                    }
+                }
+                start += n;
+            }
+        }
+    }
+}
+
+fn check_extrinsics(e: &Extrinsics) -> Result<(), AlignError> {
+    if !e.rotation.iter().chain(&e.translation_m).all(|v| v.is_finite()) {
+        return Err(AlignError::Extrinsics(format!("not finite: {e:?}")));
+    }
+    // R^T R = I within float noise of a calibration (columns of unit length, orthogonal).
+    let r = e.rotation.map(f64::from);
+    let col = |j: usize| [r[3 * j], r[3 * j + 1], r[3 * j + 2]];
+    for i in 0..3 {
+        for j in 0..3 {
+            let (a, b) = (col(i), col(j));
+            let dot = a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+            let want = if i == j { 1.0 } else { 0.0 };
+            if (dot - want).abs() > 1e-3 {
+                return Err(AlignError::Extrinsics(format!(
+                    "rotation is not orthonormal (column {i} . column {j} = {dot:.6}): {:?}",
+                    e.rotation
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rotate::copy_depth;
+
+    fn bytes(depth: &[u16]) -> Vec<u8> {
+        depth.iter().flat_map(|d| d.to_le_bytes()).collect()
+    }
+
+    fn layout(lens: &Lens) -> SourceLayout {
+        SourceLayout { width: lens.width as usize, height: lens.height as usize, stride_bytes: lens.width as usize * 2 }
+    }
+
+    fn run(align: &DepthToColour, depth: &[u16], rotation: Rotation) -> Vec<u16> {
+        let mut out = vec![0xABCDu16; align.colour().width as usize * align.colour().height as usize];
+        align.align(&bytes(depth), layout(align.depth()), rotation, &mut out).unwrap();
+        out
+    }
+
+    fn translation(tx: f32) -> Extrinsics {
+        Extrinsics { translation_m: [tx, 0.0, 0.0], ..Extrinsics::IDENTITY }
+    }
+
+    /// Units of 1 mm.
+    const MM: f32 = 0.001;
+
+    #[test]
+    fn the_same_camera_leaves_depth_unchanged_holes_included() {
+        let lens = Lens::pinhole(64, 48, 50.0, 51.0, 31.25, 23.75);
+        let align = DepthToColour::new(lens, lens, Extrinsics::IDENTITY, MM).unwrap();
+        assert!(!align.maps_rectangles(), "equal resolution: one pixel per depth pixel");
+        let depth: Vec<u16> = (0..64 * 48).map(|i| if i % 7 == 3 { 0 } else { 500 + (i * 13 % 4000) as u16 }).collect();
+        assert_eq!(run(&align, &depth, Rotation::None), depth);
+    }
+
+    #[test]
+    fn a_plane_seen_from_a_shifted_camera_shifts_by_the_disparity() {
+        // Fronto-parallel plane at 2 m, colour camera 5 cm to the right of depth (points move by
+        // +5 cm in its frame): every pixel moves by fx * t / z = 400 * 0.05 / 2 = 10 px.
+        let lens = Lens::pinhole(80, 40, 400.0, 400.0, 39.3, 19.6);
+        let align = DepthToColour::new(lens, lens, translation(0.05), MM).unwrap();
+        let depth = vec![2000u16; 80 * 40];
+        let out = run(&align, &depth, Rotation::None);
+        for v in 0..40 {
+            for u in 0..80 {
+                let want = if u < 10 { 0 } else { 2000 };
+                assert_eq!(out[v * 80 + u], want, "({u}, {v})");
+            }
+        }
+        // A distinct value per depth pixel lands exactly 10 px to the right.
+        let depth: Vec<u16> = (0..80 * 40).map(|i| 2000 + (i % 2) as u16).collect();
+        let out = run(&align, &depth, Rotation::None);
+        for v in 0..40 {
+            for u in 10..80 {
+                assert_eq!(out[v * 80 + u], depth[v * 80 + u - 10], "({u}, {v})");
+            }
+        }
+    }
+
+    #[test]
+    fn a_sharper_colour_camera_gets_every_pixel_of_the_plane() {
+        // Colour: twice the resolution and focal length, same field of view: rectangles.
+        let depth_lens = Lens::pinhole(60, 40, 50.0, 50.0, 29.5, 19.5);
+        let colour_lens = Lens::pinhole(120, 80, 100.0, 100.0, 59.5, 39.5);
+        let align = DepthToColour::new(depth_lens, colour_lens, Extrinsics::IDENTITY, MM).unwrap();
+        assert!(align.maps_rectangles());
+        let out = run(&align, &vec![1500u16; 60 * 40], Rotation::None);
+        assert!(out.iter().all(|&z| z == 1500), "no holes on a plane: {:?}", out.iter().filter(|&&z| z == 0).count());
+        // A step: the left half nearer; the edge column of the colour image gets the nearer value
+        // where both rectangles touch it.
+        let depth: Vec<u16> = (0..60 * 40).map(|i| if i % 60 < 30 { 1000 } else { 3000 }).collect();
+        let out = run(&align, &depth, Rotation::None);
+        for v in 0..80 {
+            assert!(out[v * 120..v * 120 + 59].iter().all(|&z| z == 1000), "row {v} left");
+            assert!(out[v * 120 + 61..v * 120 + 120].iter().all(|&z| z == 3000), "row {v} right");
+        }
+    }
+
+    #[test]
+    fn a_near_box_hides_the_wall_behind_it_and_leaves_its_shadow_empty() {
+        // Wall at 4 m, a box at 1 m over depth columns 40..60; colour 9.6 cm to the right:
+        // the wall moves 100 * 0.096 / 4 = 2.4 px (to 2..42 and 62..), the box 9.6 px (to
+        // 50..70, hiding the wall that lands on 62..70), and 42..50 is seen by colour only (the
+        // box's shadow in depth): no depth there.
+        let lens = Lens::pinhole(100, 20, 100.0, 100.0, 49.5, 9.5);
+        let align = DepthToColour::new(lens, lens, translation(0.096), MM).unwrap();
+        let depth: Vec<u16> = (0..100 * 20).map(|i| if (40..60).contains(&(i % 100)) { 1000 } else { 4000 }).collect();
+        let out = run(&align, &depth, Rotation::None);
+        for v in 0..20 {
+            let row = &out[v * 100..(v + 1) * 100];
+            assert!(row[51..69].iter().all(|&z| z == 1000), "box, row {v}: {row:?}");
+            assert!(row[44..49].iter().all(|&z| z == 0), "shadow, row {v}: {row:?}");
+            assert!(row[4..42].iter().all(|&z| z == 4000), "wall left, row {v}: {row:?}");
+            assert!(row[71..].iter().all(|&z| z == 4000), "wall right, row {v}: {row:?}");
+        }
+    }
+
+    #[test]
+    fn rotating_on_the_way_equals_aligning_then_rotating() {
+        let depth_lens = Lens::pinhole(48, 36, 40.0, 41.0, 23.0, 18.5);
+        let colour_lens = Lens::pinhole(64, 40, 70.0, 70.5, 31.0, 20.5);
+        let extrinsics = Extrinsics {
+            // 2 degrees about y, then a baseline.
+            rotation: {
+                let (s, c) = 0.035f32.sin_cos();
+                [c, 0.0, -s, 0.0, 1.0, 0.0, s, 0.0, c]
+            },
+            translation_m: [0.015, 0.001, -0.002],
+        };
+        let align = DepthToColour::new(depth_lens, colour_lens, extrinsics, 0.00025).unwrap();
+        let depth: Vec<u16> =
+            (0..48 * 36).map(|i| if i % 11 == 0 { 0 } else { 4000 + (i * 37 % 9000) as u16 }).collect();
+        let upright = run(&align, &depth, Rotation::None);
+        assert!(upright.iter().filter(|&&z| z != 0).count() > 64 * 40 / 2, "most of the colour image has depth");
+        for rotation in [Rotation::Cw90, Rotation::Cw180, Rotation::Cw270] {
+            let mut want = vec![0u16; upright.len()];
+            copy_depth(
+                &bytes(&upright),
+                SourceLayout { width: 64, height: 40, stride_bytes: 128 },
+                rotation,
+                &mut want,
+            )
+            .unwrap();
+            assert_eq!(run(&align, &depth, rotation), want, "{rotation:?}");
+        }
+    }
+
+    #[test]
+    fn strided_rows_and_points_behind_the_colour_camera() {
+        let lens = Lens::pinhole(8, 2, 10.0, 10.0, 3.5, 0.5);
+        // Colour 1 m in front of depth: points nearer than 1 m are behind it.
+        let align =
+            DepthToColour::new(lens, lens, Extrinsics { translation_m: [0.0, 0.0, -1.0], ..Extrinsics::IDENTITY }, MM)
+                .unwrap();
+        let mut padded = vec![0xFFu8; 2 * 24];
+        for (v, row) in [[500u16; 8], [3000u16; 8]].iter().enumerate() {
+            padded[v * 24..v * 24 + 16].copy_from_slice(&bytes(row));
+        }
+        let mut out = vec![7u16; 16];
+        align.align(&padded, SourceLayout { width: 8, height: 2, stride_bytes: 24 }, Rotation::None, &mut out).unwrap();
+        // Row 0 (0.5 m) is behind the colour camera: nothing; row 1 (3 m, 2 m from colour) lands
+        // nearer the centre, within the image.
+        assert!(out.contains(&3000));
+        assert!(out.iter().all(|&z| z == 0 || z == 3000), "{out:?}");
+    }
+
+    #[test]
+    fn bad_calibration_and_buffers_are_refused_naming_what() {
+        let lens = Lens::pinhole(8, 2, 10.0, 10.0, 3.5, 0.5);
+        let e = DepthToColour::new(Lens { fx: 0.0, ..lens }, lens, Extrinsics::IDENTITY, MM).unwrap_err();
+        assert_eq!(e.to_string(), "depth intrinsics: fx = 0 (need a finite value, focal lengths and sizes above 0)");
+        let e = DepthToColour::new(lens, Lens { ppy: f32::NAN, ..lens }, Extrinsics::IDENTITY, MM).unwrap_err();
+        assert!(e.to_string().starts_with("colour intrinsics: ppy = NaN"), "{e}");
+        let skewed = Extrinsics { rotation: [1.0, 0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0, 1.0], ..Extrinsics::IDENTITY };
+        let e = DepthToColour::new(lens, lens, skewed, MM).unwrap_err();
+        assert!(e.to_string().contains("not orthonormal"), "{e}");
+        assert!(matches!(DepthToColour::new(lens, lens, Extrinsics::IDENTITY, 0.0), Err(AlignError::DepthScale(_))));
+        let align = DepthToColour::new(lens, lens, Extrinsics::IDENTITY, MM).unwrap();
+        let mut out = vec![0u16; 16];
+        let e = align.align(&[0u8; 31], layout(&lens), Rotation::None, &mut out).unwrap_err();
+        assert!(e.to_string().starts_with("depth: driver buffer holds 31 bytes"), "{e}");
+        let mut short = vec![0u16; 15];
+        let e = align.align(&[0u8; 32], layout(&lens), Rotation::None, &mut short).unwrap_err();
+        assert!(e.to_string().contains("aligned depth: frame buffer holds 15 values"), "{e}");
+    }
+
+    #[test]
+    fn a_depth_lens_with_coefficients_uses_full_ray_tables_indexed_alike() {
+        // Inverse Brown-Conrady coefficients too small to move a corner by a pixel: the full
+        // per-corner tables must give what the separable ones give.
+        let depth_lens = Lens::pinhole(48, 36, 40.0, 41.0, 23.0, 18.5);
+        let colour_lens = Lens::pinhole(64, 40, 70.0, 70.5, 31.0, 20.5);
+        let distorted =
+            Lens { model: Distortion::InverseBrownConrady, coeffs: [1e-9, 0.0, 0.0, 0.0, 0.0], ..depth_lens };
+        let e = translation(0.02);
+        let plain = DepthToColour::new(depth_lens, colour_lens, e, 0.00025).unwrap();
+        let full = DepthToColour::new(distorted, colour_lens, e, 0.00025).unwrap();
+        assert!(full.rays.full_stride > 0 && plain.rays.full_stride == 0);
+        let depth: Vec<u16> =
+            (0..48 * 36).map(|i| if i % 13 == 0 { 0 } else { 6000 + (i * 31 % 5000) as u16 }).collect();
+        for rotation in [Rotation::None, Rotation::Cw90] {
+            assert_eq!(run(&full, &depth, rotation), run(&plain, &depth, rotation), "{rotation:?}");
+        }
+    }
+
+    #[test]
+    fn field_of_view_and_rounding_follow_librealsense() {
+        // rs2_fov of a 848x480 D435i-like depth stream.
+        let lens = Lens::pinhole(848, 480, 421.0, 421.0, 423.5, 239.5);
+        let [h, v] = lens.fov_deg();
+        assert!((h - 90.4).abs() < 0.1 && (v - 59.4).abs() < 0.1, "{h} {v}");
+        // Ties round to even, as _mm_cvtps_epi32.
+        for (x, want) in
+            [(2.5f32, 2), (3.5, 4), (-0.5, 0), (-1.5, -2), (-2.7, -3), (7.49, 7), (7.51, 8), (-999_999.4, -999_999)]
+        {
+            assert_eq!(round_to_i32(x), want, "{x}");
+        }
+        // Coefficients of models the align does not apply are reported.
+        let colour = Lens { model: Distortion::InverseBrownConrady, coeffs: [0.1, 0.0, 0.0, 0.0, 0.0], ..lens };
+        let align = DepthToColour::new(lens, colour, Extrinsics::IDENTITY, MM).unwrap();
+        assert_eq!(align.ignored_coefficients(), [("colour", Distortion::InverseBrownConrady)]);
+    }
+}
