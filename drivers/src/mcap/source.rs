@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use tracing::info;
+use tracing::{info, warn};
 
 use super::messages::{CameraCalibration, FrameMeta, InputPose, RawImageIn};
 use super::reader::{ChannelInfo, Item, McapReader, MessageAt, ReadError};
@@ -44,6 +44,11 @@ struct Staged {
 /// is not the recorder's, a frame without a calibration before it, an image of another size, a
 /// frame whose colour or depth is missing, a file cut off (after a crash or a full disk: the
 /// frames before the cut are delivered first, then the stream ends with the error).
+///
+/// A file of a folder that is gone by the time its turn comes (deleted after the replay listed
+/// the folder) is skipped with a warning naming it and counted in
+/// [`FrameSource::bad_data_skipped`] (capture errors in the daemon's health); the replay goes on
+/// with the next file. A file that is there but unreadable still ends the stream with its error.
 pub struct McapSource {
     config: McapReplayConfig,
     files: Vec<PathBuf>,
@@ -58,6 +63,8 @@ pub struct McapSource {
     step: Option<StepControl>,
     origin: Option<(Instant, u64)>,
     delivered: u64,
+    /// Files of the folder that vanished after it was listed (skipped, each logged at warn).
+    vanished_files: u64,
     finished: bool,
     /// Input poses that came before the frames delivered so far, not yet taken.
     poses: Vec<InputPose>,
@@ -133,6 +140,7 @@ impl McapSource {
             step: (config.mode == PlaybackMode::Stepped).then(StepControl::new),
             origin: None,
             delivered: 0,
+            vanished_files: 0,
             finished: false,
             poses: Vec::new(),
             poses_replayed: 0,
@@ -225,8 +233,24 @@ impl McapSource {
         loop {
             if self.reader.is_none() {
                 let Some(path) = self.files.get(self.next_file) else { return Ok(false) };
-                self.reader = Some(McapReader::open(path).map_err(source_error)?);
+                let opened = McapReader::open(path);
                 self.next_file += 1;
+                match opened {
+                    Ok(reader) => self.reader = Some(reader),
+                    // Listed when the replay opened, gone now (a retention job, an operator
+                    // tidying up): the rest of the recording is still worth playing.
+                    Err(e) if !path.exists() => {
+                        self.vanished_files += 1;
+                        warn!(
+                            path = %path.display(),
+                            error = %e.reason,
+                            vanished_files = self.vanished_files,
+                            "recording file vanished during replay; skipped, going on with the next file"
+                        );
+                        continue;
+                    }
+                    Err(e) => return Err(source_error(e)),
+                }
                 if expected.is_none() {
                     calibration = None;
                 }
@@ -458,6 +482,10 @@ impl FrameSource for McapSource {
 
     fn stops_on_error(&self) -> bool {
         true
+    }
+
+    fn bad_data_skipped(&self) -> u64 {
+        self.vanished_files
     }
 
     fn step_control(&self) -> Option<StepControl> {

@@ -114,6 +114,35 @@ fn a_recording_plays_back_exactly() {
 }
 
 #[test]
+fn a_folder_file_that_vanishes_mid_replay_is_skipped_and_counted() {
+    let dir = tempfile::tempdir().unwrap();
+    for (file, seqs) in [("a.mcap", 0..3), ("b.mcap", 3..6), ("c.mcap", 6..9)] {
+        let mut w = Writer::new(&dir.path().join(file), 4096);
+        w.calibration();
+        for seq in seqs {
+            w.frame(seq, schemas::RAW_IMAGE);
+        }
+        w.finish();
+    }
+    let mut source = open(dir.path()).unwrap();
+    let mut frame = Frame::new(source.intrinsics());
+    assert_eq!(source.next_frame(&mut frame).unwrap(), SourceStatus::Frame);
+    std::fs::remove_file(dir.path().join("b.mcap")).unwrap();
+    let (frames, error) = play(&mut source);
+    assert_eq!(error, None, "the files that are left play to the end");
+    let seqs: Vec<u64> = frames.iter().map(|f| f.seq).collect();
+    assert_eq!(seqs, [1, 2, 6, 7, 8], "a.mcap's rest, then c.mcap");
+    assert_eq!(source.bad_data_skipped(), 1, "the vanished file is counted");
+
+    // A file that is there but unreadable still stops the replay, naming it.
+    let mut source = open(dir.path()).unwrap();
+    std::fs::write(dir.path().join("c.mcap"), b"not an mcap file").unwrap();
+    let (_, error) = play(&mut source);
+    let error = error.expect("an unreadable file ends the stream");
+    assert!(error.starts_with(&dir.path().join("c.mcap").display().to_string()), "{error}");
+}
+
+#[test]
 fn a_truncated_file_delivers_what_it_holds_then_names_where_it_ends() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("cut.mcap");

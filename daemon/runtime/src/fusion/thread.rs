@@ -136,9 +136,12 @@ pub(crate) fn fusion_loop(
         if let Some(sink) = snapshots.as_mut()
             && !finished
             && sink.due(fused_keyframes)
-            && let Some(snapshot) = take_snapshot(fusion.as_ref(), version, stamp_ns)
         {
-            sink.offer(snapshot, fused_keyframes, stats);
+            let started = Instant::now();
+            if let Some(snapshot) = take_snapshot(fusion.as_ref(), version, stamp_ns) {
+                sink.offer(snapshot, fused_keyframes, stats);
+                stats.snapshot.copy.record(started);
+            }
         }
         if finished {
             if version == 0 {

@@ -582,6 +582,9 @@ pub struct SnapshotStats {
     pub last_bytes: AtomicU64,
     /// Time per write (encode, checksum, write, fsync, rename, fsync of the directory).
     pub write: crate::stats::StageStats,
+    /// Time per periodic copy of the map on the fusion thread (the part of a snapshot the hot
+    /// path pays; between keyframes, so it is not in the fusion stage's own latency).
+    pub copy: crate::stats::StageStats,
 }
 
 impl Default for SnapshotStats {
@@ -596,6 +599,7 @@ impl Default for SnapshotStats {
             skipped: AtomicU64::new(0),
             last_bytes: AtomicU64::new(0),
             write: crate::stats::StageStats::new("snapshot"),
+            copy: crate::stats::StageStats::new("snapshot_copy"),
         }
     }
 }

@@ -20,6 +20,9 @@
 //!    kitchen keyframe into maps grown through several sizes (`fusion::workload`), with a PNG
 //!    plot ([`fusion_curve::plot_png`]).
 //!
+//! `op3dsg bench soak` ([`soak`]) runs the same pipeline for a long time with map snapshots on
+//! and off: RSS slope, snapshot write and copy cost, and the fusion stage's latency.
+//!
 //! Nothing is assumed: every figure is measured in the run that reports it, and the report names
 //! the machine (cores, build profile). Timings from a debug build or a shared machine are only
 //! good for checking that the harness works.
@@ -27,6 +30,7 @@
 pub mod fusion_curve;
 pub mod ipc_latency;
 pub mod pipeline_run;
+pub mod soak;
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};

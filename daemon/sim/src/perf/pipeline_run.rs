@@ -9,7 +9,7 @@ use anyhow::{Context as _, anyhow};
 use serde::{Deserialize, Serialize};
 
 use super::{Percentiles, PerfOptions};
-use op3dsg_runtime::pipeline::Pipeline;
+use op3dsg_runtime::pipeline::{Pipeline, PipelineStats};
 use op3dsg_runtime::stats::LatencyHistogram;
 
 /// How the source delivers frames in a run.
@@ -189,6 +189,17 @@ pub fn pipeline_run(options: &PerfOptions, mode: Mode) -> anyhow::Result<Pipelin
         Mode::AsFastAsPossible => "fast",
         Mode::CameraRate(_) => "live",
     };
+    pipeline_run_with(options, mode, tag, &[]).map(|(run, _)| run)
+}
+
+/// [`pipeline_run`] with `extra` overrides (after the mode's, before `options.overrides`) and a
+/// prefix tag of its own; also returns the pipeline's counters as they were at the end.
+pub(crate) fn pipeline_run_with(
+    options: &PerfOptions,
+    mode: Mode,
+    tag: &str,
+    extra: &[String],
+) -> anyhow::Result<(PipelineRun, Arc<PipelineStats>)> {
     let mut overrides = vec![
         format!("run.max_frames={}", options.frames),
         "run.exit_at_end=true".to_owned(),
@@ -196,6 +207,7 @@ pub fn pipeline_run(options: &PerfOptions, mode: Mode) -> anyhow::Result<Pipelin
         format!("ipc.prefix=op3dsg-bench-{}-{tag}", std::process::id()),
     ];
     overrides.extend(mode.overrides());
+    overrides.extend(extra.iter().cloned());
     overrides.extend(options.overrides.iter().cloned());
     let loaded =
         crate::load_profile(options.profile.as_deref(), &overrides).map_err(|e| anyhow!("bad profile: {e}"))?;
@@ -224,7 +236,7 @@ pub fn pipeline_run(options: &PerfOptions, mode: Mode) -> anyhow::Result<Pipelin
         }
     }
     let end_to_end = stages.iter().find(|s| s.name == "end_to_end").map(|s| s.latency).unwrap_or_default();
-    Ok(PipelineRun {
+    let run = PipelineRun {
         mode: mode.describe(),
         overrides,
         source: profile.source.kind.clone(),
@@ -240,7 +252,8 @@ pub fn pipeline_run(options: &PerfOptions, mode: Mode) -> anyhow::Result<Pipelin
         end_to_end,
         stages,
         rss,
-    })
+    };
+    Ok((run, stats))
 }
 
 #[cfg(test)]

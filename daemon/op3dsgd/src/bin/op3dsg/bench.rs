@@ -1,12 +1,13 @@
 //! `op3dsg bench`: `perf` (the pipeline, IPC and fusion-cost benchmark of `op3dsg_sim::perf`),
-//! its hidden subscriber process `ipc-peer`, and `quality` (the synthetic quality benchmark).
+//! its hidden subscriber process `ipc-peer`, `soak` (the long run with map snapshots of
+//! `op3dsg_sim::perf::soak`), and `quality` (the synthetic quality benchmark).
 
 use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
-use super::{PerfArgs, write_output};
+use super::{PerfArgs, SoakArgs, write_output};
 use crate::eval::load_text_encoder;
 
 /// `op3dsg bench perf`.
@@ -48,6 +49,30 @@ pub(super) fn perf(args: PerfArgs) -> Result<()> {
     }
     let plot_link = args.plot.as_ref().map(|p| p.display().to_string());
     let markdown = report.to_markdown(plot_link.as_deref());
+    write_output(None, &markdown)?;
+    if let Some(path) = &args.markdown {
+        write_output(Some(path), &markdown)?;
+    }
+    if let Some(path) = &args.json {
+        report.write_json(path)?;
+    }
+    Ok(())
+}
+
+/// `op3dsg bench soak`.
+pub(super) fn soak(args: SoakArgs) -> Result<()> {
+    use op3dsg_sim::perf::soak;
+    let options = soak::SoakOptions {
+        frames: args.frames,
+        compare_frames: args.compare_frames.unwrap_or(args.frames),
+        snapshot_period_s: args.snapshot_period_s,
+        rss_period: Duration::from_millis(args.rss_period_ms),
+        profile: args.profile,
+        overrides: args.overrides,
+        command: command_line(),
+    };
+    let report = soak::run(&options)?;
+    let markdown = report.to_markdown();
     write_output(None, &markdown)?;
     if let Some(path) = &args.markdown {
         write_output(Some(path), &markdown)?;

@@ -13,7 +13,7 @@
 //! | [`gt`] | `gt` |
 //! | [`fusion_eval`] | `fusion-eval` |
 //! | [`eval`] | `eval` |
-//! | [`bench`] | `bench perf`, `bench quality`, `bench ipc-peer` |
+//! | [`bench`] | `bench perf`, `bench soak`, `bench quality`, `bench ipc-peer` |
 //! | [`map`] | `map info`, `map save`, `map reset` |
 //! | [`record`] | `record info`, `bench record` |
 
@@ -271,6 +271,13 @@ enum BenchCommand {
     /// Prints the Markdown tables; --json, --markdown and --plot write files too. Timings of a
     /// debug build only check that the harness works: measure with `cargo build --release`.
     Perf(Box<PerfArgs>),
+    /// Soak: the real pipeline as fast as possible on the looping synthetic path for many frames
+    /// with map snapshots on, then again with them off: resident memory sampled over the run and
+    /// its slope over the second half (a leak shows as a positive slope), snapshot write time
+    /// p50/p99 on the writer thread, the map copy on the fusion thread, and the fusion stage's
+    /// p99 with snapshots on and off. Prints Markdown; --json and --markdown write files too.
+    /// Build with --release to measure.
+    Soak(Box<SoakArgs>),
     /// The subscriber process of `bench perf`'s IPC measurement (started by it).
     #[command(hide = true)]
     IpcPeer {
@@ -365,6 +372,36 @@ struct PerfArgs {
     plot: Option<PathBuf>,
 }
 
+#[derive(Debug, clap::Args)]
+struct SoakArgs {
+    /// Frames of the run with snapshots on.
+    #[arg(long, default_value_t = 100_000, value_parser = clap::value_parser!(u64).range(1..))]
+    frames: u64,
+    /// Frames of the comparison run with snapshots off (default: as many as --frames; 0: no
+    /// comparison run).
+    #[arg(long)]
+    compare_frames: Option<u64>,
+    /// Seconds between snapshots (snapshot.period_s; the daemon's default is 30).
+    #[arg(long, default_value_t = 2.0)]
+    snapshot_period_s: f64,
+    /// Sample the process's resident memory this often, milliseconds.
+    #[arg(long, default_value_t = 2000, value_parser = clap::value_parser!(u64).range(1..=600_000))]
+    rss_period_ms: u64,
+    /// Profile the runs start from (default: the built-in base: synthetic kitchen, oracle
+    /// detector with realistic noise).
+    #[arg(long)]
+    profile: Option<PathBuf>,
+    /// Profile overrides, section.key=value, applied after the soak's own settings.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    overrides: Vec<String>,
+    /// Write the report as JSON (schema op3dsg.bench_soak/1) to this file.
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
+    /// Write the Markdown to this file.
+    #[arg(long, value_name = "FILE")]
+    markdown: Option<PathBuf>,
+}
+
 /// Environment variable giving the prefix when `--prefix` is absent.
 const PREFIX_ENV: &str = "OP3DSG_PREFIX";
 
@@ -431,6 +468,7 @@ fn run(cli: Cli) -> Result<()> {
             fusion_eval::fusion_eval(profile.as_deref(), &sets, details, check, json.as_deref())
         }
         Command::Bench { command: BenchCommand::Perf(args) } => bench::perf(*args),
+        Command::Bench { command: BenchCommand::Soak(args) } => bench::soak(*args),
         Command::Map { dir, command: MapCommand::Info { json } } => map::info(&dir, json),
         Command::Map { dir, command: MapCommand::Save { timeout_s } } => map::save(&dir, seconds(timeout_s)?),
         Command::Map { dir, command: MapCommand::Reset } => map::reset(&dir),
