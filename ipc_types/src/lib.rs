@@ -131,8 +131,8 @@ pub use graph_types::{
 };
 pub use health_types::{
     EXECUTION_PROVIDERS, FIXED_STAGES, FUTURE_POSE_LIMIT_NS, Health, MAX_MODELS, MAX_QUEUES, MAX_STAGES, MAX_WORKERS,
-    ModelHealth, PoseHealth, QueueHealth, RECORDER_STATES, REFINER_ERRORS, REFINER_REJECTIONS, REFINER_STATES,
-    RecorderHealth, RefinerHealth, StageHealth,
+    ModelHealth, PoseHealth, QueueHealth, RECORDER_STATES, REFINER_ERRORS, REFINER_FORMATS, REFINER_REJECTIONS,
+    REFINER_STATES, RecorderHealth, RefinerHealth, StageHealth,
 };
 pub use pose_types::{PoseError, PoseKind, PoseStamped, check_pose};
 pub use services::{IpcService, PrefixError, ServiceKind, ServiceNames, validate_prefix};
