@@ -20,9 +20,9 @@ use op3dsg_ipc_types::{
     AFFORDANCES, EDGE_BYTES, EXECUTION_PROVIDERS, Edge, FIXED_STAGES, FUNCTIONAL_RELATION_BASE, FUNCTIONAL_RELATIONS,
     FUTURE_POSE_LIMIT_NS, GraphHeader, Health, LABEL_CAPACITY_BYTES, MAX_EDGES, MAX_MODELS, MAX_NODES, MAX_QUEUES,
     MAX_STAGES, MAX_WORKERS, ModelHealth, NAME_CAPACITY_BYTES, NO_NODE, NODE_BYTES, Node, PHRASE_CAPACITY_BYTES,
-    PoseHealth, PoseStamped, QueueHealth, RECORDER_STATES, REFINER_ERRORS, REFINER_REJECTIONS, REFINER_STATES,
-    RecorderHealth, RefinerHealth, SCHEMA_VERSION, SNAPSHOT_STATES, SPATIAL_RELATIONS, SnapshotHealth, StageHealth,
-    ZeroCopySend,
+    PoseHealth, PoseStamped, QueueHealth, RECORDER_STATES, REFINER_ERRORS, REFINER_FORMATS, REFINER_REJECTIONS,
+    REFINER_STATES, RecorderHealth, RefinerHealth, SCHEMA_VERSION, SNAPSHOT_STATES, SPATIAL_RELATIONS, SnapshotHealth,
+    StageHealth, ZeroCopySend,
 };
 
 /// The JSON object of one type: `"Name": {"type_name", "size", "align", "fields": [...]}`.
@@ -120,7 +120,7 @@ fn main() {
             state,
             breaker_open,
             last_error,
-            reserved,
+            response_format,
             last_latency_us,
             refreshes,
             calls,
@@ -224,6 +224,7 @@ fn main() {
     constant("RECORDER_STATES", json_strings(&RECORDER_STATES));
     constant("SNAPSHOT_STATES", json_strings(&SNAPSHOT_STATES));
     constant("REFINER_ERRORS", json_strings(&REFINER_ERRORS));
+    constant("REFINER_FORMATS", json_strings(&REFINER_FORMATS));
     constant("REFINER_REJECTIONS", json_strings(&REFINER_REJECTIONS));
     constant("DEFAULT_PREFIX", format!("\"{DEFAULT_PREFIX}\""));
     constant("MAX_PREFIX_LEN", MAX_PREFIX_LEN.to_string());

@@ -78,8 +78,21 @@ pub const REFINER_STATES: [&str; 6] = ["off", "idle", "calling", "backoff", "bre
 /// part-of pair, a remote one between nodes the knowledge base does not allow),
 /// `non_canonical` (a relation or affordance label that maps onto no canonical one),
 /// `stale` (accepted, but when the result was applied to a later graph its nodes were gone, had
-/// changed kind, or the part had left its object).
-pub const REFINER_REJECTIONS: [&str; 5] = ["malformed", "unknown_node", "wrong_kind", "non_canonical", "stale"];
+/// changed kind, or the part had left its object), and the plausibility rules for canonical
+/// items that make no sense for their nodes: `implausible_geometry` (a part off the object it
+/// is said to act on, a remote pair too far apart for its relation, a part too large for the
+/// affordance), `implausible_relation` (a relation the knowledge base gives none of the
+/// categories involved), `implausible_affordance` (likewise for an affordance).
+pub const REFINER_REJECTIONS: [&str; 8] = [
+    "malformed",
+    "unknown_node",
+    "wrong_kind",
+    "non_canonical",
+    "stale",
+    "implausible_geometry",
+    "implausible_relation",
+    "implausible_affordance",
+];
 
 /// Kinds of failed LLM calls ([`RefinerHealth::last_error`] indexes this): `none` (no call
 /// failed yet), `timeout`, transport errors by cause (`refused`: nothing listens there, `dns`:
@@ -89,6 +102,12 @@ pub const REFINER_REJECTIONS: [&str; 5] = ["malformed", "unknown_node", "wrong_k
 /// choices, null content).
 pub const REFINER_ERRORS: [&str; 10] =
     ["none", "timeout", "refused", "dns", "tls", "connect", "transport", "http_status", "rate_limited", "not_chat"];
+
+/// The `response_format` the LLM refiner sends ([`RefinerHealth::response_format`] indexes
+/// this): `json_schema` (a strict schema per agent, as configured), `json_object` (as
+/// configured), `json_object_fallback` (configured `json_schema`, but the server answered 400
+/// to it, so `json_object` is sent instead).
+pub const REFINER_FORMATS: [&str; 3] = ["json_schema", "json_object", "json_object_fallback"];
 
 /// The LLM refiner (size 128 bytes); all zero (state `off`) when no LLM is configured.
 #[repr(C)]
@@ -102,8 +121,9 @@ pub struct RefinerHealth {
     /// Index into [`REFINER_ERRORS`]: what the last failed call failed of (kept after later
     /// successes; `none` until a call fails).
     pub last_error: u8,
-    /// Reserved, zero.
-    pub reserved: [u8; 1],
+    /// Index into [`REFINER_FORMATS`]: the `response_format` sent now (0 from a daemon older
+    /// than this field, where the byte was reserved).
+    pub response_format: u8,
     /// Latency of the last completed call (success or failure), microseconds.
     pub last_latency_us: u32,
     /// Refreshes started (each sends one prompt per agent).
@@ -121,7 +141,7 @@ pub struct RefinerHealth {
     pub accepted: u64,
     /// Graph version of the last result sent to the fusion thread.
     pub last_graph_version: u64,
-    /// Rejections by reason ([`REFINER_REJECTIONS`] order; the rest reserved, zero).
+    /// Rejections by reason ([`REFINER_REJECTIONS`] order).
     pub rejections: [u64; 8],
 }
 

@@ -131,8 +131,8 @@ pub use graph_types::{
 };
 pub use health_types::{
     EXECUTION_PROVIDERS, FIXED_STAGES, FUTURE_POSE_LIMIT_NS, Health, MAX_MODELS, MAX_QUEUES, MAX_STAGES, MAX_WORKERS,
-    ModelHealth, PoseHealth, QueueHealth, RECORDER_STATES, REFINER_ERRORS, REFINER_REJECTIONS, REFINER_STATES,
-    RecorderHealth, RefinerHealth, SNAPSHOT_STATES, SnapshotHealth, StageHealth,
+    ModelHealth, PoseHealth, QueueHealth, RECORDER_STATES, REFINER_ERRORS, REFINER_FORMATS, REFINER_REJECTIONS,
+    REFINER_STATES, RecorderHealth, RefinerHealth, SNAPSHOT_STATES, SnapshotHealth, StageHealth,
 };
 pub use pose_types::{PoseError, PoseKind, PoseStamped, check_pose};
 pub use services::{IpcService, PrefixError, ServiceKind, ServiceNames, validate_prefix};
@@ -148,8 +148,9 @@ pub use text::{fixed_str, write_fixed_str};
 /// at offset 108 (where 4 reserved bytes were; `reserved2` is 2 bytes now), `obb_centre_m` at 120
 /// and `obb_size_m` at 132, after `last_seen_stamp_ns`; every other offset is unchanged.
 ///
-/// 6: [`Health`] gained `snapshot` ([`SnapshotHealth`], 64 bytes) after `recorder`; the graph's
-/// layout is unchanged.
+/// 6: [`Health`] gained `snapshot` ([`SnapshotHealth`], 64 bytes) after `recorder`, and
+/// [`RefinerHealth`]'s last reserved byte became `response_format` ([`REFINER_FORMATS`]); the
+/// graph's layout is unchanged.
 pub const SCHEMA_VERSION: u32 = 6;
 
 /// Bytes in a frame id (`PoseStamped::frame_id`), a stage or a queue name.

@@ -60,12 +60,22 @@ enum Mode {
     NullContent,
     /// Good answers, except every second call of this agent gets a 500.
     Flaky(&'static str),
+    /// Ids and canonical labels, but items that make no sense for their nodes: a remote
+    /// relation from a part to its own object, `press to flush` on a cabinet handle, `provide
+    /// power` from a remote control, `foot_push` and `plug_in` on every object; besides them
+    /// the plausible relation and affordance of each handle and knob, whatever its geometry.
+    Implausible,
+    /// A server without structured output: 400 to `response_format = json_schema`, good
+    /// answers to `json_object`.
+    NoSchema,
 }
 
 #[derive(Debug, Clone)]
 struct Recorded {
     at: Instant,
     agent: String,
+    /// `response_format.type` of the request.
+    format: String,
     body: String,
     authorization: Option<String>,
 }
@@ -115,12 +125,21 @@ impl TestServer {
 
 async fn handle(State(state): State<Shared>, headers: HeaderMap, body: String) -> Response {
     let request: Value = serde_json::from_str(&body).unwrap_or(Value::Null);
-    let agent = request["response_format"]["json_schema"]["name"].as_str().unwrap_or("?").to_owned();
+    let user: Value = serde_json::from_str(request["messages"][1]["content"].as_str().unwrap_or("null")).unwrap();
+    // The schema names the agent; without one (json_object), the prompt's data does.
+    let agent = match request["response_format"]["json_schema"]["name"].as_str() {
+        Some(name) => name.to_owned(),
+        None if user.get("part_of_pairs").is_some() => "local_relations".to_owned(),
+        None if user.get("sources").is_some() => "remote_relations".to_owned(),
+        None => "affordances".to_owned(),
+    };
+    let format = request["response_format"]["type"].as_str().unwrap_or("").to_owned();
     let mode = {
         let mut s = state.lock().unwrap();
         s.requests.push(Recorded {
             at: Instant::now(),
             agent: agent.clone(),
+            format: format.clone(),
             body: body.clone(),
             authorization: headers.get("authorization").and_then(|v| v.to_str().ok()).map(str::to_owned),
         });
@@ -146,13 +165,17 @@ async fn handle(State(state): State<Shared>, headers: HeaderMap, body: String) -
             return response;
         }
         Mode::Stall => tokio::time::sleep(Duration::from_secs(30)).await,
+        Mode::NoSchema if format == "json_schema" => {
+            let error = json!({"error": {"message": "response_format type 'json_schema' is not supported", "type": "invalid_request_error"}});
+            return (StatusCode::BAD_REQUEST, [("content-type", "application/json")], error.to_string())
+                .into_response();
+        }
         Mode::Html => {
             let page = "<!DOCTYPE html><html><body><h1>Welcome to nginx!</h1></body></html>";
             return (StatusCode::OK, [("content-type", "text/html")], page).into_response();
         }
         _ => {}
     }
-    let user: Value = serde_json::from_str(request["messages"][1]["content"].as_str().unwrap_or("null")).unwrap();
     let content = answer(&agent, &user, mode);
     let choices = match mode {
         Mode::EmptyChoices => json!([]),
@@ -176,6 +199,9 @@ fn answer(agent: &str, user: &Value, mode: Mode) -> String {
     if mode == Mode::Malformed {
         return "Here are the relations: {relations: [handle -> cabinet]}".to_owned();
     }
+    if mode == Mode::Implausible {
+        return implausible(agent, user).to_string();
+    }
     let id_shift = if mode == Mode::UnknownIds { 100_000 } else { 0 };
     let relation = |canonical: &'static str| if mode == Mode::NonCanonical { "opens it by yanking" } else { canonical };
     let id = |v: &Value| {
@@ -193,7 +219,10 @@ fn answer(agent: &str, user: &Value, mode: Mode) -> String {
                 let label = part["label"].as_str().unwrap();
                 if label.ends_with("handle") {
                     items.push(json!({"part_id": part_id, "object_id": object_id, "relation": relation("pull to open or close"), "confidence": conf(0.9)}));
-                    items.push(json!({"part_id": part_id, "object_id": object_id, "relation": relation("push or press to open"), "confidence": conf(0.6)}));
+                    // Some cabinets open by pushing; a model that knows furniture says so for them only.
+                    if object["label"].as_str().unwrap().contains("cabinet") {
+                        items.push(json!({"part_id": part_id, "object_id": object_id, "relation": relation("push or press to open"), "confidence": conf(0.6)}));
+                    }
                 } else if label.ends_with("knob") {
                     items.push(json!({"part_id": part_id, "object_id": object_id, "relation": relation("rotate to adjust the setting or temperature"), "confidence": conf(0.8)}));
                 }
@@ -206,7 +235,8 @@ fn answer(agent: &str, user: &Value, mode: Mode) -> String {
                 let source_id = id(&source["source"]);
                 let target_id =
                     if mode == Mode::WrongKinds { source_id.clone() } else { id(&source["candidate_targets"][0]) };
-                items.push(json!({"source_id": source_id, "target_id": target_id, "relation": relation("remote to control"), "confidence": conf(0.9)}));
+                let canonical = remote_relation(source["source"]["label"].as_str().unwrap());
+                items.push(json!({"source_id": source_id, "target_id": target_id, "relation": relation(canonical), "confidence": conf(0.9)}));
             }
             json!({"relations": items})
         }
@@ -217,7 +247,13 @@ fn answer(agent: &str, user: &Value, mode: Mode) -> String {
                 let names: Vec<&str> = if mode == Mode::NonCanonical {
                     vec!["yank"]
                 } else if label.ends_with("handle") {
-                    vec!["hook_pull", "pinch pull"]
+                    // Small handles on cabinets and drawers can be pinched too.
+                    let parent = node["parent"]["label"].as_str().unwrap_or("");
+                    if parent.contains("cabinet") || parent.contains("drawer") {
+                        vec!["hook_pull", "pinch pull"]
+                    } else {
+                        vec!["hook_pull"]
+                    }
                 } else if label.ends_with("knob") {
                     vec!["rotate"]
                 } else {
@@ -229,6 +265,75 @@ fn answer(agent: &str, user: &Value, mode: Mode) -> String {
         }
     };
     dress(answer, mode)
+}
+
+/// How a remote source acts on its target, by the source's label (as a model that knows
+/// homes answers).
+fn remote_relation(label: &str) -> &'static str {
+    const BY_WORD: [(&str, &str); 10] = [
+        ("outlet", "provide power"),
+        ("socket", "provide power"),
+        ("strip", "provide power"),
+        ("dimmer", "operate or adjust the flow or setting"),
+        ("valve", "operate or adjust the flow or setting"),
+        ("switch", "turn on or turn off"),
+        ("faucet", "control the water flow"),
+        ("tap", "control the water flow"),
+        ("flush", "press to flush"),
+        ("knob", "rotate to adjust the setting or temperature"),
+    ];
+    BY_WORD.iter().find(|(word, _)| label.contains(word)).map_or("remote to control", |(_, relation)| relation)
+}
+
+/// [`Mode::Implausible`]'s answers, from the prompt's ids and labels.
+fn implausible(agent: &str, user: &Value) -> Value {
+    let mut items = Vec::new();
+    match agent {
+        "local_relations" => {
+            for pair in user["part_of_pairs"].as_array().unwrap() {
+                let (part, object) = (&pair["part"]["id"], &pair["object"]["id"]);
+                let label = pair["part"]["label"].as_str().unwrap();
+                let mut relations = vec!["remote to control"];
+                if label.ends_with("handle") {
+                    relations.extend(["press to flush", "pull to open or close"]);
+                } else if label.ends_with("knob") {
+                    relations.push("rotate to adjust the setting or temperature");
+                }
+                for r in relations {
+                    items.push(json!({"part_id": part, "object_id": object, "relation": r, "confidence": 0.8}));
+                }
+            }
+            json!({"relations": items})
+        }
+        "remote_relations" => {
+            for source in user["sources"].as_array().unwrap() {
+                let (source_id, target_id) = (&source["source"]["id"], &source["candidate_targets"][0]["id"]);
+                let label = source["source"]["label"].as_str().unwrap();
+                for r in ["provide power", remote_relation(label)] {
+                    items.push(
+                        json!({"source_id": source_id, "target_id": target_id, "relation": r, "confidence": 0.8}),
+                    );
+                }
+            }
+            json!({"relations": items})
+        }
+        _ => {
+            for node in user["nodes"].as_array().unwrap() {
+                let label = node["label"].as_str().unwrap();
+                let names = if node["kind"] == "object" {
+                    vec!["foot_push", "plug_in"]
+                } else if label.ends_with("handle") {
+                    vec!["hook_pull"]
+                } else if label.ends_with("knob") {
+                    vec!["rotate"]
+                } else {
+                    continue;
+                };
+                items.push(json!({"node_id": node["id"], "affordances": names, "confidence": 0.8}));
+            }
+            json!({"affordances": items})
+        }
+    }
 }
 
 /// The answer as the mode's model writes it around the JSON.
@@ -544,19 +649,28 @@ fn batch_runs_await_the_refiner_on_the_synthetic_kitchen() {
     let graph = &run.graph;
     let label = |id: u32| graph.nodes.iter().find(|n| n.id == id).map_or("?", |n| n.label.as_str());
     let mut agreeing = 0;
+    let mut agreeing_on_cabinets = 0;
     let mut llm_only = 0;
     for e in graph.edges.iter().filter(|e| e.kind == EdgeKind::Functional) {
         match (e.origin, relation_phrase(e.relation_id).unwrap()) {
             (EdgeOrigin::KnowledgeAndLlm, "pull to open or close") => {
                 assert!(label(e.source_id).ends_with("handle"));
                 agreeing += 1;
+                agreeing_on_cabinets += usize::from(label(e.target_id).contains("cabinet"));
             }
-            (EdgeOrigin::Llm, "push or press to open") => llm_only += 1,
+            (EdgeOrigin::Llm, "push or press to open") => {
+                assert!(label(e.target_id).contains("cabinet"), "{}", label(e.target_id));
+                llm_only += 1;
+            }
             _ => {}
         }
     }
-    // Every handle the server saw gets its LLM-only edge; those knowledge agrees with are K+L.
-    assert!(agreeing >= 2 && llm_only >= agreeing, "{agreeing} agreeing, {llm_only} from the LLM alone");
+    // The handles' pulls the knowledge base agrees with are K+L; every cabinet handle the server
+    // saw also gets its LLM-only push.
+    assert!(
+        agreeing >= 2 && llm_only >= agreeing_on_cabinets,
+        "{agreeing} agreeing ({agreeing_on_cabinets} on cabinets), {llm_only} from the LLM alone"
+    );
     let mut agents: Vec<String> = server.requests().into_iter().map(|r| r.agent).collect();
     agents.sort();
     // One refresh for the one graph; this short run has no remotable source with a candidate
@@ -721,4 +835,133 @@ fn with_a_flaky_agent_no_accepted_edge_disappears_while_its_nodes_exist() {
     assert_eq!(stats.failures.load(Ordering::Relaxed), 4 + 3);
     // The knob's local relation and its affordances.
     assert_eq!(stats.rejections(Rejection::Stale), 2);
+}
+
+/// The corner with two parts whose geometry rules items out: a cabinet knob 56 cm off the
+/// cabinet it is fused onto, and a stove "knob" 60 cm long (a smeared segment).
+fn corner_with_odd_parts() -> SceneGraph {
+    let mut graph = corner();
+    graph.nodes.push(node(7, "cabinet knob", NodeKind::Part, Some(1), [-0.6, -0.03, 0.5], [-0.56, 0.0, 0.54]));
+    graph.nodes.push(node(8, "stove knob", NodeKind::Part, Some(2), [1.0, -0.05, 0.7], [1.6, 0.0, 0.75]));
+    for (part, object) in [(7, 1), (8, 2)] {
+        graph.edges.push(op3dsg_runtime::graph::GraphEdge {
+            source_id: part,
+            target_id: object,
+            kind: EdgeKind::Spatial,
+            relation_id: 0,
+            confidence: 0.9,
+            origin: EdgeOrigin::Geometry,
+        });
+    }
+    graph
+}
+
+fn refine_graph(enricher: &mut GraphEnricher, mut graph: SceneGraph) -> SceneGraph {
+    let prior = enricher.enrich(&mut graph);
+    assert!(enricher.refine_now(&mut graph, prior, Duration::from_secs(30)), "a result arrives");
+    graph
+}
+
+fn llm_edges(graph: &SceneGraph) -> Vec<Functional> {
+    functional(graph).into_iter().filter(|e| matches!(e.3, EdgeOrigin::Llm | EdgeOrigin::KnowledgeAndLlm)).collect()
+}
+
+#[test]
+fn canonical_but_implausible_items_are_rejected_and_counted_by_rule() {
+    let server = TestServer::start(Mode::Implausible);
+    // The remote control is 1.73 m from the TV: within the knowledge base's 10 m for "remote to
+    // control", beyond this profile's 1 m.
+    let extra = ["reasoner.llm.plausibility.remote_max_distance_m.remote_to_control=1.0"];
+    let (mut enricher, stats) = enricher(&overrides(&server, &extra));
+    let graph = refine_graph(&mut enricher, corner_with_odd_parts());
+    let h = stats.health();
+    let count = |reason: Rejection| h.rejections[reason as usize];
+    // Geometry (checked first for local relations): both relations of the knob 56 cm off its
+    // cabinet, the remote 1.73 m from the TV, the 60 cm knob's "rotate".
+    assert_eq!(count(Rejection::ImplausibleGeometry), 2 + 1 + 1);
+    // Knowledge: "remote to control" from each of the three attached parts to its own object,
+    // "press to flush" on the cabinet handle, "provide power" from the remote control.
+    assert_eq!(count(Rejection::ImplausibleRelation), 3 + 1 + 1);
+    // Knowledge: "foot_push" and "plug_in" on each of the four objects.
+    assert_eq!(count(Rejection::ImplausibleAffordance), 4 * 2);
+    assert_eq!(h.rejections[..5], [0; 5], "ids, kinds and labels were all fine");
+    // What passed: the handle's and the two attached knobs' relations, the handle's and the
+    // small knobs' affordances.
+    assert_eq!(
+        llm_edges(&graph),
+        [
+            (5, 1, "pull to open or close", EdgeOrigin::KnowledgeAndLlm),
+            (6, 2, "rotate to adjust the setting or temperature", EdgeOrigin::KnowledgeAndLlm),
+            (8, 2, "rotate to adjust the setting or temperature", EdgeOrigin::KnowledgeAndLlm),
+        ]
+    );
+    assert_eq!(stats.accepted.load(Ordering::Relaxed), 3 + 3);
+    for object in graph.nodes.iter().filter(|n| n.kind == NodeKind::Object) {
+        let names: Vec<&str> = affordance_names(object.affordance_bits).collect();
+        assert!(!names.contains(&"foot_push") && !names.contains(&"plug_in"), "{}: {names:?}", object.label);
+    }
+    // Health as `op3dsg health` prints it: every rule under its own name.
+    let report = op3dsg_runtime::ipc::HealthReport::from(&op3dsg_ipc_types::Health {
+        refiner: h,
+        ..op3dsg_ipc_types::Health::default()
+    });
+    let by_name = &report.refiner.rejections;
+    assert_eq!(
+        (by_name["implausible_geometry"], by_name["implausible_relation"], by_name["implausible_affordance"]),
+        (4, 5, 8)
+    );
+}
+
+#[test]
+fn without_the_plausibility_rules_the_same_answers_get_through() {
+    let server = TestServer::start(Mode::Implausible);
+    let (mut enricher, stats) = enricher(&overrides(&server, &["reasoner.llm.plausibility.enabled=false"]));
+    let graph = refine_graph(&mut enricher, corner_with_odd_parts());
+    assert_eq!(stats.health().rejections, [0; 8]);
+    let edges = llm_edges(&graph);
+    for edge in [
+        (5, 1, "press to flush", EdgeOrigin::Llm),
+        (5, 1, "remote to control", EdgeOrigin::Llm),
+        (7, 1, "rotate to adjust the setting or temperature", EdgeOrigin::Llm),
+        (4, 3, "provide power", EdgeOrigin::Llm),
+        (4, 3, "remote to control", EdgeOrigin::KnowledgeAndLlm),
+    ] {
+        assert!(edges.contains(&edge), "{edge:?} in {edges:?}");
+    }
+    let cabinet = graph.nodes.iter().find(|n| n.id == 1).unwrap();
+    assert!(affordance_names(cabinet.affordance_bits).any(|a| a == "foot_push"));
+}
+
+#[test]
+fn a_server_without_structured_output_is_sent_json_object_after_its_first_400() {
+    let logs = captured_logs();
+    let good = TestServer::start(Mode::Good);
+    let (mut plain_enricher, _) = enricher(&overrides(&good, &[]));
+    let structured = llm_view(&refine(&mut plain_enricher));
+    let server = TestServer::start(Mode::NoSchema);
+    let (mut enricher, stats) = enricher(&overrides(&server, &[]));
+    assert_eq!(stats.response_format(), "json_schema");
+    assert_eq!(llm_view(&refine(&mut enricher)), structured, "the same edges as with structured output");
+    // Each agent in flight when the first 400 came was refused once and repeated at once.
+    let refused = stats.schema_refusals.load(Ordering::Relaxed);
+    assert!((1..=3).contains(&refused), "{refused}");
+    assert_eq!(stats.failures.load(Ordering::Relaxed), 0, "a refused schema is no failure");
+    assert!(!stats.breaker_open());
+    assert_eq!(stats.response_format(), "json_object_fallback");
+    let requests = server.requests();
+    assert_eq!(requests.iter().filter(|r| r.format == "json_schema").count() as u64, refused);
+    assert_eq!(requests.iter().filter(|r| r.format == "json_object").count(), 3);
+    // Later refreshes ask for json_object straight away.
+    refine(&mut enricher);
+    let requests = server.requests();
+    assert_eq!(requests.iter().filter(|r| r.format == "json_schema").count() as u64, refused);
+    assert_eq!(requests.len() as u64, refused + 6);
+    let report = op3dsg_runtime::ipc::HealthReport::from(&op3dsg_ipc_types::Health {
+        refiner: stats.health(),
+        ..op3dsg_ipc_types::Health::default()
+    });
+    assert_eq!(report.refiner.response_format, "json_object_fallback");
+    let logs = String::from_utf8_lossy(&logs.lock().unwrap()).into_owned();
+    let lines = logs.lines().filter(|l| l.contains("answered 400 to response_format json_schema")).count();
+    assert_eq!(lines, 1, "logged once: {logs}");
 }

@@ -80,7 +80,17 @@ REFINER_STATES = ("off", "idle", "calling", "backoff", "breaker_open", "budget_e
 RECORDER_STATES = ("off", "recording", "failed", "finished")
 SNAPSHOT_STATES = ("off", "started_empty", "restored", "moved_aside")
 REFINER_ERRORS = ("none", "timeout", "refused", "dns", "tls", "connect", "transport", "http_status", "rate_limited", "not_chat")
-REFINER_REJECTIONS = ("malformed", "unknown_node", "wrong_kind", "non_canonical", "stale")
+REFINER_FORMATS = ("json_schema", "json_object", "json_object_fallback")
+REFINER_REJECTIONS = (
+    "malformed",
+    "unknown_node",
+    "wrong_kind",
+    "non_canonical",
+    "stale",
+    "implausible_geometry",
+    "implausible_relation",
+    "implausible_affordance",
+)
 
 # QoS of the services (``ipc_types/src/services.rs``).
 DEFAULT_PREFIX = "op3dsg"
@@ -278,7 +288,7 @@ class RefinerHealth(_Wire):
         ("state", _u8),
         ("breaker_open", _u8),
         ("last_error", _u8),
-        ("reserved", _u8 * 1),
+        ("response_format", _u8),
         ("last_latency_us", _u32),
         ("refreshes", _u64),
         ("calls", _u64),
@@ -488,6 +498,7 @@ class Health(_Wire):
             "refiner": {
                 "state": _name_of(REFINER_STATES, self.refiner.state),
                 "breaker_open": bool(self.refiner.breaker_open),
+                "response_format": _name_of(REFINER_FORMATS, self.refiner.response_format),
                 "calls": self.refiner.calls,
                 "failures": self.refiner.failures,
                 "accepted": self.refiner.accepted,

@@ -177,13 +177,19 @@ pub struct RefinerReport {
     pub rate_limited: u64,
     /// Items that passed the verification gate.
     pub accepted: u64,
-    /// Rejections by reason (`malformed`, `unknown_node`, `wrong_kind`, `non_canonical`, `stale`).
+    /// Rejections by reason (`malformed`, `unknown_node`, `wrong_kind`, `non_canonical`, `stale`,
+    /// `implausible_geometry`, `implausible_relation`, `implausible_affordance`; see
+    /// `op3dsg_ipc_types::REFINER_REJECTIONS`).
     pub rejections: std::collections::BTreeMap<String, u64>,
     /// What the last failed call failed of (`none`, `timeout`, `refused`, `dns`, `tls`,
     /// `connect`, `transport`, `http_status`, `rate_limited`, `not_chat`; see
     /// `op3dsg_ipc_types::REFINER_ERRORS`).
     #[serde(default)]
     pub last_error: String,
+    /// The `response_format` sent now (`json_schema`, `json_object`, `json_object_fallback`: the
+    /// server refused `json_schema`; see `op3dsg_ipc_types::REFINER_FORMATS`).
+    #[serde(default)]
+    pub response_format: String,
     /// Latency of the last call, microseconds.
     pub last_latency_us: u32,
     /// Graph version of the last verified result.
@@ -208,6 +214,11 @@ impl From<&op3dsg_ipc_types::RefinerHealth> for RefinerReport {
                 .collect(),
             last_error: op3dsg_ipc_types::REFINER_ERRORS
                 .get(r.last_error as usize)
+                .copied()
+                .unwrap_or("unknown")
+                .to_owned(),
+            response_format: op3dsg_ipc_types::REFINER_FORMATS
+                .get(r.response_format as usize)
                 .copied()
                 .unwrap_or("unknown")
                 .to_owned(),

@@ -23,12 +23,16 @@
 //! `op3dsg bench soak` ([`soak`]) runs the same pipeline for a long time with map snapshots on
 //! and off: RSS slope, snapshot write and copy cost, and the fusion stage's latency.
 //!
+//! `op3dsg bench llm` ([`llm_hot_path`]) runs the pipeline twice more, without the LLM and with
+//! a slow LLM server, for the fusion thread's p99 ratio.
+//!
 //! Nothing is assumed: every figure is measured in the run that reports it, and the report names
 //! the machine (cores, build profile). Timings from a debug build or a shared machine are only
 //! good for checking that the harness works.
 
 pub mod fusion_curve;
 pub mod ipc_latency;
+pub mod llm_hot_path;
 pub mod pipeline_run;
 pub mod soak;
 
@@ -40,6 +44,7 @@ use serde::{Deserialize, Serialize};
 
 pub use fusion_curve::{FusionCurve, FusionPoint, fusion_curve};
 pub use ipc_latency::{IpcLatency, IpcRow, ipc_latency, ipc_peer};
+pub use llm_hot_path::{LlmHotPath, SlowChatServer, StageComparison, llm_hot_path};
 pub use pipeline_run::{PipelineRun, RssSample, StageRow, pipeline_run};
 
 use op3dsg_runtime::stats::LatencyHistogram;

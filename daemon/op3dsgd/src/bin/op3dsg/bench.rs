@@ -1,14 +1,52 @@
 //! `op3dsg bench`: `perf` (the pipeline, IPC and fusion-cost benchmark of `op3dsg_sim::perf`),
 //! its hidden subscriber process `ipc-peer`, `soak` (the long run with map snapshots of
-//! `op3dsg_sim::perf::soak`), and `quality` (the synthetic quality benchmark).
+//! `op3dsg_sim::perf::soak`), `llm` (the hot path with a slow LLM server against none), and
+//! `quality` (the synthetic quality benchmark).
 
 use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
-use super::{PerfArgs, SoakArgs, write_output};
+use super::{LlmBenchArgs, PerfArgs, SoakArgs, write_output};
 use crate::eval::load_text_encoder;
+
+/// `op3dsg bench llm`.
+pub(super) fn llm(args: LlmBenchArgs) -> Result<()> {
+    use op3dsg_sim::perf;
+    if !(args.delay_s.is_finite() && (0.0..=590.0).contains(&args.delay_s)) {
+        bail!("--delay-s {}: must be within [0, 590] seconds", args.delay_s);
+    }
+    let delay = Duration::from_secs_f64(args.delay_s);
+    if let Some(address) = &args.serve {
+        let server = perf::SlowChatServer::start(address, delay)?;
+        println!("serving {}/chat/completions, answers after {} s; interrupt to stop", server.base_url(), args.delay_s);
+        loop {
+            std::thread::sleep(Duration::from_secs(3600));
+        }
+    }
+    let options = perf::PerfOptions {
+        frames: args.frames,
+        profile: args.profile,
+        overrides: args.overrides,
+        live_rate_hz: 0.0,
+        rss_period: Duration::from_millis(500),
+        ipc_nodes: Vec::new(),
+        ipc_messages: 0,
+        ipc_warmup: 0,
+        peer_exe: std::path::PathBuf::new(),
+        fusion_sizes: Vec::new(),
+        fusion_steps: 0,
+        fusion_keyframes: 0,
+        command: command_line(),
+    };
+    let report = perf::llm_hot_path(&options, delay)?;
+    if let Some(path) = &args.json {
+        let text = serde_json::to_string_pretty(&report).context("serialising the report")?;
+        std::fs::write(path, text).with_context(|| format!("writing {}", path.display()))?;
+    }
+    write_output(None, &report.to_text())
+}
 
 /// `op3dsg bench perf`.
 pub(super) fn perf(args: PerfArgs) -> Result<()> {

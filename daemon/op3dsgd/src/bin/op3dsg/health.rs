@@ -114,7 +114,7 @@ fn health_text(h: &HealthReport) -> String {
     if r.state != "off" {
         let _ = writeln!(
             s,
-            "llm refiner {}{}  refreshes {}  calls {}  failures {} (timeouts {}, 429 {}, last {})  accepted {}  last latency {:.0} ms  last graph version {}",
+            "llm refiner {}{}  refreshes {}  calls {}  failures {} (timeouts {}, 429 {}, last {})  accepted {}  last latency {:.0} ms  last graph version {}  format {}",
             r.state,
             if r.breaker_open { " (breaker open)" } else { "" },
             r.refreshes,
@@ -125,9 +125,14 @@ fn health_text(h: &HealthReport) -> String {
             r.last_error,
             r.accepted,
             f64::from(r.last_latency_us) / 1000.0,
-            r.last_graph_version
+            r.last_graph_version,
+            r.response_format
         );
-        let rejections: Vec<String> = r.rejections.iter().map(|(k, v)| format!("{k} {v}")).collect();
+        // In the wire order (malformed ... implausible_affordance), not alphabetically.
+        let rejections: Vec<String> = op3dsg_ipc_types::REFINER_REJECTIONS
+            .iter()
+            .map(|k| format!("{k} {}", r.rejections.get(*k).copied().unwrap_or(0)))
+            .collect();
         let _ = writeln!(s, "llm rejections  {}", rejections.join("  "));
     }
     s
@@ -149,12 +154,19 @@ mod tests {
         health.refiner.failures = 6;
         health.refiner.rejections[1] = 2;
         health.refiner.last_error = 2;
+        health.refiner.rejections[6] = 3;
+        health.refiner.response_format = 2;
         health.pose.accepted = 5;
         health.pose.out_of_order = 1;
         let text = health_text(&HealthReport::from(&health));
         assert!(text.contains("poses  accepted 5  out_of_order 1\n"), "{text}");
         assert!(text.contains("llm refiner breaker_open (breaker open)  refreshes 0  calls 6  failures 6"), "{text}");
         assert!(text.contains("unknown_node 2"), "{text}");
+        assert!(
+            text.contains("llm rejections  malformed 0  unknown_node 2  wrong_kind 0  non_canonical 0  stale 0  implausible_geometry 0  implausible_relation 3  implausible_affordance 0\n"),
+            "every reason, in the wire order: {text}"
+        );
+        assert!(text.contains("format json_object_fallback"), "{text}");
         assert!(text.contains("failures 6 (timeouts 0, 429 0, last refused)"), "{text}");
         let json = serde_json::to_value(HealthReport::from(&health)).unwrap();
         assert_eq!(json["refiner"]["rejections"]["unknown_node"], 2);

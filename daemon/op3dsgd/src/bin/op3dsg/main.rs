@@ -13,7 +13,7 @@
 //! | [`gt`] | `gt` |
 //! | [`fusion_eval`] | `fusion-eval` |
 //! | [`eval`] | `eval` |
-//! | [`bench`] | `bench perf`, `bench soak`, `bench quality`, `bench ipc-peer` |
+//! | [`bench`] | `bench perf`, `bench soak`, `bench llm`, `bench quality`, `bench ipc-peer` |
 //! | [`map`] | `map info`, `map save`, `map reset` |
 //! | [`record`] | `record info`, `bench record` |
 
@@ -278,6 +278,13 @@ enum BenchCommand {
     /// p99 with snapshots on and off. Prints Markdown; --json and --markdown write files too.
     /// Build with --release to measure.
     Soak(Box<SoakArgs>),
+    /// The hot path against a slow LLM: the real pipeline as fast as possible, once with
+    /// reasoner.kind = knowledge and once with reasoner.kind = llm against a chat-completions
+    /// server in this process that answers every request after --delay-s; prints the p50/p99 of
+    /// fusion, prior graph + reasoner, publish and capture → graph for both runs and the p99
+    /// ratio. With --serve only the server runs (for a daemon started by hand), until
+    /// interrupted. Measure with `cargo build --release`.
+    Llm(Box<LlmBenchArgs>),
     /// The subscriber process of `bench perf`'s IPC measurement (started by it).
     #[command(hide = true)]
     IpcPeer {
@@ -323,6 +330,28 @@ enum BenchCommand {
         #[arg(long)]
         check: bool,
     },
+}
+
+#[derive(Debug, clap::Args)]
+struct LlmBenchArgs {
+    /// Frames per pipeline run.
+    #[arg(long, default_value_t = 600, value_parser = clap::value_parser!(u64).range(1..))]
+    frames: u64,
+    /// Seconds the server takes to answer each request.
+    #[arg(long, default_value_t = 5.0)]
+    delay_s: f64,
+    /// Profile both runs start from (default: the built-in base: synthetic kitchen).
+    #[arg(long)]
+    profile: Option<PathBuf>,
+    /// Profile overrides, section.key=value, applied to both runs.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    overrides: Vec<String>,
+    /// Write the report as JSON to this file.
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
+    /// Only serve chat completions on this address (e.g. 127.0.0.1:8099) until interrupted.
+    #[arg(long, value_name = "ADDRESS")]
+    serve: Option<String>,
 }
 
 #[derive(Debug, clap::Args)]
@@ -469,6 +498,7 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Bench { command: BenchCommand::Perf(args) } => bench::perf(*args),
         Command::Bench { command: BenchCommand::Soak(args) } => bench::soak(*args),
+        Command::Bench { command: BenchCommand::Llm(args) } => bench::llm(*args),
         Command::Map { dir, command: MapCommand::Info { json } } => map::info(&dir, json),
         Command::Map { dir, command: MapCommand::Save { timeout_s } } => map::save(&dir, seconds(timeout_s)?),
         Command::Map { dir, command: MapCommand::Reset } => map::reset(&dir),

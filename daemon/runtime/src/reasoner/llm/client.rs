@@ -2,10 +2,15 @@
 //!
 //! One [`ChatClient::complete`] is one HTTP request: `POST <base_url>/chat/completions` with the
 //! model, a system and a user message, `temperature`, `max_tokens` and a `response_format`
-//! (a strict JSON schema, or `json_object`). It returns the first choice's message content;
+//! (a strict JSON schema, or `json_object`). A server that answers 400 to a `json_schema`
+//! request (no structured-output support) is sent `json_object` from then on: that call returns
+//! [`CallError::SchemaRefused`] (the refiner repeats it at once, not as a failure) and every
+//! later one asks for `json_object`. It returns the first choice's message content;
 //! retries, backoff, the breaker and the budget are the refiner's. The API key travels only in
 //! the `Authorization` header, marked sensitive; [`ApiKey`] never prints it.
 
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use reqwest::header::{AUTHORIZATION, HeaderValue, RETRY_AFTER};
@@ -141,6 +146,15 @@ pub enum CallError {
     /// `choices` list, null content): a failure like any other, it feeds the breaker.
     #[error("not a chat completion: {0}")]
     BadEnvelope(String),
+    /// A 400 to a request with `response_format = json_schema`: the server has no structured
+    /// output. The client asks for `json_object` from now on; not a failure of the endpoint.
+    #[error("HTTP status 400 to response_format json_schema: {detail}")]
+    SchemaRefused {
+        /// `true` for the first such answer of this client (log it once).
+        first: bool,
+        /// The start of the server's error body.
+        detail: String,
+    },
 }
 
 impl CallError {
@@ -150,6 +164,7 @@ impl CallError {
             CallError::Timeout | CallError::Transport { .. } => true,
             CallError::Status { status, .. } => *status == 429 || *status >= 500,
             CallError::BadEnvelope(_) => false,
+            CallError::SchemaRefused { .. } => true,
         }
     }
 
@@ -159,7 +174,7 @@ impl CallError {
             CallError::Timeout => "timeout",
             CallError::Transport { cause, .. } => cause.name(),
             CallError::Status { status: 429, .. } => "rate_limited",
-            CallError::Status { .. } => "http_status",
+            CallError::Status { .. } | CallError::SchemaRefused { .. } => "http_status",
             CallError::BadEnvelope(_) => "not_chat",
         }
     }
@@ -234,6 +249,8 @@ pub struct ChatClient {
     temperature: f32,
     max_tokens: u32,
     format: ResponseFormat,
+    /// The server answered 400 to `json_schema`: `json_object` is sent instead.
+    schema_refused: Arc<AtomicBool>,
     authorization: Option<HeaderValue>,
 }
 
@@ -261,13 +278,29 @@ impl ChatClient {
             temperature: config.temperature,
             max_tokens: config.max_tokens,
             format: config.response_format,
+            schema_refused: Arc::new(AtomicBool::new(false)),
             authorization,
         })
     }
 
+    /// The `response_format` sent now: the configured one, or `json_object` after the server
+    /// refused `json_schema`.
+    pub fn format_in_use(&self) -> ResponseFormat {
+        if self.schema_refused.load(Ordering::Relaxed) { ResponseFormat::JsonObject } else { self.format }
+    }
+
+    /// Whether `json_object` is sent because the server refused `json_schema`.
+    pub fn fell_back(&self) -> bool {
+        self.schema_refused.load(Ordering::Relaxed)
+    }
+
     /// The request body for `prompt`.
     pub fn body(&self, prompt: &Prompt) -> Value {
-        let response_format = match self.format {
+        self.body_as(prompt, self.format_in_use())
+    }
+
+    fn body_as(&self, prompt: &Prompt, format: ResponseFormat) -> Value {
+        let response_format = match format {
             ResponseFormat::JsonSchema => json!({
                 "type": "json_schema",
                 "json_schema": {"name": prompt.agent.name(), "strict": true, "schema": prompt.schema},
@@ -288,12 +321,19 @@ impl ChatClient {
 
     /// Sends `prompt`; the first choice's message content.
     pub async fn complete(&self, prompt: &Prompt) -> Result<String, CallError> {
-        let mut request = self.http.post(&self.url).json(&self.body(prompt));
+        let format = self.format_in_use();
+        let mut request = self.http.post(&self.url).json(&self.body_as(prompt, format));
         if let Some(value) = &self.authorization {
             request = request.header(AUTHORIZATION, value.clone());
         }
         let response = request.send().await.map_err(classify)?;
         let status = response.status();
+        if status == reqwest::StatusCode::BAD_REQUEST && format == ResponseFormat::JsonSchema {
+            let bytes = response.bytes().await.unwrap_or_default();
+            let detail = String::from_utf8_lossy(&bytes[..bytes.len().min(200)]).replace(char::is_control, " ");
+            let first = !self.schema_refused.swap(true, Ordering::Relaxed);
+            return Err(CallError::SchemaRefused { first, detail });
+        }
         if !status.is_success() {
             let retry_after = response
                 .headers()

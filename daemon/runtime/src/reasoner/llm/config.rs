@@ -2,6 +2,7 @@
 //! `profiles/base.toml`). The API key is never part of a profile: only the name of the
 //! environment variable or the path of the file that holds it.
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -77,6 +78,82 @@ pub struct LlmConfig {
     pub embedding_min_similarity: f32,
     /// Nodes (or pairs) listed in one prompt at most; beyond, the most confident are kept.
     pub max_prompt_items: u32,
+    /// The plausibility rules of the verification gate (`[reasoner.llm.plausibility]`).
+    #[serde(default)]
+    pub plausibility: PlausibilityConfig,
+}
+
+/// `[reasoner.llm.plausibility]`: the gate's geometry and knowledge rules for canonical but
+/// implausible items (see `crate::reasoner::llm::plausibility`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PlausibilityConfig {
+    /// `false`: only ids, kinds and canonical labels are checked.
+    pub enabled: bool,
+    /// A local relation's part and its object: their boxes at most this far apart, metres.
+    pub part_max_gap_m: f32,
+    /// Per functional relation (phrase, `_` for spaces): a remote relation's source and target
+    /// centres at most this far apart, metres; tightens the knowledge base's `max_distance_m` of
+    /// the template the relation comes from (relations not listed: the template's alone).
+    pub remote_max_distance_m: BTreeMap<String, f32>,
+    /// Per affordance: a part node whose box's longest side exceeds this, metres, cannot afford
+    /// it (affordances not listed: no limit). Objects are not limited: they afford through
+    /// their parts.
+    pub part_max_extent_m: BTreeMap<String, f32>,
+}
+
+impl Default for PlausibilityConfig {
+    fn default() -> Self {
+        let extent = [
+            ("rotate", 0.5),
+            ("key_press", 0.6),
+            ("tip_push", 0.5),
+            ("hook_pull", 1.5),
+            ("pinch_pull", 0.3),
+            ("hook_turn", 0.6),
+            ("foot_push", 0.6),
+            ("plug_in", 0.5),
+            ("unplug", 0.5),
+        ];
+        Self {
+            enabled: true,
+            part_max_gap_m: 0.15,
+            remote_max_distance_m: BTreeMap::new(),
+            part_max_extent_m: extent.iter().map(|&(k, v)| (k.to_owned(), v)).collect(),
+        }
+    }
+}
+
+impl PlausibilityConfig {
+    /// Range checks and canonical keys; errors are `path.field: message`.
+    pub fn validate(&self, path: &str) -> Result<(), String> {
+        let canonical = |key: &str, table: &[&str]| {
+            let key = super::gate::normalise(key);
+            table.iter().position(|p| super::gate::normalise(p) == key)
+        };
+        if !(self.part_max_gap_m.is_finite() && self.part_max_gap_m >= 0.0 && self.part_max_gap_m <= 10.0) {
+            return Err(format!("{path}.part_max_gap_m: must be within [0, 10] metres, got {}", self.part_max_gap_m));
+        }
+        for (field, map, table, what) in [
+            (
+                "remote_max_distance_m",
+                &self.remote_max_distance_m,
+                &op3dsg_ipc_types::FUNCTIONAL_RELATIONS[..],
+                "functional relation",
+            ),
+            ("part_max_extent_m", &self.part_max_extent_m, &op3dsg_ipc_types::AFFORDANCES[..], "affordance"),
+        ] {
+            for (key, value) in map {
+                if canonical(key, table).is_none() {
+                    return Err(format!("{path}.{field}.{key}: not a canonical {what} (one of {table:?})"));
+                }
+                if !(value.is_finite() && *value > 0.0 && *value <= 100.0) {
+                    return Err(format!("{path}.{field}.{key}: must be within (0, 100] metres, got {value}"));
+                }
+            }
+        }
+        Ok(())
+    }
 }
 
 /// The credential name `systemd/op3dsgd.service` loads the key under.
@@ -111,6 +188,7 @@ impl Default for LlmConfig {
             refresh_period_s: 30.0,
             embedding_min_similarity: 0.8,
             max_prompt_items: 400,
+            plausibility: PlausibilityConfig::default(),
         }
     }
 }
@@ -202,7 +280,7 @@ impl LlmConfig {
         if !(1..=10_000).contains(&self.max_prompt_items) {
             return Err(format!("{path}.max_prompt_items: must be within [1, 10000], got {}", self.max_prompt_items));
         }
-        Ok(())
+        self.plausibility.validate(&format!("{path}.plausibility"))
     }
 
     /// `request_timeout_s` as a duration.

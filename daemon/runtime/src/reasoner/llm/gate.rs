@@ -10,6 +10,9 @@
 //!    `AFFORDANCES`): exact, else normalised (case, `_`/`-`, punctuation and spacing ignored),
 //!    else — with a text encoder configured — the nearest canonical phrase by embedding cosine
 //!    when it reaches `embedding_min_similarity`; else `non_canonical`.
+//! 4. **Plausibility** ([`super::plausibility`]): geometry and knowledge-base rules for items
+//!    that are canonical but make no sense for their nodes (`implausible_geometry`,
+//!    `implausible_relation`, `implausible_affordance`).
 //!
 //! Each rejection is counted by reason ([`Rejections`], `op3dsg_ipc_types::REFINER_REJECTIONS`).
 
@@ -18,6 +21,7 @@ use serde::de::Error as _;
 use serde::{Deserialize, Deserializer};
 use serde_json::{Map, Value};
 
+use super::plausibility::Plausibility;
 use super::prompt::{Agent, PromptSet};
 use crate::onnx::text_encoder::{Embedding, TextEncoder, cosine};
 use crate::prior::{PriorGraph, PriorNode};
@@ -36,6 +40,13 @@ pub enum Rejection {
     NonCanonical = 3,
     /// Nodes gone when the result reached the graph.
     Stale = 4,
+    /// Geometry rules it out: a part off its object, a remote pair too far apart, a part too
+    /// large for the affordance ([`super::plausibility`]).
+    ImplausibleGeometry = 5,
+    /// A relation the knowledge base gives none of the categories involved.
+    ImplausibleRelation = 6,
+    /// An affordance the knowledge base gives none of the categories involved.
+    ImplausibleAffordance = 7,
 }
 
 /// Rejection counts by reason.
@@ -434,6 +445,7 @@ pub fn check(
     prompts: &PromptSet,
     mapper: &mut LabelMapper,
     options: ParseOptions,
+    rules: &Plausibility,
     output: &mut ReasonerOutput,
     log: &mut RejectionLog,
 ) -> Option<u64> {
@@ -457,7 +469,15 @@ pub fn check(
                 let allowed = node(item.part_id)
                     .is_some_and(|part| part.kind == NodeKind::Part && part.parent_id == Some(item.object_id));
                 let proposal = (item.part_id, item.object_id, item.relation.as_str(), item.confidence);
-                keep(verify_relation(proposal, &node, allowed, false, mapper), log);
+                let verdict = verify_relation(proposal, &node, allowed, false, mapper).and_then(|relation| {
+                    match (node(relation.source_id), node(relation.target_id)) {
+                        (Some(part), Some(object)) => {
+                            rules.local(part, object, relation.relation_id).map(|()| relation)
+                        }
+                        _ => Ok(relation),
+                    }
+                });
+                keep(verdict, log);
             }
         }
         Agent::Remote => {
@@ -467,7 +487,15 @@ pub fn check(
                 // Remote relations only on the pairs the prompt offered.
                 let allowed = prompts.remote_candidates.contains(&(item.source_id, item.target_id));
                 let proposal = (item.source_id, item.target_id, item.relation.as_str(), item.confidence);
-                keep(verify_relation(proposal, &node, allowed, true, mapper), log);
+                let verdict = verify_relation(proposal, &node, allowed, true, mapper).and_then(|relation| {
+                    match (node(relation.source_id), node(relation.target_id)) {
+                        (Some(source), Some(target)) => {
+                            rules.remote(source, target, relation.relation_id).map(|()| relation)
+                        }
+                        _ => Ok(relation),
+                    }
+                });
+                keep(verdict, log);
             }
         }
         Agent::Affordances => {
@@ -480,14 +508,17 @@ pub fn check(
                     });
                     continue;
                 };
-                if node(item.node_id).is_none() {
+                let Some(target) = node(item.node_id) else {
                     log.reject(Rejection::UnknownNode, || format!("{name}: node {} is not in the graph", item.node_id));
                     continue;
-                }
+                };
                 let mut bits = 0u16;
                 for label in &item.affordances {
                     match mapper.affordance(label) {
-                        Some(i) => bits |= 1 << i,
+                        Some(i) => match rules.affordance(prior, target, i) {
+                            Ok(()) => bits |= 1 << i,
+                            Err((reason, detail)) => log.reject(reason, || format!("{name}: {detail}")),
+                        },
                         None => {
                             log.reject(Rejection::NonCanonical, || {
                                 format!("{name}: {label:?} maps onto no canonical affordance")
@@ -530,7 +561,8 @@ mod tests {
         let prompts = prompt::build(&prior, &kb, 400);
         let mut output = ReasonerOutput { graph_version: prior.version, ..ReasonerOutput::default() };
         let mut log = RejectionLog::default();
-        let accepted = check(agent, answer, &prior, &prompts, mapper, options, &mut output, &mut log);
+        let rules = Plausibility::new(&Default::default(), std::sync::Arc::new(kb));
+        let accepted = check(agent, answer, &prior, &prompts, mapper, options, &rules, &mut output, &mut log);
         ((output, log), accepted)
     }
 

@@ -9,6 +9,8 @@
 //! - [`client`]: the HTTP client (reqwest on tokio, structured JSON output);
 //! - [`gate`]: strict parsing, endpoint and kind checks, canonical label mapping, rejections
 //!   counted by reason;
+//! - [`plausibility`]: the gate's geometry and knowledge-base rules for canonical but
+//!   implausible items;
 //! - [`refiner`]: the refiner thread (latest snapshot in, verified results out);
 //! - [`result`]: each agent's last accepted result, kept per agent and re-checked against the
 //!   graph it is applied to.
@@ -21,10 +23,11 @@
 pub mod client;
 pub mod config;
 pub mod gate;
+pub mod plausibility;
 pub mod prompt;
 pub mod refiner;
 pub mod result;
 
-pub use config::{LlmConfig, ResponseFormat};
+pub use config::{LlmConfig, PlausibilityConfig, ResponseFormat};
 pub use refiner::{LlmRefiner, RefinerParts, RefinerState, RefinerStats};
 pub use result::{AgentResult, LlmResult};

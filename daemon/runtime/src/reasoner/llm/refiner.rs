@@ -30,6 +30,7 @@ use tracing::{debug, info, warn};
 use super::client::{ApiKey, CallError, ChatClient};
 use super::config::LlmConfig;
 use super::gate::{self, LabelMapper, ParseOptions, Rejection, RejectionLog, Rejections};
+use super::plausibility::Plausibility;
 use super::prompt::{self, Prompt, PromptSet};
 use super::result::{AgentResult, LlmResult};
 use crate::knowledge::KnowledgeBase;
@@ -77,8 +78,20 @@ pub struct RefinerStats {
     pub last_graph_version: AtomicU64,
     /// Results sent to the fusion thread.
     pub results: AtomicU64,
+    /// Requests answered 400 to `response_format = json_schema` (each repeated at once with
+    /// `json_object`, which is sent from then on).
+    pub schema_refusals: AtomicU64,
+    /// `op3dsg_ipc_types::REFINER_FORMATS` index of the `response_format` sent now.
+    response_format: AtomicU8,
     rejections: [AtomicU64; 8],
 }
+
+/// `op3dsg_ipc_types::REFINER_FORMATS`: `json_schema` as configured.
+const FORMAT_JSON_SCHEMA: u8 = 0;
+/// `json_object` as configured.
+const FORMAT_JSON_OBJECT: u8 = 1;
+/// `json_object` because the server refused `json_schema`.
+const FORMAT_JSON_OBJECT_FALLBACK: u8 = 2;
 
 impl RefinerStats {
     /// The state now.
@@ -110,6 +123,13 @@ impl RefinerStats {
         let i = op3dsg_ipc_types::REFINER_ERRORS.iter().position(|n| *n == error.name()).unwrap_or(0);
         self.last_error.store(i as u8, Ordering::Relaxed);
     }
+    /// The `response_format` sent now (`op3dsg_ipc_types::REFINER_FORMATS`).
+    pub fn response_format(&self) -> &'static str {
+        op3dsg_ipc_types::REFINER_FORMATS
+            .get(self.response_format.load(Ordering::Relaxed) as usize)
+            .copied()
+            .unwrap_or("json_schema")
+    }
     /// Whether the breaker is open.
     pub fn breaker_open(&self) -> bool {
         self.breaker_open.load(Ordering::Relaxed)
@@ -120,6 +140,7 @@ impl RefinerStats {
             state: self.state(),
             breaker_open: u8::from(self.breaker_open()),
             last_error: self.last_error.load(Ordering::Relaxed),
+            response_format: self.response_format.load(Ordering::Relaxed),
             last_latency_us: self.last_latency_us.load(Ordering::Relaxed),
             refreshes: self.refreshes.load(Ordering::Relaxed),
             calls: self.calls.load(Ordering::Relaxed),
@@ -187,11 +208,17 @@ impl LlmRefiner {
         });
         let stats = Arc::new(RefinerStats::default());
         stats.set_state(RefinerState::Idle);
+        let format = match config.response_format {
+            super::ResponseFormat::JsonSchema => FORMAT_JSON_SCHEMA,
+            super::ResponseFormat::JsonObject => FORMAT_JSON_OBJECT,
+        };
+        stats.response_format.store(format, Ordering::Relaxed);
         // Results: latest wins (the refiner pops an unread older one before pushing).
         let (results_tx, results_rx) = crossbeam_channel::bounded::<LlmResult>(1);
         let worker = Worker {
             config: config.clone(),
             client,
+            rules: Plausibility::new(&config.plausibility, parts.knowledge.clone()),
             knowledge: parts.knowledge,
             mapper: parts.mapper,
             shared: shared.clone(),
@@ -274,6 +301,7 @@ struct Worker {
     config: LlmConfig,
     client: ChatClient,
     knowledge: Arc<KnowledgeBase>,
+    rules: Plausibility,
     mapper: LabelMapper,
     shared: Arc<Shared>,
     stats: Arc<RefinerStats>,
@@ -498,8 +526,17 @@ impl Worker {
             // A failed call leaves the agent's last accepted result as it was.
             let Some(answer) = answer else { continue };
             let mut output = ReasonerOutput { graph_version: prior.version, ..ReasonerOutput::default() };
-            let checked =
-                gate::check(prompt.agent, &answer, prior, &prompts, &mut self.mapper, options, &mut output, &mut log);
+            let checked = gate::check(
+                prompt.agent,
+                &answer,
+                prior,
+                &prompts,
+                &mut self.mapper,
+                options,
+                &self.rules,
+                &mut output,
+                &mut log,
+            );
             // So does an answer with no usable JSON object in it.
             let Some(n) = checked else { continue };
             answered = true;
@@ -523,7 +560,9 @@ impl Worker {
     /// One agent's call with its retries; `None` when it finally failed or was refused.
     async fn call_with_retries(&self, prompt: &Prompt) -> Option<String> {
         let mut backoff = self.config.backoff_initial();
-        for attempt in 0..=self.config.max_retries {
+        let mut attempt = 0;
+        let mut fell_back = false;
+        loop {
             if self.breaker_until.lock().ok().and_then(|b| *b).is_some_and(|until| Instant::now() < until) {
                 return None;
             }
@@ -552,6 +591,21 @@ impl Worker {
                     self.stats.breaker_open.store(false, Ordering::Relaxed);
                     return Some(answer);
                 }
+                // No structured output on this server: the same call again at once, with
+                // `json_object` (the client sends it from now on); not a failure.
+                Err(CallError::SchemaRefused { first, detail }) if !fell_back => {
+                    fell_back = true;
+                    self.stats.schema_refusals.fetch_add(1, Ordering::Relaxed);
+                    self.stats.response_format.store(FORMAT_JSON_OBJECT_FALLBACK, Ordering::Relaxed);
+                    if first {
+                        warn!(
+                            agent = prompt.agent.name(),
+                            answer = %detail,
+                            "the LLM server answered 400 to response_format json_schema; sending json_object from now on (set reasoner.llm.response_format = \"json_object\" to skip this)"
+                        );
+                    }
+                    continue;
+                }
                 // A 2xx that is not a chat completion (an HTML page, no choices, null content)
                 // is a failure like a 5xx: it counts, and feeds the breaker.
                 Err(e) => e,
@@ -571,13 +625,14 @@ impl Worker {
                 _ => None,
             };
             warn!(agent = prompt.agent.name(), attempt, cause = error.name(), error = %error, "LLM call failed");
-            if !error.retryable() || attempt == self.config.max_retries {
+            if !error.retryable() || attempt >= self.config.max_retries {
                 break;
             }
             let wait = retry_after.map_or(backoff, |r| r.max(backoff)).min(self.config.backoff_max());
             self.stats.set_state(RefinerState::Backoff);
             tokio::time::sleep(wait).await;
             backoff = (backoff * 2).min(self.config.backoff_max());
+            attempt += 1;
         }
         let failures = self.consecutive_failures.fetch_add(1, Ordering::Relaxed) + 1;
         if failures >= self.config.breaker_failures {
