@@ -124,6 +124,17 @@ pub fn wait_for<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<
     }
 }
 
+/// The first health record `pick` accepts, polled every 20 ms; panics naming `what` after
+/// `timeout`.
+pub fn health_where(
+    health: &mut HealthSubscriber,
+    what: &str,
+    timeout: Duration,
+    pick: impl Fn(&Health) -> bool,
+) -> Health {
+    wait_for(what, timeout, || health.latest().ok().flatten().filter(|h| pick(h)))
+}
+
 /// The newest health record once its `frames_captured` is above `above`.
 pub fn health_with_frames_above(health: &mut HealthSubscriber, above: u64, timeout: Duration) -> Health {
     wait_for(&format!("health with frames_captured > {above}"), timeout, || {

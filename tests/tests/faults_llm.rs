@@ -9,7 +9,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use op3dsg_ipc_types::{Health, HealthSubscriber, REFINER_ERRORS, REFINER_STATES};
-use op3dsg_tests::{Daemon, health_with_frames_above, unique_prefix, wait_for};
+use op3dsg_tests::{Daemon, health_where, health_with_frames_above, unique_prefix};
 
 fn state(health: &Health) -> &'static str {
     REFINER_STATES.get(health.refiner.state as usize).copied().unwrap_or("?")
@@ -58,16 +58,6 @@ fn start_daemon(name: &str, base_url: &str, request_timeout_s: f64) -> Daemon {
             "reasoner.llm.refresh_period_s=0.5",
         ],
     )
-}
-
-/// The first health record `pick` accepts, polled every 20 ms.
-fn health_where(
-    health: &mut HealthSubscriber,
-    what: &str,
-    timeout: Duration,
-    pick: impl Fn(&Health) -> bool,
-) -> Health {
-    wait_for(what, timeout, || health.latest().ok().flatten().filter(|h| pick(h)))
 }
 
 /// After the refiner's breaker opened, graph versions and frames keep coming.

@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use op3dsg_ipc_types::{Health, HealthSubscriber};
-use op3dsg_tests::{Daemon, binary, health_with_frames_above, unique_prefix, wait_for};
+use op3dsg_ipc_types::Health;
+use op3dsg_tests::{Daemon, binary, health_where, health_with_frames_above, unique_prefix, wait_for};
 
 fn mcap_files(dir: &Path) -> Vec<PathBuf> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
@@ -41,15 +41,6 @@ fn record(dir: &Path, frames: u32) -> Vec<PathBuf> {
 
 fn capture_errors(health: &Health) -> u32 {
     health.valid_stages().iter().find(|s| op3dsg_ipc_types::fixed_str(&s.name) == "capture").map_or(0, |s| s.errors)
-}
-
-fn health_where(
-    health: &mut HealthSubscriber,
-    what: &str,
-    timeout: Duration,
-    pick: impl Fn(&Health) -> bool,
-) -> Health {
-    wait_for(what, timeout, || health.latest().ok().flatten().filter(|h| pick(h)))
 }
 
 #[test]

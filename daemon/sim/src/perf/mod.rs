@@ -245,7 +245,8 @@ impl PerfReport {
     }
 }
 
-fn ms(v: f64) -> String {
+/// Milliseconds for a table: three significant figures at most.
+pub(crate) fn ms(v: f64) -> String {
     if v >= 100.0 {
         format!("{v:.0}")
     } else if v >= 10.0 {

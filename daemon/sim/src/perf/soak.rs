@@ -27,7 +27,7 @@ use anyhow::Context as _;
 use serde::{Deserialize, Serialize};
 
 use super::pipeline_run::{Mode, RssSample, pipeline_run_with};
-use super::{Machine, Percentiles, PerfOptions, PipelineRun};
+use super::{Machine, Percentiles, PerfOptions, PipelineRun, ms};
 
 /// JSON schema name of [`SoakReport`].
 pub const SOAK_SCHEMA: &str = "op3dsg.bench_soak/1";
@@ -264,16 +264,6 @@ pub fn run(options: &SoakOptions) -> anyhow::Result<SoakReport> {
         command: options.command.clone(),
         runs,
     })
-}
-
-fn ms(v: f64) -> String {
-    if v >= 100.0 {
-        format!("{v:.0}")
-    } else if v >= 10.0 {
-        format!("{v:.1}")
-    } else {
-        format!("{v:.2}")
-    }
 }
 
 impl SoakReport {
