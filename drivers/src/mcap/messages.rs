@@ -107,6 +107,60 @@ pub struct InputPose {
     pub rotation_xyzw: [f64; 4],
 }
 
+/// One message of a chat prompt.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChatMessage {
+    /// `system` or `user`.
+    pub role: String,
+    /// The text sent.
+    pub content: String,
+}
+
+/// What the verification gate made of an answer.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LlmVerdict {
+    /// Whether the answer held a JSON object the gate could read (`false`: the agent's last
+    /// accepted result stays as it was).
+    pub parsed: bool,
+    /// Items accepted.
+    pub accepted: u64,
+    /// Items rejected, by reason (`op3dsg_ipc_types::REFINER_REJECTIONS`; reasons with none
+    /// are left out).
+    pub rejected: std::collections::BTreeMap<String, u64>,
+}
+
+/// `op3dsg.LlmExchange`: one call of an LLM agent of the refiner (all its retries): the prompt
+/// sent, the answer, what the gate accepted and rejected, the time it took. Never the API key
+/// and never a request header.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LlmExchange {
+    /// The graph version the prompt was built from.
+    pub graph_version: u64,
+    /// `local_relations`, `remote_relations` or `affordances`.
+    pub agent: String,
+    /// `reasoner.llm.model`.
+    pub model: String,
+    /// The prompt's messages, in the order sent.
+    pub messages: Vec<ChatMessage>,
+    /// HTTP requests made for this call (1 + retries; 0 when the breaker or the budget refused
+    /// it).
+    pub attempts: u32,
+    /// Time of the last request, milliseconds (0 when none was made).
+    pub latency_ms: f64,
+    /// Time from the first request to the answer or the final failure, milliseconds.
+    pub total_ms: f64,
+    /// The answer's text (the message content), `None` when the call failed.
+    pub answer: Option<String>,
+    /// Why the call finally failed (`timeout`, `http_status: HTTP status 503`, `breaker_open`,
+    /// `budget_exhausted`, ...), `None` when it answered.
+    pub error: Option<String>,
+    /// The gate's verdict on the answer, `None` when there was none.
+    pub verdict: Option<LlmVerdict>,
+}
+
 /// `foxglove.CameraCalibration` (pinhole, no distortion: depth is aligned to colour).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[allow(non_snake_case)]

@@ -90,6 +90,11 @@ pub struct RecordChannels {
     /// `node_points_per_node` each), on graph versions at most `max_rate_hz` (default 1).
     #[serde(default = "ChannelConfig::once_a_second")]
     pub node_points: ChannelConfig,
+    /// `/op3dsg/llm`: `op3dsg.LlmExchange` of every call of the LLM refiner's agents
+    /// (`reasoner.kind = "llm"`): prompt, answer, the gate's verdict, latency, error; never the
+    /// API key or a header.
+    #[serde(default)]
+    pub llm: ChannelConfig,
 }
 
 impl Default for RecordChannels {
@@ -108,13 +113,14 @@ impl Default for RecordChannels {
             input_poses: on,
             detections: on,
             node_points: ChannelConfig::once_a_second(),
+            llm: on,
         }
     }
 }
 
 impl RecordChannels {
     /// `(name, config)` of every channel, in profile order.
-    pub fn entries(&self) -> [(&'static str, ChannelConfig); 12] {
+    pub fn entries(&self) -> [(&'static str, ChannelConfig); 13] {
         [
             ("graph", self.graph),
             ("scene", self.scene),
@@ -128,6 +134,7 @@ impl RecordChannels {
             ("input_poses", self.input_poses),
             ("detections", self.detections),
             ("node_points", self.node_points),
+            ("llm", self.llm),
         ]
     }
 }

@@ -54,6 +54,7 @@ fn event_messages(event: &Event) -> [(Channel, u64); 2] {
         Event::Health { .. } => [(Channel::Health, 1), (Channel::Graph, 0)],
         Event::Detections { .. } => [(Channel::Detections, 1), (Channel::Graph, 0)],
         Event::NodePoints { .. } => [(Channel::NodePoints, 1), (Channel::Graph, 0)],
+        Event::LlmExchange { .. } => [(Channel::LlmExchanges, 1), (Channel::Graph, 0)],
     }
 }
 
@@ -370,6 +371,11 @@ impl Recorder {
                 super::annotations::write_node_points(stamp_ns, &points, &mut self.scratch, &mut bytes);
                 self.bytes = bytes;
                 self.write(topics::TOPIC_NODE_POINTS, schemas::POINT_CLOUD, log_time_ns)?;
+            }
+            Event::LlmExchange { log_time_ns, exchange } => {
+                self.bytes.clear();
+                serde_json::to_writer(&mut self.bytes, &*exchange).map_err(|e| e.to_string())?;
+                self.write(topics::TOPIC_LLM, schemas::LLM_EXCHANGE, log_time_ns)?;
             }
             Event::Health { log_time_ns, health } => {
                 let mut health = *health;
