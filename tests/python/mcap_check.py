@@ -15,6 +15,7 @@ summary for the cross-process tests (tests/tests/record_daemon.rs):
   "point_cloud_mismatches": [str],   # a cloud whose data or node ids do not fit its graph version
   "detections": int,                 # detection boxes on /op3dsg/detections
   "detections_off_keyframes": [str], # detection messages not stamped like a keyframe's /tf
+  "compressed_formats": {fmt: int},  # foxglove.CompressedImage messages whose data is a real png/jpeg
   "llm_exchanges": [object],         # every /op3dsg/llm message, decoded
   "message_texts_with": {text: [str]},  # per --find TEXT: the messages whose data contains it
   "foxglove_validated": {schema: int},  # foxglove.* messages validated against Foxglove's schema
@@ -160,6 +161,7 @@ def main(path, schema_dir, needles=()):
         "detections": 0,
         "detections_off_keyframes": [],
         "llm_exchanges": [],
+        "compressed_formats": {},
         "message_texts_with": {},
         "foxglove_validated": {},
         "foxglove_errors": [],
@@ -210,6 +212,17 @@ def main(path, schema_dir, needles=()):
                     else:
                         report("foxglove_errors", violations(validator, decoded, where))
                         out["foxglove_validated"][name] = out["foxglove_validated"].get(name, 0) + 1
+                    if name == "foxglove.CompressedImage" and isinstance(decoded.get("data"), str):
+                        fmt = decoded.get("format", "")
+                        try:
+                            head = base64.b64decode(decoded["data"], validate=True)[:8]
+                            magic = {"png": b"\x89PNG\r\n\x1a\n", "jpeg": b"\xff\xd8\xff"}.get(fmt)
+                            if magic is None or not head.startswith(magic):
+                                report("foxglove_errors", [f"{where}: data is not a {fmt!r} image"])
+                            else:
+                                out["compressed_formats"][fmt] = out["compressed_formats"].get(fmt, 0) + 1
+                        except ValueError as e:
+                            report("foxglove_errors", [f"{where}: data: not base64: {e}"])
                     if name == "foxglove.RawImage" and isinstance(decoded.get("data"), str):
                         try:
                             size = len(base64.b64decode(decoded["data"], validate=True))

@@ -244,6 +244,73 @@ pub fn encode_raw_image(
     out.extend_from_slice(b"\"}");
 }
 
+/// Writes a `foxglove.CompressedImage` (`format` `jpeg` or `png`, `data` the encoded file) into
+/// `out` (cleared first).
+pub fn encode_compressed_image(out: &mut Vec<u8>, stamp_ns: u64, frame_id: &str, format: &str, data: &[u8]) {
+    out.clear();
+    let t = Time::from_ns(stamp_ns);
+    // Writing into a Vec cannot fail.
+    let _ = write!(
+        out,
+        r#"{{"timestamp":{{"sec":{},"nsec":{}}},"frame_id":"{frame_id}","format":"{format}","data":""#,
+        t.sec, t.nsec
+    );
+    let start = out.len();
+    out.resize(start + base64::encoded_len(data.len(), true).unwrap_or(0), 0);
+    let written = STANDARD.encode_slice(data, &mut out[start..]).unwrap_or(0);
+    out.truncate(start + written);
+    out.extend_from_slice(b"\"}");
+}
+
+/// A `foxglove.CompressedImage` as read, its data still base64.
+#[derive(Debug, Deserialize)]
+pub struct CompressedImageIn<'a> {
+    /// Stamp.
+    pub timestamp: Time,
+    /// `jpeg` or `png`.
+    pub format: String,
+    /// Base64 of the encoded image.
+    #[serde(borrow)]
+    pub data: &'a str,
+}
+
+impl CompressedImageIn<'_> {
+    /// Parses the JSON message.
+    pub fn parse(bytes: &[u8]) -> Result<CompressedImageIn<'_>, String> {
+        serde_json::from_slice(bytes).map_err(|e| format!("not a foxglove.CompressedImage: {e}"))
+    }
+
+    /// Decodes the image (jpeg or png, 8-bit RGB) into `out`, which holds `width * height * 3`
+    /// bytes; `scratch` holds the encoded bytes on the way.
+    pub fn decode_rgb_into(
+        &self,
+        width: u32,
+        height: u32,
+        scratch: &mut Vec<u8>,
+        out: &mut [u8],
+    ) -> Result<(), String> {
+        let format = match self.format.as_str() {
+            "jpeg" | "jpg" => image::ImageFormat::Jpeg,
+            "png" => image::ImageFormat::Png,
+            other => return Err(format!("format \"{other}\", expected jpeg or png")),
+        };
+        scratch.clear();
+        STANDARD.decode_vec(self.data.as_bytes(), scratch).map_err(|e| format!("data: bad base64 ({e})"))?;
+        let decoded = image::load_from_memory_with_format(scratch, format)
+            .map_err(|e| format!("data: not a {} image: {e}", self.format))?;
+        if (decoded.width(), decoded.height()) != (width, height) {
+            return Err(format!("{}x{} image, but the stream is {width}x{height}", decoded.width(), decoded.height()));
+        }
+        let rgb = decoded.into_rgb8();
+        let pixels = rgb.as_raw();
+        if out.len() != pixels.len() {
+            return Err(format!("{} bytes decoded, the frame holds {}", pixels.len(), out.len()));
+        }
+        out.copy_from_slice(pixels);
+        Ok(())
+    }
+}
+
 /// A `foxglove.RawImage` as read, its data still base64.
 #[derive(Debug, Deserialize)]
 pub struct RawImageIn<'a> {

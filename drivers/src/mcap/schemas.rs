@@ -14,6 +14,8 @@ pub const MESSAGE_ENCODING: &str = "json";
 
 /// `foxglove.RawImage`.
 pub const RAW_IMAGE: &str = "foxglove.RawImage";
+/// `foxglove.CompressedImage`.
+pub const COMPRESSED_IMAGE: &str = "foxglove.CompressedImage";
 /// `foxglove.CameraCalibration`.
 pub const CAMERA_CALIBRATION: &str = "foxglove.CameraCalibration";
 /// `foxglove.FrameTransform`.
@@ -39,6 +41,7 @@ pub const LLM_EXCHANGE: &str = "op3dsg.LlmExchange";
 pub fn schema_text(name: &str) -> Option<String> {
     let value = match name {
         RAW_IMAGE => raw_image(),
+        COMPRESSED_IMAGE => compressed_image(),
         CAMERA_CALIBRATION => camera_calibration(),
         FRAME_TRANSFORM => frame_transform(),
         SCENE_UPDATE => scene_update(),
@@ -121,6 +124,21 @@ fn raw_image() -> Value {
         &["timestamp", "frame_id", "width", "height", "encoding", "step", "data"],
     );
     schema["description"] = json!("A raw image");
+    schema
+}
+
+fn compressed_image() -> Value {
+    let mut schema = object(
+        COMPRESSED_IMAGE,
+        json!({
+            "timestamp": time(),
+            "frame_id": { "type": "string" },
+            "data": { "type": "string", "contentEncoding": "base64" },
+            "format": { "type": "string", "description": "jpeg or png" }
+        }),
+        &["timestamp", "frame_id", "data", "format"],
+    );
+    schema["description"] = json!("A compressed image");
     schema
 }
 

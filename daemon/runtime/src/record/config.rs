@@ -17,6 +17,31 @@ pub enum RecordCompression {
     None,
 }
 
+/// How `/camera/colour` is written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ColourEncoding {
+    /// `foxglove.RawImage` rgb8: lossless, largest, no encoding CPU.
+    #[default]
+    Raw,
+    /// `foxglove.CompressedImage` jpeg at `record.jpeg_quality`: smallest, **lossy** (a replay's
+    /// detections and graph are close to, not identical with, the recorded run's).
+    Jpeg,
+    /// `foxglove.CompressedImage` png: lossless (replays bit for bit), more CPU than jpeg.
+    Png,
+}
+
+impl ColourEncoding {
+    /// The profile's name.
+    pub fn name(self) -> &'static str {
+        match self {
+            ColourEncoding::Raw => "raw",
+            ColourEncoding::Jpeg => "jpeg",
+            ColourEncoding::Png => "png",
+        }
+    }
+}
+
 /// One channel's switch and rate limit.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -150,6 +175,13 @@ pub struct RecordConfig {
     pub dir: PathBuf,
     /// Chunk compression: `zstd`, `lz4` or `none`.
     pub compression: RecordCompression,
+    /// `/camera/colour` as `raw` (`foxglove.RawImage` rgb8), `jpeg` or `png`
+    /// (`foxglove.CompressedImage`). `jpeg` is lossy: its replay is not bit-exact.
+    #[serde(default)]
+    pub colour: ColourEncoding,
+    /// JPEG quality, 1..=100, with `colour = "jpeg"`.
+    #[serde(default = "default_jpeg_quality")]
+    pub jpeg_quality: u8,
     /// Uncompressed chunk size, KiB: a chunk is compressed and written when it reaches this.
     pub chunk_size_kib: u64,
     /// Finish the current chunk and flush the file at least this often, milliseconds: after a
@@ -178,6 +210,8 @@ impl Default for RecordConfig {
             enabled: false,
             dir: PathBuf::from("recordings"),
             compression: RecordCompression::Zstd,
+            colour: ColourEncoding::Raw,
+            jpeg_quality: default_jpeg_quality(),
             chunk_size_kib: 4096,
             flush_interval_ms: 1000,
             max_file_mib: 2048,
@@ -188,6 +222,10 @@ impl Default for RecordConfig {
             channels: RecordChannels::default(),
         }
     }
+}
+
+fn default_jpeg_quality() -> u8 {
+    90
 }
 
 impl RecordConfig {
@@ -210,6 +248,9 @@ impl RecordConfig {
         }
         if !(self.max_file_s >= 1.0 && self.max_file_s <= 86_400.0 * 7.0) {
             return Err(format!("{path}.max_file_s: must be within [1, 604800], got {}", self.max_file_s));
+        }
+        if !(1..=100).contains(&self.jpeg_quality) {
+            return Err(format!("{path}.jpeg_quality: must be within [1, 100], got {}", self.jpeg_quality));
         }
         if !(1..=256).contains(&self.frame_queue) {
             return Err(format!("{path}.frame_queue: must be within [1, 256], got {}", self.frame_queue));

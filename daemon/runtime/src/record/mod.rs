@@ -40,7 +40,7 @@ use op3dsg_drivers::pose::Isometry;
 use op3dsg_ipc_types::{Health, RecorderHealth};
 use tracing::warn;
 
-pub use config::{ChannelConfig, RecordChannels, RecordCompression, RecordConfig};
+pub use config::{ChannelConfig, ColourEncoding, RecordChannels, RecordCompression, RecordConfig};
 
 use crate::config::UpAxis;
 use crate::graph::SceneGraph;

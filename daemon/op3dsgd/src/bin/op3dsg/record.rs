@@ -35,6 +35,20 @@ struct FileSummary {
     profile_recorded: bool,
     /// Why reading stopped early (a truncated or damaged file), if it did.
     error: Option<String>,
+    /// How `/camera/colour` is stored: `raw`, `png` or `jpeg` (`None`: no colour channel).
+    colour: Option<String>,
+}
+
+/// What `record info` says of the colour's storage.
+fn colour_note(colour: &str) -> &'static str {
+    match colour {
+        "jpeg" | "jpg" => {
+            "LOSSY: a replay sees other pixels, its graph is close to but not identical with the recorded run's"
+        }
+        "png" => "lossless: replays bit for bit",
+        "raw" => "lossless: replays bit for bit",
+        _ => "unknown format: the replay refuses it",
+    }
 }
 
 fn summarise(path: &Path) -> Result<FileSummary> {
@@ -47,6 +61,17 @@ fn summarise(path: &Path) -> Result<FileSummary> {
         match reader.next(&mut data) {
             Ok(None) => break,
             Ok(Some(Item::Message(at))) => {
+                if summary.colour.is_none()
+                    && let Some(channel) = reader.channel(at.channel_id)
+                    && channel.topic == op3dsg_drivers::mcap::TOPIC_COLOUR
+                {
+                    summary.colour = Some(if channel.schema_name == op3dsg_drivers::mcap::schemas::COMPRESSED_IMAGE {
+                        op3dsg_drivers::mcap::messages::CompressedImageIn::parse(&data)
+                            .map_or_else(|e| format!("unreadable ({e})"), |image| image.format)
+                    } else {
+                        "raw".to_owned()
+                    });
+                }
                 let entry = by_channel.entry(at.channel_id).or_default();
                 entry.messages += 1;
                 entry.first_log_time_ns.get_or_insert(at.log_time);
@@ -109,6 +134,9 @@ pub(super) fn info(files: &[PathBuf], json: bool) -> Result<()> {
         match s.recorder_dropped {
             Some(dropped) => println!("  recorder  finished; dropped {dropped} messages while recording"),
             None => println!("  recorder  not finished (no op3dsg.recorder metadata): drops unknown"),
+        }
+        if let Some(colour) = &s.colour {
+            println!("  colour    {colour} ({})", colour_note(colour));
         }
         if !s.profile_recorded {
             println!("  profile   missing (no op3dsg.profile metadata)");
