@@ -18,7 +18,7 @@
 //! | `/op3dsg/scene` | `foxglove.SceneUpdate` | a cube per node (objects blue-grey, parts orange), its label, spatial edges grey, functional edges green | every published version |
 //! | `/tf` | `foxglove.FrameTransform` | `world` → `camera` | every keyframe |
 //! | `/camera/calibration` | `foxglove.CameraCalibration` | pinhole intrinsics, no distortion | first frame of each file, then when they change |
-//! | `/camera/colour` | `foxglove.RawImage` | `rgb8` | every frame the keyframe gate received |
+//! | `/camera/colour` | `foxglove.RawImage`, or `foxglove.CompressedImage` (`png` lossless, `jpeg` lossy) with `record.colour` | `rgb8` | every frame the keyframe gate received |
 //! | `/camera/depth` | `foxglove.RawImage` | `16UC1`, little-endian, sensor units | every frame the keyframe gate received |
 //! | `/op3dsg/frame` | `op3dsg.Frame` | seq, stamp, depth units per metre, `world_from_camera` | every frame the keyframe gate received |
 //! | `/op3dsg/health` | `op3dsg.Health` | counters, queues, stages, recorder state | every health period |

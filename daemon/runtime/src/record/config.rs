@@ -90,7 +90,8 @@ pub struct RecordChannels {
     /// `/op3dsg/health`: every health record.
     #[serde(default)]
     pub health: ChannelConfig,
-    /// `/camera/colour`: `foxglove.RawImage` rgb8 of every frame the keyframe gate received.
+    /// `/camera/colour`: `foxglove.RawImage` rgb8 (or `foxglove.CompressedImage`, as
+    /// `record.colour` says) of every frame the keyframe gate received.
     #[serde(default)]
     pub colour: ChannelConfig,
     /// `/camera/depth`: `foxglove.RawImage` 16UC1 of every such frame.
