@@ -400,4 +400,28 @@ mod tests {
         assert_eq!(pose_back.translation.to_array().map(f64::to_bits), pose.translation.to_array().map(f64::to_bits));
         assert_eq!(pose_back.rotation.to_array().map(f64::to_bits), pose.rotation.to_array().map(f64::to_bits));
     }
+
+    #[test]
+    fn a_png_compressed_image_decodes_to_the_same_pixels_and_bad_ones_name_the_fault() {
+        use image::ImageEncoder as _;
+        let (w, h) = (7u32, 5u32);
+        let rgb: Vec<u8> = (0..w * h * 3).map(|i| (i * 37 % 251) as u8).collect();
+        let mut png = Vec::new();
+        image::codecs::png::PngEncoder::new(&mut png).write_image(&rgb, w, h, image::ExtendedColorType::Rgb8).unwrap();
+        let mut msg = Vec::new();
+        encode_compressed_image(&mut msg, 1_500_000_000, "camera", "png", &png);
+        let image = CompressedImageIn::parse(&msg).unwrap();
+        assert_eq!(image.timestamp.to_ns(), 1_500_000_000);
+        let (mut scratch, mut out) = (Vec::new(), vec![0u8; rgb.len()]);
+        image.decode_rgb_into(w, h, &mut scratch, &mut out).unwrap();
+        assert_eq!(out, rgb, "png is lossless");
+        let e = image.decode_rgb_into(w + 1, h, &mut scratch, &mut vec![0u8; ((w + 1) * h * 3) as usize]).unwrap_err();
+        assert!(e.contains("7x5 image, but the stream is 8x5"), "{e}");
+        encode_compressed_image(&mut msg, 0, "camera", "webp", &png);
+        let e = CompressedImageIn::parse(&msg).unwrap().decode_rgb_into(w, h, &mut scratch, &mut out).unwrap_err();
+        assert!(e.contains("format \"webp\", expected jpeg or png"), "{e}");
+        encode_compressed_image(&mut msg, 0, "camera", "jpeg", &png);
+        let e = CompressedImageIn::parse(&msg).unwrap().decode_rgb_into(w, h, &mut scratch, &mut out).unwrap_err();
+        assert!(e.starts_with("data: not a jpeg image"), "{e}");
+    }
 }
