@@ -383,8 +383,8 @@ fn record_and_replay(dir: &Path, colour: &str) -> (Value, Value, PathBuf) {
     let mut args =
         vec!["--set", "source.synthetic.frame_count=45", "--record", first_dir.to_str().expect("utf-8 temp path")];
     args.extend_from_slice(DETERMINISTIC);
-    // A frame queue deeper than the run: encoding png/jpeg in a debug build is slower than the
-    // frames come, and the recording must hold every frame (no drops, checked).
+    // A frame queue deeper than the run: however slow png/jpeg encoding is in a debug build,
+    // the recording must hold every frame (no drops, checked).
     args.extend_from_slice(&["--set", "source.rate_hz=8", "--set", "record.frame_queue=48", "--set", &colour_set]);
     run_to_end(&unique_prefix(&format!("rec-{colour}-a")), &args);
     let files = mcap_files(&first_dir);
