@@ -167,7 +167,7 @@ pub(super) fn info(files: &[PathBuf], json: bool) -> Result<()> {
 
 /// `op3dsg bench record`.
 pub(super) fn bench(args: RecordBenchArgs) -> Result<()> {
-    use op3dsg_runtime::record::{RecordCompression, RecordConfig, Recorder};
+    use op3dsg_runtime::record::{ColourEncoding, RecordCompression, RecordConfig, Recorder};
     if !(args.seconds > 0.0 && args.rate_hz > 0.0) {
         bail!("--seconds and --rate-hz must be > 0");
     }
@@ -178,6 +178,15 @@ pub(super) fn bench(args: RecordBenchArgs) -> Result<()> {
         "none" => vec![("none", RecordCompression::None)],
         other => bail!("--compression {other}: expected zstd, lz4, none or all"),
     };
+    let colour = match args.colour.as_str() {
+        "raw" => ColourEncoding::Raw,
+        "png" => ColourEncoding::Png,
+        "jpeg" => ColourEncoding::Jpeg,
+        other => bail!("--colour {other}: expected raw, png or jpeg"),
+    };
+    if !(1..=100).contains(&args.jpeg_quality) {
+        bail!("--jpeg-quality {}: must be within [1, 100]", args.jpeg_quality);
+    }
     let frames = synthetic_frames(args.width, args.height, args.distinct_frames)?;
     let graph = bench_graph(args.graph_nodes);
     let dir = args
@@ -185,10 +194,11 @@ pub(super) fn bench(args: RecordBenchArgs) -> Result<()> {
         .clone()
         .unwrap_or_else(|| std::env::temp_dir().join(format!("op3dsg-bench-record-{}", std::process::id())));
     println!(
-        "recorder: {}x{} colour (rgb8) + depth (16UC1) at {} Hz for {} s, a {}-node graph every {} frames, JSON \
+        "recorder: {}x{} colour ({}) + depth (16UC1) at {} Hz for {} s, a {}-node graph every {} frames, JSON \
          messages, chunk {} KiB; files in {}\n",
         args.width,
         args.height,
+        if colour == ColourEncoding::Jpeg { format!("jpeg q{}", args.jpeg_quality) } else { colour.name().to_owned() },
         args.rate_hz,
         args.seconds,
         args.graph_nodes,
@@ -206,6 +216,8 @@ pub(super) fn bench(args: RecordBenchArgs) -> Result<()> {
             enabled: true,
             dir: run_dir.clone(),
             compression,
+            colour,
+            jpeg_quality: args.jpeg_quality,
             chunk_size_kib: args.chunk_size_kib,
             ..RecordConfig::default()
         };
