@@ -1,7 +1,7 @@
 """Reads an op3dsg MCAP recording with the independent PyPI `mcap` reader and prints a JSON
 summary for the cross-process tests (tests/tests/record_daemon.rs):
 
-    .venv/bin/python tests/python/mcap_check.py FILE [--foxglove-schemas DIR]
+    .venv/bin/python tests/python/mcap_check.py FILE [--foxglove-schemas DIR] [--find TEXT]...
 
 {
   "channels": {topic: {"schema", "schema_encoding", "message_encoding", "count"}},
@@ -15,6 +15,9 @@ summary for the cross-process tests (tests/tests/record_daemon.rs):
   "point_cloud_mismatches": [str],   # a cloud whose data or node ids do not fit its graph version
   "detections": int,                 # detection boxes on /op3dsg/detections
   "detections_off_keyframes": [str], # detection messages not stamped like a keyframe's /tf
+  "compressed_formats": {fmt: int},  # foxglove.CompressedImage messages whose data is a real png/jpeg
+  "llm_exchanges": [object],         # every /op3dsg/llm message, decoded
+  "message_texts_with": {text: [str]},  # per --find TEXT: the messages whose data contains it
   "foxglove_validated": {schema: int},  # foxglove.* messages validated against Foxglove's schema
   "foxglove_errors": [str],          # every violation (first 50): "topic[index]: path: what"
   "embedded_validated": int,         # messages validated against the schema text in the file
@@ -142,7 +145,7 @@ def check_cloud(cloud, graph, where, mismatches):
         mismatches.append(f"{where}: no points for a graph of {len(graph['nodes'])} nodes")
 
 
-def main(path, schema_dir):
+def main(path, schema_dir, needles=()):
     foxglove = FoxgloveSchemas(schema_dir)
     embedded = {}
     out = {
@@ -157,6 +160,9 @@ def main(path, schema_dir):
         "point_cloud_mismatches": [],
         "detections": 0,
         "detections_off_keyframes": [],
+        "llm_exchanges": [],
+        "compressed_formats": {},
+        "message_texts_with": {},
         "foxglove_validated": {},
         "foxglove_errors": [],
         "embedded_validated": 0,
@@ -206,6 +212,17 @@ def main(path, schema_dir):
                     else:
                         report("foxglove_errors", violations(validator, decoded, where))
                         out["foxglove_validated"][name] = out["foxglove_validated"].get(name, 0) + 1
+                    if name == "foxglove.CompressedImage" and isinstance(decoded.get("data"), str):
+                        fmt = decoded.get("format", "")
+                        try:
+                            head = base64.b64decode(decoded["data"], validate=True)[:8]
+                            magic = {"png": b"\x89PNG\r\n\x1a\n", "jpeg": b"\xff\xd8\xff"}.get(fmt)
+                            if magic is None or not head.startswith(magic):
+                                report("foxglove_errors", [f"{where}: data is not a {fmt!r} image"])
+                            else:
+                                out["compressed_formats"][fmt] = out["compressed_formats"].get(fmt, 0) + 1
+                        except ValueError as e:
+                            report("foxglove_errors", [f"{where}: data: not base64: {e}"])
                     if name == "foxglove.RawImage" and isinstance(decoded.get("data"), str):
                         try:
                             size = len(base64.b64decode(decoded["data"], validate=True))
@@ -232,6 +249,13 @@ def main(path, schema_dir):
                     detection_stamps.append((where, s))
                 elif topic == "/op3dsg/node_points":
                     clouds.append((where, s, decoded))
+                elif topic == "/op3dsg/llm":
+                    out["llm_exchanges"].append(decoded)
+                for needle in needles:
+                    if needle.encode("utf-8") in message.data:
+                        hits = out["message_texts_with"].setdefault(needle, [])
+                        if len(hits) < MAX_ERRORS:
+                            hits.append(where)
                 if s is not None:
                     out["stamps_ordered"].setdefault(topic, True)
                     if s < last_stamp.get(topic, -1):
@@ -305,10 +329,16 @@ def main(path, schema_dir):
 
 if __name__ == "__main__":
     args = sys.argv[1:]
+    # --find TEXT (repeatable): list the messages whose decompressed data contains TEXT.
+    needles = []
+    while "--find" in args:
+        i = args.index("--find")
+        needles.append(args[i + 1])
+        del args[i : i + 2]
     here = os.path.dirname(os.path.abspath(__file__))
     schemas = os.path.join(here, "..", "..", ".deps", "foxglove-schemas", SCHEMA_VERSION)
     if len(args) == 3 and args[1] == "--foxglove-schemas":
         schemas = args[2]
     elif len(args) != 1:
         sys.exit("usage: mcap_check.py FILE [--foxglove-schemas DIR]")
-    main(args[0], os.path.normpath(schemas))
+    main(args[0], os.path.normpath(schemas), needles)

@@ -373,3 +373,83 @@ with open(sys.argv[1], "wb") as f:
         ])
     );
 }
+
+/// Records the 45-frame kitchen with `record.colour = colour`, then replays it (fast, same
+/// profile, recording the replay raw); returns both files' `mcap_check.py` summaries and the
+/// first file.
+fn record_and_replay(dir: &Path, colour: &str) -> (Value, Value, PathBuf) {
+    let first_dir = dir.join(format!("{colour}-first"));
+    let colour_set = format!("record.colour=\"{colour}\"");
+    let mut args =
+        vec!["--set", "source.synthetic.frame_count=45", "--record", first_dir.to_str().expect("utf-8 temp path")];
+    args.extend_from_slice(DETERMINISTIC);
+    // A frame queue deeper than the run: however slow png/jpeg encoding is in a debug build,
+    // the recording must hold every frame (no drops, checked).
+    args.extend_from_slice(&["--set", "source.rate_hz=8", "--set", "record.frame_queue=48", "--set", &colour_set]);
+    run_to_end(&unique_prefix(&format!("rec-{colour}-a")), &args);
+    let files = mcap_files(&first_dir);
+    assert_eq!(files.len(), 1, "{files:?}");
+    let recorded = check(&files[0]);
+    let second_dir = dir.join(format!("{colour}-second"));
+    let replay_path = format!("source.mcap.path=\"{}\"", files[0].display());
+    let mut args = vec![
+        "--set",
+        "source.kind=mcap",
+        "--set",
+        &replay_path,
+        "--set",
+        "source.mcap.mode=fast",
+        "--set",
+        "source.synthetic.frame_count=45",
+        "--record",
+        second_dir.to_str().expect("utf-8 temp path"),
+        "--set",
+        "record.frame_queue=48",
+    ];
+    args.extend_from_slice(DETERMINISTIC);
+    run_to_end(&unique_prefix(&format!("rec-{colour}-b")), &args);
+    let replays = mcap_files(&second_dir);
+    assert_eq!(replays.len(), 1, "{replays:?}");
+    (recorded, check(&replays[0]), files[0].clone())
+}
+
+fn record_info(file: &Path) -> String {
+    let output =
+        Command::new(binary("op3dsg")).args(["record", "info"]).arg(file).output().expect("op3dsg record info");
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    String::from_utf8_lossy(&output.stdout).into_owned()
+}
+
+#[test]
+fn compressed_colour_png_replays_bit_for_bit_and_jpeg_replays_lossy() {
+    let dir = tempfile::tempdir().unwrap();
+    for colour in ["png", "jpeg"] {
+        let (recorded, replayed, file) = record_and_replay(dir.path(), colour);
+        assert_eq!(recorded["error"], Value::Null, "{colour}: {recorded}");
+        assert_eq!(replayed["error"], Value::Null, "{colour}: {replayed}");
+        let channel = &recorded["channels"]["/camera/colour"];
+        assert_eq!(channel["schema"], "foxglove.CompressedImage", "{colour}: {channel}");
+        assert_eq!(channel["count"], 45, "{colour}: every frame's colour");
+        // Validated against Foxglove's published CompressedImage schema (strictly) and the
+        // file's own; format and the image bytes are the jpeg or png file.
+        assert_eq!(recorded["foxglove_errors"], Value::Array(vec![]), "{colour}");
+        assert_eq!(recorded["embedded_errors"], Value::Array(vec![]), "{colour}");
+        assert_eq!(recorded["foxglove_validated"]["foxglove.CompressedImage"], 45, "{colour}");
+        assert_eq!(recorded["compressed_formats"], serde_json::json!({ colour: 45 }), "{colour}: {recorded}");
+        assert_eq!(recorded["metadata"]["op3dsg.recorder"]["dropped_total"], "0", "{colour}");
+        // The replay ran every frame (its own recording, raw, has them all).
+        assert_eq!(replayed["channels"]["/camera/colour"]["schema"], "foxglove.RawImage");
+        assert_eq!(replayed["channels"]["/op3dsg/frame"]["count"], 45, "{colour}");
+        let (a, b) = (recorded["last_graph"].as_str().unwrap(), replayed["last_graph"].as_str().unwrap());
+        let nodes = |g: &str| serde_json::from_str::<Value>(g).unwrap()["nodes"].as_array().unwrap().len();
+        assert!(nodes(b) >= 3, "{colour}: the replay's final graph has {} nodes", nodes(b));
+        let info = record_info(&file);
+        if colour == "png" {
+            assert_eq!(a, b, "png is lossless: the replay's final graph JSON equals the recording run's");
+            assert!(info.contains("colour    png (lossless"), "{info}");
+        } else {
+            // jpeg is lossy: the replay works, its graph is not expected to be byte-identical.
+            assert!(info.contains("colour    jpeg (LOSSY"), "{info}");
+        }
+    }
+}

@@ -965,3 +965,115 @@ fn a_server_without_structured_output_is_sent_json_object_after_its_first_400() 
     let lines = logs.lines().filter(|l| l.contains("answered 400 to response_format json_schema")).count();
     assert_eq!(lines, 1, "logged once: {logs}");
 }
+
+/// The project venv's Python and the independent MCAP reader (PyPI `mcap`, set up by
+/// `scripts/setup-python.sh`, which `scripts/test.sh` runs).
+fn mcap_check(file: &std::path::Path, find: &[&str]) -> Value {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let python = root.join(".venv/bin/python");
+    assert!(python.exists(), "{} missing: run ./scripts/setup-python.sh (scripts/test.sh does)", python.display());
+    let mut command = std::process::Command::new(python);
+    command.arg(root.join("tests/python/mcap_check.py")).arg(file);
+    for text in find {
+        command.arg("--find").arg(text);
+    }
+    let output = command.output().expect("run mcap_check.py");
+    assert!(output.status.success(), "mcap_check.py failed: {}", String::from_utf8_lossy(&output.stderr));
+    serde_json::from_slice(&output.stdout).expect("mcap_check.py prints JSON")
+}
+
+#[test]
+fn the_recorder_keeps_every_llm_exchange_and_never_the_key() {
+    iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
+    const KEY: &str = "sk-op3dsg-record-test-5d1e8b3c";
+    let dir = tempfile::tempdir().unwrap();
+    let key_file = dir.path().join("llm.key");
+    std::fs::write(&key_file, format!("{KEY}\n")).unwrap();
+    let record_dir = dir.path().join("rec");
+    // The first request gets a 500 and is not retried: one exchange with an error.
+    let server = TestServer::start(Mode::Status { status: 500, retry_after_s: None, n: 1 });
+    let prefix = format!("op3dsg-test-llm-record-{}", std::process::id());
+    let mut o = overrides(
+        &server,
+        &[
+            &format!("ipc.prefix={prefix:?}"),
+            "reasoner.llm.max_retries=0",
+            "reasoner.llm.refresh_min_changed_nodes=1",
+            "reasoner.llm.refresh_period_s=0.3",
+            "record.enabled=true",
+            // Uncompressed chunks: the key check below also reads the file's raw bytes.
+            "record.compression=\"none\"",
+        ],
+    );
+    o.push(format!("reasoner.llm.api_key_file={:?}", key_file.display().to_string()));
+    o.push(format!("record.dir={:?}", record_dir.display().to_string()));
+    let profile = op3dsg_sim::load_profile(None, &o).expect("profile").profile;
+    let stop = Arc::new(AtomicBool::new(false));
+    let pipeline = Pipeline::start(&profile, &op3dsg_sim::backends(), stop.clone()).expect("pipeline starts");
+    let stats = pipeline.stats().clone();
+    let wait = |what: &str, done: &dyn Fn() -> bool| {
+        let deadline = Instant::now() + WATCHDOG;
+        while !done() {
+            assert!(Instant::now() < deadline, "timed out waiting for {what}");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    };
+    wait("accepted LLM items", &|| stats.refiner.accepted.load(Ordering::Relaxed) > 0);
+    // Then answers naming nodes the graph does not have: rejected, counted by reason.
+    server.set_mode(Mode::UnknownIds);
+    wait("rejected LLM items", &|| stats.refiner.rejections(Rejection::UnknownNode) > 0);
+    stop.store(true, Ordering::SeqCst);
+    pipeline.wait().expect("orderly shutdown");
+
+    let files: Vec<_> = std::fs::read_dir(&record_dir).unwrap().map(|e| e.unwrap().path()).collect();
+    assert_eq!(files.len(), 1, "{files:?}");
+    let bytes = std::fs::read(&files[0]).unwrap();
+    assert!(!bytes.windows(KEY.len()).any(|w| w == KEY.as_bytes()), "the key is in the recording");
+    assert!(!bytes.windows(6).any(|w| w.eq_ignore_ascii_case(b"bearer")), "an auth header is in the recording");
+    let summary = mcap_check(&files[0], &[KEY, "Bearer", "authorization"]);
+    assert_eq!(summary["error"], Value::Null, "{summary}");
+    assert_eq!(summary["message_texts_with"][KEY], Value::Null, "the key is in a message: {summary}");
+    assert_eq!(summary["message_texts_with"]["Bearer"], Value::Null, "{summary}");
+    assert_eq!(summary["message_texts_with"]["authorization"], Value::Null, "{summary}");
+    assert_eq!(summary["embedded_errors"], json!([]), "{summary}");
+    assert_eq!(summary["channels"]["/op3dsg/llm"]["schema"], "op3dsg.LlmExchange");
+    let exchanges = summary["llm_exchanges"].as_array().unwrap().clone();
+    let requests = server.requests();
+    // Every request the server saw is one exchange's (no retries here), except those of a
+    // refresh the shutdown cancelled in flight (at most one per agent).
+    assert!(
+        exchanges.len() <= requests.len() && exchanges.len() + 3 >= requests.len(),
+        "{} exchanges, {} requests",
+        exchanges.len(),
+        requests.len()
+    );
+    for r in &requests {
+        assert_eq!(r.authorization.as_deref(), Some(format!("Bearer {KEY}").as_str()), "the key is sent");
+    }
+    for (e, r) in exchanges.iter().zip(&requests) {
+        let sent: Value = serde_json::from_str(&r.body).unwrap();
+        // The recorded prompt is the one sent (requests and exchanges of a refresh may be in
+        // another order: matched by agent and prompt).
+        let same = requests.iter().any(|r| {
+            let sent: Value = serde_json::from_str(&r.body).unwrap();
+            sent["messages"] == e["messages"]
+        });
+        assert!(same, "exchange prompt not among the requests: {e}");
+        assert_eq!(sent["messages"].as_array().unwrap().len(), 2);
+        assert_eq!(e["model"], "test-model");
+        assert_eq!(e["attempts"], 1);
+        assert!(e["latency_ms"].as_f64().unwrap() > 0.0);
+    }
+    let failed: Vec<&Value> = exchanges.iter().filter(|e| e["answer"].is_null()).collect();
+    assert_eq!(failed.len(), 1, "one 500: {exchanges:?}");
+    assert!(failed[0]["error"].as_str().unwrap().contains("500"), "{}", failed[0]);
+    assert_eq!(failed[0]["verdict"], Value::Null);
+    let accepted = exchanges.iter().filter(|e| e["verdict"]["accepted"].as_u64().unwrap_or(0) > 0).count();
+    assert!(accepted >= 1, "{exchanges:?}");
+    let rejected: u64 = exchanges.iter().filter_map(|e| e["verdict"]["rejected"]["unknown_node"].as_u64()).sum();
+    assert_eq!(rejected, stats.refiner.rejections(Rejection::UnknownNode), "rejections by reason as counted");
+    for e in exchanges.iter().filter(|e| !e["answer"].is_null()) {
+        assert_eq!(e["error"], Value::Null);
+        assert_eq!(e["verdict"]["parsed"], true, "{e}");
+    }
+}

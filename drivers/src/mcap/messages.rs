@@ -107,6 +107,60 @@ pub struct InputPose {
     pub rotation_xyzw: [f64; 4],
 }
 
+/// One message of a chat prompt.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChatMessage {
+    /// `system` or `user`.
+    pub role: String,
+    /// The text sent.
+    pub content: String,
+}
+
+/// What the verification gate made of an answer.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LlmVerdict {
+    /// Whether the answer held a JSON object the gate could read (`false`: the agent's last
+    /// accepted result stays as it was).
+    pub parsed: bool,
+    /// Items accepted.
+    pub accepted: u64,
+    /// Items rejected, by reason (`op3dsg_ipc_types::REFINER_REJECTIONS`; reasons with none
+    /// are left out).
+    pub rejected: std::collections::BTreeMap<String, u64>,
+}
+
+/// `op3dsg.LlmExchange`: one call of an LLM agent of the refiner (all its retries): the prompt
+/// sent, the answer, what the gate accepted and rejected, the time it took. Never the API key
+/// and never a request header.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LlmExchange {
+    /// The graph version the prompt was built from.
+    pub graph_version: u64,
+    /// `local_relations`, `remote_relations` or `affordances`.
+    pub agent: String,
+    /// `reasoner.llm.model`.
+    pub model: String,
+    /// The prompt's messages, in the order sent.
+    pub messages: Vec<ChatMessage>,
+    /// HTTP requests made for this call (1 + retries; 0 when the breaker or the budget refused
+    /// it).
+    pub attempts: u32,
+    /// Time of the last request, milliseconds (0 when none was made).
+    pub latency_ms: f64,
+    /// Time from the first request to the answer or the final failure, milliseconds.
+    pub total_ms: f64,
+    /// The answer's text (the message content), `None` when the call failed.
+    pub answer: Option<String>,
+    /// Why the call finally failed (`timeout`, `http_status: HTTP status 503`, `breaker_open`,
+    /// `budget_exhausted`, ...), `None` when it answered.
+    pub error: Option<String>,
+    /// The gate's verdict on the answer, `None` when there was none.
+    pub verdict: Option<LlmVerdict>,
+}
+
 /// `foxglove.CameraCalibration` (pinhole, no distortion: depth is aligned to colour).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[allow(non_snake_case)]
@@ -188,6 +242,73 @@ pub fn encode_raw_image(
     let written = STANDARD.encode_slice(data, &mut out[start..]).unwrap_or(0);
     out.truncate(start + written);
     out.extend_from_slice(b"\"}");
+}
+
+/// Writes a `foxglove.CompressedImage` (`format` `jpeg` or `png`, `data` the encoded file) into
+/// `out` (cleared first).
+pub fn encode_compressed_image(out: &mut Vec<u8>, stamp_ns: u64, frame_id: &str, format: &str, data: &[u8]) {
+    out.clear();
+    let t = Time::from_ns(stamp_ns);
+    // Writing into a Vec cannot fail.
+    let _ = write!(
+        out,
+        r#"{{"timestamp":{{"sec":{},"nsec":{}}},"frame_id":"{frame_id}","format":"{format}","data":""#,
+        t.sec, t.nsec
+    );
+    let start = out.len();
+    out.resize(start + base64::encoded_len(data.len(), true).unwrap_or(0), 0);
+    let written = STANDARD.encode_slice(data, &mut out[start..]).unwrap_or(0);
+    out.truncate(start + written);
+    out.extend_from_slice(b"\"}");
+}
+
+/// A `foxglove.CompressedImage` as read, its data still base64.
+#[derive(Debug, Deserialize)]
+pub struct CompressedImageIn<'a> {
+    /// Stamp.
+    pub timestamp: Time,
+    /// `jpeg` or `png`.
+    pub format: String,
+    /// Base64 of the encoded image.
+    #[serde(borrow)]
+    pub data: &'a str,
+}
+
+impl CompressedImageIn<'_> {
+    /// Parses the JSON message.
+    pub fn parse(bytes: &[u8]) -> Result<CompressedImageIn<'_>, String> {
+        serde_json::from_slice(bytes).map_err(|e| format!("not a foxglove.CompressedImage: {e}"))
+    }
+
+    /// Decodes the image (jpeg or png, 8-bit RGB) into `out`, which holds `width * height * 3`
+    /// bytes; `scratch` holds the encoded bytes on the way.
+    pub fn decode_rgb_into(
+        &self,
+        width: u32,
+        height: u32,
+        scratch: &mut Vec<u8>,
+        out: &mut [u8],
+    ) -> Result<(), String> {
+        let format = match self.format.as_str() {
+            "jpeg" | "jpg" => image::ImageFormat::Jpeg,
+            "png" => image::ImageFormat::Png,
+            other => return Err(format!("format \"{other}\", expected jpeg or png")),
+        };
+        scratch.clear();
+        STANDARD.decode_vec(self.data.as_bytes(), scratch).map_err(|e| format!("data: bad base64 ({e})"))?;
+        let decoded = image::load_from_memory_with_format(scratch, format)
+            .map_err(|e| format!("data: not a {} image: {e}", self.format))?;
+        if (decoded.width(), decoded.height()) != (width, height) {
+            return Err(format!("{}x{} image, but the stream is {width}x{height}", decoded.width(), decoded.height()));
+        }
+        let rgb = decoded.into_rgb8();
+        let pixels = rgb.as_raw();
+        if out.len() != pixels.len() {
+            return Err(format!("{} bytes decoded, the frame holds {}", pixels.len(), out.len()));
+        }
+        out.copy_from_slice(pixels);
+        Ok(())
+    }
 }
 
 /// A `foxglove.RawImage` as read, its data still base64.
@@ -278,5 +399,29 @@ mod tests {
         let pose_back = Isometry::from(&back.world_from_camera.unwrap());
         assert_eq!(pose_back.translation.to_array().map(f64::to_bits), pose.translation.to_array().map(f64::to_bits));
         assert_eq!(pose_back.rotation.to_array().map(f64::to_bits), pose.rotation.to_array().map(f64::to_bits));
+    }
+
+    #[test]
+    fn a_png_compressed_image_decodes_to_the_same_pixels_and_bad_ones_name_the_fault() {
+        use image::ImageEncoder as _;
+        let (w, h) = (7u32, 5u32);
+        let rgb: Vec<u8> = (0..w * h * 3).map(|i| (i * 37 % 251) as u8).collect();
+        let mut png = Vec::new();
+        image::codecs::png::PngEncoder::new(&mut png).write_image(&rgb, w, h, image::ExtendedColorType::Rgb8).unwrap();
+        let mut msg = Vec::new();
+        encode_compressed_image(&mut msg, 1_500_000_000, "camera", "png", &png);
+        let image = CompressedImageIn::parse(&msg).unwrap();
+        assert_eq!(image.timestamp.to_ns(), 1_500_000_000);
+        let (mut scratch, mut out) = (Vec::new(), vec![0u8; rgb.len()]);
+        image.decode_rgb_into(w, h, &mut scratch, &mut out).unwrap();
+        assert_eq!(out, rgb, "png is lossless");
+        let e = image.decode_rgb_into(w + 1, h, &mut scratch, &mut vec![0u8; ((w + 1) * h * 3) as usize]).unwrap_err();
+        assert!(e.contains("7x5 image, but the stream is 8x5"), "{e}");
+        encode_compressed_image(&mut msg, 0, "camera", "webp", &png);
+        let e = CompressedImageIn::parse(&msg).unwrap().decode_rgb_into(w, h, &mut scratch, &mut out).unwrap_err();
+        assert!(e.contains("format \"webp\", expected jpeg or png"), "{e}");
+        encode_compressed_image(&mut msg, 0, "camera", "jpeg", &png);
+        let e = CompressedImageIn::parse(&msg).unwrap().decode_rgb_into(w, h, &mut scratch, &mut out).unwrap_err();
+        assert!(e.starts_with("data: not a jpeg image"), "{e}");
     }
 }

@@ -18,13 +18,14 @@
 //! | `/op3dsg/scene` | `foxglove.SceneUpdate` | a cube per node (objects blue-grey, parts orange), its label, spatial edges grey, functional edges green | every published version |
 //! | `/tf` | `foxglove.FrameTransform` | `world` → `camera` | every keyframe |
 //! | `/camera/calibration` | `foxglove.CameraCalibration` | pinhole intrinsics, no distortion | first frame of each file, then when they change |
-//! | `/camera/colour` | `foxglove.RawImage` | `rgb8` | every frame the keyframe gate received |
+//! | `/camera/colour` | `foxglove.RawImage`, or `foxglove.CompressedImage` (`png` lossless, `jpeg` lossy) with `record.colour` | `rgb8` | every frame the keyframe gate received |
 //! | `/camera/depth` | `foxglove.RawImage` | `16UC1`, little-endian, sensor units | every frame the keyframe gate received |
 //! | `/op3dsg/frame` | `op3dsg.Frame` | seq, stamp, depth units per metre, `world_from_camera` | every frame the keyframe gate received |
 //! | `/op3dsg/health` | `op3dsg.Health` | counters, queues, stages, recorder state | every health period |
 //! | `/op3dsg/detections` | `foxglove.ImageAnnotations` | a box outline per detection of a keyframe (objects blue-grey, parts orange) with label and score, over `/camera/colour` | every keyframe fused |
 //! | `/op3dsg/node_points` | `foxglove.PointCloud` | the published nodes' points, world frame, fields x, y, z (float32), node_id (uint32), at most `record.node_points_per_node` per node | graph versions, at most `max_rate_hz` (1 Hz by default) |
 //! | `/op3dsg/input_pose` | `op3dsg.InputPose` | a pose from the pose input (`pose.source = "ipc"`): stamp, kind, child frame, translation, rotation | every pose the keyframe gate received |
+//! | `/op3dsg/llm` | `op3dsg.LlmExchange` | one call of an LLM agent (`reasoner.kind = "llm"`): agent, model, prompt messages, answer, the gate's verdict (accepted, rejected by reason), attempts, latency, error; never the key or a header | every call |
 //! | `/sim/instance_ids` | `foxglove.RawImage` | `16UC1` instance ids of the synthetic renderer (simulation only) | every frame, when the source has them |
 //!
 //! A raw frame is written as `/camera/colour`, `/camera/depth`, any side channel of the source,
@@ -73,6 +74,8 @@ pub const TOPIC_DETECTIONS: &str = "/op3dsg/detections";
 pub const TOPIC_NODE_POINTS: &str = "/op3dsg/node_points";
 /// `op3dsg.InputPose`: every pose the keyframe gate received from the pose input.
 pub const TOPIC_INPUT_POSE: &str = "/op3dsg/input_pose";
+/// `op3dsg.LlmExchange`: every call of the LLM refiner's agents.
+pub const TOPIC_LLM: &str = "/op3dsg/llm";
 
 /// Metadata record with the effective profile (key `toml`).
 pub const METADATA_PROFILE: &str = "op3dsg.profile";

@@ -14,6 +14,8 @@ pub const MESSAGE_ENCODING: &str = "json";
 
 /// `foxglove.RawImage`.
 pub const RAW_IMAGE: &str = "foxglove.RawImage";
+/// `foxglove.CompressedImage`.
+pub const COMPRESSED_IMAGE: &str = "foxglove.CompressedImage";
 /// `foxglove.CameraCalibration`.
 pub const CAMERA_CALIBRATION: &str = "foxglove.CameraCalibration";
 /// `foxglove.FrameTransform`.
@@ -32,11 +34,14 @@ pub const FRAME: &str = "op3dsg.Frame";
 pub const HEALTH: &str = "op3dsg.Health";
 /// `op3dsg.InputPose`: [`super::messages::InputPose`].
 pub const INPUT_POSE: &str = "op3dsg.InputPose";
+/// `op3dsg.LlmExchange`: [`super::messages::LlmExchange`].
+pub const LLM_EXCHANGE: &str = "op3dsg.LlmExchange";
 
 /// The schema text of `name` (one of the constants above), `None` for another name.
 pub fn schema_text(name: &str) -> Option<String> {
     let value = match name {
         RAW_IMAGE => raw_image(),
+        COMPRESSED_IMAGE => compressed_image(),
         CAMERA_CALIBRATION => camera_calibration(),
         FRAME_TRANSFORM => frame_transform(),
         SCENE_UPDATE => scene_update(),
@@ -46,6 +51,7 @@ pub fn schema_text(name: &str) -> Option<String> {
         FRAME => frame(),
         HEALTH => health(),
         INPUT_POSE => input_pose(),
+        LLM_EXCHANGE => llm_exchange(),
         _ => return None,
     };
     Some(value.to_string())
@@ -118,6 +124,21 @@ fn raw_image() -> Value {
         &["timestamp", "frame_id", "width", "height", "encoding", "step", "data"],
     );
     schema["description"] = json!("A raw image");
+    schema
+}
+
+fn compressed_image() -> Value {
+    let mut schema = object(
+        COMPRESSED_IMAGE,
+        json!({
+            "timestamp": time(),
+            "frame_id": { "type": "string" },
+            "data": { "type": "string", "contentEncoding": "base64" },
+            "format": { "type": "string", "description": "jpeg or png" }
+        }),
+        &["timestamp", "frame_id", "data", "format"],
+    );
+    schema["description"] = json!("A compressed image");
     schema
 }
 
@@ -416,6 +437,55 @@ fn input_pose() -> Value {
         &["stamp_ns", "kind", "frame_id", "translation_m", "rotation_xyzw"],
     );
     schema["description"] = json!("a pose the daemon received on <prefix>/pose (pose.source = \"ipc\")");
+    schema
+}
+
+fn llm_exchange() -> Value {
+    let nullable_string = json!({ "type": ["string", "null"] });
+    let message = object(
+        "op3dsg.ChatMessage",
+        json!({ "role": { "enum": ["system", "user"] }, "content": { "type": "string" } }),
+        &["role", "content"],
+    );
+    let verdict = object(
+        "op3dsg.LlmVerdict",
+        json!({
+            "parsed": { "type": "boolean" },
+            "accepted": { "type": "integer", "minimum": 0 },
+            "rejected": { "type": "object", "additionalProperties": { "type": "integer", "minimum": 1 } }
+        }),
+        &["parsed", "accepted", "rejected"],
+    );
+    let mut schema = object(
+        LLM_EXCHANGE,
+        json!({
+            "graph_version": { "type": "integer", "minimum": 0 },
+            "agent": { "enum": ["local_relations", "remote_relations", "affordances"] },
+            "model": { "type": "string" },
+            "messages": { "type": "array", "items": message },
+            "attempts": { "type": "integer", "minimum": 0 },
+            "latency_ms": { "type": "number", "minimum": 0 },
+            "total_ms": { "type": "number", "minimum": 0 },
+            "answer": nullable_string,
+            "error": nullable_string,
+            "verdict": { "oneOf": [verdict, { "type": "null" }] }
+        }),
+        &[
+            "graph_version",
+            "agent",
+            "model",
+            "messages",
+            "attempts",
+            "latency_ms",
+            "total_ms",
+            "answer",
+            "error",
+            "verdict",
+        ],
+    );
+    schema["description"] = json!(
+        "one call of an LLM agent of the refiner: prompt, answer, the gate's verdict; never the API key or a header"
+    );
     schema
 }
 

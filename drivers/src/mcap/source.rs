@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 
 use tracing::{info, warn};
 
-use super::messages::{CameraCalibration, FrameMeta, InputPose, RawImageIn};
+use super::messages::{CameraCalibration, CompressedImageIn, FrameMeta, InputPose, RawImageIn};
 use super::reader::{ChannelInfo, Item, McapReader, MessageAt, ReadError};
 use super::{McapReplayConfig, TOPIC_CALIBRATION, TOPIC_COLOUR, TOPIC_DEPTH, TOPIC_FRAME, TOPIC_INPUT_POSE, schemas};
 use crate::frame::{Frame, Intrinsics};
@@ -30,6 +30,8 @@ struct Staged {
     meta: Option<FrameMeta>,
     colour: Vec<u8>,
     colour_at: Option<MessageAt>,
+    /// The colour came as a `foxglove.CompressedImage` (jpeg or png).
+    colour_compressed: bool,
     depth: Vec<u8>,
     depth_at: Option<MessageAt>,
     /// Input poses read before this frame.
@@ -60,6 +62,8 @@ pub struct McapSource {
     staged: Staged,
     ready: bool,
     scratch: Vec<u8>,
+    /// Encoded bytes of a compressed colour image on the way to its pixels.
+    decode_scratch: Vec<u8>,
     step: Option<StepControl>,
     origin: Option<(Instant, u64)>,
     delivered: u64,
@@ -88,13 +92,14 @@ fn at_error(path: &Path, channel: &ChannelInfo, at: MessageAt, reason: impl std:
     }
 }
 
-/// The schema a raw-input topic must have.
-fn expected_schema(topic: &str) -> Option<&'static str> {
+/// The schemas a raw-input topic may have (colour: raw, or compressed with `record.colour`).
+fn expected_schema(topic: &str) -> Option<&'static [&'static str]> {
     match topic {
-        TOPIC_COLOUR | TOPIC_DEPTH => Some(schemas::RAW_IMAGE),
-        TOPIC_CALIBRATION => Some(schemas::CAMERA_CALIBRATION),
-        TOPIC_FRAME => Some(schemas::FRAME),
-        TOPIC_INPUT_POSE => Some(schemas::INPUT_POSE),
+        TOPIC_COLOUR => Some(&[schemas::RAW_IMAGE, schemas::COMPRESSED_IMAGE]),
+        TOPIC_DEPTH => Some(&[schemas::RAW_IMAGE]),
+        TOPIC_CALIBRATION => Some(&[schemas::CAMERA_CALIBRATION]),
+        TOPIC_FRAME => Some(&[schemas::FRAME]),
+        TOPIC_INPUT_POSE => Some(&[schemas::INPUT_POSE]),
         _ => None,
     }
 }
@@ -137,6 +142,7 @@ impl McapSource {
             staged: Staged::default(),
             ready: false,
             scratch: Vec::new(),
+            decode_scratch: Vec::new(),
             step: (config.mode == PlaybackMode::Stepped).then(StepControl::new),
             origin: None,
             delivered: 0,
@@ -267,9 +273,11 @@ impl McapSource {
             let Item::Message(at) = item else { continue };
             let path = reader.path().to_owned();
             let Some(channel) = reader.channel(at.channel_id).cloned() else { continue };
-            if let Some(schema) = expected_schema(&channel.topic)
-                && (channel.schema_name != schema || channel.message_encoding != schemas::MESSAGE_ENCODING)
+            if let Some(allowed) = expected_schema(&channel.topic)
+                && (!allowed.contains(&channel.schema_name.as_str())
+                    || channel.message_encoding != schemas::MESSAGE_ENCODING)
             {
+                let schema = allowed.join("\" or \"");
                 return Err(at_error(
                     &path,
                     &channel,
@@ -308,6 +316,7 @@ impl McapSource {
                 TOPIC_COLOUR => {
                     std::mem::swap(&mut self.staged.colour, &mut self.scratch);
                     self.staged.colour_at = Some(at);
+                    self.staged.colour_compressed = channel.schema_name == schemas::COMPRESSED_IMAGE;
                 }
                 TOPIC_DEPTH => {
                     std::mem::swap(&mut self.staged.depth, &mut self.scratch);
@@ -363,10 +372,29 @@ impl McapSource {
             path: path.display().to_string(),
             reason: format!("channel {topic} message {}: frame seq {}: {reason}", at.map_or(0, |a| a.index), meta.seq),
         };
+        if self.staged.colour_compressed {
+            let at = self.staged.colour_at;
+            let image = CompressedImageIn::parse(&self.staged.colour).map_err(|e| image_error(TOPIC_COLOUR, at, e))?;
+            if image.timestamp.to_ns() != meta.stamp_ns {
+                return Err(image_error(
+                    TOPIC_COLOUR,
+                    at,
+                    format!("image stamp {} ns, the frame's is {} ns", image.timestamp.to_ns(), meta.stamp_ns),
+                ));
+            }
+            let k = self.intrinsics;
+            image
+                .decode_rgb_into(k.width, k.height, &mut self.decode_scratch, &mut frame.rgb)
+                .map_err(|e| image_error(TOPIC_COLOUR, at, e))?;
+        }
+        let colour_raw = !self.staged.colour_compressed;
         for (topic, bytes, at, encodings, bpp) in [
             (TOPIC_COLOUR, &self.staged.colour, self.staged.colour_at, &["rgb8"][..], 3u32),
             (TOPIC_DEPTH, &self.staged.depth, self.staged.depth_at, &["16UC1", "mono16"][..], 2u32),
-        ] {
+        ]
+        .into_iter()
+        .filter(|(topic, ..)| colour_raw || *topic != TOPIC_COLOUR)
+        {
             let image = RawImageIn::parse(bytes).map_err(|e| image_error(topic, at, e))?;
             if image.timestamp.to_ns() != meta.stamp_ns {
                 return Err(image_error(

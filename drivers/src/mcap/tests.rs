@@ -168,11 +168,11 @@ fn a_wrong_schema_names_file_channel_and_message() {
     let path = dir.path().join("schema.mcap");
     let mut w = Writer::new(&path, 4096);
     w.calibration();
-    w.frame(0, "foxglove.CompressedImage");
+    w.frame(0, "foxglove.PointCloud");
     w.finish();
     let error = open(&path).unwrap_err().to_string();
     assert!(error.starts_with(&path.display().to_string()), "{error}");
-    assert!(error.contains("channel /camera/colour message 0: schema \"foxglove.CompressedImage\""), "{error}");
+    assert!(error.contains("channel /camera/colour message 0: schema \"foxglove.PointCloud\""), "{error}");
 }
 
 #[test]

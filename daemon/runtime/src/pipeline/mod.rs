@@ -283,6 +283,9 @@ impl Pipeline {
             let stats = stats.clone();
             let min_interval = Duration::from_millis(profile.run.min_publish_interval_ms);
             let fusion_recorder = recorder.clone();
+            if let (Some(enricher), Some(recorder)) = (&enricher, &recorder) {
+                enricher.record_llm_to(recorder);
+            }
             handles.push(spawn_stage("fusion", &finished_tx, move || {
                 crate::fusion::thread::fusion_loop(
                     fusion,

@@ -112,6 +112,14 @@ impl GraphEnricher {
         }))
     }
 
+    /// Records the LLM refiner's calls (`/op3dsg/llm`) through `recorder`; nothing without
+    /// `kind = "llm"`.
+    pub fn record_llm_to(&self, recorder: &crate::record::RecordSender) {
+        if let Some(refiner) = &self.refiner {
+            refiner.record_to(recorder.clone());
+        }
+    }
+
     /// The LLM refiner's counters (`None` without `kind = "llm"`).
     pub fn refiner_stats(&self) -> Option<Arc<llm::RefinerStats>> {
         self.refiner.as_ref().map(|r| r.stats().clone())

@@ -17,6 +17,31 @@ pub enum RecordCompression {
     None,
 }
 
+/// How `/camera/colour` is written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ColourEncoding {
+    /// `foxglove.RawImage` rgb8: lossless, largest, no encoding CPU.
+    #[default]
+    Raw,
+    /// `foxglove.CompressedImage` jpeg at `record.jpeg_quality`: smallest, **lossy** (a replay's
+    /// detections and graph are close to, not identical with, the recorded run's).
+    Jpeg,
+    /// `foxglove.CompressedImage` png: lossless (replays bit for bit), more CPU than jpeg.
+    Png,
+}
+
+impl ColourEncoding {
+    /// The profile's name.
+    pub fn name(self) -> &'static str {
+        match self {
+            ColourEncoding::Raw => "raw",
+            ColourEncoding::Jpeg => "jpeg",
+            ColourEncoding::Png => "png",
+        }
+    }
+}
+
 /// One channel's switch and rate limit.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -65,7 +90,8 @@ pub struct RecordChannels {
     /// `/op3dsg/health`: every health record.
     #[serde(default)]
     pub health: ChannelConfig,
-    /// `/camera/colour`: `foxglove.RawImage` rgb8 of every frame the keyframe gate received.
+    /// `/camera/colour`: `foxglove.RawImage` rgb8 (or `foxglove.CompressedImage`, as
+    /// `record.colour` says) of every frame the keyframe gate received.
     #[serde(default)]
     pub colour: ChannelConfig,
     /// `/camera/depth`: `foxglove.RawImage` 16UC1 of every such frame.
@@ -90,6 +116,11 @@ pub struct RecordChannels {
     /// `node_points_per_node` each), on graph versions at most `max_rate_hz` (default 1).
     #[serde(default = "ChannelConfig::once_a_second")]
     pub node_points: ChannelConfig,
+    /// `/op3dsg/llm`: `op3dsg.LlmExchange` of every call of the LLM refiner's agents
+    /// (`reasoner.kind = "llm"`): prompt, answer, the gate's verdict, latency, error; never the
+    /// API key or a header.
+    #[serde(default)]
+    pub llm: ChannelConfig,
 }
 
 impl Default for RecordChannels {
@@ -108,13 +139,14 @@ impl Default for RecordChannels {
             input_poses: on,
             detections: on,
             node_points: ChannelConfig::once_a_second(),
+            llm: on,
         }
     }
 }
 
 impl RecordChannels {
     /// `(name, config)` of every channel, in profile order.
-    pub fn entries(&self) -> [(&'static str, ChannelConfig); 12] {
+    pub fn entries(&self) -> [(&'static str, ChannelConfig); 13] {
         [
             ("graph", self.graph),
             ("scene", self.scene),
@@ -128,6 +160,7 @@ impl RecordChannels {
             ("input_poses", self.input_poses),
             ("detections", self.detections),
             ("node_points", self.node_points),
+            ("llm", self.llm),
         ]
     }
 }
@@ -143,6 +176,13 @@ pub struct RecordConfig {
     pub dir: PathBuf,
     /// Chunk compression: `zstd`, `lz4` or `none`.
     pub compression: RecordCompression,
+    /// `/camera/colour` as `raw` (`foxglove.RawImage` rgb8), `jpeg` or `png`
+    /// (`foxglove.CompressedImage`). `jpeg` is lossy: its replay is not bit-exact.
+    #[serde(default)]
+    pub colour: ColourEncoding,
+    /// JPEG quality, 1..=100, with `colour = "jpeg"`.
+    #[serde(default = "default_jpeg_quality")]
+    pub jpeg_quality: u8,
     /// Uncompressed chunk size, KiB: a chunk is compressed and written when it reaches this.
     pub chunk_size_kib: u64,
     /// Finish the current chunk and flush the file at least this often, milliseconds: after a
@@ -171,6 +211,8 @@ impl Default for RecordConfig {
             enabled: false,
             dir: PathBuf::from("recordings"),
             compression: RecordCompression::Zstd,
+            colour: ColourEncoding::Raw,
+            jpeg_quality: default_jpeg_quality(),
             chunk_size_kib: 4096,
             flush_interval_ms: 1000,
             max_file_mib: 2048,
@@ -181,6 +223,10 @@ impl Default for RecordConfig {
             channels: RecordChannels::default(),
         }
     }
+}
+
+fn default_jpeg_quality() -> u8 {
+    90
 }
 
 impl RecordConfig {
@@ -203,6 +249,9 @@ impl RecordConfig {
         }
         if !(self.max_file_s >= 1.0 && self.max_file_s <= 86_400.0 * 7.0) {
             return Err(format!("{path}.max_file_s: must be within [1, 604800], got {}", self.max_file_s));
+        }
+        if !(1..=100).contains(&self.jpeg_quality) {
+            return Err(format!("{path}.jpeg_quality: must be within [1, 100], got {}", self.jpeg_quality));
         }
         if !(1..=256).contains(&self.frame_queue) {
             return Err(format!("{path}.frame_queue: must be within [1, 256], got {}", self.frame_queue));

@@ -40,7 +40,7 @@ use op3dsg_drivers::pose::Isometry;
 use op3dsg_ipc_types::{Health, RecorderHealth};
 use tracing::warn;
 
-pub use config::{ChannelConfig, RecordChannels, RecordCompression, RecordConfig};
+pub use config::{ChannelConfig, ColourEncoding, RecordChannels, RecordCompression, RecordConfig};
 
 use crate::config::UpAxis;
 use crate::graph::SceneGraph;
@@ -86,10 +86,11 @@ pub(crate) enum Channel {
     InputPoses,
     Detections,
     NodePoints,
+    LlmExchanges,
 }
 
 /// Number of [`Channel`]s.
-pub(crate) const CHANNEL_COUNT: usize = 11;
+pub(crate) const CHANNEL_COUNT: usize = 12;
 
 impl Channel {
     const ALL: [Channel; CHANNEL_COUNT] = [
@@ -104,6 +105,7 @@ impl Channel {
         Channel::InputPoses,
         Channel::Detections,
         Channel::NodePoints,
+        Channel::LlmExchanges,
     ];
 
     /// The channel's topic (side channels: their own topics, [`None`] here).
@@ -121,6 +123,7 @@ impl Channel {
             Channel::InputPoses => t::TOPIC_INPUT_POSE,
             Channel::Detections => t::TOPIC_DETECTIONS,
             Channel::NodePoints => t::TOPIC_NODE_POINTS,
+            Channel::LlmExchanges => t::TOPIC_LLM,
         })
     }
 }
@@ -208,6 +211,7 @@ pub(crate) enum Event {
     Health { log_time_ns: u64, health: Box<Health> },
     Detections { log_time_ns: u64, stamp_ns: u64, boxes: Vec<annotations::DetectionBox> },
     NodePoints { log_time_ns: u64, stamp_ns: u64, points: Vec<crate::fusion::NodePoint> },
+    LlmExchange { log_time_ns: u64, exchange: Box<op3dsg_drivers::mcap::messages::LlmExchange> },
 }
 
 /// Wall clock, Unix nanoseconds.
@@ -265,6 +269,7 @@ pub struct RecordSender {
     poses: Limiter,
     detections: Limiter,
     node_points: Limiter,
+    llm: Limiter,
     node_points_per_node: usize,
 }
 
@@ -441,6 +446,18 @@ impl RecordSender {
         }
     }
 
+    /// Offers one call of an LLM agent (`/op3dsg/llm`); the refiner's thread calls it after the
+    /// gate checked the answer.
+    pub fn offer_llm_exchange(&mut self, exchange: op3dsg_drivers::mcap::messages::LlmExchange) {
+        if !self.accepting() || !self.llm.due(Instant::now()) {
+            return;
+        }
+        let event = Event::LlmExchange { log_time_ns: now_ns(), exchange: Box::new(exchange) };
+        if self.events_tx.try_send(event).is_err() {
+            self.drop_counted("llm exchange", &[(Channel::LlmExchanges, 1)]);
+        }
+    }
+
     /// Offers a health record.
     pub fn offer_health(&mut self, health: &Health) {
         if !self.accepting() || !self.health.due(Instant::now()) {
@@ -546,6 +563,7 @@ pub(crate) fn prepare(
         poses: Limiter::new(c.input_poses),
         detections: Limiter::new(c.detections),
         node_points: Limiter::new(c.node_points),
+        llm: Limiter::new(c.llm),
         node_points_per_node: config.node_points_per_node,
     };
     let parts = RecorderParts {

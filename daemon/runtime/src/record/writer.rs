@@ -10,14 +10,15 @@ use std::time::{Duration, Instant};
 
 use mcap::records::{MessageHeader, Metadata};
 use op3dsg_drivers::frame::Intrinsics;
-use op3dsg_drivers::mcap::messages::{CameraCalibration, FrameMeta, Time, encode_raw_image};
+use op3dsg_drivers::mcap::messages::{CameraCalibration, FrameMeta, Time, encode_compressed_image, encode_raw_image};
 use op3dsg_drivers::mcap::{self as topics, CAMERA_FRAME, WORLD_FRAME, schemas};
 use op3dsg_ipc_types::{Health, RECORDER_STATES, fixed_str};
 use tracing::{info, warn};
 
 use super::scene::write_scene_update;
 use super::{
-    Channel, Event, RawFrame, RawInput, RecordCompression, RecordConfig, RecorderParts, RecorderState, RecorderStats,
+    Channel, ColourEncoding, Event, RawFrame, RawInput, RecordCompression, RecordConfig, RecorderParts, RecorderState,
+    RecorderStats,
 };
 use crate::config::UpAxis;
 
@@ -54,7 +55,36 @@ fn event_messages(event: &Event) -> [(Channel, u64); 2] {
         Event::Health { .. } => [(Channel::Health, 1), (Channel::Graph, 0)],
         Event::Detections { .. } => [(Channel::Detections, 1), (Channel::Graph, 0)],
         Event::NodePoints { .. } => [(Channel::NodePoints, 1), (Channel::Graph, 0)],
+        Event::LlmExchange { .. } => [(Channel::LlmExchanges, 1), (Channel::Graph, 0)],
     }
+}
+
+/// Encodes an rgb8 image as jpeg or png into `out` (cleared first). PNG uses fast compression:
+/// the chunks are compressed again anyway.
+fn encode_colour(
+    encoding: ColourEncoding,
+    jpeg_quality: u8,
+    k: Intrinsics,
+    rgb: &[u8],
+    out: &mut Vec<u8>,
+) -> Result<(), image::ImageError> {
+    use image::ImageEncoder as _;
+    out.clear();
+    match encoding {
+        ColourEncoding::Jpeg => image::codecs::jpeg::JpegEncoder::new_with_quality(&mut *out, jpeg_quality)
+            .write_image(rgb, k.width, k.height, image::ExtendedColorType::Rgb8),
+        ColourEncoding::Png | ColourEncoding::Raw => image::codecs::png::PngEncoder::new_with_quality(
+            &mut *out,
+            image::codecs::png::CompressionType::Fast,
+            image::codecs::png::FilterType::Sub,
+        )
+        .write_image(rgb, k.width, k.height, image::ExtendedColorType::Rgb8),
+    }
+}
+
+/// Counts one message of `channel` dropped; the total dropped so far.
+fn count_drops_of(stats: &RecorderStats, channel: Channel) -> u64 {
+    stats.count_drop(channel, 1)
 }
 
 fn count_drops(stats: &RecorderStats, drops: &[(Channel, u64)]) {
@@ -76,6 +106,8 @@ struct Recorder {
     last_log_ns: u64,
     bytes_closed: u64,
     scratch: Vec<u8>,
+    /// A colour image encoded as jpeg or png.
+    encoded: Vec<u8>,
     bytes: Vec<u8>,
 }
 
@@ -258,6 +290,29 @@ impl Recorder {
         }
         if raw.has_colour
             && let Some(colour) = &raw.colour
+            && self.config.colour != ColourEncoding::Raw
+        {
+            match encode_colour(self.config.colour, self.config.jpeg_quality, k, colour, &mut self.encoded) {
+                Ok(()) => {
+                    encode_compressed_image(
+                        &mut self.bytes,
+                        raw.stamp_ns,
+                        CAMERA_FRAME,
+                        self.config.colour.name(),
+                        &self.encoded,
+                    );
+                    self.write(topics::TOPIC_COLOUR, schemas::COMPRESSED_IMAGE, t)?;
+                }
+                Err(e) => {
+                    // Not the disk's fault: this image is dropped and counted, recording goes on.
+                    let dropped = count_drops_of(&self.stats, Channel::Colour);
+                    if dropped.is_power_of_two() {
+                        warn!(seq = raw.seq, error = %e, dropped, "colour image could not be encoded; dropped");
+                    }
+                }
+            }
+        } else if raw.has_colour
+            && let Some(colour) = &raw.colour
         {
             encode_raw_image(
                 &mut self.bytes,
@@ -371,6 +426,11 @@ impl Recorder {
                 self.bytes = bytes;
                 self.write(topics::TOPIC_NODE_POINTS, schemas::POINT_CLOUD, log_time_ns)?;
             }
+            Event::LlmExchange { log_time_ns, exchange } => {
+                self.bytes.clear();
+                serde_json::to_writer(&mut self.bytes, &*exchange).map_err(|e| e.to_string())?;
+                self.write(topics::TOPIC_LLM, schemas::LLM_EXCHANGE, log_time_ns)?;
+            }
             Event::Health { log_time_ns, health } => {
                 let mut health = *health;
                 health.recorder = self.stats.health();
@@ -450,6 +510,7 @@ pub(super) fn recorder_loop(parts: RecorderParts) {
         last_log_ns: 0,
         bytes_closed: 0,
         scratch: Vec::new(),
+        encoded: Vec::new(),
         bytes: Vec::new(),
     };
     rec.scratch.shrink_to_fit();

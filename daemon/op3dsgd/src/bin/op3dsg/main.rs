@@ -246,6 +246,12 @@ struct RecordBenchArgs {
     /// zstd, lz4, none, or all (zstd then lz4).
     #[arg(long, default_value = "all")]
     compression: String,
+    /// Colour storage (record.colour): raw, png or jpeg.
+    #[arg(long, default_value = "raw")]
+    colour: String,
+    /// JPEG quality with --colour jpeg (record.jpeg_quality).
+    #[arg(long, default_value_t = 90)]
+    jpeg_quality: u8,
     /// Chunk size, KiB (record.chunk_size_kib).
     #[arg(long, default_value_t = 4096)]
     chunk_size_kib: u64,

@@ -35,6 +35,20 @@ struct FileSummary {
     profile_recorded: bool,
     /// Why reading stopped early (a truncated or damaged file), if it did.
     error: Option<String>,
+    /// How `/camera/colour` is stored: `raw`, `png` or `jpeg` (`None`: no colour channel).
+    colour: Option<String>,
+}
+
+/// What `record info` says of the colour's storage.
+fn colour_note(colour: &str) -> &'static str {
+    match colour {
+        "jpeg" | "jpg" => {
+            "LOSSY: a replay sees other pixels, its graph is close to but not identical with the recorded run's"
+        }
+        "png" => "lossless: replays bit for bit",
+        "raw" => "lossless: replays bit for bit",
+        _ => "unknown format: the replay refuses it",
+    }
 }
 
 fn summarise(path: &Path) -> Result<FileSummary> {
@@ -47,6 +61,17 @@ fn summarise(path: &Path) -> Result<FileSummary> {
         match reader.next(&mut data) {
             Ok(None) => break,
             Ok(Some(Item::Message(at))) => {
+                if summary.colour.is_none()
+                    && let Some(channel) = reader.channel(at.channel_id)
+                    && channel.topic == op3dsg_drivers::mcap::TOPIC_COLOUR
+                {
+                    summary.colour = Some(if channel.schema_name == op3dsg_drivers::mcap::schemas::COMPRESSED_IMAGE {
+                        op3dsg_drivers::mcap::messages::CompressedImageIn::parse(&data)
+                            .map_or_else(|e| format!("unreadable ({e})"), |image| image.format)
+                    } else {
+                        "raw".to_owned()
+                    });
+                }
                 let entry = by_channel.entry(at.channel_id).or_default();
                 entry.messages += 1;
                 entry.first_log_time_ns.get_or_insert(at.log_time);
@@ -110,6 +135,9 @@ pub(super) fn info(files: &[PathBuf], json: bool) -> Result<()> {
             Some(dropped) => println!("  recorder  finished; dropped {dropped} messages while recording"),
             None => println!("  recorder  not finished (no op3dsg.recorder metadata): drops unknown"),
         }
+        if let Some(colour) = &s.colour {
+            println!("  colour    {colour} ({})", colour_note(colour));
+        }
         if !s.profile_recorded {
             println!("  profile   missing (no op3dsg.profile metadata)");
         }
@@ -139,7 +167,7 @@ pub(super) fn info(files: &[PathBuf], json: bool) -> Result<()> {
 
 /// `op3dsg bench record`.
 pub(super) fn bench(args: RecordBenchArgs) -> Result<()> {
-    use op3dsg_runtime::record::{RecordCompression, RecordConfig, Recorder};
+    use op3dsg_runtime::record::{ColourEncoding, RecordCompression, RecordConfig, Recorder};
     if !(args.seconds > 0.0 && args.rate_hz > 0.0) {
         bail!("--seconds and --rate-hz must be > 0");
     }
@@ -150,6 +178,15 @@ pub(super) fn bench(args: RecordBenchArgs) -> Result<()> {
         "none" => vec![("none", RecordCompression::None)],
         other => bail!("--compression {other}: expected zstd, lz4, none or all"),
     };
+    let colour = match args.colour.as_str() {
+        "raw" => ColourEncoding::Raw,
+        "png" => ColourEncoding::Png,
+        "jpeg" => ColourEncoding::Jpeg,
+        other => bail!("--colour {other}: expected raw, png or jpeg"),
+    };
+    if !(1..=100).contains(&args.jpeg_quality) {
+        bail!("--jpeg-quality {}: must be within [1, 100]", args.jpeg_quality);
+    }
     let frames = synthetic_frames(args.width, args.height, args.distinct_frames)?;
     let graph = bench_graph(args.graph_nodes);
     let dir = args
@@ -157,10 +194,11 @@ pub(super) fn bench(args: RecordBenchArgs) -> Result<()> {
         .clone()
         .unwrap_or_else(|| std::env::temp_dir().join(format!("op3dsg-bench-record-{}", std::process::id())));
     println!(
-        "recorder: {}x{} colour (rgb8) + depth (16UC1) at {} Hz for {} s, a {}-node graph every {} frames, JSON \
+        "recorder: {}x{} colour ({}) + depth (16UC1) at {} Hz for {} s, a {}-node graph every {} frames, JSON \
          messages, chunk {} KiB; files in {}\n",
         args.width,
         args.height,
+        if colour == ColourEncoding::Jpeg { format!("jpeg q{}", args.jpeg_quality) } else { colour.name().to_owned() },
         args.rate_hz,
         args.seconds,
         args.graph_nodes,
@@ -178,6 +216,8 @@ pub(super) fn bench(args: RecordBenchArgs) -> Result<()> {
             enabled: true,
             dir: run_dir.clone(),
             compression,
+            colour,
+            jpeg_quality: args.jpeg_quality,
             chunk_size_kib: args.chunk_size_kib,
             ..RecordConfig::default()
         };

@@ -178,6 +178,18 @@ struct Shared {
     synchronous: AtomicBool,
     stop: AtomicBool,
     stop_notify: Notify,
+    /// Where each call's exchange is recorded (`/op3dsg/llm`), when the daemon records.
+    recorder: Mutex<Option<crate::record::RecordSender>>,
+}
+
+/// How one agent's call went (all its retries), for the recording.
+#[derive(Debug, Default)]
+struct CallRecord {
+    answer: Option<String>,
+    attempts: u32,
+    latency: Duration,
+    total: Duration,
+    error: Option<String>,
 }
 
 /// Handle of the refiner thread, owned by the fusion thread (or the batch runner).
@@ -205,6 +217,7 @@ impl LlmRefiner {
             synchronous: AtomicBool::new(false),
             stop: AtomicBool::new(false),
             stop_notify: Notify::new(),
+            recorder: Mutex::new(None),
         });
         let stats = Arc::new(RefinerStats::default());
         stats.set_state(RefinerState::Idle);
@@ -284,6 +297,14 @@ impl LlmRefiner {
     pub fn stats(&self) -> &Arc<RefinerStats> {
         &self.stats
     }
+
+    /// Records every call from now on (`/op3dsg/llm`: prompt, answer, the gate's verdict); the
+    /// refiner offers each with `try_send` and never waits on the recorder.
+    pub fn record_to(&self, recorder: crate::record::RecordSender) {
+        if let Ok(mut slot) = self.shared.recorder.lock() {
+            *slot = Some(recorder);
+        }
+    }
 }
 
 impl Drop for LlmRefiner {
@@ -293,6 +314,10 @@ impl Drop for LlmRefiner {
         self.shared.wake.notify_one();
         if let Some(thread) = self.thread.take() {
             let _ = thread.join();
+        }
+        // The recorder finishes its file when every sender is gone.
+        if let Ok(mut slot) = self.shared.recorder.lock() {
+            *slot = None;
         }
     }
 }
@@ -522,13 +547,17 @@ impl Worker {
         let mut accepted = 0;
         let mut answered = false;
         let options = ParseOptions { ignore_unknown_fields: self.config.ignore_unknown_fields };
-        for (prompt, answer) in prompts.prompts.iter().zip(answers) {
+        for (prompt, call) in prompts.prompts.iter().zip(answers) {
             // A failed call leaves the agent's last accepted result as it was.
-            let Some(answer) = answer else { continue };
+            let Some(answer) = call.answer.as_deref() else {
+                self.record(prior.version, prompt, &call, None);
+                continue;
+            };
             let mut output = ReasonerOutput { graph_version: prior.version, ..ReasonerOutput::default() };
+            let before = log.counts;
             let checked = gate::check(
                 prompt.agent,
-                &answer,
+                answer,
                 prior,
                 &prompts,
                 &mut self.mapper,
@@ -537,6 +566,11 @@ impl Worker {
                 &mut output,
                 &mut log,
             );
+            let mut rejected = Rejections::default();
+            for ((r, after), before) in rejected.0.iter_mut().zip(log.counts.0).zip(before.0) {
+                *r = after - before;
+            }
+            self.record(prior.version, prompt, &call, Some((checked, rejected)));
             // So does an answer with no usable JSON object in it.
             let Some(n) = checked else { continue };
             answered = true;
@@ -557,29 +591,79 @@ impl Worker {
         Outcome::Answered
     }
 
-    /// One agent's call with its retries; `None` when it finally failed or was refused.
-    async fn call_with_retries(&self, prompt: &Prompt) -> Option<String> {
+    /// Offers one call's exchange to the recorder, when it records: `verdict` is the gate's
+    /// (items accepted, `None` for an answer with no usable JSON object; rejections of this
+    /// answer) when there was an answer. What is recorded is the prompt, the answer text and
+    /// the counts: the key and the request headers never reach it.
+    fn record(
+        &self,
+        graph_version: u64,
+        prompt: &Prompt,
+        call: &CallRecord,
+        verdict: Option<(Option<u64>, Rejections)>,
+    ) {
+        let Ok(mut slot) = self.shared.recorder.lock() else { return };
+        let Some(recorder) = slot.as_mut() else { return };
+        use op3dsg_drivers::mcap::messages::{ChatMessage, LlmExchange, LlmVerdict};
+        let ms = |d: Duration| d.as_secs_f64() * 1000.0;
+        let verdict = verdict.map(|(accepted, rejections)| LlmVerdict {
+            parsed: accepted.is_some(),
+            accepted: accepted.unwrap_or(0),
+            rejected: op3dsg_ipc_types::REFINER_REJECTIONS
+                .iter()
+                .zip(rejections.0)
+                .filter(|(_, n)| *n > 0)
+                .map(|(reason, n)| ((*reason).to_owned(), n))
+                .collect(),
+        });
+        recorder.offer_llm_exchange(LlmExchange {
+            graph_version,
+            agent: prompt.agent.name().to_owned(),
+            model: self.config.model.clone(),
+            messages: vec![
+                ChatMessage { role: "system".to_owned(), content: prompt.system.clone() },
+                ChatMessage { role: "user".to_owned(), content: prompt.user.clone() },
+            ],
+            attempts: call.attempts,
+            latency_ms: ms(call.latency),
+            total_ms: ms(call.total),
+            answer: call.answer.clone(),
+            error: call.error.clone(),
+            verdict,
+        });
+    }
+
+    /// One agent's call with its retries; the answer is `None` when it finally failed or was
+    /// refused.
+    async fn call_with_retries(&self, prompt: &Prompt) -> CallRecord {
+        let mut record = CallRecord::default();
+        let call_started = Instant::now();
         let mut backoff = self.config.backoff_initial();
         let mut attempt = 0;
         let mut fell_back = false;
         loop {
             if self.breaker_until.lock().ok().and_then(|b| *b).is_some_and(|until| Instant::now() < until) {
-                return None;
+                record.error = Some("breaker_open".to_owned());
+                return record;
             }
             if !self.take_budget() {
                 self.stats.set_state(RefinerState::BudgetExhausted);
                 warn!(budget = self.config.hourly_call_budget, "LLM hourly call budget spent");
-                return None;
+                record.error = Some("budget_exhausted".to_owned());
+                return record;
             }
             let result = {
-                let Ok(_permit) = self.permits.acquire().await else { return None };
+                let Ok(_permit) = self.permits.acquire().await else { return record };
                 self.stats.set_state(RefinerState::Calling);
                 self.stats.calls.fetch_add(1, Ordering::Relaxed);
+                record.attempts += 1;
                 let started = Instant::now();
                 let result = self.client.complete(prompt).await;
+                record.latency = started.elapsed();
+                record.total = call_started.elapsed();
                 self.stats
                     .last_latency_us
-                    .store(started.elapsed().as_micros().min(u128::from(u32::MAX)) as u32, Ordering::Relaxed);
+                    .store(record.latency.as_micros().min(u128::from(u32::MAX)) as u32, Ordering::Relaxed);
                 result
             };
             let error = match result {
@@ -589,7 +673,9 @@ impl Worker {
                         *breaker = None;
                     }
                     self.stats.breaker_open.store(false, Ordering::Relaxed);
-                    return Some(answer);
+                    record.answer = Some(answer);
+                    record.error = None;
+                    return record;
                 }
                 // No structured output on this server: the same call again at once, with
                 // `json_object` (the client sends it from now on); not a failure.
@@ -612,6 +698,7 @@ impl Worker {
             };
             self.stats.failures.fetch_add(1, Ordering::Relaxed);
             self.stats.set_last_error(&error);
+            record.error = Some(format!("{}: {error}", error.name()));
             let retry_after = match &error {
                 CallError::Timeout => {
                     self.stats.timeouts.fetch_add(1, Ordering::Relaxed);
@@ -648,7 +735,7 @@ impl Worker {
             }
             self.stats.set_state(RefinerState::BreakerOpen);
         }
-        None
+        record
     }
 }
 
