@@ -12,7 +12,7 @@
 //! The subscribers are the planner client library's (`op3dsg_ipc_types::client`), so these
 //! tests read the daemon exactly as a planner does.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
@@ -110,6 +110,17 @@ impl Drop for Daemon {
             self.kill_9();
         }
     }
+}
+
+/// The `.mcap` files directly in `dir`, sorted by name (the recorder names them by start time);
+/// none when `dir` does not exist.
+pub fn mcap_files(dir: &Path) -> Vec<PathBuf> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map(|entries| entries.filter_map(|e| e.ok().map(|e| e.path())).collect())
+        .unwrap_or_default();
+    files.retain(|p| p.extension().is_some_and(|e| e == "mcap"));
+    files.sort();
+    files
 }
 
 /// Polls `f` every 20 ms until it returns `Some`, or panics with `what` after `timeout`.

@@ -9,16 +9,7 @@ use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use op3dsg_ipc_types::Health;
-use op3dsg_tests::{Daemon, binary, health_where, health_with_frames_above, unique_prefix, wait_for};
-
-fn mcap_files(dir: &Path) -> Vec<PathBuf> {
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .map(|entries| entries.filter_map(|e| e.ok().map(|e| e.path())).collect())
-        .unwrap_or_default();
-    files.retain(|p| p.extension().is_some_and(|e| e == "mcap"));
-    files.sort();
-    files
-}
+use op3dsg_tests::{Daemon, binary, health_where, health_with_frames_above, mcap_files, unique_prefix, wait_for};
 
 /// Records `frames` synthetic frames into `dir`, a new file every second (at least 1 s per file
 /// is the recorder's shortest rotation).
