@@ -1,7 +1,7 @@
 //! The frame source interface shared by the synthetic scene, replay and the camera.
 
 use std::sync::{Arc, Condvar, Mutex, PoisonError};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use crate::frame::{Frame, Intrinsics};
 
@@ -226,6 +226,21 @@ pub fn check_frame_buffers(frame: &Frame, intrinsics: &Intrinsics, seq: u64) -> 
             pixels
         ),
     })
+}
+
+/// Recorded-pace playback: sleeps until the frame stamped `stamp_ns` is due, `origin` being when
+/// the first delivered frame was played and its stamp (`None`: nothing played yet, due now), at
+/// most `at_most`; `false` when it is still not due after that.
+pub fn wait_until_due(origin: Option<(Instant, u64)>, stamp_ns: u64, at_most: Duration) -> bool {
+    let Some((origin_at, origin_stamp_ns)) = origin else { return true };
+    let due = origin_at + Duration::from_nanos(stamp_ns.saturating_sub(origin_stamp_ns));
+    let now = Instant::now();
+    if due <= now {
+        return true;
+    }
+    let wait = due - now;
+    std::thread::sleep(wait.min(at_most));
+    wait <= at_most
 }
 
 #[cfg(test)]

@@ -163,15 +163,7 @@ impl ReplaySource {
     /// Recorded mode: sleeps until `stamp_ns` is due (relative to the first delivered frame),
     /// at most `at_most`; `false` when it is still not due after that.
     fn wait_for_due(&self, stamp_ns: u64, at_most: Duration) -> bool {
-        let Some((origin_at, origin_stamp_ns)) = self.origin else { return true };
-        let due = origin_at + Duration::from_nanos(stamp_ns.saturating_sub(origin_stamp_ns));
-        let now = Instant::now();
-        if due <= now {
-            return true;
-        }
-        let wait = due - now;
-        std::thread::sleep(wait.min(at_most));
-        wait <= at_most
+        crate::source::wait_until_due(self.origin, stamp_ns, at_most)
     }
 }
 
