@@ -51,6 +51,27 @@ fn assert_same_final_graph(recorded: &Value, replayed: &Value) {
     assert_eq!(a, b, "final graph JSON of the replay differs from the recording run's");
 }
 
+/// The arguments of a replay of the recording `replay_path` names (a `source.mcap.path=...`
+/// setting) through `source.kind = "mcap"`, recording again into `out_dir`: the recording run's
+/// settings, then `extra`, then [`DETERMINISTIC`].
+fn replay_args<'a>(replay_path: &'a str, out_dir: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut args = vec![
+        "--set",
+        "source.kind=mcap",
+        "--set",
+        replay_path,
+        "--set",
+        "source.mcap.mode=fast",
+        "--set",
+        "source.synthetic.frame_count=45",
+        "--record",
+        out_dir,
+    ];
+    args.extend_from_slice(extra);
+    args.extend_from_slice(DETERMINISTIC);
+    args
+}
+
 fn run_to_end(prefix: &str, args: &[&str]) {
     let output = Command::new(binary("op3dsgd"))
         .arg("--prefix")
@@ -146,19 +167,7 @@ fn synthetic_kitchen_recorded_then_replayed_gives_the_identical_graph() {
     // Replay through source.kind = "mcap" with the same profile and detector, recording again.
     let second_dir = dir.path().join("second");
     let replay_path = format!("source.mcap.path=\"{}\"", files[0].display());
-    let mut args = vec![
-        "--set",
-        "source.kind=mcap",
-        "--set",
-        &replay_path,
-        "--set",
-        "source.mcap.mode=fast",
-        "--set",
-        "source.synthetic.frame_count=45",
-        "--record",
-        second_dir.to_str().unwrap(),
-    ];
-    args.extend_from_slice(DETERMINISTIC);
+    let args = replay_args(&replay_path, second_dir.to_str().expect("utf-8 temp path"), &[]);
     run_to_end(&unique_prefix("rec-b"), &args);
     let files = mcap_files(&second_dir);
     assert_eq!(files.len(), 1, "{files:?}");
@@ -388,21 +397,8 @@ fn record_and_replay(dir: &Path, colour: &str) -> (Value, Value, PathBuf) {
     let recorded = check(&files[0]);
     let second_dir = dir.join(format!("{colour}-second"));
     let replay_path = format!("source.mcap.path=\"{}\"", files[0].display());
-    let mut args = vec![
-        "--set",
-        "source.kind=mcap",
-        "--set",
-        &replay_path,
-        "--set",
-        "source.mcap.mode=fast",
-        "--set",
-        "source.synthetic.frame_count=45",
-        "--record",
-        second_dir.to_str().expect("utf-8 temp path"),
-        "--set",
-        "record.frame_queue=48",
-    ];
-    args.extend_from_slice(DETERMINISTIC);
+    let args =
+        replay_args(&replay_path, second_dir.to_str().expect("utf-8 temp path"), &["--set", "record.frame_queue=48"]);
     run_to_end(&unique_prefix(&format!("rec-{colour}-b")), &args);
     let replays = mcap_files(&second_dir);
     assert_eq!(replays.len(), 1, "{replays:?}");

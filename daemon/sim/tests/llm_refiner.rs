@@ -386,16 +386,7 @@ fn corner() -> SceneGraph {
         ],
         edges: Vec::new(),
     };
-    for (part, object) in [(5, 1), (6, 2)] {
-        graph.edges.push(op3dsg_runtime::graph::GraphEdge {
-            source_id: part,
-            target_id: object,
-            kind: EdgeKind::Spatial,
-            relation_id: 0,
-            confidence: 0.9,
-            origin: EdgeOrigin::Geometry,
-        });
-    }
+    part_of(&mut graph, &[(5, 1), (6, 2)]);
     graph
 }
 
@@ -837,13 +828,9 @@ fn with_a_flaky_agent_no_accepted_edge_disappears_while_its_nodes_exist() {
     assert_eq!(stats.rejections(Rejection::Stale), 2);
 }
 
-/// The corner with two parts whose geometry rules items out: a cabinet knob 56 cm off the
-/// cabinet it is fused onto, and a stove "knob" 60 cm long (a smeared segment).
-fn corner_with_odd_parts() -> SceneGraph {
-    let mut graph = corner();
-    graph.nodes.push(node(7, "cabinet knob", NodeKind::Part, Some(1), [-0.6, -0.03, 0.5], [-0.56, 0.0, 0.54]));
-    graph.nodes.push(node(8, "stove knob", NodeKind::Part, Some(2), [1.0, -0.05, 0.7], [1.6, 0.0, 0.75]));
-    for (part, object) in [(7, 1), (8, 2)] {
+/// Adds the geometry's `part of` edge for each (part, object).
+fn part_of(graph: &mut SceneGraph, pairs: &[(u32, u32)]) {
+    for &(part, object) in pairs {
         graph.edges.push(op3dsg_runtime::graph::GraphEdge {
             source_id: part,
             target_id: object,
@@ -853,6 +840,15 @@ fn corner_with_odd_parts() -> SceneGraph {
             origin: EdgeOrigin::Geometry,
         });
     }
+}
+
+/// The corner with two parts whose geometry rules items out: a cabinet knob 56 cm off the
+/// cabinet it is fused onto, and a stove "knob" 60 cm long (a smeared segment).
+fn corner_with_odd_parts() -> SceneGraph {
+    let mut graph = corner();
+    graph.nodes.push(node(7, "cabinet knob", NodeKind::Part, Some(1), [-0.6, -0.03, 0.5], [-0.56, 0.0, 0.54]));
+    graph.nodes.push(node(8, "stove knob", NodeKind::Part, Some(2), [1.0, -0.05, 0.7], [1.6, 0.0, 0.75]));
+    part_of(&mut graph, &[(7, 1), (8, 2)]);
     graph
 }
 
