@@ -14,7 +14,8 @@
 //!       "obb": { "centre_m": [1.0, 0.3, 0.45], "size_m": [0.6, 0.6, 0.9], "yaw_rad": 0.0 },
 //!       "affordances": [], "confidence": 1.0, "observation_count": 0 },
 //!     { "id": 2, "label": "cabinet handle", "kind": "part", "parent": 1, ...,
-//!       "affordances": ["hook_pull"] }
+//!       "affordances": ["hook_pull", "pinch_pull"],
+//!       "affordance_origins": { "hook_pull": "knowledge+llm", "pinch_pull": "llm" } }
 //!   ],
 //!   "edges": [
 //!     { "source": 2, "target": 1, "kind": "spatial", "relation": "part of",
@@ -41,7 +42,11 @@
 //!   axes per `world.up_axis` are in `op3dsg_runtime::fusion::oriented_box`). The evaluation
 //!   (`op3dsg eval`) scores boxes by their axis-aligned `box_min_m`/`box_max_m`: the ground truth
 //!   carries no orientation, so an oriented IoU would compare against boxes that have none.
-//!   `affordances`: names from the 9 canonical affordances.
+//!   `affordances`: names from the 9 canonical affordances. `affordance_origins` (optional;
+//!   published graphs have it for every node with affordances, ground truth does not): each of
+//!   `affordances` with its origin, named as an edge's (`knowledge`, `llm`, `knowledge+llm`;
+//!   `geometry` for one the publisher gave without an origin). A parallel map rather than objects
+//!   in `affordances`, so that readers of the name list need no change.
 //!   `confidence` in [0, 1] (1 in ground truth). `observation_count`: keyframe detections fused
 //!   (0 in ground truth).
 //! - `edges[].source`, `target`: node ids; the source relates to the target as `relation`
@@ -50,10 +55,15 @@
 //!   `FUNCTIONAL_RELATIONS`). `origin`: `geometry`, `knowledge`, `llm`, `knowledge+llm`, or
 //!   `ground_truth`.
 
+use std::collections::BTreeMap;
+
 use serde::{Deserialize, Serialize};
 
 /// Schema tag written into every file.
 pub const GRAPH_JSON_SCHEMA: &str = "op3dsg.graph/1";
+
+/// The values of [`NodeJson::affordance_origins`].
+pub const AFFORDANCE_ORIGINS: [&str; 5] = ["geometry", "knowledge", "llm", "knowledge+llm", "ground_truth"];
 
 /// A whole graph in JSON form.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -100,6 +110,10 @@ pub struct NodeJson {
     /// Canonical affordance names.
     #[serde(default)]
     pub affordances: Vec<String>,
+    /// Origin of each of `affordances` (`knowledge`, `llm`, `knowledge+llm`, `geometry`); empty,
+    /// and left out of the file, in ground truth.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub affordance_origins: BTreeMap<String, String>,
     /// Confidence in [0, 1].
     #[serde(default = "one")]
     pub confidence: f32,
@@ -178,6 +192,19 @@ impl GraphJson {
             if node.kind != "object" && node.kind != "part" {
                 return Err(format!("nodes[{i}].kind: expected \"object\" or \"part\", found \"{}\"", node.kind));
             }
+            for (name, origin) in &node.affordance_origins {
+                if !node.affordances.contains(name) {
+                    return Err(format!(
+                        "nodes[{i}].affordance_origins.{name}: not among the node's affordances {:?}",
+                        node.affordances
+                    ));
+                }
+                if !AFFORDANCE_ORIGINS.contains(&origin.as_str()) {
+                    return Err(format!(
+                        "nodes[{i}].affordance_origins.{name}: expected one of {AFFORDANCE_ORIGINS:?}, found \"{origin}\""
+                    ));
+                }
+            }
             if let Some(obb) = &node.obb {
                 if !obb.size_m.iter().all(|v| v.is_finite() && *v >= 0.0) {
                     return Err(format!("nodes[{i}].obb.size_m: expected finite sizes >= 0, found {:?}", obb.size_m));
@@ -230,6 +257,7 @@ mod tests {
             box_max_m: [1.0; 3],
             obb: None,
             affordances: vec![],
+            affordance_origins: BTreeMap::new(),
             confidence: 1.0,
             observation_count: 0,
         };
@@ -251,6 +279,20 @@ mod tests {
         assert_eq!(g.check().unwrap_err(), "nodes[0].obb.size_m: expected finite sizes >= 0, found [1.0, -1.0, 1.0]");
         g.nodes[0].obb = Some(OrientedBoxJson { centre_m: [0.5; 3], size_m: [1.0; 3], yaw_rad: 2.0 });
         assert_eq!(g.check().unwrap_err(), "nodes[0].obb.yaw_rad: expected within [-pi/2, pi/2], found 2");
+        g.nodes[0].obb = None;
+        g.nodes[0].affordances = vec!["rotate".into()];
+        g.nodes[0].affordance_origins = BTreeMap::from([("rotate".into(), "llm".into())]);
+        assert_eq!(g.check(), Ok(()));
+        g.nodes[0].affordance_origins.insert("unplug".into(), "knowledge".into());
+        assert_eq!(
+            g.check().unwrap_err(),
+            "nodes[0].affordance_origins.unplug: not among the node's affordances [\"rotate\"]"
+        );
+        g.nodes[0].affordance_origins = BTreeMap::from([("rotate".into(), "oracle".into())]);
+        assert_eq!(
+            g.check().unwrap_err(),
+            "nodes[0].affordance_origins.rotate: expected one of [\"geometry\", \"knowledge\", \"llm\", \"knowledge+llm\", \"ground_truth\"], found \"oracle\""
+        );
     }
 
     #[test]
@@ -268,5 +310,14 @@ mod tests {
         assert_eq!(serde_json::from_str::<NodeJson>(&text).unwrap(), parsed);
         let plain = NodeJson { obb: None, ..parsed };
         assert!(!serde_json::to_string(&plain).unwrap().contains("obb"), "absent, not null");
+        assert!(!serde_json::to_string(&plain).unwrap().contains("affordance_origins"), "absent when empty");
+        // A published node's affordances with their origins read back as written.
+        let node = r#"{"id": 2, "label": "cabinet handle", "kind": "part", "parent": 1, "centre_m": [0, 0, 0],
+            "box_min_m": [0, 0, 0], "box_max_m": [0.1, 0.1, 0.1], "affordances": ["hook_pull", "pinch_pull"],
+            "affordance_origins": {"hook_pull": "knowledge+llm", "pinch_pull": "llm"}}"#;
+        let parsed: NodeJson = serde_json::from_str(node).unwrap();
+        assert_eq!(parsed.affordance_origins["pinch_pull"], "llm");
+        let text = serde_json::to_string(&parsed).unwrap();
+        assert_eq!(serde_json::from_str::<NodeJson>(&text).unwrap(), parsed);
     }
 }

@@ -182,9 +182,16 @@ impl EdgeOrigin {
 
 /// One node of the scene graph (size 144 bytes, alignment 8, no implicit padding).
 ///
-/// Byte offsets: `id` 0, `parent_id` 4, `kind` 8, `observation_count` 12, `label` 16,
-/// `confidence` 64, `centre_m` 68, `box_min_m` 80, `box_max_m` 92, `affordance_bits` 104,
-/// `obb_yaw_rad` 108, `last_seen_stamp_ns` 112, `obb_centre_m` 120, `obb_size_m` 132.
+/// Byte offsets: `id` 0, `parent_id` 4, `kind` 8, `affordance_knowledge_bits` 10,
+/// `observation_count` 12, `label` 16, `confidence` 64, `centre_m` 68, `box_min_m` 80,
+/// `box_max_m` 92, `affordance_bits` 104, `affordance_llm_bits` 106, `obb_yaw_rad` 108,
+/// `last_seen_stamp_ns` 112, `obb_centre_m` 120, `obb_size_m` 132.
+///
+/// Each affordance carries an origin like an edge ([`EdgeOrigin`], [`Node::affordance_origin`]):
+/// its bit in `affordance_knowledge_bits` only: `knowledge`; in `affordance_llm_bits` only:
+/// `llm`; in both: `knowledge+llm`; in neither: `geometry` (this daemon derives no affordance
+/// from geometry alone, so it appears only for a publisher that sets `affordance_bits` without
+/// the origin masks). Bits of the origin masks outside `affordance_bits` mean nothing.
 ///
 /// Two boxes around the node's points: the axis-aligned `box_min_m`..`box_max_m`, and the
 /// gravity-aligned oriented box (`obb_*`, schema 5): its third axis is the world's up axis (the
@@ -204,7 +211,10 @@ pub struct Node {
     /// [`NodeKind`] as `u8`: 0 object, 1 part.
     pub kind: u8,
     /// Reserved, zero.
-    pub reserved: [u8; 3],
+    pub reserved: u8,
+    /// The bits of `affordance_bits` the offline knowledge reasoner gave (schema 7); with
+    /// `affordance_llm_bits` they name each affordance's origin ([`Node::affordance_origin`]).
+    pub affordance_knowledge_bits: u16,
     /// Number of keyframe detections fused into this node.
     pub observation_count: u32,
     /// Label (the winner of the node's label vote), UTF-8, NUL padded.
@@ -219,8 +229,9 @@ pub struct Node {
     pub box_max_m: [f32; 3],
     /// Bit set over [`AFFORDANCES`] (bit `i` = `AFFORDANCES[i]`).
     pub affordance_bits: u16,
-    /// Reserved, zero.
-    pub reserved2: [u8; 2],
+    /// The bits of `affordance_bits` an LLM agent gave, after the verification gate (schema 7;
+    /// see `affordance_knowledge_bits`).
+    pub affordance_llm_bits: u16,
     /// Yaw of the oriented box about the world's up axis, radians in `(-pi/2, pi/2]` (see the
     /// type's docs; 0 when the box is axis-aligned).
     pub obb_yaw_rad: f32,
@@ -239,7 +250,8 @@ impl Default for Node {
             id: NO_NODE,
             parent_id: NO_NODE,
             kind: 0,
-            reserved: [0; 3],
+            reserved: 0,
+            affordance_knowledge_bits: 0,
             observation_count: 0,
             label: [0; LABEL_CAPACITY_BYTES],
             confidence: 0.0,
@@ -247,7 +259,7 @@ impl Default for Node {
             box_min_m: [0.0; 3],
             box_max_m: [0.0; 3],
             affordance_bits: 0,
-            reserved2: [0; 2],
+            affordance_llm_bits: 0,
             obb_yaw_rad: 0.0,
             last_seen_stamp_ns: 0,
             obb_centre_m: [0.0; 3],
@@ -265,6 +277,41 @@ impl Node {
     pub fn node_kind(&self) -> Option<NodeKind> {
         NodeKind::from_u8(self.kind)
     }
+    /// Where the affordance `AFFORDANCES[index]` came from; `None` when the node does not have
+    /// it (see the type's docs).
+    pub fn affordance_origin(&self, index: usize) -> Option<EdgeOrigin> {
+        affordance_origin(self.affordance_bits, self.affordance_knowledge_bits, self.affordance_llm_bits, index)
+    }
+}
+
+/// The origin of affordance `AFFORDANCES[index]` from a node's three masks ([`Node`]'s docs):
+/// `None` when `bits` lacks it, else knowledge, llm, knowledge+llm or geometry.
+pub fn affordance_origin(bits: u16, knowledge_bits: u16, llm_bits: u16, index: usize) -> Option<EdgeOrigin> {
+    if index >= AFFORDANCES.len() {
+        return None;
+    }
+    let bit = 1u16 << index;
+    if bits & bit == 0 {
+        return None;
+    }
+    Some(match (knowledge_bits & bit != 0, llm_bits & bit != 0) {
+        (true, true) => EdgeOrigin::KnowledgeAndLlm,
+        (true, false) => EdgeOrigin::Knowledge,
+        (false, true) => EdgeOrigin::Llm,
+        (false, false) => EdgeOrigin::Geometry,
+    })
+}
+
+/// Each affordance in `bits` with its origin (see [`affordance_origin`]), in canonical order.
+pub fn affordance_origins(
+    bits: u16,
+    knowledge_bits: u16,
+    llm_bits: u16,
+) -> impl Iterator<Item = (&'static str, EdgeOrigin)> {
+    AFFORDANCES
+        .iter()
+        .enumerate()
+        .filter_map(move |(i, name)| affordance_origin(bits, knowledge_bits, llm_bits, i).map(|o| (*name, o)))
 }
 
 /// One directed edge of the scene graph (size 64 bytes, alignment 4).
@@ -335,7 +382,8 @@ impl Node {
         b[0..4].copy_from_slice(&self.id.to_le_bytes());
         b[4..8].copy_from_slice(&self.parent_id.to_le_bytes());
         b[8] = self.kind;
-        b[9..12].copy_from_slice(&self.reserved);
+        b[9] = self.reserved;
+        b[10..12].copy_from_slice(&self.affordance_knowledge_bits.to_le_bytes());
         b[12..16].copy_from_slice(&self.observation_count.to_le_bytes());
         b[16..64].copy_from_slice(&self.label);
         b[64..68].copy_from_slice(&self.confidence.to_le_bytes());
@@ -343,7 +391,7 @@ impl Node {
             b[68 + 4 * i..72 + 4 * i].copy_from_slice(&v.to_le_bytes());
         }
         b[104..106].copy_from_slice(&self.affordance_bits.to_le_bytes());
-        b[106..108].copy_from_slice(&self.reserved2);
+        b[106..108].copy_from_slice(&self.affordance_llm_bits.to_le_bytes());
         b[108..112].copy_from_slice(&self.obb_yaw_rad.to_le_bytes());
         b[112..120].copy_from_slice(&self.last_seen_stamp_ns.to_le_bytes());
         for (i, v) in self.obb_centre_m.iter().chain(&self.obb_size_m).enumerate() {
@@ -374,14 +422,14 @@ impl Node {
         let vec3_at = |o: usize| [f32_at(o), f32_at(o + 4), f32_at(o + 8)];
         let mut label = [0u8; LABEL_CAPACITY_BYTES];
         label.copy_from_slice(&b[16..64]);
-        let reserved2 = [b[106], b[107]];
         let mut last_seen = [0u8; 8];
         last_seen.copy_from_slice(&b[112..120]);
         Self {
             id: u32_at(0),
             parent_id: u32_at(4),
             kind: b[8],
-            reserved: [b[9], b[10], b[11]],
+            reserved: b[9],
+            affordance_knowledge_bits: u16::from_le_bytes([b[10], b[11]]),
             observation_count: u32_at(12),
             label,
             confidence: f32_at(64),
@@ -389,7 +437,7 @@ impl Node {
             box_min_m: vec3_at(80),
             box_max_m: vec3_at(92),
             affordance_bits: u16::from_le_bytes([b[104], b[105]]),
-            reserved2,
+            affordance_llm_bits: u16::from_le_bytes([b[106], b[107]]),
             obb_yaw_rad: f32_at(108),
             last_seen_stamp_ns: u64::from_le_bytes(last_seen),
             obb_centre_m: vec3_at(120),
@@ -611,7 +659,8 @@ mod record_tests {
             id: seed,
             parent_id: seed.wrapping_add(7),
             kind: (seed % 2) as u8,
-            reserved: [1, 2, 3],
+            reserved: 1,
+            affordance_knowledge_bits: 0x1ff & (seed as u16 * 11),
             observation_count: seed * 3 + 1,
             label,
             confidence: f(1),
@@ -619,7 +668,7 @@ mod record_tests {
             box_min_m: [f(5), f(6), f(7)],
             box_max_m: [f(8), f(9), f(10)],
             affordance_bits: 0x1ff & (seed as u16 * 37),
-            reserved2: [4, 5],
+            affordance_llm_bits: 0x1ff & (seed as u16 * 13),
             obb_yaw_rad: f(11),
             last_seen_stamp_ns: u64::from(seed) * 1_000_000_007 + 0x0102_0304_0506_0708,
             obb_centre_m: [f(12), f(13), f(14)],

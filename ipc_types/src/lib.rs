@@ -126,8 +126,8 @@ pub use client::{
 pub use graph_types::{
     AFFORDANCES, EDGE_BYTES, Edge, EdgeKind, EdgeOrigin, FUNCTIONAL_RELATION_BASE, FUNCTIONAL_RELATIONS, GraphHeader,
     GraphMessage, LABEL_CAPACITY_BYTES, MAX_EDGES, MAX_NODES, NO_NODE, NODE_BYTES, Node, NodeKind,
-    PHRASE_CAPACITY_BYTES, SPATIAL_RELATIONS, affordance_bits, affordance_names, graph_payload_bytes, relation_id,
-    relation_phrase,
+    PHRASE_CAPACITY_BYTES, SPATIAL_RELATIONS, affordance_bits, affordance_names, affordance_origin, affordance_origins,
+    graph_payload_bytes, relation_id, relation_phrase,
 };
 pub use health_types::{
     EXECUTION_PROVIDERS, FIXED_STAGES, FUTURE_POSE_LIMIT_NS, Health, MAX_MODELS, MAX_QUEUES, MAX_STAGES, MAX_WORKERS,
@@ -151,7 +151,11 @@ pub use text::{fixed_str, write_fixed_str};
 /// 6: [`Health`] gained `snapshot` ([`SnapshotHealth`], 64 bytes) after `recorder`, and
 /// [`RefinerHealth`]'s last reserved byte became `response_format` ([`REFINER_FORMATS`]); the
 /// graph's layout is unchanged.
-pub const SCHEMA_VERSION: u32 = 6;
+///
+/// 7: every affordance carries an origin like an edge: [`Node`]'s reserved bytes 10..12 became
+/// `affordance_knowledge_bits` and `reserved2` (106..108) `affordance_llm_bits`; sizes and every
+/// other offset are unchanged (`reserved` is the one byte at 9).
+pub const SCHEMA_VERSION: u32 = 7;
 
 /// Bytes in a frame id (`PoseStamped::frame_id`), a stage or a queue name.
 pub const NAME_CAPACITY_BYTES: usize = 32;
@@ -164,6 +168,9 @@ mod tests {
     #[test]
     fn layouts_are_the_documented_ones() {
         assert_eq!(size_of::<Node>(), 144);
+        assert_eq!(core::mem::offset_of!(Node, affordance_knowledge_bits), 10);
+        assert_eq!(core::mem::offset_of!(Node, observation_count), 12);
+        assert_eq!(core::mem::offset_of!(Node, affordance_llm_bits), 106);
         assert_eq!(core::mem::offset_of!(Node, obb_yaw_rad), 108);
         assert_eq!(core::mem::offset_of!(Node, last_seen_stamp_ns), 112);
         assert_eq!(core::mem::offset_of!(Node, obb_centre_m), 120);
@@ -215,6 +222,8 @@ mod tests {
         node.box_min_m = [-1.0, -2.0, -3.0];
         node.box_max_m = [4.0, 5.0, 6.0];
         node.affordance_bits = 0b1001;
+        node.affordance_knowledge_bits = 0b0001;
+        node.affordance_llm_bits = 0b1001;
         node.last_seen_stamp_ns = 0x0102_0304_0506_0708;
         node.obb_yaw_rad = 0.25;
         node.obb_centre_m = [1.5, 1.5, 1.5];
@@ -235,6 +244,11 @@ mod tests {
             (7, "cabinet handle", [4.0, 5.0, 6.0], node.last_seen_stamp_ns)
         );
         assert_eq!((back.affordance_bits, back.observation_count, back.confidence), (0b1001, 9, 0.5));
+        assert_eq!(u16::from_le_bytes([bytes[10], bytes[11]]), 0b0001, "affordance_knowledge_bits at 10");
+        assert_eq!(u16::from_le_bytes([bytes[106], bytes[107]]), 0b1001, "affordance_llm_bits at 106");
+        assert_eq!((back.affordance_knowledge_bits, back.affordance_llm_bits), (0b0001, 0b1001));
+        let origins: Vec<_> = affordance_origins(back.affordance_bits, 0b0001, 0b1001).collect();
+        assert_eq!(origins, [("rotate", EdgeOrigin::KnowledgeAndLlm), ("hook_pull", EdgeOrigin::Llm)]);
         assert_eq!((back.obb_yaw_rad, back.obb_centre_m, back.obb_size_m), (0.25, [1.5; 3], [0.5, 0.75, 9.0]));
 
         let mut edge = Edge {
@@ -274,5 +288,27 @@ mod tests {
         assert_eq!(bits, 0b1001);
         assert_eq!(affordance_names(bits).collect::<Vec<_>>(), ["rotate", "hook_pull"]);
         assert_eq!(affordance_bits(["fly"]), Err("fly"));
+    }
+
+    #[test]
+    fn each_affordance_origin_follows_from_the_two_masks() {
+        let bits = affordance_bits(["rotate", "tip_push", "hook_pull", "pinch_pull"]).unwrap();
+        let knowledge = affordance_bits(["rotate", "hook_pull", "unplug"]).unwrap();
+        let llm = affordance_bits(["rotate", "pinch_pull", "plug_in"]).unwrap();
+        assert_eq!(
+            affordance_origins(bits, knowledge, llm).collect::<Vec<_>>(),
+            [
+                ("rotate", EdgeOrigin::KnowledgeAndLlm),
+                ("tip_push", EdgeOrigin::Geometry),
+                ("hook_pull", EdgeOrigin::Knowledge),
+                ("pinch_pull", EdgeOrigin::Llm),
+            ],
+            "origin bits outside affordance_bits (unplug, plug_in) mean nothing"
+        );
+        assert_eq!(affordance_origin(bits, knowledge, llm, 7), None);
+        assert_eq!(affordance_origin(u16::MAX, u16::MAX, 0, 9), None, "past the 9 canonical affordances");
+        let node = Node { affordance_bits: bits, affordance_knowledge_bits: knowledge, ..Node::default() };
+        assert_eq!(node.affordance_origin(4), Some(EdgeOrigin::Geometry));
+        assert_eq!(node.affordance_origin(0), Some(EdgeOrigin::Knowledge));
     }
 }

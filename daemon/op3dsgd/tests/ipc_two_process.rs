@@ -50,6 +50,7 @@ fn cabinet_graph(version: u64) -> SceneGraph {
                 observation_count: 12,
                 affordance_bits: 0,
                 last_seen_stamp_ns: 1_000,
+                ..Default::default()
             },
             GraphNode {
                 id: 2,
@@ -64,6 +65,7 @@ fn cabinet_graph(version: u64) -> SceneGraph {
                 observation_count: 5,
                 affordance_bits: op3dsg_ipc_types::affordance_bits(["hook_pull"]).expect("canonical"),
                 last_seen_stamp_ns: 1_000,
+                ..Default::default()
             },
         ],
         edges: vec![

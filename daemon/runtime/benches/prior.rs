@@ -42,6 +42,7 @@ fn graph(kb: &KnowledgeBase) -> SceneGraph {
             observation_count: 5,
             affordance_bits: 0,
             last_seen_stamp_ns: 0,
+            ..Default::default()
         });
     }
     for k in 0..PARTS {

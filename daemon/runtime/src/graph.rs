@@ -9,7 +9,7 @@ use op3dsg_ipc_types::{EdgeKind, EdgeOrigin, NodeKind};
 pub use crate::fusion::oriented_box::OrientedBox;
 
 /// One node of the graph.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct GraphNode {
     /// Stable id.
     pub id: u32,
@@ -34,8 +34,39 @@ pub struct GraphNode {
     pub observation_count: u32,
     /// Bit set over `op3dsg_ipc_types::AFFORDANCES`.
     pub affordance_bits: u16,
+    /// The bits of `affordance_bits` the knowledge reasoner gave; with `affordance_llm_bits`
+    /// they name each affordance's origin ([`GraphNode::affordance_origins`]).
+    pub affordance_knowledge_bits: u16,
+    /// The bits of `affordance_bits` an LLM agent gave, after the verification gate.
+    pub affordance_llm_bits: u16,
     /// Stamp of the last keyframe that saw it, nanoseconds.
     pub last_seen_stamp_ns: u64,
+}
+
+impl GraphNode {
+    /// Adds the affordances `bits` from `origin` (an origin's own mask; `knowledge+llm` sets both,
+    /// `geometry` neither).
+    pub fn add_affordances(&mut self, bits: u16, origin: EdgeOrigin) {
+        self.affordance_bits |= bits;
+        match origin {
+            EdgeOrigin::Knowledge => self.affordance_knowledge_bits |= bits,
+            EdgeOrigin::Llm => self.affordance_llm_bits |= bits,
+            EdgeOrigin::KnowledgeAndLlm => {
+                self.affordance_knowledge_bits |= bits;
+                self.affordance_llm_bits |= bits;
+            }
+            EdgeOrigin::Geometry => {}
+        }
+    }
+
+    /// Each affordance with its origin, in canonical order (see `op3dsg_ipc_types::Node`).
+    pub fn affordance_origins(&self) -> impl Iterator<Item = (&'static str, EdgeOrigin)> + use<> {
+        op3dsg_ipc_types::affordance_origins(
+            self.affordance_bits,
+            self.affordance_knowledge_bits,
+            self.affordance_llm_bits,
+        )
+    }
 }
 
 /// One directed edge.
@@ -97,6 +128,10 @@ impl SceneGraph {
                 box_max_m: n.box_max_m,
                 obb: Some(OrientedBoxJson { centre_m: n.obb.centre_m, size_m: n.obb.size_m, yaw_rad: n.obb.yaw_rad }),
                 affordances: op3dsg_ipc_types::affordance_names(n.affordance_bits).map(str::to_owned).collect(),
+                affordance_origins: n
+                    .affordance_origins()
+                    .map(|(name, origin)| (name.to_owned(), origin.as_str().to_owned()))
+                    .collect(),
                 confidence: n.confidence,
                 observation_count: n.observation_count,
             })

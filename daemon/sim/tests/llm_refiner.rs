@@ -2,7 +2,10 @@
 //! good answers are applied; malformed JSON, unknown node ids, wrong kinds, non-canonical
 //! labels, a 500, a 429 with Retry-After and a 30-second stall are each handled and counted;
 //! during the stall the pipeline keeps producing frames and graph versions; the API key never
-//! appears in logs, prompts or published data.
+//! appears in logs, prompts or published data. The last tests run the real `op3dsgd` as a child
+//! process against the same server (build it first: `cargo build -p op3dsgd`): affordances
+//! published with their origin, implausible items rejected, counted by rule in health and absent
+//! from every published graph.
 
 // The server and helpers below are test code outside `#[test]` functions: a failed unwrap is a
 // failed test.
@@ -368,6 +371,7 @@ fn node(id: u32, label: &str, kind: NodeKind, parent: Option<u32>, min: [f32; 3]
         observation_count: 5,
         affordance_bits: 0,
         last_seen_stamp_ns: 0,
+        ..Default::default()
     }
 }
 
@@ -449,6 +453,11 @@ fn good_answers_are_applied_with_their_origin() {
     );
     let handle = graph.nodes.iter().find(|n| n.id == 5).unwrap();
     assert_eq!(affordance_names(handle.affordance_bits).collect::<Vec<_>>(), ["hook_pull", "pinch_pull"]);
+    // The knowledge base gives the handle's hook_pull, the LLM confirms it and adds pinch_pull.
+    assert_eq!(
+        handle.affordance_origins().collect::<Vec<_>>(),
+        [("hook_pull", EdgeOrigin::KnowledgeAndLlm), ("pinch_pull", EdgeOrigin::Llm)]
+    );
     // One prompt per agent for this refresh, never one per pair.
     let mut agents: Vec<String> = server.requests().into_iter().map(|r| r.agent).collect();
     agents.sort();
@@ -466,7 +475,7 @@ fn bad_answers_are_rejected_and_counted_by_reason() {
     let only_knowledge = |graph: &SceneGraph| {
         assert!(graph.edges.iter().all(|e| e.origin == EdgeOrigin::Knowledge || e.origin == EdgeOrigin::Geometry));
         let handle = graph.nodes.iter().find(|n| n.id == 5).unwrap();
-        assert_eq!(affordance_names(handle.affordance_bits).collect::<Vec<_>>(), ["hook_pull"]);
+        assert_eq!(handle.affordance_origins().collect::<Vec<_>>(), [("hook_pull", EdgeOrigin::Knowledge)]);
     };
     only_knowledge(&refine(&mut enricher));
     assert_eq!(stats.rejections(Rejection::Malformed), 3, "one per agent's answer");
@@ -1071,5 +1080,153 @@ fn the_recorder_keeps_every_llm_exchange_and_never_the_key() {
     for e in exchanges.iter().filter(|e| !e["answer"].is_null()) {
         assert_eq!(e["error"], Value::Null);
         assert_eq!(e["verdict"]["parsed"], true, "{e}");
+    }
+}
+
+// The real daemon: `op3dsgd` as a child process on the synthetic kitchen, its refiner calling the
+// test server over HTTP, read back over iceoryx2 and through the `op3dsg` CLI as a planner would.
+
+/// `op3dsgd` (the built binary, `cargo build -p op3dsgd` first) on the synthetic kitchen at
+/// 30 frames/s, the refiner pointed at `server` and refreshing every 0.5 s; `extra` are more
+/// profile overrides.
+fn start_daemon(name: &str, server: &TestServer, extra: &[&str]) -> op3dsg_tests::Daemon {
+    let prefix = op3dsg_tests::unique_prefix(name);
+    let mut sets = vec!["source.rate_hz=30".to_owned(), "health.period_ms=100".to_owned()];
+    sets.extend(overrides(
+        server,
+        &[
+            "reasoner.llm.api_key_credential=\"\"",
+            "reasoner.llm.refresh_min_changed_nodes=1",
+            "reasoner.llm.refresh_period_s=0.5",
+        ],
+    ));
+    sets.extend(extra.iter().map(|s| (*s).to_owned()));
+    let args: Vec<&str> = sets.iter().flat_map(|s| ["--set", s.as_str()]).collect();
+    op3dsg_tests::Daemon::start(&prefix, &args)
+}
+
+/// `op3dsg --prefix <prefix> <args>` (the built CLI); its standard output.
+fn op3dsg_cli(prefix: &str, args: &[&str]) -> String {
+    let output = std::process::Command::new(op3dsg_tests::binary("op3dsg"))
+        .arg("--prefix")
+        .arg(prefix)
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(output.status.success(), "op3dsg {args:?}: {}", String::from_utf8_lossy(&output.stderr));
+    String::from_utf8(output.stdout).unwrap()
+}
+
+/// From the LLM (alone or confirming the knowledge base).
+fn from_llm(origin: Option<EdgeOrigin>) -> bool {
+    matches!(origin, Some(EdgeOrigin::Llm | EdgeOrigin::KnowledgeAndLlm))
+}
+
+#[test]
+fn the_daemon_publishes_each_affordance_with_its_origin_over_iceoryx2_and_in_op3dsg_dump() {
+    let server = TestServer::start(Mode::Good);
+    let daemon = start_daemon("llm-origins", &server, &[]);
+    let mut graphs = daemon.graph_subscriber("llm-origins-graph");
+    // A cabinet handle: hook_pull from the knowledge base and the LLM, pinch_pull from the LLM
+    // alone (the server's answer for handles on cabinets); and a node whose affordance only the
+    // knowledge base gives (the server names affordances for handles and knobs only).
+    let (handle, knowledge_only) = op3dsg_tests::wait_for("a handle with LLM affordances", WATCHDOG, || {
+        let graph = graphs.latest().ok().flatten()?;
+        let handle = graph.nodes().find(|n| {
+            n.label() == "cabinet handle"
+                && n.affordance_origin("hook_pull") == Some(EdgeOrigin::KnowledgeAndLlm)
+                && n.affordance_origin("pinch_pull") == Some(EdgeOrigin::Llm)
+        })?;
+        let other = graph.nodes().find_map(|n| {
+            n.affordance_origins()
+                .find(|(_, origin)| *origin == EdgeOrigin::Knowledge)
+                .filter(|_| !n.label().ends_with("handle") && !n.label().ends_with("knob"))
+                .map(|(name, _)| (n.id(), n.label().to_owned(), name))
+        })?;
+        Some((handle.id(), other))
+    });
+    // The graph JSON of `op3dsg dump --json` (what `op3dsg eval` and the MCAP recorder write)
+    // carries the same origins beside the names, and so does the LLM form.
+    let dumped: Value = serde_json::from_str(&op3dsg_cli(&daemon.prefix, &["dump", "--json"])).unwrap();
+    let node = |id: u32| dumped["nodes"].as_array().unwrap().iter().find(|n| n["id"] == id).cloned().unwrap();
+    let handle_json = node(handle);
+    assert_eq!(handle_json["affordances"], json!(["hook_pull", "pinch_pull"]), "{handle_json}");
+    assert_eq!(handle_json["affordance_origins"], json!({"hook_pull": "knowledge+llm", "pinch_pull": "llm"}));
+    let (id, label, name) = knowledge_only;
+    assert_eq!(node(id)["affordance_origins"][name], "knowledge", "{label}: {}", node(id));
+    let llm_form = op3dsg_cli(&daemon.prefix, &["dump", "--format", "llm"]);
+    let parts: Vec<Value> = llm_form
+        .lines()
+        .skip(1)
+        .map(|line| serde_json::from_str::<Value>(line).unwrap())
+        .flat_map(|line| line["object"]["parts"].as_array().cloned().unwrap_or_default())
+        .collect();
+    let part = parts.iter().find(|p| p["id"] == handle).unwrap();
+    assert_eq!(part["affordance_origins"], json!({"hook_pull": "knowledge+llm", "pinch_pull": "llm"}), "{part}");
+}
+
+#[test]
+fn the_daemon_rejects_implausible_items_counts_them_by_rule_and_publishes_none() {
+    let server = TestServer::start(Mode::Implausible);
+    // For this test no part longer than 1 cm is rotated, so every knob's "rotate" from the server
+    // fails on its size (implausible_geometry); the kitchen's parts are all attached close to
+    // their objects, so geometry rules nothing else out there.
+    let daemon = start_daemon("llm-implausible", &server, &["reasoner.llm.plausibility.part_max_extent_m.rotate=0.01"]);
+    let mut health = daemon.health_subscriber("llm-implausible-health");
+    let mut graphs = daemon.graph_subscriber("llm-implausible-graph");
+    let count = |h: &op3dsg_ipc_types::Health, reason: &str| {
+        h.refiner.rejections[op3dsg_ipc_types::REFINER_REJECTIONS.iter().position(|r| *r == reason).unwrap()]
+    };
+    let plausibility = ["implausible_geometry", "implausible_relation", "implausible_affordance"];
+    let counted = op3dsg_tests::health_where(&mut health, "a rejection under each plausibility rule", WATCHDOG, |h| {
+        h.refiner.accepted > 0 && plausibility.iter().all(|reason| count(h, reason) > 0)
+    });
+    for reason in ["malformed", "unknown_node", "wrong_kind", "non_canonical"] {
+        assert_eq!(
+            count(&counted, reason),
+            0,
+            "{reason}: the answers use the prompt's ids, kinds and canonical labels"
+        );
+    }
+    assert_eq!(counted.refiner.failures, 0, "{:?}", counted.refiner);
+
+    // Every graph published from then on: no implausible item, the plausible ones there.
+    let (mut last, mut graphs_checked, mut confirmed) = (counted.graph_version, 0, false);
+    op3dsg_tests::wait_for("five newer graphs with a confirmed edge and affordance", WATCHDOG, || {
+        let graph = graphs.latest().ok().flatten()?;
+        if graph.version() <= last {
+            return None;
+        }
+        last = graph.version();
+        graphs_checked += 1;
+        for e in graph.edges().filter(|e| e.kind() == EdgeKind::Functional && from_llm(Some(e.origin()))) {
+            let source = graph.node(e.source_id()).unwrap();
+            let (label, phrase) = (source.label(), e.phrase());
+            let what = format!("v{}: {label} {} -[{phrase}]-> {}", graph.version(), e.source_id(), e.target_id());
+            assert!(!(phrase == "remote to control" && source.parent_id() == Some(e.target_id())), "{what}");
+            assert!(!(phrase == "press to flush" && label.ends_with("handle")), "{what}");
+            assert!(phrase != "provide power" || remote_relation(label) == "provide power", "{what}");
+        }
+        for n in graph.nodes() {
+            let what = format!("v{}: {} {}", graph.version(), n.id(), n.label());
+            if n.is_object() {
+                // The knowledge base gives plug_in to no kitchen object and foot_push only to the
+                // trash can (its pedal).
+                assert!(!from_llm(n.affordance_origin("plug_in")), "{what}");
+                assert!(n.label() == "trash can" || !from_llm(n.affordance_origin("foot_push")), "{what}");
+            }
+            assert!(!(n.label().ends_with("knob") && from_llm(n.affordance_origin("rotate"))), "{what}");
+        }
+        confirmed |=
+            graph.edges().any(|e| e.origin() == EdgeOrigin::KnowledgeAndLlm && e.phrase() == "pull to open or close")
+                && graph.nodes().any(|n| n.affordance_origin("hook_pull") == Some(EdgeOrigin::KnowledgeAndLlm));
+        (graphs_checked >= 5 && confirmed).then_some(())
+    });
+
+    // `op3dsg health --json` names each rule's count.
+    let report: Value = serde_json::from_str(&op3dsg_cli(&daemon.prefix, &["health", "--json"])).unwrap();
+    for reason in plausibility {
+        let n = report["refiner"]["rejections"][reason].as_u64().unwrap();
+        assert!(n >= count(&counted, reason), "{reason}: {n} in {}", report["refiner"]);
     }
 }

@@ -360,6 +360,10 @@ fn graph() -> Value {
             "parent": { "type": ["integer", "null"] },
             "centre_m": xyz, "box_min_m": xyz, "box_max_m": xyz,
             "affordances": { "type": "array", "items": { "type": "string" } },
+            "affordance_origins": {
+                "type": "object",
+                "additionalProperties": { "enum": ["geometry", "knowledge", "llm", "knowledge+llm"] }
+            },
             "confidence": { "type": "number" },
             "observation_count": { "type": "integer", "minimum": 0 }
         }),

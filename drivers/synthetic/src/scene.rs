@@ -313,6 +313,7 @@ impl Scene {
                 box_max_m: info.box_max_m.to_array(),
                 obb: None,
                 affordances: self.affordances(info.id).iter().map(|a| (*a).to_owned()).collect(),
+                affordance_origins: Default::default(),
                 confidence: 1.0,
                 observation_count: 0,
             });

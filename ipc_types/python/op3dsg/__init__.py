@@ -44,6 +44,8 @@ from .wire import (
     Health,
     PoseStamped,
     affordance_names,
+    affordance_origin,
+    affordance_origins,
     fixed_str,
     relation_phrase,
 )
@@ -80,6 +82,8 @@ __all__ = [
     "SchemaVersionError",
     "SubscriberSlotsFullError",
     "affordance_names",
+    "affordance_origin",
+    "affordance_origins",
     "check_pose",
     "fixed_str",
     "health",

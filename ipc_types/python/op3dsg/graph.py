@@ -46,6 +46,7 @@ from .wire import (
     SCHEMA_VERSION,
     GraphHeader,
     affordance_names,
+    affordance_origins,
     fixed_str,
     relation_phrase,
 )
@@ -125,7 +126,8 @@ class _GraphData:
     def nodes(self) -> np.ndarray:
         """The nodes, sorted by id, as a structured array of :data:`~op3dsg.wire.NODE_DTYPE`
         (fields ``id``, ``parent_id``, ``kind``, ``label`` (bytes), ``confidence``, ``centre_m``,
-        ``box_min_m``, ``box_max_m``, ``affordance_bits``, ``observation_count``,
+        ``box_min_m``, ``box_max_m``, ``affordance_bits``, ``affordance_knowledge_bits``,
+        ``affordance_llm_bits``, ``observation_count``,
         ``last_seen_stamp_ns``, ...). A view of shared memory for a :class:`GraphView`."""
         self._check()
         return self._nodes
@@ -172,11 +174,20 @@ class _GraphData:
         """Indices of the nodes labelled exactly ``label``."""
         return np.flatnonzero(self.nodes["label"] == label.encode("utf-8"))
 
+    def affordance_origins(self, index: int) -> dict:
+        """The affordances of the node at ``index`` (not id), each with its origin
+        (``"knowledge"``, ``"llm"``, ``"knowledge+llm"``; ``"geometry"`` where the publisher gave
+        none), in canonical order: ``{"hook_pull": "knowledge+llm", "pinch_pull": "llm"}``."""
+        n = self.nodes[index]
+        return affordance_origins(
+            int(n["affordance_bits"]), int(n["affordance_knowledge_bits"]), int(n["affordance_llm_bits"])
+        )
+
     def node_dict(self, index: int) -> dict:
         """The node at ``index`` in the graph JSON form (``op3dsg dump --json``)."""
         n = self.nodes[index]
         parent = int(n["parent_id"])
-        return {
+        node = {
             "id": int(n["id"]),
             "label": fixed_str(n["label"]),
             "kind": NODE_KINDS[int(n["kind"])],
@@ -193,6 +204,10 @@ class _GraphData:
             "confidence": _f32(n["confidence"]),
             "observation_count": int(n["observation_count"]),
         }
+        origins = self.affordance_origins(index)
+        if origins:
+            node["affordance_origins"] = origins
+        return node
 
     def edge_dict(self, index: int) -> dict:
         """The edge at ``index`` in the graph JSON form."""

@@ -15,12 +15,12 @@ no terminating NUL (see :func:`fixed_str`).
 from __future__ import annotations
 
 import ctypes
-from typing import Iterator, List
+from typing import Dict, Iterator, List, Optional
 
 import numpy as np
 
 #: Version of the wire contract this package reads (``SCHEMA_VERSION`` in ``ipc_types/src/lib.rs``).
-SCHEMA_VERSION = 6
+SCHEMA_VERSION = 7
 
 #: Bytes in a node label buffer.
 LABEL_CAPACITY_BYTES = 48
@@ -151,13 +151,16 @@ class _Wire(ctypes.Structure):
 class Node(_Wire):
     """One node of the scene graph (144 bytes, alignment 8): ``op3dsg::Node``. Besides the
     axis-aligned box, a gravity-aligned oriented box: ``obb_centre_m``, ``obb_size_m`` (extent
-    along the box's own axes) and ``obb_yaw_rad`` (rotation about the world's up axis)."""
+    along the box's own axes) and ``obb_yaw_rad`` (rotation about the world's up axis). Each
+    affordance's origin follows from ``affordance_knowledge_bits`` and ``affordance_llm_bits``
+    (schema 7, :func:`affordance_origin`)."""
 
     _fields_ = [
         ("id", _u32),
         ("parent_id", _u32),
         ("kind", _u8),
-        ("reserved", _u8 * 3),
+        ("reserved", _u8),
+        ("affordance_knowledge_bits", _u16),
         ("observation_count", _u32),
         ("label", _u8 * LABEL_CAPACITY_BYTES),
         ("confidence", _f32),
@@ -165,7 +168,7 @@ class Node(_Wire):
         ("box_min_m", _f32 * 3),
         ("box_max_m", _f32 * 3),
         ("affordance_bits", _u16),
-        ("reserved2", _u8 * 2),
+        ("affordance_llm_bits", _u16),
         ("obb_yaw_rad", _f32),
         ("last_seen_stamp_ns", _u64),
         ("obb_centre_m", _f32 * 3),
@@ -575,6 +578,25 @@ def relation_phrase(relation_id: int) -> str:
 def affordance_names(bits: int) -> Iterator[str]:
     """Names of the affordances set in ``bits``, in canonical order."""
     return (name for i, name in enumerate(AFFORDANCES) if bits & (1 << i))
+
+
+def affordance_origin(bits: int, knowledge_bits: int, llm_bits: int, index: int) -> Optional[str]:
+    """Where affordance ``AFFORDANCES[index]`` of a node came from, as the edge origins name it:
+    its bit in ``knowledge_bits`` only ``"knowledge"``, in ``llm_bits`` only ``"llm"``, in both
+    ``"knowledge+llm"``, in neither ``"geometry"``; ``None`` when ``bits`` lacks it."""
+    if not 0 <= index < len(AFFORDANCES) or not bits & (1 << index):
+        return None
+    knowledge, llm = bool(knowledge_bits & (1 << index)), bool(llm_bits & (1 << index))
+    return EDGE_ORIGINS[(1 if knowledge else 0) + (2 if llm else 0)]
+
+
+def affordance_origins(bits: int, knowledge_bits: int, llm_bits: int) -> Dict[str, str]:
+    """Each affordance in ``bits`` with its origin (:func:`affordance_origin`), in canonical order."""
+    return {
+        name: affordance_origin(bits, knowledge_bits, llm_bits, i)
+        for i, name in enumerate(AFFORDANCES)
+        if bits & (1 << i)
+    }
 
 
 def affordance_bits(names) -> int:

@@ -104,6 +104,29 @@ def test_views_read_shared_memory_until_the_next_sample_and_copies_outlive_it(pr
     assert client.latest() is None, "released and nothing newer"
 
 
+def test_each_affordance_carries_its_origin_from_the_two_masks(prefix):
+    publisher = GraphPublisher(prefix)
+    client = op3dsg.GraphClient(prefix, timeout=5)
+    nodes = make_nodes(2, "cabinet handle")
+    nodes["affordance_bits"][0] = wire.affordance_bits(["tip_push", "hook_pull", "pinch_pull", "unplug"])
+    nodes["affordance_knowledge_bits"][0] = wire.affordance_bits(["hook_pull", "unplug"])
+    # "rotate" is not among the node's affordances: an origin bit outside them means nothing.
+    nodes["affordance_llm_bits"][0] = wire.affordance_bits(["rotate", "pinch_pull", "unplug"])
+    publisher.send(1, nodes, np.zeros(0, wire.EDGE_DTYPE))
+    view = received(client, 1)
+    record = view.nodes[0:1].tobytes()
+    assert int.from_bytes(record[10:12], "little") == wire.affordance_bits(["hook_pull", "unplug"]), "knowledge bits at 10"
+    assert int.from_bytes(record[106:108], "little") == wire.affordance_bits(["rotate", "pinch_pull", "unplug"]), "llm bits at 106"
+    expected = {"tip_push": "geometry", "hook_pull": "knowledge", "pinch_pull": "llm", "unplug": "knowledge+llm"}
+    assert view.affordance_origins(0) == expected
+    assert list(view.affordance_origins(0)) == list(view.node_dict(0)["affordances"]), "canonical order"
+    assert view.node_dict(0)["affordance_origins"] == expected
+    assert "affordance_origins" not in view.node_dict(1), "no affordances, no origins (as op3dsg dump --json)"
+    assert op3dsg.affordance_origin(0b1000, 0b1000, 0, 3) == "knowledge"
+    assert op3dsg.affordance_origin(0b1000, 0b1000, 0, 0) is None
+    assert op3dsg.affordance_origin(0xFFFF, 0, 0xFFFF, 9) is None, "past the 9 canonical affordances"
+
+
 def test_another_schema_version_and_a_short_payload_are_named_errors(prefix):
     publisher = GraphPublisher(prefix)
     client = op3dsg.GraphClient(prefix, timeout=5)

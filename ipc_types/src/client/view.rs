@@ -512,6 +512,19 @@ impl<'a> NodeView<'a> {
         affordance_names(self.affordance_bits())
     }
 
+    /// Each of the node's affordances with its origin (knowledge, llm, knowledge+llm; geometry
+    /// for one the publisher gave no origin), in canonical order.
+    pub fn affordance_origins(&self) -> impl Iterator<Item = (&'static str, EdgeOrigin)> + use<> {
+        let n = self.wire();
+        crate::affordance_origins(n.affordance_bits, n.affordance_knowledge_bits, n.affordance_llm_bits)
+    }
+
+    /// Where the node's affordance `name` came from; `None` when the node does not afford it
+    /// (or `name` is outside [`AFFORDANCES`]).
+    pub fn affordance_origin(&self, name: &str) -> Option<EdgeOrigin> {
+        self.wire().affordance_origin(AFFORDANCES.iter().position(|a| *a == name)?)
+    }
+
     /// `true` when the node affords `name` (`false` for names outside [`AFFORDANCES`]).
     pub fn has_affordance(&self, name: &str) -> bool {
         affordance_bits([name]).is_ok_and(|bits| self.affordance_bits() & bits == bits)

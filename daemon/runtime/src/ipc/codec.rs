@@ -312,14 +312,15 @@ fn write_records(
             id: node.id,
             parent_id: node.parent_id.unwrap_or(NO_NODE),
             kind: node.kind as u8,
-            reserved: [0; 3],
+            reserved: 0,
+            affordance_knowledge_bits: node.affordance_knowledge_bits & node.affordance_bits,
             observation_count: node.observation_count,
             confidence: node.confidence,
             centre_m: node.centre_m,
             box_min_m: node.box_min_m,
             box_max_m: node.box_max_m,
             affordance_bits: node.affordance_bits,
-            reserved2: [0; 2],
+            affordance_llm_bits: node.affordance_llm_bits & node.affordance_bits,
             obb_yaw_rad: node.obb.yaw_rad,
             last_seen_stamp_ns: node.last_seen_stamp_ns,
             obb_centre_m: node.obb.centre_m,
@@ -396,6 +397,8 @@ fn node_from_wire(n: &WireNode) -> GraphNode {
         obb: OrientedBox { centre_m: n.obb_centre_m, size_m: n.obb_size_m, yaw_rad: n.obb_yaw_rad },
         observation_count: n.observation_count,
         affordance_bits: n.affordance_bits,
+        affordance_knowledge_bits: n.affordance_knowledge_bits & n.affordance_bits,
+        affordance_llm_bits: n.affordance_llm_bits & n.affordance_bits,
         last_seen_stamp_ns: n.last_seen_stamp_ns,
     }
 }
@@ -430,6 +433,7 @@ mod tests {
             observation_count: 3,
             affordance_bits: 0,
             last_seen_stamp_ns: last_seen,
+            ..Default::default()
         }
     }
 
@@ -458,6 +462,8 @@ mod tests {
         let mut part = node(7, NodeKind::Part, 20);
         part.parent_id = Some(3);
         part.affordance_bits = 0b1000;
+        part.add_affordances(0b0011, EdgeOrigin::Knowledge);
+        part.add_affordances(0b0110, EdgeOrigin::Llm);
         let graph = SceneGraph {
             version: 42,
             stamp_ns: 99,
@@ -479,6 +485,31 @@ mod tests {
         let mut expected = graph.clone();
         expected.nodes.sort_by_key(|n| n.id);
         assert_eq!(back, expected);
+        // Each affordance's origin on the wire: bit 0 knowledge, 1 both, 2 llm, 3 geometry.
+        let wire = encoder.message().nodes().find(|n| n.id == 7).expect("the part");
+        assert_eq!(
+            (wire.affordance_bits, wire.affordance_knowledge_bits, wire.affordance_llm_bits),
+            (0b1111, 0b0011, 0b0110)
+        );
+        let origins: Vec<_> = (0..4).map(|i| wire.affordance_origin(i)).collect();
+        assert_eq!(
+            origins,
+            [EdgeOrigin::Knowledge, EdgeOrigin::KnowledgeAndLlm, EdgeOrigin::Llm, EdgeOrigin::Geometry].map(Some)
+        );
+        assert_eq!(
+            back.to_json("test").node(7).map(|n| n.affordance_origins.clone()),
+            Some(
+                [
+                    ("rotate", "knowledge"),
+                    ("key_press", "knowledge+llm"),
+                    ("tip_push", "llm"),
+                    ("hook_pull", "geometry")
+                ]
+                .into_iter()
+                .map(|(a, o)| (a.to_owned(), o.to_owned()))
+                .collect()
+            )
+        );
     }
 
     #[test]

@@ -191,6 +191,7 @@ mod tests {
             observation_count: 3,
             affordance_bits: 0,
             last_seen_stamp_ns: 0,
+            ..Default::default()
         }
     }
 

@@ -177,6 +177,7 @@ mod tests {
             observation_count: 3,
             affordance_bits: 0,
             last_seen_stamp_ns: 0,
+            ..Default::default()
         }
     }
 
@@ -307,8 +308,14 @@ mod tests {
         assert_eq!(functional.len(), 1);
         assert_eq!(functional[0].origin, EdgeOrigin::Knowledge);
         assert_eq!(g.nodes[1].affordance_bits, op3dsg_ipc_types::affordance_bits(["rotate", "pinch_pull"]).unwrap());
+        let origins: Vec<_> = g.nodes[1].affordance_origins().collect();
+        assert_eq!(origins, [("rotate", EdgeOrigin::Knowledge), ("pinch_pull", EdgeOrigin::Knowledge)]);
         // Applying twice adds nothing.
         super::super::apply(&mut g, &output, EdgeOrigin::Knowledge);
         assert_eq!(g.edges.iter().filter(|e| e.kind == EdgeKind::Functional).count(), 1);
+        // The same affordances from an LLM agent confirm them: knowledge+llm.
+        super::super::apply(&mut g, &output, EdgeOrigin::Llm);
+        let origins: Vec<_> = g.nodes[1].affordance_origins().collect();
+        assert_eq!(origins, [("rotate", EdgeOrigin::KnowledgeAndLlm), ("pinch_pull", EdgeOrigin::KnowledgeAndLlm)]);
     }
 }

@@ -321,7 +321,8 @@ fn combined_origin(existing: EdgeOrigin, new: EdgeOrigin) -> EdgeOrigin {
 
 /// Applies `output` to `graph`: functional edges (with `origin`; an edge already there from the
 /// other of knowledge and LLM becomes `knowledge+llm`) and affordance bits for nodes that still
-/// exist, spatial corrections likewise. Returns how many items were dropped because
+/// exist (each marked with `origin`, so one given by both is `knowledge+llm` too), spatial
+/// corrections likewise. Returns how many items were dropped because
 /// a node is gone.
 pub fn apply(graph: &mut SceneGraph, output: &ReasonerOutput, origin: EdgeOrigin) -> usize {
     let exists = |nodes: &[crate::graph::GraphNode], id: u32| nodes.binary_search_by_key(&id, |n| n.id).is_ok();
@@ -356,7 +357,7 @@ pub fn apply(graph: &mut SceneGraph, output: &ReasonerOutput, origin: EdgeOrigin
     }
     for affordances in &output.affordances {
         match graph.nodes.binary_search_by_key(&affordances.node_id, |n| n.id) {
-            Ok(i) => graph.nodes[i].affordance_bits |= affordances.affordance_bits,
+            Ok(i) => graph.nodes[i].add_affordances(affordances.affordance_bits, origin),
             Err(_) => dropped += 1,
         }
     }

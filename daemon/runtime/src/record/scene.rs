@@ -209,6 +209,12 @@ pub fn write_scene_update(graph: &SceneGraph, up_axis: UpAxis, out: &mut Vec<u8>
             KeyValue { key: "label", value: node.label.clone() },
             KeyValue { key: "yaw_rad", value: obb.yaw_rad.to_string() },
         ];
+        if node.affordance_bits != 0 {
+            // "hook_pull:knowledge+llm,pinch_pull:llm": each affordance with its origin.
+            let affordances: Vec<String> =
+                node.affordance_origins().map(|(name, origin)| format!("{name}:{}", origin.as_str())).collect();
+            entity.metadata.push(KeyValue { key: "affordances", value: affordances.join(",") });
+        }
         entity.cubes.push(Cube {
             pose: Pose::new(centre, rotation),
             size: Vector3 { x: sx, y: sy, z: sz },
@@ -283,6 +289,7 @@ mod tests {
             affordance_bits: 0,
             last_seen_stamp_ns: 0,
             obb: OrientedBox::axis_aligned(min, max, UpAxis::Z),
+            ..Default::default()
         }
     }
 
@@ -293,7 +300,12 @@ mod tests {
             stamp_ns: 2_000_000_003,
             nodes: vec![
                 node(1, NodeKind::Object, [0.0, 0.0, 0.0], [1.0, 2.0, 0.5]),
-                node(2, NodeKind::Part, [0.9, 0.1, 0.2], [1.0, 0.3, 0.3]),
+                GraphNode {
+                    affordance_bits: 0b1_1000,
+                    affordance_knowledge_bits: 0b1000,
+                    affordance_llm_bits: 0b1_1000,
+                    ..node(2, NodeKind::Part, [0.9, 0.1, 0.2], [1.0, 0.3, 0.3])
+                },
             ],
             edges: vec![
                 GraphEdge {
@@ -325,6 +337,11 @@ mod tests {
         assert_eq!(cube["size"]["z"], 0.5);
         assert_ne!(entities[0]["cubes"][0]["color"], entities[1]["cubes"][0]["color"], "parts apart from objects");
         assert_eq!(entities[1]["texts"][0]["text"], "n2");
+        let metadata = |i: usize, key: &str| {
+            entities[i]["metadata"].as_array().unwrap().iter().find(|kv| kv["key"] == key).map(|kv| kv["value"].clone())
+        };
+        assert_eq!(metadata(1, "affordances"), Some("hook_pull:knowledge+llm,pinch_pull:llm".into()));
+        assert_eq!(metadata(0, "affordances"), None, "no affordances, no entry");
         assert_eq!(entities[2]["id"], "edges/spatial");
         assert_eq!(entities[2]["lines"][0]["points"].as_array().unwrap().len(), 2);
         assert_ne!(entities[2]["lines"][0]["color"], entities[3]["lines"][0]["color"]);

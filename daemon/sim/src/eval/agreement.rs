@@ -115,6 +115,7 @@ pub fn knowledge_answer(ground_truth: &GraphJson, profile: &Profile) -> Result<G
             observation_count: profile.fusion.min_observations.max(1),
             affordance_bits: 0,
             last_seen_stamp_ns: 0,
+            ..Default::default()
         })
         .collect();
     nodes.sort_by_key(|n| n.id);

@@ -266,3 +266,26 @@ fn the_oriented_box_and_its_footprint_come_through() {
         assert!((corner[0] - want[0]).abs() < 1e-5 && (corner[1] - want[1]).abs() < 1e-5, "{footprint:?}");
     }
 }
+
+#[test]
+fn each_affordance_names_its_origin() {
+    let mut s = empty(3);
+    push_node(&mut s, 1, NodeKind::Part, NO_NODE, "cabinet handle", &["tip_push", "hook_pull", "pinch_pull", "unplug"]);
+    let node = s.nodes.last_mut().expect("pushed");
+    node.affordance_knowledge_bits = affordance_bits(["hook_pull", "unplug"]).expect("canonical");
+    node.affordance_llm_bits = affordance_bits(["pinch_pull", "unplug"]).expect("canonical");
+    let graph = graph_of(&mut s);
+    let handle = graph.node(1).expect("node 1");
+    assert_eq!(
+        handle.affordance_origins().collect::<Vec<_>>(),
+        [
+            ("tip_push", EdgeOrigin::Geometry),
+            ("hook_pull", EdgeOrigin::Knowledge),
+            ("pinch_pull", EdgeOrigin::Llm),
+            ("unplug", EdgeOrigin::KnowledgeAndLlm),
+        ]
+    );
+    assert_eq!(handle.affordance_origin("pinch_pull"), Some(EdgeOrigin::Llm));
+    assert_eq!(handle.affordance_origin("rotate"), None, "not afforded");
+    assert_eq!(handle.affordance_origin("fly"), None, "not canonical");
+}

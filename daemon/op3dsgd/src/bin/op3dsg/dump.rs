@@ -142,6 +142,9 @@ fn llm_node(node: &NodeView<'_>, with_parts: bool) -> Value {
     let affordances: Vec<&str> = node.affordances().collect();
     if !affordances.is_empty() {
         item.insert("affordances".into(), json!(affordances));
+        let origins: serde_json::Map<String, Value> =
+            node.affordance_origins().map(|(name, origin)| (name.to_owned(), json!(origin.as_str()))).collect();
+        item.insert("affordance_origins".into(), Value::Object(origins));
     }
     let functional = relations(node, EdgeKind::Functional);
     if !functional.is_empty() {
@@ -234,7 +237,7 @@ mod tests {
         let stove_phrase = op3dsg_ipc_types::FUNCTIONAL_RELATIONS[0];
         buffer.nodes = vec![
             node(1, NO_NODE, "stove", &[]),
-            node(2, 1, "stove knob", &["rotate"]),
+            Node { affordance_knowledge_bits: 1, affordance_llm_bits: 1, ..node(2, 1, "stove knob", &["rotate"]) },
             node(3, NO_NODE, "counter", &[]),
             node(9, 42, "handle", &["hook_pull"]),
         ];
@@ -259,5 +262,9 @@ mod tests {
         assert!(stove["parts"][0].get("spatial").is_none(), "the nesting says part of: {stove}");
         assert_eq!(lines[2]["object"]["label"], "counter");
         assert_eq!(lines[3]["unattached_part"]["id"], 9);
+        // Each affordance's origin beside the names: both masks, neither (geometry).
+        assert_eq!(stove["parts"][0]["affordance_origins"], json!({"rotate": "knowledge+llm"}));
+        assert_eq!(lines[3]["unattached_part"]["affordance_origins"], json!({"hook_pull": "geometry"}));
+        assert!(stove.get("affordance_origins").is_none(), "no affordances, no origins: {stove}");
     }
 }

@@ -331,6 +331,7 @@ fn bench_graph(nodes: usize) -> op3dsg_runtime::graph::SceneGraph {
             affordance_bits: 0,
             last_seen_stamp_ns: 0,
             obb: Default::default(),
+            ..Default::default()
         });
         if i > 0 {
             graph.edges.push(GraphEdge {

@@ -490,6 +490,7 @@ impl Fusion for MultiViewFusion {
                 observation_count: node.observation_count,
                 affordance_bits: 0,
                 last_seen_stamp_ns: node.last_seen_stamp_ns,
+                ..Default::default()
             });
         }
         out.nodes.sort_unstable_by_key(|n| n.id);

@@ -308,6 +308,7 @@ pub(crate) mod tests {
             observation_count: 5,
             affordance_bits: 0,
             last_seen_stamp_ns: 0,
+            ..Default::default()
         }
     }
 

@@ -99,6 +99,7 @@ fn node(id: u32, label: &str, kind: &str, min: [f32; 3], max: [f32; 3]) -> NodeJ
         box_max_m: max,
         obb: None,
         affordances: Vec::new(),
+        affordance_origins: Default::default(),
         confidence: 1.0,
         observation_count: 0,
     }
