@@ -185,6 +185,8 @@ fn main() {
             queue_count,
             source_connected,
             reserved,
+            graph_subscribers,
+            dead_nodes_cleaned,
             stages,
             queues,
             refiner,

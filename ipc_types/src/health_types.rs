@@ -236,7 +236,14 @@ pub struct Health {
     /// 1 while the frame source delivers, 0 when it is lost or finished.
     pub source_connected: u8,
     /// Reserved, zero.
-    pub reserved: [u8; 7],
+    pub reserved: u8,
+    /// Planners (graph subscribers) connected now, as iceoryx2 counts them: a planner killed
+    /// without closing stays counted until its node is cleaned up (see `dead_nodes_cleaned`).
+    pub graph_subscribers: u16,
+    /// iceoryx2 nodes of dead processes (planners killed mid-read, a previous daemon) whose
+    /// shared-memory resources the daemon removed since start, at start and once per health
+    /// period: their subscriber slots come back.
+    pub dead_nodes_cleaned: u32,
     /// Per-stage figures.
     pub stages: [StageHealth; MAX_STAGES],
     /// Per-queue figures.
@@ -273,7 +280,9 @@ impl Default for Health {
             map_node_count: 0,
             queue_count: 0,
             source_connected: 0,
-            reserved: [0; 7],
+            reserved: 0,
+            graph_subscribers: 0,
+            dead_nodes_cleaned: 0,
             stages: [StageHealth::default(); MAX_STAGES],
             queues: [QueueHealth::default(); MAX_QUEUES],
             refiner: RefinerHealth::default(),

@@ -1,7 +1,8 @@
 //! Planner faults the daemon must survive: planners (real `op3dsg watch` processes reading the
 //! graph) killed with SIGKILL while reading, more of them than the graph service has subscriber
 //! slots, and a planner that attaches and never reads. The daemon keeps publishing (health
-//! frames and graph versions keep rising) and a new planner can still attach.
+//! frames and graph versions keep rising), health shows the planners connected and the dead
+//! ones it cleaned up, and a new planner can still attach.
 
 use std::process::{Command, Stdio};
 use std::time::Duration;
@@ -39,6 +40,18 @@ fn planners_killed_mid_read_and_one_that_never_reads_do_not_stop_the_daemon() {
 
     let after = health_with_frames_above(&mut health, start.frames_captured + 60, Duration::from_secs(60));
     assert!(after.graph_version > start.graph_version, "graph versions keep coming after the killed planners");
+    // The faults show in health: the killed planners' nodes were cleaned up (at least the last
+    // one: no later planner could have done it), and the one that never reads is still
+    // counted as connected.
+    let cleaned = wait_for("health counting the killed planners cleaned up", Duration::from_secs(30), || {
+        health.latest().ok().flatten().filter(|h| h.dead_nodes_cleaned >= 1)
+    });
+    assert!(cleaned.graph_subscribers >= 1, "the planner that never reads is connected: {cleaned:?}");
+    assert!(
+        usize::from(cleaned.graph_subscribers) <= 3,
+        "a killed planner's slot is not counted after its cleanup: {} subscribers",
+        cleaned.graph_subscribers
+    );
     // A new planner still gets a subscriber slot and the current graph.
     let mut late = daemon.graph_subscriber("faults-late");
     let graph =

@@ -20,7 +20,7 @@ from typing import Dict, Iterator, List, Optional
 import numpy as np
 
 #: Version of the wire contract this package reads (``SCHEMA_VERSION`` in ``ipc_types/src/lib.rs``).
-SCHEMA_VERSION = 7
+SCHEMA_VERSION = 8
 
 #: Bytes in a node label buffer.
 LABEL_CAPACITY_BYTES = 48
@@ -408,7 +408,9 @@ class Health(_Wire):
         ("map_node_count", _u32),
         ("queue_count", _u32),
         ("source_connected", _u8),
-        ("reserved", _u8 * 7),
+        ("reserved", _u8),
+        ("graph_subscribers", _u16),
+        ("dead_nodes_cleaned", _u32),
         ("stages", StageHealth * MAX_STAGES),
         ("queues", QueueHealth * MAX_QUEUES),
         ("refiner", RefinerHealth),
@@ -454,6 +456,8 @@ class Health(_Wire):
             "map_memory_bytes": self.map_memory_bytes,
             "map_node_count": self.map_node_count,
             "source_connected": bool(self.source_connected),
+            "graph_subscribers": self.graph_subscribers,
+            "dead_nodes_cleaned": self.dead_nodes_cleaned,
             "stages": [
                 {
                     "name": fixed_str(s.name),

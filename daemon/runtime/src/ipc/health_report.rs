@@ -32,6 +32,12 @@ pub struct HealthReport {
     pub map_memory_bytes: u64,
     /// Whether the frame source delivers.
     pub source_connected: bool,
+    /// Planners (graph subscribers) connected now.
+    #[serde(default)]
+    pub graph_subscribers: u16,
+    /// iceoryx2 nodes of dead processes whose resources the daemon removed since start.
+    #[serde(default)]
+    pub dead_nodes_cleaned: u32,
     /// Per-stage figures.
     pub stages: Vec<StageReport>,
     /// Per-queue figures.
@@ -276,6 +282,8 @@ impl From<&Health> for HealthReport {
             map_node_count: h.map_node_count,
             map_memory_bytes: h.map_memory_bytes,
             source_connected: h.source_connected != 0,
+            graph_subscribers: h.graph_subscribers,
+            dead_nodes_cleaned: h.dead_nodes_cleaned,
             stages: h
                 .valid_stages()
                 .iter()

@@ -97,7 +97,8 @@ pub(crate) fn publisher_loop(
             }
         }
         if Instant::now() >= next_health || upstream_done && stop.load(Ordering::Relaxed) {
-            let health = stats.health();
+            let mut health = stats.health();
+            server.planner_health(&mut health);
             if let Err(e) = server.publish_health(&health) {
                 warn!(error = %e, "health publish failed");
             }
@@ -119,7 +120,9 @@ pub(crate) fn publisher_loop(
         }
         if upstream_done && (stop.load(Ordering::Relaxed) || exit_at_end) {
             // One last health record so watchers see the final counters.
-            let _ = server.publish_health(&stats.health());
+            let mut health = stats.health();
+            server.planner_health(&mut health);
+            let _ = server.publish_health(&health);
             break;
         }
     }

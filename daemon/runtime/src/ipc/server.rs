@@ -135,9 +135,27 @@ impl GraphServer {
         self.encoder.instance_id()
     }
 
-    /// Dead nodes whose resources were removed at start.
+    /// Dead nodes whose resources were removed since start (at start and by
+    /// [`Self::planner_health`]).
     pub fn dead_nodes_cleaned(&self) -> u64 {
         self.dead_nodes_cleaned
+    }
+
+    /// Fills the planners' part of `health`: the graph subscribers connected now, after removing
+    /// the resources of dead nodes (a planner killed mid-read holds a subscriber slot until
+    /// then), and how many dead nodes were removed since start. Called once per health period
+    /// from the publisher thread: iceoryx2 lists the nodes from the file system, off the hot path.
+    pub fn planner_health(&mut self, health: &mut Health) {
+        let cleaned = cleanup_dead_nodes(&self.node);
+        if cleaned > 0 {
+            tracing::info!(
+                cleaned,
+                "removed the iceoryx2 resources of dead processes (planners killed without closing?)"
+            );
+        }
+        self.dead_nodes_cleaned += cleaned;
+        health.graph_subscribers = u16::try_from(self.subscriber_count()).unwrap_or(u16::MAX);
+        health.dead_nodes_cleaned = u32::try_from(self.dead_nodes_cleaned).unwrap_or(u32::MAX);
     }
 
     /// The iceoryx2 node (for a `WaitSet` or `node.wait`).

@@ -168,6 +168,8 @@ fn health_json(h: &Health) -> serde_json::Value {
         "map_node_count": h.map_node_count,
         "map_memory_bytes": h.map_memory_bytes,
         "source_connected": h.source_connected != 0,
+        "graph_subscribers": h.graph_subscribers,
+        "dead_nodes_cleaned": h.dead_nodes_cleaned,
         "stages": stages,
         "queues": queues,
         "pose": { "accepted": h.pose.accepted, "stale": h.pose.stale, "queue_full": h.pose.queue_full },
