@@ -12,6 +12,10 @@
 //!    pairs and remote templates, with confidences scaled by [`EMBEDDING_CONFIDENCE`]. It is also
 //!    a target candidate of remote templates by that category. A "cooker" the tables do not list
 //!    is reasoned about as its nearest neighbour, "stove".
+//!    A known part on an object whose category is unknown, or whose nearest category has no such
+//!    part ("knob" on a "nightstand" the tables lost, nearest "bed"), is reasoned as on the
+//!    nearest known category *that has the part* (a "dresser"), by the parent label's embedding,
+//!    same threshold and confidence factor.
 //! 2. **Part-label rule**. A part whose own label is known ("handle", "knob") on a parent whose
 //!    category is unknown, or whose (nearest) category has no such pair, gets what that part
 //!    does on most objects of the knowledge base: the most frequent local relation over the
@@ -53,6 +57,9 @@ pub struct FallbackCounts {
     pub by_embedding: usize,
     /// Nodes with an unknown label left without a category (no embedder, or nothing near).
     pub unresolved: usize,
+    /// Parts on an object of unknown category (or of a nearest category without that part)
+    /// reasoned as on the nearest known category that has the part, by embedding.
+    pub parts_by_embedding: usize,
     /// Parts given a local relation or affordances by the part-label rule.
     pub by_part_rule: usize,
 }
@@ -62,6 +69,7 @@ impl FallbackCounts {
     pub fn add(&mut self, other: &FallbackCounts) {
         self.by_embedding += other.by_embedding;
         self.unresolved += other.unresolved;
+        self.parts_by_embedding += other.parts_by_embedding;
         self.by_part_rule += other.by_part_rule;
     }
 }
@@ -138,7 +146,24 @@ impl LabelFallback {
         found
     }
 
+    /// The nearest known object category of `label` among those `keep` accepts (with its
+    /// cosine, at least the threshold): for a part on an object of unknown category, the
+    /// nearest known category that has that part. Not cached (the label's embedding is, by the
+    /// encoder).
+    pub fn nearest_object_where(&mut self, label: &str, keep: &dyn Fn(ObjectId) -> bool) -> Option<(ObjectId, f32)> {
+        let key = crate::knowledge::normalise(label);
+        let found = self.search(&key, &|c| matches!(c, Category::Object(o) if keep(o)))?;
+        match found {
+            (Category::Object(o), s) => Some((o, s)),
+            (Category::Part(_), _) => None,
+        }
+    }
+
     fn lookup(&mut self, key: &str, object: bool) -> Option<(Category, f32)> {
+        self.search(key, &|c| matches!(c, Category::Object(_)) == object)
+    }
+
+    fn search(&mut self, key: &str, keep: &dyn Fn(Category) -> bool) -> Option<(Category, f32)> {
         let embedder = self.embedder.as_ref()?;
         if key.is_empty() {
             return None;
@@ -158,7 +183,7 @@ impl LabelFallback {
             .table
             .iter()
             .zip(embeddings)
-            .filter(|((_, c), _)| matches!(c, Category::Object(_)) == object)
+            .filter(|((_, c), _)| keep(*c))
             .map(|((_, c), e)| (*c, cosine(&query, e)))
             .fold(None, |best: Option<(Category, f32)>, (c, s)| match best {
                 Some((_, b)) if b >= s => best,

@@ -82,6 +82,11 @@ impl KnowledgeReasoner {
             .iter()
             .map(|node| {
                 if let Some(resolved) = node.category {
+                    // The prior graph's builder may have used the embedding fallback already.
+                    if node.by_embedding {
+                        counts.by_embedding += 1;
+                        return Some(Effective { resolved, factor: EMBEDDING_CONFIDENCE });
+                    }
                     return Some(Effective { resolved, factor: 1.0 });
                 }
                 match self.fallback.nearest(&node.label, node.kind == NodeKind::Object) {
@@ -130,15 +135,27 @@ impl Reasoner for KnowledgeReasoner {
                 Category::Part(part) => {
                     let parent_index = node.parent_id.and_then(|id| prior.index_of(id));
                     let parent = parent_index.and_then(object_of);
-                    let parent_factor = parent.map_or(1.0, |(_, f)| f);
-                    let parent = parent.map(|(p, _)| p);
-                    let conditioned_on = parent
+                    let (parent, parent_factor) = (parent.map(|(p, _)| p), parent.map_or(1.0, |(_, f)| f));
+                    let mut conditioned_on = parent
                         .filter(|p| kb.pair(part, *p).is_some())
                         .or(resolved.object_hint.filter(|h| kb.pair(part, *h).is_some()));
+                    let unknown_parent =
+                        parent_index.filter(|i| effective[*i].is_none_or(|e| e.factor < 1.0)).map(|i| &prior.nodes[i]);
+                    // A parent of unknown category: the nearest known category that has this part.
+                    let mut parent = parent;
+                    let mut parent_factor = parent_factor;
+                    if let (None, Some(p)) = (conditioned_on, unknown_parent) {
+                        let has_part = |o| kb.pair(part, o).is_some();
+                        if let Some((nearest, _)) = self.fallback.nearest_object_where(&p.label, &has_part) {
+                            counts.parts_by_embedding += 1;
+                            conditioned_on = Some(nearest);
+                            parent = Some(nearest);
+                            parent_factor = EMBEDDING_CONFIDENCE;
+                        }
+                    }
                     // The part-label rule: a known part on a parent whose category is unknown,
                     // or whose nearest category has no such part.
-                    let by_rule = conditioned_on.is_none()
-                        && parent_index.is_some_and(|i| effective[i].is_none_or(|e| e.factor < 1.0));
+                    let by_rule = conditioned_on.is_none() && unknown_parent.is_some();
                     let rule = by_rule.then(|| self.fallback.rule(part));
                     let bits = match rule {
                         Some(rule) => rule.affordance_bits,
@@ -289,6 +306,29 @@ mod tests {
         let affordances =
             output.affordances.iter().map(|a| (a.node_id, affordance_names(a.affordance_bits).collect())).collect();
         (relations, affordances)
+    }
+
+    #[test]
+    fn parts_of_an_unknown_object_follow_the_part_label_rule() {
+        let kb = Arc::new(KnowledgeBase::builtin().unwrap().without_object("nightstand").unwrap());
+        let g = graph(vec![
+            node(1, "nightstand", None, [0.0, 0.0, 0.3], 0.25),
+            node(2, "handle", Some(1), [0.0, -0.25, 0.4], 0.01),
+            node(3, "cabinet", None, [2.0, 0.0, 0.4], 0.3),
+            node(4, "handle", Some(3), [2.0, -0.3, 0.6], 0.01),
+        ]);
+        let prior = prior::build(&g, &kb, &PriorConfig::default());
+        let output = KnowledgeReasoner::new(kb.clone()).reason(&prior);
+        let relation = |id: u32| output.functional.iter().find(|r| r.source_id == id).cloned().unwrap();
+        // The handle on the unknown nightstand: what handles do on most objects, less confident.
+        let (unknown, known) = (relation(2), relation(4));
+        assert_eq!((unknown.target_id, relation_phrase(unknown.relation_id)), (1, Some("pull to open or close")));
+        assert!(unknown.confidence < known.confidence, "{unknown:?} {known:?}");
+        assert_eq!(output.fallback, FallbackCounts { unresolved: 1, by_part_rule: 1, ..FallbackCounts::default() });
+        // With the full tables nothing falls back.
+        let full = Arc::new(KnowledgeBase::builtin().unwrap());
+        let output = KnowledgeReasoner::new(full.clone()).reason(&prior::build(&g, &full, &PriorConfig::default()));
+        assert_eq!(output.fallback, FallbackCounts::default());
     }
 
     #[test]

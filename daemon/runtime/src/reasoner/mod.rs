@@ -115,10 +115,12 @@ impl GraphEnricher {
             ReasonerKind::Llm => Some(start_refiner(profile, knowledge.clone())?),
             ReasonerKind::Knowledge | ReasonerKind::None => None,
         };
+        let prior_builder =
+            prior::PriorBuilder::with_fallback(fallback::LabelFallback::new(&knowledge, label_embedder.clone()));
         Ok(Some(Self {
             knowledge,
             prior_config,
-            prior_builder: prior::PriorBuilder::default(),
+            prior_builder,
             reasoner,
             refiner,
             llm_result: None,
@@ -154,8 +156,6 @@ impl GraphEnricher {
     /// leave-one-category-out benchmark gives it tables that lack one category).
     pub fn with_knowledge(mut self, knowledge: Arc<KnowledgeBase>) -> Self {
         self.knowledge = knowledge;
-        // Its label cache resolved against the old tables.
-        self.prior_builder = prior::PriorBuilder::default();
         self.remake_reasoner();
         self
     }
@@ -175,6 +175,11 @@ impl GraphEnricher {
     }
 
     fn remake_reasoner(&mut self) {
+        // A new builder: its label cache and fallback belong to the old tables or embedder.
+        self.prior_builder = prior::PriorBuilder::with_fallback(fallback::LabelFallback::new(
+            &self.knowledge,
+            self.label_embedder.clone(),
+        ));
         self.reasoner = if self.setup == ReasoningSetup::Single {
             Box::new(ablation::SingleReasoner::new(&self.knowledge, self.prior_config.neighbour_radius_m))
         } else {

@@ -170,6 +170,9 @@ pub struct LocoRun {
     pub gt_nodes: GraphJson,
     /// How often the reasoner fell back, on the fused graph and on the ground-truth nodes.
     pub fallback: [FallbackCounts; 2],
+    /// The known category the embedding fallback gives the category's own name, with the
+    /// cosine (`None`: nothing within the threshold).
+    pub nearest: Option<(String, f32)>,
 }
 
 /// Runs one scene: the full system and the ablations over one rendering pass.
@@ -286,9 +289,15 @@ pub fn run_scene(base: &Profile, room: RoomKind, seed: u64) -> Result<SceneRun, 
             .collect();
         let (fused, on_fused) = enrich_with(&full_run.graph, Some(reduced.clone()), ReasoningSetup::Split)?;
         let (gt_nodes, on_gt) =
-            agreement::knowledge_answer_with(&ground_truth, &profile, Some(reduced), Some(embedder.clone()))
+            agreement::knowledge_answer_with(&ground_truth, &profile, Some(reduced.clone()), Some(embedder.clone()))
                 .map_err(|e| format!("{name}: leave out {category}: {e}"))?;
-        loco.push(LocoRun { category, involved, fused, gt_nodes, fallback: [on_fused, on_gt] });
+        let nearest = fallback::LabelFallback::new(&reduced, Some(embedder.clone())).nearest(&category, true).and_then(
+            |(c, cosine)| match c {
+                op3dsg_runtime::knowledge::Category::Object(o) => Some((reduced.object(o).name.clone(), cosine)),
+                op3dsg_runtime::knowledge::Category::Part(_) => None,
+            },
+        );
+        loco.push(LocoRun { category, involved, fused, gt_nodes, fallback: [on_fused, on_gt], nearest });
     }
     let criteria = MatchCriteria { min_observations: profile.fusion.min_observations, ..MatchCriteria::default() };
     let fusion = fusion_match::match_run(&full_run, &criteria);
@@ -419,6 +428,8 @@ pub struct LocoCategory {
     pub figures: Vec<RecallFigures>,
     /// How often the reasoner fell back (on the fused graph, on the ground-truth nodes).
     pub fallback: [FallbackCounts; 2],
+    /// The known category the embedding fallback gives the category's own name, with the cosine.
+    pub nearest: Option<(String, f32)>,
 }
 
 /// The leave-one-category-out test ([`run_scene`], module docs).
@@ -544,6 +555,7 @@ pub fn score(runs: &[SceneRun], embedder: &mut dyn super::recall::PhraseEmbedder
                 }
             };
             entry.scenes += 1;
+            entry.nearest.clone_from(&l.nearest);
             for (a, b) in entry.figures.iter_mut().zip(&figures) {
                 a.add(b);
             }
@@ -733,10 +745,14 @@ fn loco_lines(loco: &Loco) -> Vec<(String, Vec<String>)> {
 }
 
 fn fallback_text(c: &[FallbackCounts; 2]) -> String {
-    format!(
-        "fused graph: {} by embedding, {} by part rule, {} unresolved; GT nodes: {} / {} / {}",
-        c[0].by_embedding, c[0].by_part_rule, c[0].unresolved, c[1].by_embedding, c[1].by_part_rule, c[1].unresolved
-    )
+    let one = |c: &FallbackCounts| {
+        format!(
+            "{} nodes given their nearest category by embedding, {} parts reasoned as on the nearest category that \
+             has them, {} parts by the part-label rule, {} nodes unresolved",
+            c.by_embedding, c.parts_by_embedding, c.by_part_rule, c.unresolved
+        )
+    };
+    format!("on the fused graphs {}; on the ground-truth nodes {}", one(&c[0]), one(&c[1]))
 }
 
 /// The leave-one-category-out block of the text report.
@@ -759,13 +775,17 @@ pub fn loco_text(loco: &Loco) -> String {
         s.push('\n');
     }
     let _ = writeln!(s, "  fallbacks: {}", fallback_text(&loco.fallback));
-    let _ = writeln!(s, "  per category, full -> leave one out (fused graph), R@3 aff / func:");
+    let _ = writeln!(
+        s,
+        "  per category (as: its nearest known category by embedding), full -> leave one out (fused graph), R@3 aff / func:"
+    );
     for c in &loco.categories {
         let [full, left] = [&c.figures[0], &c.figures[1]];
         let _ = writeln!(
             s,
-            "    {:<22} {} scenes, {} aff, {} func: aff {} -> {}, func {} -> {}; GT nodes func {} -> {}",
+            "    {:<22} {:<28} {} scenes, {} aff, {} func: aff {} -> {}, func {} -> {}; GT nodes func {} -> {}",
             c.category,
+            c.nearest.as_ref().map_or_else(|| "(nothing near)".to_owned(), |(n, cos)| format!("(as {n}, {cos:.2})")),
             c.scenes,
             full.affordance.total,
             full.functional.total,
