@@ -331,6 +331,63 @@ mod tests {
         assert_eq!(output.fallback, FallbackCounts::default());
     }
 
+    /// "larder" embeds exactly like "cabinet"; every other phrase is orthogonal to both.
+    struct Larder;
+    impl crate::reasoner::llm::gate::PhraseEmbedder for Larder {
+        fn embed(&mut self, phrases: &[&str]) -> Result<Vec<crate::onnx::text_encoder::Embedding>, String> {
+            use std::hash::{Hash, Hasher};
+            Ok(phrases
+                .iter()
+                .map(|p| {
+                    let mut e = [0.0f32; crate::onnx::text_encoder::EMBEDDING_DIM];
+                    let index = if *p == "larder" || *p == "cabinet" {
+                        0
+                    } else {
+                        let mut h = std::collections::hash_map::DefaultHasher::new();
+                        p.hash(&mut h);
+                        1 + (h.finish() as usize) % (e.len() - 1)
+                    };
+                    e[index] = 1.0;
+                    e
+                })
+                .collect())
+        }
+    }
+
+    #[test]
+    fn an_unknown_object_is_reasoned_as_its_nearest_category_by_embedding() {
+        let kb = Arc::new(KnowledgeBase::builtin().unwrap());
+        let embedder: crate::reasoner::fallback::SharedEmbedder = Arc::new(std::sync::Mutex::new(Box::new(Larder)));
+        let g = graph(vec![
+            node(1, "larder", None, [0.0, 0.0, 0.4], 0.3),
+            node(2, "handle", Some(1), [0.0, -0.3, 0.6], 0.01),
+            node(3, "cabinet", None, [2.0, 0.0, 0.4], 0.3),
+            node(4, "handle", Some(3), [2.0, -0.3, 0.6], 0.01),
+        ]);
+        let prior = prior::build(&g, &kb, &PriorConfig::default());
+        let output = KnowledgeReasoner::with_embedder(kb.clone(), Some(embedder.clone())).reason(&prior);
+        let relation = |output: &ReasonerOutput, id: u32| output.functional.iter().find(|r| r.source_id == id).cloned();
+        let (unknown, known) = (relation(&output, 2).unwrap(), relation(&output, 4).unwrap());
+        assert_eq!((unknown.target_id, unknown.relation_id), (1, known.relation_id));
+        assert!((unknown.confidence - EMBEDDING_CONFIDENCE * known.confidence).abs() < 1e-6, "{unknown:?} {known:?}");
+        assert_eq!(output.fallback, FallbackCounts { by_embedding: 1, ..FallbackCounts::default() });
+        // Without an embedder the handle falls back to the part-label rule, less confident still.
+        let output = KnowledgeReasoner::new(kb.clone()).reason(&prior);
+        let rule = relation(&output, 2).unwrap();
+        assert!(rule.confidence < unknown.confidence, "{rule:?}");
+        assert_eq!(output.fallback, FallbackCounts { unresolved: 1, by_part_rule: 1, ..FallbackCounts::default() });
+        // A prior graph built with the fallback carries the category, flagged, and it is counted once.
+        let mut builder = prior::PriorBuilder::with_fallback(crate::reasoner::fallback::LabelFallback::new(
+            &kb,
+            Some(embedder.clone()),
+        ));
+        let flagged = builder.build(&g, &kb, &PriorConfig::default());
+        assert!(flagged.nodes[0].by_embedding && flagged.nodes[0].category.is_some());
+        let output = KnowledgeReasoner::with_embedder(kb, Some(embedder)).reason(&flagged);
+        assert_eq!(relation(&output, 2).map(|r| r.confidence), Some(unknown.confidence));
+        assert_eq!(output.fallback, FallbackCounts { by_embedding: 1, ..FallbackCounts::default() });
+    }
+
     #[test]
     fn a_stove_with_knobs_and_an_oven_handle() {
         let g = graph(vec![
