@@ -52,6 +52,7 @@ use rustc_hash::FxHashMap;
 use crate::config::UpAxis;
 use crate::graph::{GraphEdge, SceneGraph};
 use crate::knowledge::{KnowledgeBase, Resolved};
+use crate::reasoner::fallback::LabelFallback;
 
 /// Tolerances of the prior graph (see the module docs for how each is used).
 #[derive(Debug, Clone, PartialEq)]
@@ -94,8 +95,13 @@ pub struct PriorNode {
     pub parent_id: Option<u32>,
     /// Voted label.
     pub label: String,
-    /// The label resolved against the knowledge base.
+    /// The label resolved against the knowledge base (or, for a label the tables do not know,
+    /// its nearest known category by embedding when the builder has a fallback; then
+    /// `by_embedding` is set).
     pub category: Option<Resolved>,
+    /// `category` came from the embedding fallback ([`crate::reasoner::fallback`]), not from
+    /// the tables.
+    pub by_embedding: bool,
     /// Node confidence.
     pub confidence: f32,
     /// Centre, world, metres.
@@ -275,6 +281,8 @@ pub fn build(graph: &SceneGraph, knowledge: &KnowledgeBase, config: &PriorConfig
 #[derive(Debug, Default)]
 pub struct PriorBuilder {
     resolved: FxHashMap<String, Option<Resolved>>,
+    /// Nearest known category for labels the tables do not know (with an embedder).
+    fallback: Option<LabelFallback>,
     grid: FxHashMap<(i32, i32, i32), Vec<u32>>,
     centres: Vec<Vec3>,
 }
@@ -283,21 +291,37 @@ pub struct PriorBuilder {
 const RESOLVED_CACHE_CAPACITY: usize = 4096;
 
 impl PriorBuilder {
+    /// A builder that gives a label the tables do not know its nearest known category by
+    /// embedding ([`LabelFallback::nearest`]), so that orphan parts attach to such an object and
+    /// the reasoner sees the category; the node's `by_embedding` says so.
+    pub fn with_fallback(fallback: LabelFallback) -> Self {
+        Self { fallback: fallback.has_embedder().then_some(fallback), ..Self::default() }
+    }
+
     /// Builds the prior graph of `graph`. Use one builder with one knowledge base only.
     pub fn build(&mut self, graph: &SceneGraph, knowledge: &KnowledgeBase, config: &PriorConfig) -> PriorGraph {
         if self.resolved.len() > RESOLVED_CACHE_CAPACITY {
             self.resolved.clear();
         }
         let resolved = &mut self.resolved;
+        let fallback = &mut self.fallback;
         let mut nodes: Vec<PriorNode> = graph
             .nodes
             .iter()
             .map(|n| {
-                let category = match resolved.get(n.label.as_str()) {
+                let mut category = match resolved.get(n.label.as_str()) {
                     Some(category) => *category,
                     None => *resolved.entry(n.label.clone()).or_insert_with(|| knowledge.resolve(&n.label)),
                 };
+                let mut by_embedding = false;
+                if let (None, Some(fallback)) = (category, fallback.as_mut())
+                    && let Some((nearest, _)) = fallback.nearest(&n.label, n.kind == NodeKind::Object)
+                {
+                    category = Some(Resolved { category: nearest, object_hint: None });
+                    by_embedding = true;
+                }
                 PriorNode {
+                    by_embedding,
                     id: n.id,
                     kind: n.kind,
                     parent_id: n.parent_id,

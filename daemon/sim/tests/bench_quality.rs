@@ -48,15 +48,43 @@ fn a_small_benchmark_scores_every_row_and_repeats() {
     // The knowledge base's agreement with the ground truth is measured on every scene.
     assert!(report.agreement.functional.total > 10 && report.agreement.affordance.total > 10, "{:?}", report.agreement);
     assert!(benchmark::text(&report).contains("ground truth vs knowledge base"));
+    let row = |name: &str| &report.rows.iter().find(|(r, _)| r == name).unwrap_or_else(|| panic!("row {name}")).1;
+    // Reasoning alone: the ground-truth nodes are found (they are the ground truth), and the
+    // relation columns are the reasoner's; fusion alone on exact detections finds every object.
+    let gt_nodes = row("reasoner on GT nodes");
+    assert_eq!(gt_nodes.object.percent(K3), Some(100.0), "{}", benchmark::text(&report));
+    assert_eq!(gt_nodes.object.total, full.object.total, "the same items are scored");
+    for (name, g, f) in
+        [("functional", gt_nodes.functional, full.functional), ("affordance", gt_nodes.affordance, full.affordance)]
+    {
+        assert!(
+            g.percent(K3) >= f.percent(K3),
+            "{name}: reasoning on exact nodes below end to end\n{}",
+            benchmark::text(&report)
+        );
+    }
+    let exact = row("fusion on exact detections");
+    assert!(exact.part.percent(K3).unwrap() >= full.part.percent(K3).unwrap() - 5.0, "{}", benchmark::text(&report));
+    // Leave one category out: every object category of the two rooms is left out once, its
+    // items are scored, and the reasoner falls back on the ground-truth nodes.
+    let loco = &report.loco;
+    assert!(loco.categories.len() >= 5, "{:?}", loco.categories.iter().map(|c| &c.category).collect::<Vec<_>>());
+    assert!(loco.categories.iter().any(|c| c.category == "cabinet"));
+    assert_eq!(loco.pooled.len(), benchmark::LOCO_ROWS.len());
+    assert!(loco.pooled[1].functional.total > 5 && loco.pooled[1].functional.total == loco.pooled[0].functional.total);
+    assert!(loco.fallback[1].by_embedding + loco.fallback[1].by_part_rule > 0, "{:?}", loco.fallback);
+    assert!(benchmark::text(&report).contains("leave one category out"));
     // Without knowledge-guided part candidates, generic part names lose part recall at R@3.
-    let generic = &report.rows[1].1;
+    let generic = row("w/o knowledge");
     assert!(generic.part.percent(K3).unwrap() + 10.0 < full.part.percent(K3).unwrap(), "{}", benchmark::text(&report));
     // The text names every row; the Markdown table has a line per row.
     let text = benchmark::text(&report);
     for row in ROWS {
         assert!(text.contains(row), "{row} missing:\n{text}");
     }
-    assert_eq!(benchmark::markdown(&report).lines().filter(|l| l.starts_with("| ")).count(), ROWS.len() + 1);
+    let markdown = benchmark::markdown(&report);
+    let tables = markdown.lines().filter(|l| l.starts_with("| ")).count();
+    assert_eq!(tables, ROWS.len() + 1 + 2 * benchmark::LOCO_ROWS.len() + 1, "{markdown}");
     // Deterministic, whichever thread ran which scene.
     let again = benchmark::run_scenes(&profile, scenes, 1, &progress).unwrap();
     assert_eq!(benchmark::score(&again, &mut encoder).unwrap(), report);
@@ -83,17 +111,20 @@ fn r3_columns(figures: &op3dsg_sim::eval::recall::RecallFigures) -> [(&'static s
 /// (after a change that is meant to move them; commit the file with the reason).
 fn regression_guard(report: &benchmark::QualityReport) {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(BASELINE);
+    let loco = benchmark::LOCO_ROWS[1..].iter().zip(&report.loco.pooled[1..]).map(|(r, f)| (format!("LOCO {r}"), *f));
     let now: serde_json::Map<String, serde_json::Value> = report
         .rows
         .iter()
+        .cloned()
+        .chain(loco)
         .map(|(row, figures)| {
-            let columns: serde_json::Map<String, serde_json::Value> = r3_columns(figures)
+            let columns: serde_json::Map<String, serde_json::Value> = r3_columns(&figures)
                 .into_iter()
                 .map(|(column, value)| {
                     (column.to_owned(), value.map_or(serde_json::Value::Null, |v| ((v * 10.0).round() / 10.0).into()))
                 })
                 .collect();
-            (row.clone(), serde_json::Value::Object(columns))
+            (row, serde_json::Value::Object(columns))
         })
         .collect();
     if std::env::var_os("OP3DSG_WRITE_BASELINE").is_some_and(|v| v == "1") {

@@ -591,6 +591,78 @@ impl KnowledgeBase {
         self.remotes.iter().filter(move |r| r.source == category)
     }
 
+    /// Every label (names and synonyms, normalised) with the category it names, in no order.
+    pub fn labels(&self) -> impl Iterator<Item = (&str, Category)> {
+        self.labels.iter().map(|(k, c)| (k.as_str(), *c))
+    }
+
+    /// A copy that has never heard of the object category `name` (canonical name): the category,
+    /// its synonyms and its object-part pairs are gone, and so are the part categories no other
+    /// object has (with their synonyms), the remote templates whose source is gone, and the
+    /// category among every remote template's targets (a template left without targets is
+    /// dropped). Part categories other objects share stay: they are known from those objects.
+    /// The leave-one-category-out benchmark reasons with it. `None` when `name` is no object
+    /// category.
+    pub fn without_object(&self, name: &str) -> Option<Self> {
+        let removed = self.objects.iter().position(|o| o.name == name)?;
+        let exclusive: Vec<bool> = (0..self.parts.len())
+            .map(|p| {
+                let id = PartId(p as u16);
+                self.objects[removed].parts.iter().any(|pair| pair.part == id)
+                    && !self
+                        .objects
+                        .iter()
+                        .enumerate()
+                        .any(|(o, object)| o != removed && object.parts.iter().any(|pair| pair.part == id))
+            })
+            .collect();
+        let object_map = |id: ObjectId| -> Option<ObjectId> {
+            match (id.0 as usize).cmp(&removed) {
+                std::cmp::Ordering::Less => Some(id),
+                std::cmp::Ordering::Equal => None,
+                std::cmp::Ordering::Greater => Some(ObjectId(id.0 - 1)),
+            }
+        };
+        let mut part_ids = Vec::with_capacity(self.parts.len());
+        let mut next = 0u16;
+        for gone in &exclusive {
+            part_ids.push((!gone).then_some(PartId(next)));
+            next += u16::from(!gone);
+        }
+        let part_map = |id: PartId| part_ids[id.0 as usize];
+        let category_map = |c: Category| match c {
+            Category::Object(o) => object_map(o).map(Category::Object),
+            Category::Part(p) => part_map(p).map(Category::Part),
+        };
+        let objects = self
+            .objects
+            .iter()
+            .enumerate()
+            .filter(|(o, _)| *o != removed)
+            .map(|(_, object)| ObjectCategory {
+                name: object.name.clone(),
+                affordance_bits: object.affordance_bits,
+                parts: object
+                    .parts
+                    .iter()
+                    .filter_map(|pair| part_map(pair.part).map(|part| PartPair { part, ..pair.clone() }))
+                    .collect(),
+            })
+            .collect();
+        let parts = self.parts.iter().zip(&exclusive).filter(|(_, gone)| !**gone).map(|(p, _)| p.clone()).collect();
+        let remotes = self
+            .remotes
+            .iter()
+            .filter_map(|r| {
+                let source = category_map(r.source)?;
+                let targets: Vec<ObjectId> = r.targets.iter().filter_map(|t| object_map(*t)).collect();
+                (!targets.is_empty()).then(|| RemoteTemplate { source, targets, ..r.clone() })
+            })
+            .collect();
+        let labels = self.labels.iter().filter_map(|(k, c)| category_map(*c).map(|c| (k.clone(), c))).collect();
+        Some(Self { objects, parts, remotes, labels })
+    }
+
     /// A copy whose remote templates reach at most `max_distance_m` (the single-reasoner
     /// ablation, `crate::reasoner::ablation`).
     pub fn with_remote_reach(&self, max_distance_m: f32) -> Self {
@@ -658,6 +730,42 @@ mod tests {
         assert_eq!(names(kb.part_affordances(knob, Some(cabinet))), ["rotate", "pinch_pull"]);
         assert_eq!(names(kb.part_affordances(knob, Some(drawer))), ["pinch_pull"]);
         assert_eq!(names(kb.part_affordances(knob, None)), ["rotate"]);
+    }
+
+    #[test]
+    fn without_object_forgets_the_category_and_its_own_parts_only() {
+        let kb = kb();
+        let toilet = kb.object_category("toilet").unwrap();
+        let own: Vec<String> = kb.parts_of(toilet).iter().map(|p| kb.part(p.part).name.clone()).collect();
+        let loco = kb.without_object("toilet").unwrap();
+        assert_eq!(loco.objects().len(), kb.objects().len() - 1);
+        assert_eq!(loco.object_category("toilet"), None);
+        assert_eq!(loco.object_category("wc"), None, "synonyms go with the category");
+        assert_eq!(loco.pair_count(), kb.pair_count() - own.len());
+        // A part only the toilet has is gone; one other objects have stays, with its pairs.
+        let shared: Vec<&String> = own
+            .iter()
+            .filter(|p| kb.objects().iter().filter(|o| o.parts.iter().any(|q| &kb.part(q.part).name == *p)).count() > 1)
+            .collect();
+        assert!(loco.parts().len() < kb.parts().len() || shared.len() == own.len());
+        for p in &shared {
+            assert!(loco.parts().iter().any(|q| &q.name == *p), "{p} is shared and must stay");
+        }
+        // Ids are renumbered consistently: every other object keeps its pairs and relations.
+        let cabinet = loco.object_category("cabinet").unwrap();
+        let handle = loco.resolve("handle").unwrap().part().unwrap();
+        let relation = loco.local_relation(handle, cabinet).unwrap();
+        assert_eq!(op3dsg_ipc_types::relation_phrase(relation), Some("pull to open or close"));
+        // Remote targets lose it; a category nothing targets leaves the templates alone.
+        let light = kb.without_object("ceiling light").unwrap();
+        let switch = light.resolve("light switch").unwrap().category;
+        assert!(
+            light
+                .remote_templates_for(switch)
+                .all(|t| t.targets.iter().all(|o| light.object(*o).name != "ceiling light"))
+        );
+        assert!(light.remote_templates_for(switch).next().is_some());
+        assert!(kb.without_object("unicorn").is_none());
     }
 
     fn load(objects: &str, parts: &str, remote: &str) -> Result<KnowledgeBase, KnowledgeError> {

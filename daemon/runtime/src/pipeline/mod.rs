@@ -144,6 +144,7 @@ pub fn make_enricher(profile: &Profile) -> Result<Option<GraphEnricher>, StartEr
             StartError::Incompatible { field: "reasoner.knowledge_dir", reason: e.to_string() }
         }
         EnricherError::Llm { field, reason } => StartError::Incompatible { field, reason },
+        EnricherError::TextEncoder(reason) => StartError::Incompatible { field: "text_encoder", reason },
     })
 }
 

@@ -22,6 +22,10 @@
 //!   present (a remote control picks the TV over the game console beside it). Nearest within a
 //!   distance stands in for "in the same room", which the graph does not know yet.
 //!   Confidence: the template's × the source node's.
+//! - **Labels the tables do not know** ([`super::fallback`]): a node whose label resolves to
+//!   nothing takes its nearest known category by text embedding (with an embedder), and a known
+//!   part on a parent of unknown category gets the part-label rule (what that part does on most
+//!   objects of the tables); both are counted in [`ReasonerOutput::fallback`].
 //! - **Spatial corrections**: none (geometry decides spatial relations; LLM agents may
 //!   propose corrections later).
 //!
@@ -32,9 +36,10 @@ use std::sync::Arc;
 
 use op3dsg_ipc_types::NodeKind;
 
+use super::fallback::{EMBEDDING_CONFIDENCE, FallbackCounts, LabelFallback, RULE_CONFIDENCE, SharedEmbedder};
 use super::{FunctionalRelation, NodeAffordances, Reasoner, ReasonerOutput};
-use crate::knowledge::{Category, KnowledgeBase, ObjectId, TargetChoice};
-use crate::prior::{PriorGraph, PriorNode};
+use crate::knowledge::{Category, KnowledgeBase, Resolved, TargetChoice};
+use crate::prior::PriorGraph;
 
 /// Confidence factor of a local relation from the parent's own pair.
 pub const LOCAL_CONFIDENCE: f32 = 0.9;
@@ -45,17 +50,60 @@ pub const HINTED_LOCAL_CONFIDENCE: f32 = 0.6;
 #[derive(Debug, Clone)]
 pub struct KnowledgeReasoner {
     knowledge: Arc<KnowledgeBase>,
+    fallback: LabelFallback,
+}
+
+/// A node's category as the reasoner uses it: from the tables, or found by the embedding
+/// fallback (with its confidence factor).
+#[derive(Debug, Clone, Copy)]
+struct Effective {
+    resolved: Resolved,
+    factor: f32,
 }
 
 impl KnowledgeReasoner {
-    /// A reasoner over `knowledge`.
+    /// A reasoner over `knowledge`, with the part-label rule for unknown parents and no
+    /// embedding fallback.
     pub fn new(knowledge: Arc<KnowledgeBase>) -> Self {
-        Self { knowledge }
+        Self::with_embedder(knowledge, None)
     }
 
-    fn parent_category(&self, prior: &PriorGraph, node: &PriorNode) -> Option<ObjectId> {
-        let parent = node.parent_id.and_then(|id| prior.index_of(id)).map(|i| &prior.nodes[i]);
-        parent.and_then(|p| p.category).and_then(|c| c.object())
+    /// A reasoner over `knowledge` whose labels the tables do not know fall back as
+    /// [`super::fallback`] says; `embedder` enables the nearest-category fallback.
+    pub fn with_embedder(knowledge: Arc<KnowledgeBase>, embedder: Option<SharedEmbedder>) -> Self {
+        let fallback = LabelFallback::new(&knowledge, embedder);
+        Self { knowledge, fallback }
+    }
+
+    /// Every prior node's category: the resolved one, else the nearest by embedding.
+    fn effective(&mut self, prior: &PriorGraph, counts: &mut FallbackCounts) -> Vec<Option<Effective>> {
+        prior
+            .nodes
+            .iter()
+            .map(|node| {
+                if let Some(resolved) = node.category {
+                    // The prior graph's builder may have used the embedding fallback already.
+                    if node.by_embedding {
+                        counts.by_embedding += 1;
+                        return Some(Effective { resolved, factor: EMBEDDING_CONFIDENCE });
+                    }
+                    return Some(Effective { resolved, factor: 1.0 });
+                }
+                match self.fallback.nearest(&node.label, node.kind == NodeKind::Object) {
+                    Some((category, _)) => {
+                        counts.by_embedding += 1;
+                        Some(Effective {
+                            resolved: Resolved { category, object_hint: None },
+                            factor: EMBEDDING_CONFIDENCE,
+                        })
+                    }
+                    None => {
+                        counts.unresolved += 1;
+                        None
+                    }
+                }
+            })
+            .collect()
     }
 }
 
@@ -65,10 +113,13 @@ impl Reasoner for KnowledgeReasoner {
     }
 
     fn reason(&mut self, prior: &PriorGraph) -> ReasonerOutput {
-        let kb = &*self.knowledge;
         let mut output = ReasonerOutput { graph_version: prior.version, ..ReasonerOutput::default() };
-        for node in &prior.nodes {
-            let Some(resolved) = node.category else { continue };
+        let mut counts = FallbackCounts::default();
+        let effective = self.effective(prior, &mut counts);
+        let kb = &*self.knowledge;
+        let object_of = |i: usize| effective[i].and_then(|e| e.resolved.object().map(|o| (o, e.factor)));
+        for (index, node) in prior.nodes.iter().enumerate() {
+            let Some(Effective { resolved, factor }) = effective[index] else { continue };
             let mut has_local = false;
             match resolved.category {
                 Category::Object(object) => {
@@ -77,38 +128,76 @@ impl Reasoner for KnowledgeReasoner {
                         output.affordances.push(NodeAffordances {
                             node_id: node.id,
                             affordance_bits: bits,
-                            confidence: node.confidence,
+                            confidence: factor * node.confidence,
                         });
                     }
                 }
                 Category::Part(part) => {
-                    let parent = self.parent_category(prior, node);
-                    let conditioned_on = parent
+                    let parent_index = node.parent_id.and_then(|id| prior.index_of(id));
+                    let parent = parent_index.and_then(object_of);
+                    let (parent, parent_factor) = (parent.map(|(p, _)| p), parent.map_or(1.0, |(_, f)| f));
+                    let mut conditioned_on = parent
                         .filter(|p| kb.pair(part, *p).is_some())
                         .or(resolved.object_hint.filter(|h| kb.pair(part, *h).is_some()));
-                    let bits = kb.part_affordances(part, conditioned_on);
+                    let unknown_parent =
+                        parent_index.filter(|i| effective[*i].is_none_or(|e| e.factor < 1.0)).map(|i| &prior.nodes[i]);
+                    // A parent of unknown category: the nearest known category that has this part.
+                    let mut parent = parent;
+                    let mut parent_factor = parent_factor;
+                    if let (None, Some(p)) = (conditioned_on, unknown_parent) {
+                        let has_part = |o| kb.pair(part, o).is_some();
+                        if let Some((nearest, _)) = self.fallback.nearest_object_where(&p.label, &has_part) {
+                            counts.parts_by_embedding += 1;
+                            conditioned_on = Some(nearest);
+                            parent = Some(nearest);
+                            parent_factor = EMBEDDING_CONFIDENCE;
+                        }
+                    }
+                    // The part-label rule: a known part on a parent whose category is unknown,
+                    // or whose nearest category has no such part.
+                    let by_rule = conditioned_on.is_none() && unknown_parent.is_some();
+                    let rule = by_rule.then(|| self.fallback.rule(part));
+                    let bits = match rule {
+                        Some(rule) => rule.affordance_bits,
+                        None => kb.part_affordances(part, conditioned_on),
+                    };
+                    let base = factor * if rule.is_some() { RULE_CONFIDENCE } else { parent_factor };
                     if bits != 0 {
                         output.affordances.push(NodeAffordances {
                             node_id: node.id,
                             affordance_bits: bits,
-                            confidence: node.confidence,
+                            confidence: base * node.confidence,
                         });
                     }
-                    if let (Some(parent_id), Some(parent)) = (node.parent_id, parent) {
-                        let local = kb.local_relation(part, parent).map(|r| (r, LOCAL_CONFIDENCE)).or_else(|| {
-                            let hint = resolved.object_hint.filter(|_| kb.pair(part, parent).is_none())?;
-                            kb.local_relation(part, hint).map(|r| (r, HINTED_LOCAL_CONFIDENCE))
-                        });
-                        if let Some((relation_id, factor)) = local {
+                    if let Some(parent_id) = node.parent_id {
+                        let local = match (parent, rule) {
+                            (_, Some(rule)) => rule.relation_id.map(|r| (r, LOCAL_CONFIDENCE)),
+                            (Some(parent), None) => {
+                                kb.local_relation(part, parent).map(|r| (r, LOCAL_CONFIDENCE)).or_else(|| {
+                                    let hint = resolved.object_hint.filter(|_| kb.pair(part, parent).is_none())?;
+                                    kb.local_relation(part, hint).map(|r| (r, HINTED_LOCAL_CONFIDENCE))
+                                })
+                            }
+                            // An unknown parent: the object the part's own label names ("oven
+                            // handle"), if the tables have that pair.
+                            (None, None) => resolved
+                                .object_hint
+                                .and_then(|hint| kb.local_relation(part, hint))
+                                .map(|r| (r, HINTED_LOCAL_CONFIDENCE)),
+                        };
+                        if let Some((relation_id, local_factor)) = local {
                             has_local = true;
                             output.functional.push(FunctionalRelation {
                                 source_id: node.id,
                                 target_id: parent_id,
                                 relation_id,
-                                confidence: factor * node.confidence,
+                                confidence: local_factor * base * node.confidence,
                                 remote: false,
                             });
                         }
+                    }
+                    if rule.is_some() && (has_local || bits != 0) {
+                        counts.by_part_rule += 1;
                     }
                 }
             }
@@ -116,39 +205,40 @@ impl Reasoner for KnowledgeReasoner {
                 continue;
             }
             for template in kb.remote_templates_for(resolved.category) {
-                let mut best: Option<(f32, usize, u32)> = None;
-                for candidate in &prior.nodes {
+                let mut best: Option<(f32, usize, u32, f32)> = None;
+                for (candidate_index, candidate) in prior.nodes.iter().enumerate() {
                     if candidate.kind != NodeKind::Object
                         || candidate.id == node.id
                         || Some(candidate.id) == node.parent_id
                     {
                         continue;
                     }
-                    let Some(target) = candidate.category.and_then(|c| c.object()) else { continue };
+                    let Some((target, target_factor)) = object_of(candidate_index) else { continue };
                     let Some(rank) = template.targets.iter().position(|t| *t == target) else { continue };
                     let distance = node.centre_m.distance(candidate.centre_m);
                     if distance.is_nan() || distance > template.max_distance_m {
                         continue;
                     }
-                    let better = best.is_none_or(|(d, r, _)| match template.choose {
+                    let better = best.is_none_or(|(d, r, _, _)| match template.choose {
                         TargetChoice::Nearest => (distance, rank) < (d, r),
                         TargetChoice::ListedOrder => (rank, distance) < (r, d),
                     });
                     if better {
-                        best = Some((distance, rank, candidate.id));
+                        best = Some((distance, rank, candidate.id, target_factor));
                     }
                 }
-                if let Some((_, _, target_id)) = best {
+                if let Some((_, _, target_id, target_factor)) = best {
                     output.functional.push(FunctionalRelation {
                         source_id: node.id,
                         target_id,
                         relation_id: template.relation_id,
-                        confidence: template.confidence * node.confidence,
+                        confidence: template.confidence * factor * target_factor * node.confidence,
                         remote: true,
                     });
                 }
             }
         }
+        output.fallback = counts;
         output
     }
 }
@@ -217,6 +307,86 @@ mod tests {
         let affordances =
             output.affordances.iter().map(|a| (a.node_id, affordance_names(a.affordance_bits).collect())).collect();
         (relations, affordances)
+    }
+
+    #[test]
+    fn parts_of_an_unknown_object_follow_the_part_label_rule() {
+        let kb = Arc::new(KnowledgeBase::builtin().unwrap().without_object("nightstand").unwrap());
+        let g = graph(vec![
+            node(1, "nightstand", None, [0.0, 0.0, 0.3], 0.25),
+            node(2, "handle", Some(1), [0.0, -0.25, 0.4], 0.01),
+            node(3, "cabinet", None, [2.0, 0.0, 0.4], 0.3),
+            node(4, "handle", Some(3), [2.0, -0.3, 0.6], 0.01),
+        ]);
+        let prior = prior::build(&g, &kb, &PriorConfig::default());
+        let output = KnowledgeReasoner::new(kb.clone()).reason(&prior);
+        let relation = |id: u32| output.functional.iter().find(|r| r.source_id == id).cloned().unwrap();
+        // The handle on the unknown nightstand: what handles do on most objects, less confident.
+        let (unknown, known) = (relation(2), relation(4));
+        assert_eq!((unknown.target_id, relation_phrase(unknown.relation_id)), (1, Some("pull to open or close")));
+        assert!(unknown.confidence < known.confidence, "{unknown:?} {known:?}");
+        assert_eq!(output.fallback, FallbackCounts { unresolved: 1, by_part_rule: 1, ..FallbackCounts::default() });
+        // With the full tables nothing falls back.
+        let full = Arc::new(KnowledgeBase::builtin().unwrap());
+        let output = KnowledgeReasoner::new(full.clone()).reason(&prior::build(&g, &full, &PriorConfig::default()));
+        assert_eq!(output.fallback, FallbackCounts::default());
+    }
+
+    /// "larder" embeds exactly like "cabinet"; every other phrase is orthogonal to both.
+    struct Larder;
+    impl crate::reasoner::llm::gate::PhraseEmbedder for Larder {
+        fn embed(&mut self, phrases: &[&str]) -> Result<Vec<crate::onnx::text_encoder::Embedding>, String> {
+            use std::hash::{Hash, Hasher};
+            Ok(phrases
+                .iter()
+                .map(|p| {
+                    let mut e = [0.0f32; crate::onnx::text_encoder::EMBEDDING_DIM];
+                    let index = if *p == "larder" || *p == "cabinet" {
+                        0
+                    } else {
+                        let mut h = std::collections::hash_map::DefaultHasher::new();
+                        p.hash(&mut h);
+                        1 + (h.finish() as usize) % (e.len() - 1)
+                    };
+                    e[index] = 1.0;
+                    e
+                })
+                .collect())
+        }
+    }
+
+    #[test]
+    fn an_unknown_object_is_reasoned_as_its_nearest_category_by_embedding() {
+        let kb = Arc::new(KnowledgeBase::builtin().unwrap());
+        let embedder: crate::reasoner::fallback::SharedEmbedder = Arc::new(std::sync::Mutex::new(Box::new(Larder)));
+        let g = graph(vec![
+            node(1, "larder", None, [0.0, 0.0, 0.4], 0.3),
+            node(2, "handle", Some(1), [0.0, -0.3, 0.6], 0.01),
+            node(3, "cabinet", None, [2.0, 0.0, 0.4], 0.3),
+            node(4, "handle", Some(3), [2.0, -0.3, 0.6], 0.01),
+        ]);
+        let prior = prior::build(&g, &kb, &PriorConfig::default());
+        let output = KnowledgeReasoner::with_embedder(kb.clone(), Some(embedder.clone())).reason(&prior);
+        let relation = |output: &ReasonerOutput, id: u32| output.functional.iter().find(|r| r.source_id == id).cloned();
+        let (unknown, known) = (relation(&output, 2).unwrap(), relation(&output, 4).unwrap());
+        assert_eq!((unknown.target_id, unknown.relation_id), (1, known.relation_id));
+        assert!((unknown.confidence - EMBEDDING_CONFIDENCE * known.confidence).abs() < 1e-6, "{unknown:?} {known:?}");
+        assert_eq!(output.fallback, FallbackCounts { by_embedding: 1, ..FallbackCounts::default() });
+        // Without an embedder the handle falls back to the part-label rule, less confident still.
+        let output = KnowledgeReasoner::new(kb.clone()).reason(&prior);
+        let rule = relation(&output, 2).unwrap();
+        assert!(rule.confidence < unknown.confidence, "{rule:?}");
+        assert_eq!(output.fallback, FallbackCounts { unresolved: 1, by_part_rule: 1, ..FallbackCounts::default() });
+        // A prior graph built with the fallback carries the category, flagged, and it is counted once.
+        let mut builder = prior::PriorBuilder::with_fallback(crate::reasoner::fallback::LabelFallback::new(
+            &kb,
+            Some(embedder.clone()),
+        ));
+        let flagged = builder.build(&g, &kb, &PriorConfig::default());
+        assert!(flagged.nodes[0].by_embedding && flagged.nodes[0].category.is_some());
+        let output = KnowledgeReasoner::with_embedder(kb, Some(embedder)).reason(&flagged);
+        assert_eq!(relation(&output, 2).map(|r| r.confidence), Some(unknown.confidence));
+        assert_eq!(output.fallback, FallbackCounts { by_embedding: 1, ..FallbackCounts::default() });
     }
 
     #[test]

@@ -17,6 +17,7 @@
 //! ```
 
 pub mod ablation;
+pub mod fallback;
 mod knowledge;
 pub mod llm;
 
@@ -39,6 +40,9 @@ pub enum EnricherError {
     /// The knowledge base did not load.
     #[error(transparent)]
     Knowledge(#[from] KnowledgeError),
+    /// The text encoder of the label fallback did not load (`[text_encoder] enabled = true`).
+    #[error("{0}")]
+    TextEncoder(String),
     /// The LLM refiner could not start.
     #[error("{field}: {reason}")]
     Llm {
@@ -65,6 +69,10 @@ pub struct GraphEnricher {
     /// Batch runs: the refiner only refreshes through [`GraphEnricher::refine_now`].
     synchronous: bool,
     setup: ReasoningSetup,
+    /// The embedding fallback's encoder for labels the tables do not know ([`fallback`]).
+    label_embedder: Option<fallback::SharedEmbedder>,
+    /// The knowledge reasoner's fallback counts on the last graph.
+    fallback_counts: fallback::FallbackCounts,
 }
 
 impl std::fmt::Debug for GraphEnricher {
@@ -95,20 +103,31 @@ impl GraphEnricher {
             min_footprint_overlap: config.min_footprint_overlap,
             inside_tolerance_m: config.inside_tolerance_m,
         };
-        let reasoner: Box<dyn Reasoner> = Box::new(KnowledgeReasoner::new(knowledge.clone()));
+        // With the text encoder on, labels the tables do not know take their nearest category.
+        let label_embedder = if profile.text_encoder.enabled {
+            Some(fallback::load_embedder(profile).map_err(EnricherError::TextEncoder)?)
+        } else {
+            None
+        };
+        let reasoner: Box<dyn Reasoner> =
+            Box::new(KnowledgeReasoner::with_embedder(knowledge.clone(), label_embedder.clone()));
         let refiner = match config.kind {
             ReasonerKind::Llm => Some(start_refiner(profile, knowledge.clone())?),
             ReasonerKind::Knowledge | ReasonerKind::None => None,
         };
+        let prior_builder =
+            prior::PriorBuilder::with_fallback(fallback::LabelFallback::new(&knowledge, label_embedder.clone()));
         Ok(Some(Self {
             knowledge,
             prior_config,
-            prior_builder: prior::PriorBuilder::default(),
+            prior_builder,
             reasoner,
             refiner,
             llm_result: None,
             synchronous: false,
             setup: ReasoningSetup::Split,
+            label_embedder,
+            fallback_counts: fallback::FallbackCounts::default(),
         }))
     }
 
@@ -129,13 +148,43 @@ impl GraphEnricher {
     /// [`ablation`]).
     pub fn with_setup(mut self, setup: ReasoningSetup) -> Self {
         self.setup = setup;
-        if setup == ReasoningSetup::Single {
-            self.reasoner =
-                Box::new(ablation::SingleReasoner::new(&self.knowledge, self.prior_config.neighbour_radius_m));
-        } else {
-            self.reasoner = Box::new(KnowledgeReasoner::new(self.knowledge.clone()));
-        }
+        self.remake_reasoner();
         self
+    }
+
+    /// The same enricher reasoning with `knowledge` instead of the profile's tables (the
+    /// leave-one-category-out benchmark gives it tables that lack one category).
+    pub fn with_knowledge(mut self, knowledge: Arc<KnowledgeBase>) -> Self {
+        self.knowledge = knowledge;
+        self.remake_reasoner();
+        self
+    }
+
+    /// The same enricher with `embedder` for the nearest-category fallback ([`fallback`]), as
+    /// `[text_encoder] enabled = true` gives it.
+    pub fn with_label_embedder(mut self, embedder: fallback::SharedEmbedder) -> Self {
+        self.label_embedder = Some(embedder);
+        self.remake_reasoner();
+        self
+    }
+
+    /// The knowledge reasoner's fallback counts on the last graph enriched (zero for the
+    /// single-reasoner ablation).
+    pub fn fallback_counts(&self) -> fallback::FallbackCounts {
+        self.fallback_counts
+    }
+
+    fn remake_reasoner(&mut self) {
+        // A new builder: its label cache and fallback belong to the old tables or embedder.
+        self.prior_builder = prior::PriorBuilder::with_fallback(fallback::LabelFallback::new(
+            &self.knowledge,
+            self.label_embedder.clone(),
+        ));
+        self.reasoner = if self.setup == ReasoningSetup::Single {
+            Box::new(ablation::SingleReasoner::new(&self.knowledge, self.prior_config.neighbour_radius_m))
+        } else {
+            Box::new(KnowledgeReasoner::with_embedder(self.knowledge.clone(), self.label_embedder.clone()))
+        };
     }
 
     /// Adds the prior graph's object relations and the reasoner's results to `graph` (fusion's
@@ -151,6 +200,7 @@ impl GraphEnricher {
             prior.spatial_edges.extend(relations.iter().cloned());
             graph.edges.extend(relations);
             let output = self.reasoner.reason(&prior);
+            self.fallback_counts = output.fallback;
             apply(graph, &output, EdgeOrigin::Knowledge);
             return Arc::new(prior);
         }
@@ -172,6 +222,7 @@ impl GraphEnricher {
             }
         }
         let output = self.reasoner.reason(&prior);
+        self.fallback_counts = output.fallback;
         apply(graph, &output, EdgeOrigin::Knowledge);
         if self.refiner.is_some() && !self.synchronous {
             if let Some(result) = self.refiner.as_ref().and_then(llm::LlmRefiner::try_result) {
@@ -299,6 +350,9 @@ pub struct ReasonerOutput {
     pub affordances: Vec<NodeAffordances>,
     /// Spatial corrections.
     pub spatial_corrections: Vec<SpatialCorrection>,
+    /// How often the knowledge reasoner fell back for labels its tables do not know
+    /// ([`fallback`]); zero from other reasoners.
+    pub fallback: fallback::FallbackCounts,
 }
 
 /// A reasoner over prior graphs.

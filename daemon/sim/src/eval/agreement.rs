@@ -26,6 +26,7 @@ use op3dsg_runtime::config::{Profile, ReasonerKind};
 use op3dsg_runtime::graph::{GraphEdge, GraphNode, OrientedBox, SceneGraph};
 use op3dsg_runtime::pipeline::make_enricher;
 use op3dsg_runtime::reasoner::ReasoningSetup;
+use op3dsg_runtime::reasoner::fallback::{FallbackCounts, SharedEmbedder};
 use serde::Serialize;
 
 /// Agreeing items out of all.
@@ -92,12 +93,29 @@ impl Agreement {
 /// kind, parent, box) and `part of` edges through `profile`'s prior graph and the offline
 /// knowledge reasoner (whatever `reasoner.kind` the profile names), as graph JSON.
 pub fn knowledge_answer(ground_truth: &GraphJson, profile: &Profile) -> Result<GraphJson, String> {
+    Ok(knowledge_answer_with(ground_truth, profile, None, None)?.0)
+}
+
+/// [`knowledge_answer`] reasoning with `knowledge` instead of the profile's tables when given,
+/// and `embedder` for the reasoner's nearest-category fallback; with the fallback's counts.
+pub fn knowledge_answer_with(
+    ground_truth: &GraphJson,
+    profile: &Profile,
+    knowledge: Option<std::sync::Arc<op3dsg_runtime::knowledge::KnowledgeBase>>,
+    embedder: Option<SharedEmbedder>,
+) -> Result<(GraphJson, FallbackCounts), String> {
     let mut profile = profile.clone();
     profile.reasoner.kind = ReasonerKind::Knowledge;
     let mut enricher = make_enricher(&profile)
         .map_err(|e| e.to_string())?
-        .ok_or_else(|| "the profile builds no knowledge reasoner".to_owned())?
-        .with_setup(ReasoningSetup::Split);
+        .ok_or_else(|| "the profile builds no knowledge reasoner".to_owned())?;
+    if let Some(knowledge) = knowledge {
+        enricher = enricher.with_knowledge(knowledge);
+    }
+    if let Some(embedder) = embedder {
+        enricher = enricher.with_label_embedder(embedder);
+    }
+    let mut enricher = enricher.with_setup(ReasoningSetup::Split);
     let part_of = op3dsg_ipc_types::relation_id("part of").map_or(0, |(_, id)| id);
     let mut nodes: Vec<GraphNode> = ground_truth
         .nodes
@@ -134,7 +152,7 @@ pub fn knowledge_answer(ground_truth: &GraphJson, profile: &Profile) -> Result<G
         .collect();
     let mut graph = SceneGraph { version: 1, stamp_ns: 0, nodes, edges };
     enricher.enrich(&mut graph);
-    Ok(graph.to_json(&ground_truth.source))
+    Ok((graph.to_json(&ground_truth.source), enricher.fallback_counts()))
 }
 
 fn label(graph: &GraphJson, id: u32) -> &str {

@@ -21,7 +21,29 @@
 //! | w/o prior graph | the reasoner gets a flat node list ([`op3dsg_runtime::reasoner::ablation`]) |
 //! | w/o split | one reasoner instead of the split ([`op3dsg_runtime::reasoner::ablation`]) |
 //!
-//! All rows use the offline knowledge reasoner. Ground-truth nodes seen in fewer than 3
+//! Two rows isolate a stage:
+//!
+//! | row | what it measures | what it cannot |
+//! |---|---|---|
+//! | reasoner on GT nodes | reasoning alone: the ground-truth nodes (exact labels, kinds, parents, boxes, `part of` edges) through the prior graph and the reasoner, scored on the same items as every row | its node columns are 100 by construction (the nodes are the ground truth's); says nothing of perception or fusion |
+//! | fusion on exact detections | fusion alone: the oracle with its noise off (every visible instance, canonical label, exact mask, unperturbed feature; `OracleConfig::clean` with the run's seed and semantic source) fused and reasoned like the full row | node columns are fusion's; the relation columns still include the reasoner; the detections are exact, so it bounds fusion from above |
+//!
+//! ## Leave one category out
+//!
+//! For each object category of a scene's ground truth, the reasoner's tables lose it
+//! ([`KnowledgeBase::without_object`]: the category, its synonyms, its object-part pairs, the
+//! part categories no other object has, its remote templates and its place among remote
+//! targets). The full row's fused graph and the ground-truth nodes are reasoned again with
+//! those tables, and the items that involve the category are scored: its nodes and their parts,
+//! their affordances, and the triplets with one of them at either end. The same items of the
+//! full row and of "reasoner on GT nodes" are the comparison. The reasoner has to fall back
+//! ([`op3dsg_runtime::reasoner::fallback`]: nearest known category by MiniLM embedding, then
+//! the part-label rule), and the fallbacks are counted. The detector's knowledge-guided part
+//! prompts still come from the full tables (the rendering pass is shared), so the node columns
+//! of "leave one out" are perception with the category known; only reasoning loses it.
+//!
+//! All rows reason with the offline knowledge reasoner and its label fallback (the embedding
+//! part on the MiniLM encoder, loaded per scene). Ground-truth nodes seen in fewer than 3
 //! keyframes are not scored (see [`super::recall`]); the vocabulary is the labels of all
 //! scenes of the run.
 //!
@@ -53,12 +75,26 @@ use super::fusion_match::{self, FusionMatchReport, MatchCriteria};
 use super::recall::{AffordanceMiss, EdgeMiss, K3, K5, K10, Recall, RecallEvaluator, RecallFigures, Vocabulary};
 use crate::backends::{oracle_config, set_oracle_config, set_synthetic_config, synthetic_config};
 use crate::batch::{self, Lane, VisibilityThresholds};
+use crate::oracle::OracleConfig;
 use op3dsg_runtime::config::{Profile, ReasonerKind};
+use op3dsg_runtime::knowledge::KnowledgeBase;
 use op3dsg_runtime::pipeline::{make_enricher, make_fusion};
 use op3dsg_runtime::reasoner::ReasoningSetup;
+use op3dsg_runtime::reasoner::fallback::{self, FallbackCounts};
+use std::sync::Arc;
 
 /// The rows of the table, in order.
-pub const ROWS: [&str; 5] = ["full", "w/o knowledge", "w/o colour", "w/o prior graph", "w/o split"];
+pub const ROWS: [&str; 7] = [
+    "full",
+    "reasoner on GT nodes",
+    "fusion on exact detections",
+    "w/o knowledge",
+    "w/o colour",
+    "w/o prior graph",
+    "w/o split",
+];
+/// Index of "reasoner on GT nodes" in [`ROWS`].
+pub const GT_NODES_ROW: usize = 1;
 /// Targets of the full row at R@3, percent: object, part, affordance, functional, spatial.
 pub const TARGETS_R3: [(&str, f64); 5] =
     [("object", 90.0), ("part", 88.0), ("affordance", 85.0), ("functional triplet", 70.0), ("spatial triplet", 70.0)];
@@ -117,6 +153,26 @@ pub struct SceneRun {
     pub keyframes: u64,
     /// How often the knowledge base gives the ground truth's answer on this scene's nodes.
     pub agreement: Agreement,
+    /// The leave-one-category-out runs: one per object category of the scene.
+    pub loco: Vec<LocoRun>,
+}
+
+/// One category left out of the knowledge base on one scene ([`run_scene`]).
+#[derive(Debug, Clone)]
+pub struct LocoRun {
+    /// The object category the reasoner's tables lost (canonical name).
+    pub category: String,
+    /// Ground-truth ids of the scene's nodes of that category and of their parts.
+    pub involved: Vec<u32>,
+    /// The full row's fused graph reasoned with the reduced tables.
+    pub fused: GraphJson,
+    /// The ground-truth nodes reasoned with the reduced tables.
+    pub gt_nodes: GraphJson,
+    /// How often the reasoner fell back, on the fused graph and on the ground-truth nodes.
+    pub fallback: [FallbackCounts; 2],
+    /// The known category the embedding fallback gives the category's own name, with the
+    /// cosine (`None`: nothing within the threshold).
+    pub nearest: Option<(String, f32)>,
 }
 
 /// Runs one scene: the full system and the ablations over one rendering pass.
@@ -136,37 +192,113 @@ pub fn run_scene(base: &Profile, room: RoomKind, seed: u64) -> Result<SceneRun, 
     unenriched.reasoner.kind = ReasonerKind::None;
     let mut no_colour = profile.clone();
     no_colour.fusion.colour_features = false;
+    // Fusion alone: the oracle with its noise off (every visible instance, exact label, mask
+    // and feature), its seed and semantic features kept.
+    let mut exact = profile.clone();
+    set_oracle_config(
+        &mut exact,
+        &OracleConfig {
+            seed: oracle.seed,
+            semantic_dim: oracle.semantic_dim,
+            semantic_source: oracle.semantic_source,
+            ..OracleConfig::clean()
+        },
+    );
     let mut generic = profile.clone();
     oracle.part_prompts = op3dsg_runtime::perception::candidates::CandidateMode::Generic;
     set_oracle_config(&mut generic, &oracle);
     let lanes = vec![
         Lane { detector: None, fusions: vec![make_fusion(&profile), make_fusion(&no_colour)] },
         Lane { detector: Some(generic.clone()), fusions: vec![make_fusion(&generic)] },
+        Lane { detector: Some(exact.clone()), fusions: vec![make_fusion(&exact)] },
     ];
     let mut runs = batch::run_lanes(&unenriched, &VisibilityThresholds::default(), lanes)
         .map_err(|e| format!("{name}: batch run: {e}"))?;
+    let exact_run = runs.pop().and_then(|mut r| r.pop());
     let generic_run = runs.pop().and_then(|mut r| r.pop());
-    let (Some(generic_run), Some(mut lane)) = (generic_run, runs.pop()) else {
+    let (Some(exact_run), Some(generic_run), Some(mut lane)) = (exact_run, generic_run, runs.pop()) else {
         return Err(format!("{name}: the batch runner returned fewer runs than asked"));
     };
     let (Some(no_colour_run), Some(full_run)) = (lane.pop(), lane.pop()) else {
         return Err(format!("{name}: the batch runner returned fewer runs than asked"));
     };
     let Some(scene) = full_run.scene.as_ref() else { return Err(format!("{name}: no ground truth")) };
-    let enrich = |graph: &op3dsg_runtime::graph::SceneGraph, setup: ReasoningSetup| -> Result<GraphJson, String> {
-        let mut graph = graph.clone();
-        if let Some(enricher) = make_enricher(&profile).map_err(|e| format!("{name}: {e}"))? {
-            enricher.with_setup(setup).enrich(&mut graph);
+    // Every row reasons with the same reasoner: the knowledge tables and, for labels they do
+    // not know, the embedding fallback on the MiniLM encoder.
+    let embedder = fallback::load_embedder(&profile).map_err(|e| format!("{name}: label fallback: {e}"))?;
+    let enricher = |knowledge: Option<Arc<KnowledgeBase>>, setup: ReasoningSetup| -> Result<_, String> {
+        let Some(mut enricher) = make_enricher(&profile).map_err(|e| format!("{name}: {e}"))? else {
+            return Ok(None);
+        };
+        if let Some(knowledge) = knowledge {
+            enricher = enricher.with_knowledge(knowledge);
         }
-        Ok(graph.to_json(&name))
+        Ok(Some(enricher.with_label_embedder(embedder.clone()).with_setup(setup)))
     };
+    let enrich_with = |graph: &op3dsg_runtime::graph::SceneGraph,
+                       knowledge: Option<Arc<KnowledgeBase>>,
+                       setup: ReasoningSetup|
+     -> Result<(GraphJson, FallbackCounts), String> {
+        let mut graph = graph.clone();
+        let mut counts = FallbackCounts::default();
+        if let Some(mut enricher) = enricher(knowledge, setup)? {
+            enricher.enrich(&mut graph);
+            counts = enricher.fallback_counts();
+        }
+        Ok((graph.to_json(&name), counts))
+    };
+    let enrich = |graph: &op3dsg_runtime::graph::SceneGraph, setup: ReasoningSetup| -> Result<GraphJson, String> {
+        Ok(enrich_with(graph, None, setup)?.0)
+    };
+    let ground_truth = scene.ground_truth();
+    let (gt_answer, _) = agreement::knowledge_answer_with(&ground_truth, &profile, None, Some(embedder.clone()))
+        .map_err(|e| format!("{name}: reasoner on ground-truth nodes: {e}"))?;
     let predictions = vec![
         enrich(&full_run.graph, ReasoningSetup::Split)?,
+        gt_answer.clone(),
+        enrich(&exact_run.graph, ReasoningSetup::Split)?,
         enrich(&generic_run.graph, ReasoningSetup::Split)?,
         enrich(&no_colour_run.graph, ReasoningSetup::Split)?,
         enrich(&full_run.graph, ReasoningSetup::FlatNodeList)?,
         enrich(&full_run.graph, ReasoningSetup::Single)?,
     ];
+    // Leave one category out: for each object category of the scene, the reasoner's tables
+    // without it (and its own parts), on the full row's fused graph and on the ground-truth nodes.
+    let knowledge = KnowledgeBase::from_profile_dir(profile.reasoner.knowledge_dir.as_deref())
+        .map_err(|e| format!("{name}: {e}"))?;
+    let category_of = |label: &str| knowledge.object_category(label).map(|o| knowledge.object(o).name.clone());
+    let mut categories: Vec<String> =
+        ground_truth.nodes.iter().filter(|n| n.kind == "object").filter_map(|n| category_of(&n.label)).collect();
+    categories.sort();
+    categories.dedup();
+    let mut loco = Vec::with_capacity(categories.len());
+    for category in categories {
+        let Some(reduced) = knowledge.without_object(&category) else { continue };
+        let reduced = Arc::new(reduced);
+        let of_category: Vec<u32> = ground_truth
+            .nodes
+            .iter()
+            .filter(|n| n.kind == "object" && category_of(&n.label).as_deref() == Some(category.as_str()))
+            .map(|n| n.id)
+            .collect();
+        let involved: Vec<u32> = ground_truth
+            .nodes
+            .iter()
+            .filter(|n| of_category.contains(&n.id) || n.parent.is_some_and(|p| of_category.contains(&p)))
+            .map(|n| n.id)
+            .collect();
+        let (fused, on_fused) = enrich_with(&full_run.graph, Some(reduced.clone()), ReasoningSetup::Split)?;
+        let (gt_nodes, on_gt) =
+            agreement::knowledge_answer_with(&ground_truth, &profile, Some(reduced.clone()), Some(embedder.clone()))
+                .map_err(|e| format!("{name}: leave out {category}: {e}"))?;
+        let nearest = fallback::LabelFallback::new(&reduced, Some(embedder.clone())).nearest(&category, true).and_then(
+            |(c, cosine)| match c {
+                op3dsg_runtime::knowledge::Category::Object(o) => Some((reduced.object(o).name.clone(), cosine)),
+                op3dsg_runtime::knowledge::Category::Part(_) => None,
+            },
+        );
+        loco.push(LocoRun { category, involved, fused, gt_nodes, fallback: [on_fused, on_gt], nearest });
+    }
     let criteria = MatchCriteria { min_observations: profile.fusion.min_observations, ..MatchCriteria::default() };
     let fusion = fusion_match::match_run(&full_run, &criteria);
     let scored_ids = scene
@@ -177,11 +309,19 @@ pub fn run_scene(base: &Profile, room: RoomKind, seed: u64) -> Result<SceneRun, 
         })
         .map(|i| u32::from(i.id))
         .collect();
-    let ground_truth = scene.ground_truth();
     let deviations: Vec<(u32, &str)> = scene.deviations().iter().map(|d| (u32::from(d.instance), d.name)).collect();
-    let agreement =
-        agreement::measure(&ground_truth, &deviations, &profile).map_err(|e| format!("{name}: agreement: {e}"))?;
-    Ok(SceneRun { room, seed, ground_truth, agreement, scored_ids, predictions, fusion, keyframes: full_run.keyframes })
+    let agreement = agreement::compare(&ground_truth, &gt_answer, &deviations);
+    Ok(SceneRun {
+        room,
+        seed,
+        ground_truth,
+        agreement,
+        scored_ids,
+        predictions,
+        fusion,
+        keyframes: full_run.keyframes,
+        loco,
+    })
 }
 
 /// Runs scenes `0..scenes` on `threads` named threads; `progress` is called after each scene.
@@ -268,6 +408,46 @@ pub struct QualityReport {
     pub agreement: Agreement,
     /// How much of the rooms the scores cover.
     pub coverage: Coverage,
+    /// The leave-one-category-out test.
+    pub loco: Loco,
+}
+
+/// The variants of the leave-one-category-out table, in order: the full tables and the tables
+/// without the category, each on the full row's fused graph and on the ground-truth nodes.
+pub const LOCO_ROWS: [&str; 4] =
+    ["full, same items", "leave one out", "GT nodes, full tables", "GT nodes, leave one out"];
+
+/// One category of the leave-one-category-out test, over the scenes that contain it.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct LocoCategory {
+    /// Canonical name of the category left out.
+    pub category: String,
+    /// Scenes containing it.
+    pub scenes: usize,
+    /// Per [`LOCO_ROWS`] variant, the recalls over the items involving the category.
+    pub figures: Vec<RecallFigures>,
+    /// How often the reasoner fell back (on the fused graph, on the ground-truth nodes).
+    pub fallback: [FallbackCounts; 2],
+    /// The known category the embedding fallback gives the category's own name, with the cosine.
+    pub nearest: Option<(String, f32)>,
+}
+
+/// The leave-one-category-out test ([`run_scene`], module docs).
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct Loco {
+    /// Per category, sorted by name.
+    pub categories: Vec<LocoCategory>,
+    /// Per [`LOCO_ROWS`] variant, the items of all categories pooled.
+    pub pooled: Vec<RecallFigures>,
+    /// Per [`LOCO_ROWS`] variant and column (object, part, affordance, functional, spatial), the
+    /// mean R@3 over the categories that have items in that column, percent.
+    pub mean_r3: Vec<[Option<f64>; 5]>,
+    /// Fallback counts over all categories (fused graph, ground-truth nodes).
+    pub fallback: [FallbackCounts; 2],
+}
+
+fn r3_of(f: &RecallFigures) -> [Option<f64>; 5] {
+    [f.object, f.part, f.affordance, f.functional, f.spatial].map(|r| r.percent(K3))
 }
 
 /// Ground-truth nodes scored (seen in enough keyframes) out of all nodes of the scenes.
@@ -306,16 +486,21 @@ pub fn score(runs: &[SceneRun], embedder: &mut dyn super::recall::PhraseEmbedder
     let mut mix = BTreeMap::new();
     let mut agreement = Agreement::default();
     let mut coverage = Coverage::default();
+    let mut by_category: Vec<LocoCategory> = Vec::new();
     for run in runs {
         agreement.add(&run.agreement);
         coverage.scored += run.ground_truth.nodes.iter().filter(|n| run.scored_ids.contains(&n.id)).count();
         coverage.total += run.ground_truth.nodes.len();
         let scored = |id: u32| run.scored_ids.contains(&id);
-        for (row, prediction) in rows.iter_mut().zip(&run.predictions) {
+        let mut kept: Vec<super::recall::RecallReport> = Vec::new();
+        for (i, (row, prediction)) in rows.iter_mut().zip(&run.predictions).enumerate() {
             let report = evaluator
                 .evaluate(prediction, &run.ground_truth, Some(&scored))
                 .map_err(|e| format!("{} seed {}: {e}", run.room.as_str(), run.seed))?;
             row.1.add(&report.figures);
+            if i == 0 || i == GT_NODES_ROW {
+                kept.push(report.clone());
+            }
             if row.0 != ROWS[0] {
                 continue;
             }
@@ -347,7 +532,59 @@ pub fn score(runs: &[SceneRun], embedder: &mut dyn super::recall::PhraseEmbedder
         for edge in run.ground_truth.edges.iter().filter(|e| e.kind == "functional") {
             *mix.entry(edge.relation.clone()).or_insert(0) += 1;
         }
+        let [full_report, gt_report] = <[_; 2]>::try_from(kept).map_err(|_| "rows missing".to_owned())?;
+        for l in &run.loco {
+            let involved = |id: u32| l.involved.contains(&id);
+            let evaluate = |evaluator: &mut RecallEvaluator<'_>, g: &GraphJson| {
+                evaluator
+                    .evaluate(g, &run.ground_truth, Some(&scored))
+                    .map_err(|e| format!("{} seed {} without {}: {e}", run.room.as_str(), run.seed, l.category))
+            };
+            let fused = evaluate(&mut evaluator, &l.fused)?;
+            let gt_nodes = evaluate(&mut evaluator, &l.gt_nodes)?;
+            let figures = [&full_report, &fused, &gt_report, &gt_nodes].map(|r| r.subset(&involved));
+            let entry = match by_category.iter_mut().find(|c| c.category == l.category) {
+                Some(entry) => entry,
+                None => {
+                    by_category.push(LocoCategory {
+                        category: l.category.clone(),
+                        figures: vec![RecallFigures::default(); LOCO_ROWS.len()],
+                        ..LocoCategory::default()
+                    });
+                    by_category.last_mut().ok_or("no category")?
+                }
+            };
+            entry.scenes += 1;
+            entry.nearest.clone_from(&l.nearest);
+            for (a, b) in entry.figures.iter_mut().zip(&figures) {
+                a.add(b);
+            }
+            for (a, b) in entry.fallback.iter_mut().zip(&l.fallback) {
+                a.add(b);
+            }
+        }
     }
+    by_category.sort_by(|a, b| a.category.cmp(&b.category));
+    let mut loco = Loco { pooled: vec![RecallFigures::default(); LOCO_ROWS.len()], ..Loco::default() };
+    for c in &by_category {
+        for (a, b) in loco.pooled.iter_mut().zip(&c.figures) {
+            a.add(b);
+        }
+        for (a, b) in loco.fallback.iter_mut().zip(&c.fallback) {
+            a.add(b);
+        }
+    }
+    loco.mean_r3 = (0..LOCO_ROWS.len())
+        .map(|v| {
+            let mut mean = [None; 5];
+            for (column, m) in mean.iter_mut().enumerate() {
+                let values: Vec<f64> = by_category.iter().filter_map(|c| r3_of(&c.figures[v])[column]).collect();
+                *m = (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64);
+            }
+            mean
+        })
+        .collect();
+    loco.categories = by_category;
     Ok(QualityReport {
         scenes: runs.iter().map(|r| format!("{} seed {}", r.room.as_str(), r.seed)).collect(),
         keyframes: runs.iter().map(|r| r.keyframes).sum(),
@@ -357,6 +594,7 @@ pub fn score(runs: &[SceneRun], embedder: &mut dyn super::recall::PhraseEmbedder
         vocabulary_labels,
         agreement,
         coverage,
+        loco,
     })
 }
 
@@ -422,13 +660,13 @@ fn sorted(map: &BTreeMap<String, usize>) -> String {
 /// The text report: table, strict node recall, items, losses, targets, mix.
 pub fn text(report: &QualityReport) -> String {
     let mut s = String::new();
-    let _ = write!(s, "{:<16}", "row");
+    let _ = write!(s, "{:<26}", "row");
     for h in HEADER {
         let _ = write!(s, " {h:>10}");
     }
     s.push('\n');
     for (name, f) in &report.rows {
-        let _ = write!(s, "{name:<16}");
+        let _ = write!(s, "{name:<26}");
         for c in cells(f) {
             let _ = write!(s, " {c:>10}");
         }
@@ -478,8 +716,105 @@ pub fn text(report: &QualityReport) -> String {
         let list: Vec<String> = missed.iter().map(|(n, v, t)| format!("{n} {v:.1} < {t:.0}")).collect();
         let _ = writeln!(s, "\ntargets (full, R@3) missed: {}", list.join("; "));
     }
+    s.push_str(&loco_text(&report.loco));
     s.push_str(&agreement::text(&report.agreement));
     s.push_str(&mix_text(&report.mix));
+    s
+}
+
+fn cell(v: Option<f64>) -> String {
+    v.map_or_else(|| "-".to_owned(), |p| format!("{p:.1}"))
+}
+
+const LOCO_HEADER: [&str; 5] = ["Obj R@3", "Part R@3", "Aff R@3", "Func R@3", "Spat R@3"];
+
+/// The leave-one-category-out table: per variant, pooled and mean over categories.
+fn loco_lines(loco: &Loco) -> Vec<(String, Vec<String>)> {
+    let mut lines = Vec::new();
+    for (v, name) in LOCO_ROWS.iter().enumerate() {
+        if let Some(f) = loco.pooled.get(v) {
+            lines.push((format!("{name} (pooled)"), r3_of(f).map(cell).to_vec()));
+        }
+    }
+    for (v, name) in LOCO_ROWS.iter().enumerate() {
+        if let Some(m) = loco.mean_r3.get(v) {
+            lines.push((format!("{name} (mean over categories)"), m.map(cell).to_vec()));
+        }
+    }
+    lines
+}
+
+fn fallback_text(c: &[FallbackCounts; 2]) -> String {
+    let one = |c: &FallbackCounts| {
+        format!(
+            "{} nodes given their nearest category by embedding, {} parts reasoned as on the nearest category that \
+             has them, {} parts by the part-label rule, {} nodes unresolved",
+            c.by_embedding, c.parts_by_embedding, c.by_part_rule, c.unresolved
+        )
+    };
+    format!("on the fused graphs {}; on the ground-truth nodes {}", one(&c[0]), one(&c[1]))
+}
+
+/// The leave-one-category-out block of the text report.
+pub fn loco_text(loco: &Loco) -> String {
+    let mut s = format!(
+        "\nleave one category out ({} categories; items involving the category, in the scenes that contain it; a mean \
+         is over the categories with items in its column):\n",
+        loco.categories.len()
+    );
+    let _ = write!(s, "{:<48}", "variant");
+    for h in LOCO_HEADER {
+        let _ = write!(s, " {h:>9}");
+    }
+    s.push('\n');
+    for (name, cells) in loco_lines(loco) {
+        let _ = write!(s, "{name:<48}");
+        for c in cells {
+            let _ = write!(s, " {c:>9}");
+        }
+        s.push('\n');
+    }
+    let _ = writeln!(s, "  fallbacks: {}", fallback_text(&loco.fallback));
+    let _ = writeln!(
+        s,
+        "  per category (as: its nearest known category by embedding), full -> leave one out (fused graph), R@3 aff / func:"
+    );
+    for c in &loco.categories {
+        let [full, left] = [&c.figures[0], &c.figures[1]];
+        let _ = writeln!(
+            s,
+            "    {:<22} {:<28} {} scenes, {} aff, {} func: aff {} -> {}, func {} -> {}; GT nodes func {} -> {}",
+            c.category,
+            c.nearest.as_ref().map_or_else(|| "(nothing near)".to_owned(), |(n, cos)| format!("(as {n}, {cos:.2})")),
+            c.scenes,
+            full.affordance.total,
+            full.functional.total,
+            cell(full.affordance.percent(K3)),
+            cell(left.affordance.percent(K3)),
+            cell(full.functional.percent(K3)),
+            cell(left.functional.percent(K3)),
+            cell(c.figures[2].functional.percent(K3)),
+            cell(c.figures[3].functional.percent(K3)),
+        );
+    }
+    s
+}
+
+/// The leave-one-category-out table in Markdown.
+pub fn loco_markdown(loco: &Loco) -> String {
+    let mut s = String::from("| leave one category out |");
+    for h in LOCO_HEADER {
+        let _ = write!(s, " {h} |");
+    }
+    s.push_str("\n|---|");
+    for _ in LOCO_HEADER {
+        s.push_str("---:|");
+    }
+    s.push('\n');
+    for (name, cells) in loco_lines(loco) {
+        let _ = writeln!(s, "| {name} | {} |", cells.join(" | "));
+    }
+    let _ = writeln!(s, "\nFallbacks of the reasoner without the category: {}.", fallback_text(&loco.fallback));
     s
 }
 
@@ -537,6 +872,8 @@ pub fn markdown(report: &QualityReport) -> String {
         );
     }
     let _ = writeln!(s, "\nCoverage: {}.", report.coverage.text());
+    s.push('\n');
+    s.push_str(&loco_markdown(&report.loco));
     let a = &report.agreement;
     let share = |x: &agreement::Share| x.percent().map_or_else(|| "-".to_owned(), |p| format!("{p:.1} %"));
     let _ = writeln!(

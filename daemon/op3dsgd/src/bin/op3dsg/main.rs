@@ -303,7 +303,10 @@ enum BenchCommand {
     /// fusion, prior graph, offline knowledge reasoner) and scored with the benchmark's protocol
     /// (see `op3dsg eval`), with the paper's ablations as extra rows (w/o knowledge-guided part
     /// candidates, w/o colour features, a flat node list instead of the prior graph, a single
-    /// reasoner instead of the split). Prints the table, strict node recall, coverage (ground-truth
+    /// reasoner instead of the split), and two stage-isolated rows (the reasoner on the
+    /// ground-truth nodes; fusion on exact detections). Then the leave-one-category-out test: per
+    /// object category, the reasoner's tables without it, scored on the items involving it, with
+    /// the label fallback's counts. Prints the table, strict node recall, coverage (ground-truth
     /// nodes scored of all), where the full system loses recall, how often the knowledge base
     /// gives the rooms' own ground truth (reasoner on ground-truth nodes), and the
     /// functional-relation mix next to the benchmark's. Deterministic: the same options give the same table. Needs .models/ for the encoder.

@@ -778,6 +778,7 @@ mod tests {
                     parent_id: None,
                     label: label.to_owned(),
                     category: None,
+                    by_embedding: false,
                     confidence: 1.0,
                     centre_m: glam::Vec3::ZERO,
                     box_min_m: glam::Vec3::ZERO,

@@ -290,3 +290,28 @@ pub struct RecallReport {
     /// Per scored ground-truth affordance.
     pub affordances: Vec<AffordanceResult>,
 }
+
+impl RecallReport {
+    /// The plain node, affordance and triplet recalls over the items that involve the
+    /// ground-truth nodes `involved` selects: those nodes, their affordances, and the edges with
+    /// such a node at either end (the strict, associated and predicted-node counts stay zero).
+    pub fn subset(&self, involved: &dyn Fn(u32) -> bool) -> RecallFigures {
+        let mut f = RecallFigures::default();
+        for node in self.nodes.iter().filter(|n| involved(n.id)) {
+            let bucket = if node.kind == "object" { &mut f.object } else { &mut f.part };
+            bucket.count(node.best_rank);
+            f.overall.count(node.best_rank);
+        }
+        let at = |miss: &[Option<bool>; 3]| -> Option<usize> {
+            KS.iter().zip(miss).find(|(_, m)| m.is_none()).map(|(k, _)| *k)
+        };
+        for a in self.affordances.iter().filter(|a| involved(a.node)) {
+            f.affordance.count(at(&a.miss.map(|m| m.map(|_| true))));
+        }
+        for e in self.edges.iter().filter(|e| involved(e.source) || involved(e.target)) {
+            let bucket = if e.kind == "functional" { &mut f.functional } else { &mut f.spatial };
+            bucket.count(at(&e.miss.map(|m| m.map(|_| true))));
+        }
+        f
+    }
+}
