@@ -39,7 +39,7 @@ use op3dsg_drivers::pose::Isometry;
 use op3dsg_drivers::source::{FrameSource, SourceError, SourceStatus, StampClock};
 use realsense_rust::config::Config;
 use realsense_rust::context::Context;
-use realsense_rust::frame::{AccelFrame, ColorFrame, CompositeFrame, DepthFrame, FrameEx, GyroFrame};
+use realsense_rust::frame::{ColorFrame, CompositeFrame, DepthFrame, FrameEx, GyroFrame};
 use realsense_rust::kind::{Rs2CameraInfo, Rs2Format, Rs2FrameMetadata, Rs2Option, Rs2StreamKind, Rs2TimestampDomain};
 use realsense_rust::pipeline::{ActivePipeline, InactivePipeline};
 use realsense_rust::processing_blocks::align::Align;
@@ -57,8 +57,6 @@ const FIRST_FRAME_TIMEOUT: Duration = Duration::from_secs(10);
 const END_DRAIN_TIMEOUT: Duration = Duration::from_millis(250);
 /// Longest a call to `next_frame` sleeps while waiting to retry a lost camera.
 const RETRY_SLICE: Duration = Duration::from_millis(100);
-/// IMU-only frame sets one `next_frame` takes before it returns `Pending`.
-const MOTION_SETS_PER_CALL: usize = 256;
 
 /// What the stream resolution gave at start.
 #[derive(Debug, Clone, Copy)]
@@ -82,15 +80,15 @@ pub struct RealsenseSource {
     aligner: Option<DepthToColour>,
     /// IMU samples (`imu = true`).
     imu: Option<Arc<ImuBuffer>>,
-    /// Stamp of the newest gyro and accelerometer sample taken (the pipeline repeats them).
-    last_motion_ns: [u64; 2],
+    /// The motion sensor on its own queue (`imu = true`), opened at the first frame set.
+    motion: Option<MotionSensor>,
     streams: Streams,
     /// Intrinsics of delivered (rotated) frames.
     intrinsics: Intrinsics,
     rotation: Rotation,
     modes: (StreamMode, StreamMode),
     serial: String,
-    playback: Option<PlaybackDevice>,
+    playback: Option<DeviceHandle>,
     seq: u64,
     last_numbers: Option<(u64, u64)>,
     repeated_sets: u64,
@@ -112,19 +110,20 @@ impl std::fmt::Debug for RealsenseSource {
 // context, pipeline, processing block and device handles may be used from any thread.
 unsafe impl Send for RealsenseSource {}
 
-/// A playback device handle made from a frame's sensor (realsense-rust has no playback control).
-struct PlaybackDevice(NonNull<sys::rs2_device>);
+/// A device handle made from a frame's sensor (realsense-rust has no playback control and no
+/// raw device): the playback pacing and the motion sensor are reached through it.
+struct DeviceHandle(NonNull<sys::rs2_device>);
 
-impl Drop for PlaybackDevice {
+impl Drop for DeviceHandle {
     fn drop(&mut self) {
         // SAFETY: made by rs2_create_device_from_sensor, owned here, deleted once.
         unsafe { sys::rs2_delete_device(self.0.as_ptr()) }
     }
 }
 
-impl PlaybackDevice {
-    /// The playback device a frame came from, with real-time pacing set.
-    fn from_frame(frame: DepthFrame, real_time: bool) -> Result<Self, String> {
+impl DeviceHandle {
+    /// The device a frame came from.
+    fn from_frame(frame: DepthFrame) -> Result<Self, String> {
         // SAFETY: the frame pointer is owned by us after get_owned_raw and released below; the
         // sensor handle is deleted after the device was made from it; every call checks `err`.
         unsafe {
@@ -139,17 +138,20 @@ impl PlaybackDevice {
                 std::ptr::null_mut()
             };
             sys::rs2_release_frame(raw.as_ptr());
-            let device = match (take_error(err), NonNull::new(device)) {
-                (None, Some(device)) => Self(device),
-                (Some(e), _) => return Err(e),
-                (None, None) => return Err("no playback device behind the frame".to_owned()),
-            };
-            sys::rs2_playback_device_set_real_time(device.0.as_ptr(), i32::from(real_time), &mut err);
-            match take_error(err) {
-                None => Ok(device),
-                Some(e) => Err(e),
+            match (take_error(err), NonNull::new(device)) {
+                (None, Some(device)) => Ok(Self(device)),
+                (Some(e), _) => Err(e),
+                (None, None) => Err("no device behind the frame".to_owned()),
             }
         }
+    }
+
+    /// Sets a playback device's pacing: real time, or as fast as the reader takes frames.
+    fn set_real_time(&self, real_time: bool) -> Result<(), String> {
+        let mut err = std::ptr::null_mut::<sys::rs2_error>();
+        // SAFETY: a live device handle; the error is checked and freed.
+        unsafe { sys::rs2_playback_device_set_real_time(self.0.as_ptr(), i32::from(real_time), &mut err) };
+        take_error(err).map_or(Ok(()), Err)
     }
 
     fn stopped(&self) -> bool {
@@ -157,6 +159,208 @@ impl PlaybackDevice {
         // SAFETY: a live device handle; the error is checked and freed.
         let status = unsafe { sys::rs2_playback_device_get_current_status(self.0.as_ptr(), &mut err) };
         take_error(err).is_none() && status == sys::rs2_playback_status_RS2_PLAYBACK_STATUS_STOPPED
+    }
+}
+
+/// Motion frames the motion sensor's queue holds (librealsense drops the oldest beyond): over
+/// 3 s of the D435i's gyro and accelerometer at their lowest rates, drained at every frame.
+const MOTION_QUEUE_LEN: i32 = 1024;
+
+/// The device's motion sensor opened on a frame queue of its own (`imu = true`).
+/// librealsense's pipeline would hand over only the newest gyro and accelerometer frame with
+/// each frame set (most samples lost at 200 Hz against 30 Hz video), so the motion streams stay
+/// out of the pipeline and every sample comes through this queue instead.
+struct MotionSensor {
+    sensor: NonNull<sys::rs2_sensor>,
+    queue: NonNull<sys::rs2_frame_queue>,
+    /// Gyro and accelerometer rates opened, Hz.
+    rates_hz: [i32; 2],
+}
+
+impl Drop for MotionSensor {
+    fn drop(&mut self) {
+        let mut err = std::ptr::null_mut::<sys::rs2_error>();
+        // SAFETY: the sensor was opened and started by `open`; stop and close it once, then free
+        // the sensor and the queue (which releases the frames still in it). Errors are freed.
+        unsafe {
+            sys::rs2_stop(self.sensor.as_ptr(), &mut err);
+            let _ = take_error(err);
+            err = std::ptr::null_mut();
+            sys::rs2_close(self.sensor.as_ptr(), &mut err);
+            let _ = take_error(err);
+            sys::rs2_delete_sensor(self.sensor.as_ptr());
+            sys::rs2_delete_frame_queue(self.queue.as_ptr());
+        }
+    }
+}
+
+impl MotionSensor {
+    /// Opens the gyro and accelerometer streams of `device` (each at the lowest rate it offers,
+    /// `MOTION_XYZ32F`) on a queue of their own and starts them.
+    fn open(device: &DeviceHandle) -> Result<Self, String> {
+        // SAFETY: every handle comes from librealsense and is checked for null and for an error
+        // before use; lists are deleted after use, the chosen sensor is kept (and deleted in
+        // Drop), the others are deleted; profile pointers are used while their list lives.
+        unsafe {
+            let mut err = std::ptr::null_mut::<sys::rs2_error>();
+            let list = sys::rs2_query_sensors(device.0.as_ptr(), &mut err);
+            if let Some(e) = take_error(err) {
+                return Err(format!("cannot list the sensors: {e}"));
+            }
+            let Some(list) = NonNull::new(list) else { return Err("no sensor list".to_owned()) };
+            let count = sys::rs2_get_sensors_count(list.as_ptr(), &mut err);
+            let _ = take_error(err);
+            let mut found = None;
+            for i in 0..count {
+                err = std::ptr::null_mut();
+                let sensor = sys::rs2_create_sensor(list.as_ptr(), i, &mut err);
+                if take_error(err).is_some() {
+                    continue;
+                }
+                let Some(sensor) = NonNull::new(sensor) else { continue };
+                match Self::try_start(sensor) {
+                    Ok(Some(motion)) => {
+                        found = Some(Ok(motion));
+                        break;
+                    }
+                    Ok(None) => sys::rs2_delete_sensor(sensor.as_ptr()),
+                    Err(e) => {
+                        sys::rs2_delete_sensor(sensor.as_ptr());
+                        found = Some(Err(e));
+                        break;
+                    }
+                }
+            }
+            sys::rs2_delete_sensor_list(list.as_ptr());
+            found.unwrap_or_else(|| {
+                Err("no sensor with gyro and accelerometer streams (a D435 without the i?)".to_owned())
+            })
+        }
+    }
+
+    /// Opens and starts `sensor` if it has gyro and accelerometer streams (`Ok(None)` if not);
+    /// on success the sensor is owned by the result.
+    ///
+    /// # Safety
+    /// `sensor` must be a live sensor handle.
+    unsafe fn try_start(sensor: NonNull<sys::rs2_sensor>) -> Result<Option<Self>, String> {
+        // SAFETY: as `open`'s; the profile list lives until the streams are opened.
+        unsafe {
+            let mut err = std::ptr::null_mut::<sys::rs2_error>();
+            let profiles = sys::rs2_get_stream_profiles(sensor.as_ptr(), &mut err);
+            if take_error(err).is_some() {
+                return Ok(None);
+            }
+            let Some(profiles) = NonNull::new(profiles) else { return Ok(None) };
+            let n = sys::rs2_get_stream_profiles_count(profiles.as_ptr(), &mut err);
+            let _ = take_error(err);
+            // Per kind (gyro, accel): the profile with the lowest rate.
+            let mut chosen: [Option<(*const sys::rs2_stream_profile, i32)>; 2] = [None, None];
+            for j in 0..n {
+                err = std::ptr::null_mut();
+                let profile = sys::rs2_get_stream_profile(profiles.as_ptr(), j, &mut err);
+                if take_error(err).is_some() || profile.is_null() {
+                    continue;
+                }
+                let (mut stream, mut format, mut index, mut uid, mut fps) = (0, 0, 0, 0, 0);
+                sys::rs2_get_stream_profile_data(
+                    profile,
+                    &mut stream,
+                    &mut format,
+                    &mut index,
+                    &mut uid,
+                    &mut fps,
+                    &mut err,
+                );
+                if take_error(err).is_some() || format != sys::rs2_format_RS2_FORMAT_MOTION_XYZ32F {
+                    continue;
+                }
+                let slot = match stream {
+                    sys::rs2_stream_RS2_STREAM_GYRO => 0,
+                    sys::rs2_stream_RS2_STREAM_ACCEL => 1,
+                    _ => continue,
+                };
+                if chosen[slot].is_none_or(|(_, best)| fps < best) {
+                    chosen[slot] = Some((profile, fps));
+                }
+            }
+            let result = match chosen {
+                [Some((gyro, gyro_hz)), Some((accel, accel_hz))] => Self::start(sensor, [gyro, accel])
+                    .map(|queue| Some(Self { sensor, queue, rates_hz: [gyro_hz, accel_hz] })),
+                _ => Ok(None),
+            };
+            sys::rs2_delete_stream_profiles_list(profiles.as_ptr());
+            result
+        }
+    }
+
+    /// Opens `profiles` on `sensor` and starts it into a new queue.
+    ///
+    /// # Safety
+    /// `sensor` must be live and the profiles must be its own, alive for the call.
+    unsafe fn start(
+        sensor: NonNull<sys::rs2_sensor>,
+        mut profiles: [*const sys::rs2_stream_profile; 2],
+    ) -> Result<NonNull<sys::rs2_frame_queue>, String> {
+        // SAFETY: as `try_start`'s; the queue is deleted here on failure, else owned by the result.
+        unsafe {
+            let mut err = std::ptr::null_mut::<sys::rs2_error>();
+            sys::rs2_open_multiple(sensor.as_ptr(), profiles.as_mut_ptr(), 2, &mut err);
+            if let Some(e) = take_error(err) {
+                return Err(format!("cannot open the gyro and accelerometer streams: {e}"));
+            }
+            let queue = sys::rs2_create_frame_queue(MOTION_QUEUE_LEN, &mut err);
+            let queue = match (take_error(err), NonNull::new(queue)) {
+                (None, Some(queue)) => queue,
+                (e, _) => {
+                    sys::rs2_close(sensor.as_ptr(), &mut err);
+                    let _ = take_error(err);
+                    return Err(format!("cannot make the motion frame queue: {}", e.unwrap_or_default()));
+                }
+            };
+            sys::rs2_start_queue(sensor.as_ptr(), queue.as_ptr(), &mut err);
+            if let Some(e) = take_error(err) {
+                sys::rs2_close(sensor.as_ptr(), &mut err);
+                let _ = take_error(err);
+                sys::rs2_delete_frame_queue(queue.as_ptr());
+                return Err(format!("cannot start the motion sensor: {e}"));
+            }
+            Ok(queue)
+        }
+    }
+
+    /// Moves every motion frame the queue holds into `imu`; how many.
+    fn drain(&self, imu: &ImuBuffer, playback: bool) -> usize {
+        let mut taken = 0;
+        loop {
+            let mut err = std::ptr::null_mut::<sys::rs2_error>();
+            let mut raw = std::ptr::null_mut::<sys::rs2_frame>();
+            // SAFETY: a live queue; a frame it hands out is ours and released by the frame
+            // wrapper (or here when it cannot be wrapped).
+            let got = unsafe { sys::rs2_poll_for_frame(self.queue.as_ptr(), &mut raw, &mut err) };
+            if take_error(err).is_some() || got == 0 {
+                return taken;
+            }
+            let Some(raw) = NonNull::new(raw) else { return taken };
+            match GyroFrame::try_from(raw) {
+                Ok(frame) => {
+                    let kind = match frame.stream_profile().kind() {
+                        Rs2StreamKind::Gyro => MotionKind::Gyro,
+                        Rs2StreamKind::Accel => MotionKind::Accel,
+                        _ => continue,
+                    };
+                    // (Gyro and accelerometer frames share one layout: three f32.)
+                    imu.push(ImuSample {
+                        stamp_ns: host_stamp_ns(&frame, playback),
+                        kind,
+                        xyz: *frame.rotational_velocity(),
+                    });
+                    taken += 1;
+                }
+                // SAFETY: not wrapped, so still ours to release.
+                Err(_) => unsafe { sys::rs2_release_frame(raw.as_ptr()) },
+            }
+        }
     }
 }
 
@@ -238,7 +442,7 @@ impl RealsenseSource {
             align,
             aligner: None,
             imu: config.imu.then(|| Arc::new(ImuBuffer::new(IMU_BUFFER_LEN))),
-            last_motion_ns: [0; 2],
+            motion: None,
             streams: Streams {
                 colour: Intrinsics { width: 0, height: 0, fx: 1.0, fy: 1.0, cx: 0.0, cy: 0.0 },
                 depth_units_per_m: 1000.0,
@@ -286,9 +490,6 @@ impl RealsenseSource {
                         .map_err(|e| e.to_string())?;
                     cfg.enable_stream(Rs2StreamKind::Color, None, 0, 0, Rs2Format::Any, 0)
                         .map_err(|e| e.to_string())?;
-                    if self.config.imu {
-                        enable_motion(cfg)?;
-                    }
                 }
                 None => {
                     if !self.serial.is_empty() {
@@ -313,9 +514,6 @@ impl RealsenseSource {
                         colour.fps as usize,
                     )
                     .map_err(|e| e.to_string())?;
-                    if self.config.imu {
-                        enable_motion(cfg)?;
-                    }
                 }
             }
             Ok(())
@@ -323,17 +521,13 @@ impl RealsenseSource {
         enable(&mut cfg).map_err(|e| self.open_error(&name, e))?;
         let pipeline =
             InactivePipeline::try_from(&self.context).map_err(|e| device_err(format!("{name}: pipeline: {e}")))?;
-        let imu = if self.config.imu { " with gyro and accelerometer (imu = true)" } else { "" };
         if self.bag.is_none() && !pipeline.can_resolve(&cfg) {
             return Err(device_err(format!(
-                "{name}: cannot deliver depth {}x{}@{} Z16 with colour {}x{}@{} RGB8{imu} (another process using it, or a mode this camera lacks)",
+                "{name}: cannot deliver depth {}x{}@{} Z16 with colour {}x{}@{} RGB8 (another process using it, or a mode this camera lacks)",
                 depth.width, depth.height, depth.fps, colour.width, colour.height, colour.fps
             )));
         }
-        let pipeline = pipeline.start(Some(cfg)).map_err(|e| {
-            let hint = if self.config.imu { " (imu = true needs its gyro and accel streams)" } else { "" };
-            self.open_error(&name, format!("{e}{hint}"))
-        })?;
+        let pipeline = pipeline.start(Some(cfg)).map_err(|e| self.open_error(&name, e.to_string()))?;
         let profile = pipeline.profile();
         let colour_stream = profile.streams().iter().find(|s| s.kind() == Rs2StreamKind::Color);
         let depth_stream = profile.streams().iter().find(|s| s.kind() == Rs2StreamKind::Depth);
@@ -425,7 +619,7 @@ impl RealsenseSource {
             "realsense streams started (depth aligned to colour)"
         );
         self.pipeline = Some(pipeline);
-        self.last_motion_ns = [0; 2];
+        self.motion = None;
         self.playback = None;
         self.last_numbers = None;
         self.delivered_any = false;
@@ -447,28 +641,14 @@ impl RealsenseSource {
         self.imu.clone()
     }
 
-    /// Moves the gyro and accelerometer frames of `set` into the IMU buffer (each sample once:
-    /// librealsense's pipeline puts the newest motion frames into several frame sets); how many
-    /// motion frames the set held.
-    fn take_motion(&mut self, set: &CompositeFrame) -> usize {
-        let Some(imu) = &self.imu else { return 0 };
-        let playback = self.bag.is_some();
-        let mut held = 0;
-        let mut take = |kind: MotionKind, stamp_ns: u64, xyz: [f32; 3], last_ns: &mut u64| {
-            held += 1;
-            if stamp_ns > *last_ns {
-                *last_ns = stamp_ns;
-                imu.push(ImuSample { stamp_ns, kind, xyz });
-            }
-        };
-        let [last_gyro, last_accel] = &mut self.last_motion_ns;
-        for gyro in set.frames_of_type::<GyroFrame>() {
-            take(MotionKind::Gyro, host_stamp_ns(&gyro, playback), *gyro.rotational_velocity(), last_gyro);
-        }
-        for accel in set.frames_of_type::<AccelFrame>() {
-            take(MotionKind::Accel, host_stamp_ns(&accel, playback), *accel.acceleration(), last_accel);
-        }
-        held
+    /// Opens the motion sensor of `device` on its own queue (`imu = true`); a camera or
+    /// recording without gyro and accelerometer streams is an error naming the key.
+    fn open_motion(&mut self, device: &DeviceHandle) -> Result<(), SourceError> {
+        let motion = MotionSensor::open(device)
+            .map_err(|e| SourceError::Config(format!("source.realsense.imu = true, but {}: {e}", self.name())))?;
+        info!(source = %self.name(), gyro_hz = motion.rates_hz[0], accel_hz = motion.rates_hz[1], "IMU streaming on its own queue");
+        self.motion = Some(motion);
+        Ok(())
     }
 
     /// Frame sets passed over because they repeated the previous depth or colour frame.
@@ -483,6 +663,7 @@ impl RealsenseSource {
 
     /// Lost camera: stop, and retry after the backoff.
     fn lose(&mut self, reason: &str) {
+        self.motion = None;
         if let Some(pipeline) = self.pipeline.take() {
             let _ = pipeline.stop();
         }
@@ -625,25 +806,29 @@ impl RealsenseSource {
         self.seq += 1;
         if !self.delivered_any {
             self.delivered_any = true;
-            if self.bag.is_some() {
-                match PlaybackDevice::from_frame(depth, self.config.bag_real_time) {
-                    Ok(device) => self.playback = Some(device),
+            if self.bag.is_some() || self.imu.is_some() {
+                match DeviceHandle::from_frame(depth) {
+                    Ok(device) => {
+                        if self.imu.is_some() {
+                            self.open_motion(&device)?;
+                        }
+                        if self.bag.is_some() {
+                            match device.set_real_time(self.config.bag_real_time) {
+                                Ok(()) => self.playback = Some(device),
+                                Err(e) => {
+                                    warn!(bag = %self.name(), error = %e, "cannot control playback pacing; playing in real time")
+                                }
+                            }
+                        }
+                    }
                     Err(e) => {
-                        warn!(bag = %self.name(), error = %e, "cannot control playback pacing; playing in real time")
+                        warn!(source = %self.name(), error = %e, "no device handle behind the first frame: no playback pacing, no IMU")
                     }
                 }
             }
         }
         Ok(SourceStatus::Frame)
     }
-}
-
-/// Enables the gyro and accelerometer streams (any rate the device offers first).
-fn enable_motion(cfg: &mut Config) -> Result<(), String> {
-    for kind in [Rs2StreamKind::Gyro, Rs2StreamKind::Accel] {
-        cfg.enable_stream(kind, None, 0, 0, Rs2Format::MotionXyz32F, 0).map_err(|e| format!("{kind:?}: {e}"))?;
-    }
-    Ok(())
 }
 
 /// A frame's stamp in ns on the frames' clock: global (or system) time as delivered, a
@@ -730,7 +915,7 @@ impl FrameSource for RealsenseSource {
         let Some(pipeline) = self.pipeline.as_mut() else {
             return if self.bag.is_some() { Ok(SourceStatus::EndOfStream) } else { self.try_reconnect() };
         };
-        let timeout = if self.playback.as_ref().is_some_and(PlaybackDevice::stopped) {
+        let timeout = if self.playback.as_ref().is_some_and(DeviceHandle::stopped) {
             // Playback read the whole file: drain what the pipeline still holds, then end.
             END_DRAIN_TIMEOUT
         } else if self.delivered_any {
@@ -738,22 +923,9 @@ impl FrameSource for RealsenseSource {
         } else {
             FIRST_FRAME_TIMEOUT.max(Duration::from_millis(self.config.frame_timeout_ms))
         };
-        let mut waited = pipeline.wait(Some(timeout));
-        if self.imu.is_some() {
-            // IMU samples come in frame sets of their own: keep them, wait on for the next video set.
-            let mut motion_sets = 0;
-            while let Ok(set) = &waited {
-                let motion = self.take_motion(set);
-                if motion == 0 || motion < set.count() {
-                    break;
-                }
-                motion_sets += 1;
-                if motion_sets == MOTION_SETS_PER_CALL {
-                    return Ok(SourceStatus::Pending);
-                }
-                let Some(pipeline) = self.pipeline.as_mut() else { return Ok(SourceStatus::Pending) };
-                waited = pipeline.wait(Some(timeout));
-            }
+        let waited = pipeline.wait(Some(timeout));
+        if let (Some(motion), Some(imu)) = (&self.motion, &self.imu) {
+            motion.drain(imu, self.bag.is_some());
         }
         match waited {
             Ok(set) => match &mut self.align {

@@ -9,12 +9,17 @@
 //! `Arc<ImuBuffer>`), the place the runtime keeps a source's extra data for the stages that know
 //! its type. The MCAP recorder and health do not carry IMU samples (yet).
 //!
-//! **Not every sample.** The motion streams go through librealsense's pipeline with depth and
-//! colour, and its syncer hands over the newest gyro and accelerometer frame with each frame set
-//! (the same one with several sets: each sample is kept once). Playing a recording that holds
-//! every sample (200 Hz gyro, 100 Hz accelerometer, 30 Hz video) delivers about one of each per
-//! video frame; a live camera has not been measured. Every sample would need the motion sensor
-//! opened on its own queue beside the pipeline (`rs2_open` + `rs2_start_queue`), not done.
+//! **Every sample, on a queue of their own.** librealsense's pipeline would hand over only the
+//! newest gyro and accelerometer frame with each frame set (at 200 Hz against 30 Hz video most
+//! samples lost), so the motion streams stay out of the pipeline: at the first frame set the
+//! source opens the device's motion sensor (gyro and accelerometer at the lowest rate each
+//! offers: the D435i's 200 Hz and 63 or 100 Hz) on a librealsense frame queue of its own and
+//! moves what it holds into the buffer at every `next_frame`. Samples taken before that first
+//! frame set are not seen; a camera or recording without motion streams is an error naming
+//! `source.realsense.imu`. Playing a `.bag` in real time, librealsense's playback itself skips a
+//! motion frame now and then when its reading thread is late; `bag_real_time = false` delivers
+//! every one (the playback test checks that every recorded sample from the first delivered on
+//! comes through exactly).
 //!
 //! **Units and axes** as librealsense delivers them: gyro in rad/s, accelerometer in m/s², in
 //! the IMU's axes (`rs2_motion_frame`; on the D435i x right, y down, z forward, like the depth

@@ -359,7 +359,10 @@ fn own_alignment_equals_librealsense_align_at_equal_resolution() {
 fn imu_samples_come_through_stamped_and_exact() {
     let rec = record_with(FRAMES, &["--width", &W.to_string(), "--height", &H.to_string(), "--imu"]);
     assert!(rec.gyro.len() >= 40 && rec.accel.len() >= 20, "recorder wrote the motion streams");
-    let with_imu = RealsenseConfig { imu: true, ..config(&rec, true, Rotation::None) };
+    // As fast as the reader takes frames: in real time librealsense's playback itself skips a
+    // motion frame now and then when its reading thread is late (seen here, not a camera's
+    // behaviour).
+    let with_imu = RealsenseConfig { imu: true, ..config(&rec, false, Rotation::None) };
     let mut source = RealsenseSource::open(&with_imu, None).expect("open the bag with imu = true");
     let imu = source.imu().expect("imu buffer with imu = true");
     let frames = play(&mut source);
@@ -374,10 +377,12 @@ fn imu_samples_come_through_stamped_and_exact() {
     for (kind, recorded) in [(MotionKind::Gyro, &rec.gyro), (MotionKind::Accel, &rec.accel)] {
         let got: Vec<&ImuSample> = samples.iter().filter(|s| s.kind == kind).collect();
         println!("{kind:?}: {} of {} recorded samples delivered", got.len(), recorded.len());
-        // librealsense's pipeline hands over the newest motion frame with each frame set, not
-        // every sample (drivers/realsense/src/imu.rs): about one per video frame (at least one
-        // per two here, so that a loaded machine does not fail it).
-        assert!(got.len() >= frames.len() / 2, "{kind:?}: {} samples for {} frames", got.len(), frames.len());
+        // The motion sensor streams on its own queue from the first frame set on (what played
+        // before it opened is not seen): every sample recorded from then, none lost or repeated.
+        let first_ns = got.first().map_or(u64::MAX, |s| s.stamp_ns);
+        let from_first = recorded.iter().filter(|r| r[0] * 1e6 >= first_ns as f64 - 1_000.0).count();
+        assert_eq!(got.len(), from_first, "{kind:?}: every sample from the first one delivered on");
+        assert!(got.len() * 2 >= recorded.len(), "{kind:?}: {} of {} samples", got.len(), recorded.len());
         assert!(got.windows(2).all(|w| w[0].stamp_ns < w[1].stamp_ns), "{kind:?}: stamps increase");
         for s in &got {
             let want = recorded
