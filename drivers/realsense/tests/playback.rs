@@ -321,6 +321,59 @@ fn own_alignment_equals_librealsense_align_on_a_d435i_like_recording() {
 }
 
 #[test]
+fn own_alignment_equals_librealsense_align_with_lens_distortion() {
+    // Radial coefficients of the size a D435i's colour camera reports (modified Brown-Conrady,
+    // what librealsense's align projects with) and an inverse Brown-Conrady depth lens (what it
+    // deprojects with), tangential terms zero: librealsense's SSE align applies those as
+    // rs2_project_point_to_pixel does not (src/align.rs), so they are compared only where both
+    // agree on the formula.
+    let rec = record_with(
+        3,
+        &[
+            "--width",
+            "424",
+            "--height",
+            "240",
+            "--fx",
+            "211",
+            "--fy",
+            "211",
+            "--colour-width",
+            "640",
+            "--colour-height",
+            "360",
+            "--colour-fx",
+            "455",
+            "--colour-fy",
+            "455",
+            "--translation",
+            "0.015",
+            "0.0003",
+            "-0.0002",
+            "--yaw-deg",
+            "0.4",
+            "--depth-distortion",
+            "inverse_brown_conrady",
+            "0.02",
+            "-0.01",
+            "0",
+            "0",
+            "0.003",
+            "--colour-distortion",
+            "modified_brown_conrady",
+            "0.13",
+            "-0.26",
+            "0",
+            "0",
+            "0.1",
+            "--scene",
+        ],
+    );
+    assert_alignments_agree(&rec, Rotation::None, "424x240 -> 640x360, distorted lenses");
+    assert_alignments_agree(&rec, Rotation::Cw90, "424x240 -> 640x360, distorted lenses, rotate 90");
+}
+
+#[test]
 fn own_alignment_equals_librealsense_align_at_equal_resolution() {
     // Same size, colour with a shorter focal length (depth has more pixels per degree: each depth
     // pixel fills one colour pixel) and a 5 cm baseline: the box's shadow and the colour image's

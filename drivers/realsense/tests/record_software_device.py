@@ -4,6 +4,7 @@ known pattern, known intrinsics and depth units, so that a test can check what c
     python record_software_device.py OUT.bag [--frames N] [--width W] [--height H] [--fps F]
         [--fx FX --fy FY] [--colour-width CW --colour-height CH --colour-fx CFX --colour-fy CFY]
         [--translation TX TY TZ] [--yaw-deg A] [--scene] [--imu]
+        [--depth-distortion MODEL K1 K2 P1 P2 K3] [--colour-distortion MODEL K1 K2 P1 P2 K3]
 
 Pixel values (frame i, pixel u, v):
     depth  = 500 + 7*u + 13*v + i            (sensor units)
@@ -52,6 +53,8 @@ def main():
     ap.add_argument("--yaw-deg", type=float, default=0.0)
     ap.add_argument("--scene", action="store_true")
     ap.add_argument("--imu", action="store_true")
+    ap.add_argument("--depth-distortion", nargs=6, metavar=("MODEL", "K1", "K2", "P1", "P2", "K3"))
+    ap.add_argument("--colour-distortion", nargs=6, metavar=("MODEL", "K1", "K2", "P1", "P2", "K3"))
     a = ap.parse_args()
     w, h = a.width, a.height
     cw, ch = a.colour_width or w, a.colour_height or h
@@ -63,7 +66,13 @@ def main():
     intr.model = rs.distortion.none
     intr.coeffs = [0.0] * 5
 
-    same = (cw, ch) == (w, h) and a.colour_fx is None and a.colour_fy is None
+    def lens_model(given):
+        # MODEL is a name of rs.distortion (modified_brown_conrady, inverse_brown_conrady, ...).
+        return getattr(rs.distortion, given[0]), [float(c) for c in given[1:]]
+
+    if a.depth_distortion:
+        intr.model, intr.coeffs = lens_model(a.depth_distortion)
+    same = (cw, ch) == (w, h) and a.colour_fx is None and a.colour_fy is None and not a.colour_distortion
     if same:
         cintr = intr
     else:
@@ -73,6 +82,8 @@ def main():
         cintr.ppx, cintr.ppy = (cw - 1) / 2.0 + 0.4, (ch - 1) / 2.0 - 0.3
         cintr.model = rs.distortion.none
         cintr.coeffs = [0.0] * 5
+        if a.colour_distortion:
+            cintr.model, cintr.coeffs = lens_model(a.colour_distortion)
 
     dev = rs.software_device()
     depth_sensor = dev.add_sensor("Depth")
