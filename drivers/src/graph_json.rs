@@ -120,6 +120,12 @@ pub struct NodeJson {
     /// Keyframe detections fused into the node.
     #[serde(default)]
     pub observation_count: u32,
+    /// Ground truth written for a run (`op3dsg gt --frames N`): the keyframes of that run in
+    /// which the node was visible. When a ground truth carries it, `op3dsg eval` scores only the
+    /// nodes seen in at least 3 (and their edges and affordances), as `op3dsg bench quality`
+    /// does; absent elsewhere.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seen_keyframes: Option<u32>,
 }
 
 /// A gravity-aligned oriented box in JSON form (module docs).
@@ -260,6 +266,7 @@ mod tests {
             affordance_origins: BTreeMap::new(),
             confidence: 1.0,
             observation_count: 0,
+            seen_keyframes: None,
         };
         g.nodes.push(node.clone());
         g.edges.push(EdgeJson {

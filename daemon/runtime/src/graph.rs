@@ -134,6 +134,7 @@ impl SceneGraph {
                     .collect(),
                 confidence: n.confidence,
                 observation_count: n.observation_count,
+                seen_keyframes: None,
             })
             .collect();
         json.edges = self

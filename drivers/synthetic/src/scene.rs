@@ -316,6 +316,7 @@ impl Scene {
                 affordance_origins: Default::default(),
                 confidence: 1.0,
                 observation_count: 0,
+                seen_keyframes: None,
             });
         }
         for edge in &self.edges {

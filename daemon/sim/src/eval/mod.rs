@@ -11,5 +11,6 @@
 pub mod ablation;
 pub mod agreement;
 pub mod benchmark;
+pub mod coverage;
 pub mod fusion_match;
 pub mod recall;

@@ -36,8 +36,12 @@ pub(super) fn evaluate(
     }
     let mut encoder = load_text_encoder(profile_path)?;
     let mut evaluator = RecallEvaluator::new(&mut encoder, vocabulary);
+    // A ground truth written for a run (`op3dsg gt --frames`) scores what the run saw.
+    let seen: std::collections::HashMap<u32, Option<u32>> = gt.nodes.iter().map(|n| (n.id, n.seen_keyframes)).collect();
+    let for_run = seen.values().any(Option::is_some);
+    let scored = |id: u32| op3dsg_sim::eval::coverage::is_scored(seen.get(&id).copied().flatten());
     let report = evaluator
-        .evaluate(&pred, &gt, None)
+        .evaluate(&pred, &gt, for_run.then_some(&scored as &dyn Fn(u32) -> bool))
         .map_err(|e| anyhow::anyhow!("evaluating {} against {}: {e}", pred_path.display(), gt_path.display()))?;
     let mut text = format!(
         "{} ({} nodes, {} edges) against {} ({} nodes, {} edges), {} vocabulary labels\n",
@@ -49,6 +53,16 @@ pub(super) fn evaluate(
         gt.edges.len(),
         evaluator.vocabulary().node_labels.len()
     );
+    if for_run {
+        let n = gt.nodes.iter().filter(|n| scored(n.id)).count();
+        let _ = std::fmt::Write::write_fmt(
+            &mut text,
+            format_args!(
+                "coverage: {n} of {} ground-truth nodes seen in at least 3 keyframes of the run and scored; recall is over these\n",
+                gt.nodes.len()
+            ),
+        );
+    }
     text.push_str(&text_report(&report));
     write_output(None, &text)?;
     if let Some(path) = json {

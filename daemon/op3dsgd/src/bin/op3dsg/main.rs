@@ -103,6 +103,19 @@ enum Command {
         /// Write to this file instead of standard output.
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Write the ground truth as a run of this many frames saw it: each node gets
+        /// `seen_keyframes` (the keyframes of the run in which it was visible, the benchmark's
+        /// rule), and `op3dsg eval` then scores only the nodes seen in at least 3, as
+        /// `op3dsg bench quality` does. Use the profile (and `--set`s) the daemon ran with: the
+        /// camera path and the keyframe gate decide what is seen
+        #[arg(long)]
+        frames: Option<u64>,
+        /// Profile of the run (`--frames`; default: the built-in base)
+        #[arg(long, requires = "frames")]
+        profile: Option<PathBuf>,
+        /// Profile overrides of the run, section.key=value (`--frames`)
+        #[arg(long = "set", value_name = "KEY=VALUE", requires = "frames")]
+        overrides: Vec<String>,
     },
     /// Run a synthetic room through source, keyframe gate, oracle detector and fusion on one
     /// thread (deterministic, no daemon needed) and score the fused graph against the room's
@@ -494,7 +507,10 @@ fn run(cli: Cli) -> Result<()> {
             dump::dump(&prefix, format, seconds(timeout_s)?, out.as_deref())
         }
         Command::Health { json, timeout_s } => health::health(&prefix, json, seconds(timeout_s)?),
-        Command::Gt { room, seed, out } => gt::write_ground_truth(room, seed, out.as_deref()),
+        Command::Gt { room, seed, out, frames, profile, overrides } => {
+            let run = frames.map(|frames| gt::RunSeen { frames, profile, overrides });
+            gt::write_ground_truth(room, seed, run.as_ref(), out.as_deref())
+        }
         Command::FusionEval { room, seed, frames, preset, profile, overrides, details, check, json } => {
             let mut sets = vec![
                 format!("source.synthetic.room={}", room.as_str()),

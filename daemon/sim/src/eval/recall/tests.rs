@@ -102,6 +102,7 @@ fn node(id: u32, label: &str, kind: &str, min: [f32; 3], max: [f32; 3]) -> NodeJ
         affordance_origins: Default::default(),
         confidence: 1.0,
         observation_count: 0,
+        seen_keyframes: None,
     }
 }
 
