@@ -12,4 +12,5 @@ pub mod ablation;
 pub mod agreement;
 pub mod benchmark;
 pub mod fusion_match;
+pub mod query_bench;
 pub mod recall;
