@@ -106,14 +106,18 @@ pub fn affordance_phrase(affordance: &str, name: &str) -> String {
     }
 }
 
-/// A functional edge `source —phrase→ target` as one sentence.
+/// A functional edge `source —phrase→ target` as one sentence: the canonical phrase (one of
+/// [`op3dsg_ipc_types::FUNCTIONAL_RELATIONS`]) with its object put where English puts it.
 pub fn functional_phrase(source: &str, phrase: &str, target: &str) -> String {
-    let joiner = match phrase {
-        "provide power" => " to the ",
-        "control the water flow" | "rotate to adjust the setting or temperature" => " of the ",
-        _ => " the ",
+    let action = match phrase {
+        "remote to control" => format!("control the {target} remotely"),
+        "provide power" => format!("provide power to the {target}"),
+        "control the water flow"
+        | "rotate to adjust the setting or temperature"
+        | "operate or adjust the flow or setting" => format!("{phrase} of the {target}"),
+        _ => format!("{phrase} the {target}"),
     };
-    format!("{source} to {phrase}{joiner}{target}")
+    format!("{source} to {action}")
 }
 
 /// What a node is called in its texts: a part whose label does not name its parent gets the

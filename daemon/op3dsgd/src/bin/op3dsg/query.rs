@@ -112,7 +112,7 @@ pub(super) fn bench(profile_path: Option<&Path>, overrides: &[String], seed: u64
     let mut graphs = Vec::new();
     for room in op3dsg_synthetic::RoomKind::ALL {
         eprintln!("mapping {} (seed {seed}) ...", room.as_str());
-        graphs.push((room, query_bench::room_graph(&loaded.profile, room, seed).map_err(|e| anyhow::anyhow!(e))?));
+        graphs.push(query_bench::room_graph(&loaded.profile, room, seed).map_err(|e| anyhow::anyhow!(e))?);
     }
     let report = query_bench::run(&graphs, &mut encoder).map_err(|e| anyhow::anyhow!("query benchmark: {e}"))?;
     let mut text = format!(
