@@ -33,6 +33,10 @@
 //!    services. At the end of a finite source without `run.exit_at_end` it keeps serving instead
 //!    until a signal arrives.
 //!
+//! 6. `query-rx` and `query` (the language query service, `crate::query::service`) end with the
+//!    stop flag, or once the publisher has ended; requests still queued get a `shutting_down`
+//!    reply.
+//!
 //! A stage that has not finished `run.shutdown_timeout_s` after the stop is named in the log and
 //! the daemon exits with an error; a second signal exits at once (see the `op3dsgd` binary).
 
