@@ -10,9 +10,9 @@
 //!
 //! The request-response service (not in the table above, whose columns are publish-subscribe's):
 //!
-//! | service | pattern | request → response (type names) | servers | clients | active requests per client | response buffer | nodes |
-//! |---|---|---|---|---|---|---|---|
-//! | `<prefix>/query` | request-response | [`QueryRequest`] (`op3dsg::QueryRequest`) → [`QueryResponse`] (`op3dsg::QueryResponse`) | 1 | 16 | 4 | 4 | 18 |
+//! | request-response service | request → response (type names) | servers | clients | active requests per client | response buffer | nodes |
+//! |---|---|---|---|---|---|---|
+//! | query: `<prefix>/query` | [`QueryRequest`] (`op3dsg::QueryRequest`) → [`QueryResponse`] (`op3dsg::QueryResponse`) | 1 | 16 | 4 | 4 | 18 |
 //!
 //! Every request gets exactly one response; a request beyond the daemon's bounded queue gets
 //! [`QueryStatus::Busy`](crate::QueryStatus::Busy) at once (see [`query_types`](crate::query_types)).

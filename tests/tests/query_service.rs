@@ -16,7 +16,12 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use op3dsg_ipc_types::{GraphSubscriber, Health, NodeKind, QueryClient, QueryStatus};
+use op3dsg_ipc_types::iceoryx2::prelude::{NodeBuilder, PortFactory as _, ServiceName};
+use op3dsg_ipc_types::services::{
+    IpcService, QUERY_MAX_ACTIVE_REQUESTS_PER_CLIENT, QUERY_MAX_CLIENTS, QUERY_MAX_NODES, QUERY_MAX_SERVERS,
+    QUERY_RESPONSE_BUFFER, query_service_name,
+};
+use op3dsg_ipc_types::{GraphSubscriber, Health, NodeKind, QueryClient, QueryRequest, QueryResponse, QueryStatus};
 use op3dsg_tests::{Daemon, binary, health_where, unique_prefix, wait_for};
 
 const QUERIES: [&str; 6] = [
@@ -69,7 +74,14 @@ fn planner_queries_name_nodes_of_the_current_graph_while_the_daemon_maps() {
                 Some(QueryStatus::Ok) => {}
                 other => panic!("{text:?}: unexpected status {other:?}: {}", response.message_str()),
             }
-            assert!(response.hit_count >= 1 && response.hit_count <= 5, "{text:?}: {} hits", response.hit_count);
+            // k = 5 nodes, or all of them while the map is smaller (the first versions are empty).
+            assert_eq!(
+                response.hit_count,
+                response.scored_node_count.min(5),
+                "{text:?}: {} hits of {} nodes",
+                response.hit_count,
+                response.scored_node_count
+            );
             let scores: Vec<f32> = response.hits().iter().map(|h| h.score).collect();
             assert!(scores.windows(2).all(|w| w[0] >= w[1]), "{text:?}: hits not best first: {scores:?}");
             for hit in response.hits() {
@@ -191,6 +203,20 @@ fn without_the_text_encoder_queries_get_a_clear_error() {
     let prefix = unique_prefix("query-off");
     let daemon = Daemon::start(&prefix, &["--set", "source.rate_hz=15"]);
     let client = QueryClient::open_wait(&prefix, "query-off", Duration::from_secs(60)).expect("query service");
+    // The service has exactly the QoS `op3dsg_ipc_types::services` documents.
+    let node = NodeBuilder::new().create::<IpcService>().expect("a plain iceoryx2 node");
+    let service = node
+        .service_builder(&ServiceName::new(&query_service_name(&prefix)).expect("service name"))
+        .request_response::<QueryRequest, QueryResponse>()
+        .open()
+        .expect("query opens with the contract's types");
+    let config = service.static_config();
+    assert_eq!(
+        (config.max_servers(), config.max_clients(), config.max_active_requests_per_client()),
+        (QUERY_MAX_SERVERS, QUERY_MAX_CLIENTS, QUERY_MAX_ACTIVE_REQUESTS_PER_CLIENT)
+    );
+    assert_eq!((config.max_response_buffer_size(), config.max_nodes()), (QUERY_RESPONSE_BUFFER, QUERY_MAX_NODES));
+
     let response = client.query("somewhere to wash my hands", 3, Duration::from_secs(10)).expect("a reply");
     assert_eq!(response.query_status(), Some(QueryStatus::EncoderOff));
     assert!(response.message_str().contains("text_encoder.enabled = true"), "{}", response.message_str());
