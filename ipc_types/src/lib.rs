@@ -116,12 +116,13 @@ mod graph_types;
 mod health_types;
 mod pose_types;
 pub mod publish;
+pub mod query_types;
 pub mod services;
 mod text;
 
 pub use client::{
     ClientError, EdgeView, ErrorCause, Graph, GraphSubscriber, HealthSubscriber, NodeView, Operation, Pose,
-    PosePublisher, SnapshotError, UnknownAffordance, check_message,
+    PosePublisher, QueryClient, QueryClientError, SnapshotError, UnknownAffordance, check_message,
 };
 pub use graph_types::{
     AFFORDANCES, EDGE_BYTES, Edge, EdgeKind, EdgeOrigin, FUNCTIONAL_RELATION_BASE, FUNCTIONAL_RELATIONS, GraphHeader,
@@ -135,6 +136,10 @@ pub use health_types::{
     REFINER_STATES, RecorderHealth, RefinerHealth, SNAPSHOT_STATES, SnapshotHealth, StageHealth,
 };
 pub use pose_types::{PoseError, PoseKind, PoseStamped, check_pose};
+pub use query_types::{
+    QUERY_MAX_K, QUERY_SCHEMA_VERSION, QUERY_TEXT_CAPACITY_BYTES, QueryHit, QueryMatch, QueryRequest, QueryResponse,
+    QueryStatus,
+};
 pub use services::{IpcService, PrefixError, ServiceKind, ServiceNames, validate_prefix};
 pub use text::{fixed_str, write_fixed_str};
 

@@ -8,6 +8,16 @@
 //! | `<prefix>/health` | publish-subscribe | [`Health`] (`op3dsg::Health`) | 1 | 2 | 2 | safe | 1 | 8 | 10 | – |
 //! | `<prefix>/pose` | publish-subscribe | [`PoseStamped`] (`op3dsg::PoseStamped`) | 0 | 64 | 2 | safe | 4 | 4 | 8 | – |
 //!
+//! The request-response service (not in the table above, whose columns are publish-subscribe's):
+//!
+//! | request-response service | request → response (type names) | servers | clients | active requests per client | response buffer | nodes |
+//! |---|---|---|---|---|---|---|
+//! | query: `<prefix>/query` | [`QueryRequest`] (`op3dsg::QueryRequest`) → [`QueryResponse`] (`op3dsg::QueryResponse`) | 1 | 16 | 4 | 4 | 18 |
+//!
+//! Every request gets exactly one response; a request beyond the daemon's bounded queue gets
+//! [`QueryStatus::Busy`](crate::QueryStatus::Busy) at once (see [`query_types`](crate::query_types)).
+//! The daemon creates `query`; clients open it.
+//!
 //! Columns: `history` samples a late joiner gets ([`HISTORY_SIZE`]); `buffer` samples queued per
 //! subscriber before the oldest is overwritten; `borrowed` samples one subscriber may hold at
 //! once; `overflow` safe = a full buffer loses its oldest sample, the publisher never blocks;
@@ -66,7 +76,7 @@ use iceoryx2::prelude::ServiceName;
 use iceoryx2::service::service_name::ServiceNameError;
 
 #[cfg(doc)]
-use crate::{GraphHeader, Health, PoseStamped};
+use crate::{GraphHeader, Health, PoseStamped, QueryRequest, QueryResponse};
 
 /// The iceoryx2 service flavour of every port: inter-process, and `Send` so a port may be built
 /// on one thread and used on another. It shares its resources with plain `ipc::Service` peers
@@ -134,6 +144,24 @@ pub const POSE_MAX_SUBSCRIBERS: usize = 4;
 pub const QUATERNION_NORM_TOLERANCE: f64 = 1e-3;
 /// How often a client started before the daemon retries opening its services.
 pub const OPEN_RETRY_INTERVAL: Duration = Duration::from_millis(100);
+
+/// Name of the query service after `<prefix>/`.
+pub const QUERY_SUFFIX: &str = "query";
+/// Servers of `query`: the daemon.
+pub const QUERY_MAX_SERVERS: usize = 1;
+/// Clients (planners, `op3dsg query`) that may hold a `query` port at once.
+pub const QUERY_MAX_CLIENTS: usize = 16;
+/// Requests one client may have in flight at once on `query`.
+pub const QUERY_MAX_ACTIVE_REQUESTS_PER_CLIENT: usize = 4;
+/// Responses buffered per request on `query` (one is ever sent; the rest is headroom).
+pub const QUERY_RESPONSE_BUFFER: usize = 4;
+/// Nodes that may open `query`: every client, the daemon and one spare.
+pub const QUERY_MAX_NODES: usize = QUERY_MAX_CLIENTS + 2;
+
+/// The full name of the query service under `prefix` (a trailing `/` of the prefix is ignored).
+pub fn query_service_name(prefix: &str) -> String {
+    format!("{}/{QUERY_SUFFIX}", prefix.trim_end_matches('/'))
+}
 
 /// One of the services under a prefix.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

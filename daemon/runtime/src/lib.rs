@@ -44,6 +44,7 @@ pub mod onnx;
 pub mod perception;
 pub mod pipeline;
 pub mod prior;
+pub mod query;
 pub mod queue;
 pub mod reasoner;
 pub mod record;

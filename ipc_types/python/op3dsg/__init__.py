@@ -9,6 +9,8 @@ Two lines read the graph as numpy views of the daemon's shared memory (no copy):
   ``restarted``; returns :class:`GraphView` (``nodes`` / ``edges`` structured arrays viewing the
   sample, ``copy()`` to an owned :class:`Graph`, labels decoded on demand).
 - :class:`PosePublisher` — sends poses on ``<prefix>/pose`` (creates the service if nobody has).
+- :func:`query` / :class:`QueryClient` — the nodes that serve a need in words ("somewhere to
+  wash my hands"), from ``<prefix>/query`` (needs the daemon's text encoder).
 - :func:`health` / :class:`HealthClient` — the daemon's health record, without a graph subscriber.
 - :mod:`op3dsg.wire` — the ctypes mirror of the Rust wire types, numpy dtypes, constants.
 
@@ -28,6 +30,7 @@ from .errors import (
 )
 from .graph import Graph, GraphClient, GraphView, wait_for_graph
 from .health import HealthClient, health
+from .query import Hit, QueryClient, QueryError, QueryResult, query
 from .pose import PosePublisher, PoseService, check_pose, make_pose, open_or_create_pose_service
 from .wire import (
     AFFORDANCES,
@@ -53,6 +56,11 @@ from .wire import (
 __version__ = "0.1.0"
 
 __all__ = [
+    "Hit",
+    "QueryClient",
+    "QueryError",
+    "QueryResult",
+    "query",
     "AFFORDANCES",
     "DEFAULT_PREFIX",
     "EDGE_DTYPE",

@@ -18,6 +18,7 @@ mod error;
 mod graph;
 mod health;
 mod pose;
+mod query;
 mod view;
 
 use std::time::{Duration, Instant};
@@ -30,6 +31,7 @@ pub use error::{ClientError, ErrorCause, Operation};
 pub use graph::GraphSubscriber;
 pub use health::HealthSubscriber;
 pub use pose::{Pose, PosePublisher, PoseService, open_or_create_pose_service};
+pub use query::{QueryClient, QueryClientError};
 pub use view::{EdgeView, Graph, NodeView, UnknownAffordance};
 
 use crate::services::{IpcService, OPEN_RETRY_INTERVAL, ServiceKind, validate_prefix};

@@ -99,6 +99,9 @@ pub struct Profile {
     /// The MCAP recorder (`crate::record`); off unless `enabled`.
     #[serde(default)]
     pub record: crate::record::RecordConfig,
+    /// The language query service `<prefix>/query` (`crate::query`).
+    #[serde(default)]
+    pub query: crate::query::QueryConfig,
     /// The sections of registered backends, by dotted path (`source.synthetic`,
     /// `detector.oracle`), as their backend checked and completed them at load time.
     #[serde(skip)]
@@ -415,6 +418,7 @@ impl Profile {
         self.record.validate("record").map_err(split_message)?;
         self.text_encoder.validate("text_encoder").map_err(split_message)?;
         self.snapshot.validate("snapshot").map_err(split_message)?;
+        self.query.validate("query").map_err(split_message)?;
         let r = &self.reasoner;
         check(r.neighbour_radius_m > 0.0 && r.neighbour_radius_m <= 10.0, "reasoner.neighbour_radius_m", || {
             format!("must be within (0, 10] metres, got {}", r.neighbour_radius_m)

@@ -21,6 +21,7 @@
 //! | `<prefix>/graph_updated` | event             | event id 0                         | max event id 0                                 |
 //! | `<prefix>/health`        | publish-subscribe | `Health`                           | history 1, safe overflow, 1 publisher          |
 //! | `<prefix>/pose`          | publish-subscribe | `PoseStamped`                      | if op3dsg creates it: safe overflow, buffer 64, 4 publishers, 4 subscribers; any creator's QoS is accepted (input to the daemon) |
+//! | `<prefix>/query`         | request-response  | `QueryRequest` → `QueryResponse`   | 1 server, 16 clients, 4 requests in flight per client; served by `crate::query::service` on its own threads |
 //!
 //! A graph sample is a [`GraphHeader`](op3dsg_ipc_types::GraphHeader) (counts, version, the
 //! daemon's `instance_id`, stamps, capacity flag) and exactly `node_count * 144 + edge_count * 64`

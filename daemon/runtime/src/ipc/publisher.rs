@@ -27,6 +27,7 @@ pub(crate) fn publisher_loop(
     log_every: u32,
     exit_at_end: bool,
     mut recorder: Option<RecordSender>,
+    query_graph: Option<std::sync::Arc<crate::query::service::LatestGraph>>,
 ) {
     let stage = stats.stage("publish");
     let end_to_end = stats.stage("end_to_end");
@@ -51,6 +52,10 @@ pub(crate) fn publisher_loop(
                                 version = graph.version,
                                 "graph exceeds the sample capacity (ipc.max_nodes / ipc.max_edges); truncated"
                             );
+                        }
+                        // The query worker reads its own copy, taken here, off the fusion thread.
+                        if let Some(latest) = query_graph.as_ref() {
+                            latest.set(std::sync::Arc::new(graph.clone()), server.instance_id());
                         }
                         // Sent already: the recorder takes the graph itself, no copy.
                         if let Some(recorder) = recorder.as_mut() {
@@ -123,6 +128,9 @@ pub(crate) fn publisher_loop(
             let mut health = stats.health();
             server.planner_health(&mut health);
             let _ = server.publish_health(&health);
+            if let Some(latest) = query_graph.as_ref() {
+                latest.close();
+            }
             break;
         }
     }

@@ -33,6 +33,10 @@
 //!    services. At the end of a finite source without `run.exit_at_end` it keeps serving instead
 //!    until a signal arrives.
 //!
+//! 6. `query-rx` and `query` (the language query service, `crate::query::service`) end with the
+//!    stop flag, or once the publisher has ended; requests still queued get a `shutting_down`
+//!    reply.
+//!
 //! A stage that has not finished `run.shutdown_timeout_s` after the stop is named in the log and
 //! the daemon exits with an error; a second signal exits at once (see the `op3dsgd` binary).
 
@@ -101,6 +105,7 @@ pub enum StartError {
 /// A running pipeline.
 pub struct Pipeline {
     stop: Arc<AtomicBool>,
+    query_counters: Option<Arc<crate::query::service::QueryCounters>>,
     step_control: Option<StepControl>,
     stats: Arc<PipelineStats>,
     finished_rx: Receiver<&'static str>,
@@ -146,6 +151,64 @@ pub fn make_enricher(profile: &Profile) -> Result<Option<GraphEnricher>, StartEr
         EnricherError::Llm { field, reason } => StartError::Incompatible { field, reason },
         EnricherError::TextEncoder(reason) => StartError::Incompatible { field: "text_encoder", reason },
     })
+}
+
+/// Starts `query-rx` (it creates `<prefix>/query`; returns once it exists) and, with the text
+/// encoder on, the `query` worker.
+fn start_query_threads(
+    profile: &Profile,
+    latest: Arc<crate::query::service::LatestGraph>,
+    stop: &Arc<AtomicBool>,
+    finished_tx: &Sender<&'static str>,
+    handles: &mut Vec<std::thread::JoinHandle<()>>,
+    running: &mut Vec<&'static str>,
+) -> Result<Arc<crate::query::service::QueryCounters>, StartError> {
+    use crate::query::service::{EncoderSetup, QueryCounters, QueryReceiver, receive_loop, worker_loop};
+    let counters = Arc::new(QueryCounters::default());
+    let config = profile.query.clone();
+    let setup = profile
+        .text_encoder
+        .enabled
+        .then(|| EncoderSetup { onnx: profile.onnx.clone(), text_encoder: profile.text_encoder.clone() });
+    let (jobs_tx, jobs_rx) = match setup {
+        Some(_) => {
+            let (tx, rx) = crossbeam_channel::bounded(config.queue_capacity);
+            (Some(tx), Some(rx))
+        }
+        None => (None, None),
+    };
+    let (ready_tx, ready_rx) = crossbeam_channel::bounded::<Result<(), String>>(1);
+    {
+        let (prefix, config, counters, latest, stop) =
+            (profile.ipc.prefix.clone(), config.clone(), counters.clone(), latest.clone(), stop.clone());
+        handles.push(spawn_stage("query-rx", finished_tx, move || {
+            let receiver = match QueryReceiver::open(&prefix) {
+                Ok(receiver) => {
+                    let _ = ready_tx.send(Ok(()));
+                    receiver
+                }
+                Err(e) => {
+                    let _ = ready_tx.send(Err(e.to_string()));
+                    return;
+                }
+            };
+            receive_loop(receiver, jobs_tx, &config, &counters, &latest, &stop);
+        })?);
+        running.push("query-rx");
+    }
+    match ready_rx.recv() {
+        Ok(Ok(())) => {}
+        Ok(Err(reason)) => return Err(StartError::Ipc(reason)),
+        Err(_) => return Err(StartError::Ipc("query receiver thread ended during start-up".to_owned())),
+    }
+    if let (Some(setup), Some(jobs_rx)) = (setup, jobs_rx) {
+        let (counters, latest, stop) = (counters.clone(), latest.clone(), stop.clone());
+        handles.push(spawn_stage("query", finished_tx, move || {
+            worker_loop(&setup, &jobs_rx, &config, &counters, &latest, &stop);
+        })?);
+        running.push("query");
+    }
+    Ok(counters)
 }
 
 impl Pipeline {
@@ -229,6 +292,9 @@ impl Pipeline {
             None
         };
 
+        // The query service's view of the graph: the publisher fills it (crate::query).
+        let query_graph = profile.query.enabled.then(|| Arc::new(crate::query::service::LatestGraph::new()));
+
         // Publisher first: it owns the iceoryx2 services and must be up before anything runs.
         let (ready_tx, ready_rx) = crossbeam_channel::bounded::<Result<(), String>>(1);
         {
@@ -240,6 +306,7 @@ impl Pipeline {
             let exit_at_end = profile.run.exit_at_end;
             let pose_source = profile.pose.source;
             let publisher_recorder = recorder.clone();
+            let query_graph = query_graph.clone();
             handles.push(spawn_stage("publish", &finished_tx, move || {
                 let server = match GraphServer::open(&ipc, "op3dsgd") {
                     Ok(server) => {
@@ -262,6 +329,7 @@ impl Pipeline {
                     log_every,
                     exit_at_end,
                     publisher_recorder,
+                    query_graph,
                 );
             })?);
             running.push("publish");
@@ -271,6 +339,14 @@ impl Pipeline {
             Ok(Err(reason)) => return Err(StartError::Ipc(reason)),
             Err(_) => return Err(StartError::Ipc("publisher thread ended during start-up".to_owned())),
         }
+
+        // Language queries: a receiver and one worker of their own, never the fusion thread.
+        let query_counters = match query_graph {
+            Some(latest) => {
+                Some(start_query_threads(profile, latest, &stop, &finished_tx, &mut handles, &mut running)?)
+            }
+            None => None,
+        };
 
         // Snapshot writer: off the hot path, ends after the final snapshot of the ladder.
         if let Some(writer) = snapshot_writer {
@@ -368,6 +444,7 @@ impl Pipeline {
 
         Ok(Self {
             stop,
+            query_counters,
             step_control,
             stats,
             finished_rx,
@@ -381,6 +458,11 @@ impl Pipeline {
     /// each `step(n)` lets `n` more frames into the pipeline. `None` for other sources and modes.
     pub fn step_control(&self) -> Option<&StepControl> {
         self.step_control.as_ref()
+    }
+
+    /// The query service's counters (`None` with `query.enabled = false`).
+    pub fn query_counters(&self) -> Option<&Arc<crate::query::service::QueryCounters>> {
+        self.query_counters.as_ref()
     }
 
     /// Shared counters (for tests and the binary's summary).

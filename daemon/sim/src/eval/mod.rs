@@ -13,4 +13,5 @@ pub mod agreement;
 pub mod benchmark;
 pub mod coverage;
 pub mod fusion_match;
+pub mod query_bench;
 pub mod recall;

@@ -14,6 +14,7 @@
 //! | [`fusion_eval`] | `fusion-eval` |
 //! | [`eval`] | `eval` |
 //! | [`bench`] | `bench perf`, `bench soak`, `bench llm`, `bench quality`, `bench ipc-peer` |
+//! | [`query`] | `query`, `bench query` |
 //! | [`map`] | `map info`, `map save`, `map reset` |
 //! | [`record`] | `record info`, `bench record` |
 
@@ -24,6 +25,7 @@ mod fusion_eval;
 mod gt;
 mod health;
 mod map;
+mod query;
 mod record;
 mod watch;
 
@@ -89,6 +91,26 @@ enum Command {
         #[arg(long)]
         json: bool,
         /// Give up (exit code 1) if no record arrives within this many seconds.
+        #[arg(long, default_value_t = 5.0)]
+        timeout_s: f64,
+    },
+    /// Ask the daemon which nodes serve a need in words ("somewhere to wash my hands", "what
+    /// controls the ceiling light"): the top-k objects and parts with their score and the text
+    /// that matched (label, parent label, affordance or functional edge), from the service
+    /// <prefix>/query. The daemon needs text_encoder.enabled = true (and scripts/setup-models.sh).
+    ///
+    /// Exit code 1 with the reason when the daemon is not running, runs without the text
+    /// encoder, refuses (its query queue is full), or does not answer in time.
+    Query {
+        /// The need, in words.
+        text: String,
+        /// Nodes to return (1..=16).
+        #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=16))]
+        k: u32,
+        /// Print JSON (schema op3dsg.query/1) instead of a table.
+        #[arg(long)]
+        json: bool,
+        /// Give up after this many seconds (waiting for the daemon included).
         #[arg(long, default_value_t = 5.0)]
         timeout_s: f64,
     },
@@ -304,6 +326,31 @@ enum BenchCommand {
     /// ratio. With --serve only the server runs (for a daemon started by hand), until
     /// interrupted. Measure with `cargo build --release`.
     Llm(Box<LlmBenchArgs>),
+    /// The language query benchmark: 64 needs phrased as users phrase them, asked of the graph
+    /// the batch pipeline builds of each synthetic room (kitchen, bathroom, bedroom, living
+    /// room); top-1 and top-3 accuracy for objects and parts, with and without the functional
+    /// edges in the scoring, each miss, and the query latency p50/p99 at 50 and 2,000 nodes.
+    /// Needs .models/ (scripts/setup-models.sh). Measure latency with a release build.
+    Query {
+        /// Scene seed of every room.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Frames per room (30 per second of camera path).
+        #[arg(long, default_value_t = 600, value_parser = clap::value_parser!(u64).range(1..))]
+        frames: u64,
+        /// Oracle noise preset (clean | realistic).
+        #[arg(long, default_value = "realistic")]
+        preset: String,
+        /// Profile to start from (default: the built-in base).
+        #[arg(long)]
+        profile: Option<PathBuf>,
+        /// Profile overrides, section.key=value.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        overrides: Vec<String>,
+        /// Write the report (with every query's outcome) as JSON to this file.
+        #[arg(long, value_name = "FILE")]
+        json: Option<PathBuf>,
+    },
     /// The subscriber process of `bench perf`'s IPC measurement (started by it).
     #[command(hide = true)]
     IpcPeer {
@@ -507,6 +554,13 @@ fn run(cli: Cli) -> Result<()> {
             dump::dump(&prefix, format, seconds(timeout_s)?, out.as_deref())
         }
         Command::Health { json, timeout_s } => health::health(&prefix, json, seconds(timeout_s)?),
+        Command::Query { text, k, json, timeout_s } => query::query(&prefix, &text, k, json, seconds(timeout_s)?),
+        Command::Bench { command: BenchCommand::Query { seed, frames, preset, profile, overrides, json } } => {
+            let mut sets =
+                vec![format!("source.synthetic.frame_count={frames}"), format!("detector.oracle.preset={preset}")];
+            sets.extend(overrides);
+            query::bench(profile.as_deref(), &sets, seed, json.as_deref())
+        }
         Command::Gt { room, seed, out, frames, profile, overrides } => {
             let run = frames.map(|frames| gt::RunSeen { frames, profile, overrides });
             gt::write_ground_truth(room, seed, run.as_ref(), out.as_deref())

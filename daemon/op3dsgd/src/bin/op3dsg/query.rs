@@ -1,0 +1,131 @@
+//! `op3dsg query`: asks the daemon's `<prefix>/query` service for the nodes that serve a need in
+//! words, and `op3dsg bench query`: the query benchmark on the synthetic rooms.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use op3dsg_ipc_types::{QueryClient, QueryStatus};
+use serde::Serialize;
+
+use super::{node_name, write_output};
+
+#[derive(Serialize)]
+struct HitJson<'a> {
+    node_id: u32,
+    parent_id: Option<u32>,
+    kind: &'static str,
+    label: &'a str,
+    score: f32,
+    matched: &'static str,
+    matched_text: &'a str,
+}
+
+#[derive(Serialize)]
+struct ReplyJson<'a> {
+    schema: &'static str,
+    text: &'a str,
+    graph_version: u64,
+    instance_id: String,
+    scored_nodes: u32,
+    encode_us: u32,
+    score_us: u32,
+    hits: Vec<HitJson<'a>>,
+}
+
+/// `op3dsg query TEXT`: prints the top-k nodes (a table, or JSON); exits with an error naming
+/// the cause when the daemon is not running, has no text encoder, refuses (busy) or times out.
+pub(super) fn query(prefix: &str, text: &str, k: u32, json: bool, timeout: Duration) -> Result<()> {
+    let started = Instant::now();
+    let client = QueryClient::open_wait(prefix, &node_name(), timeout).map_err(|e| {
+        if e.is_not_serving() {
+            anyhow::anyhow!("{e}; start it (op3dsgd) or pass the prefix it serves (--prefix / OP3DSG_PREFIX)")
+        } else {
+            anyhow::Error::new(e)
+        }
+    })?;
+    let left = timeout.saturating_sub(started.elapsed()).max(Duration::from_millis(100));
+    let response = client.query(text, k, left)?;
+    match response.query_status() {
+        Some(QueryStatus::Ok) => {}
+        Some(status) => bail!("{}: {} ({})", client.service_name(), response.message_str(), status.as_str()),
+        None => bail!("{}: unknown status {} in the reply", client.service_name(), response.status),
+    }
+    let hits: Vec<HitJson<'_>> = response
+        .hits()
+        .iter()
+        .map(|h| HitJson {
+            node_id: h.node_id,
+            parent_id: (h.parent_id != op3dsg_ipc_types::NO_NODE).then_some(h.parent_id),
+            kind: h.node_kind().map_or("unknown", |k| k.as_str()),
+            label: h.label_str(),
+            score: h.score,
+            matched: h.query_match().map_or("unknown", |m| m.as_str()),
+            matched_text: h.matched_text_str(),
+        })
+        .collect();
+    let mut out = String::new();
+    if json {
+        let reply = ReplyJson {
+            schema: "op3dsg.query/1",
+            text,
+            graph_version: response.graph_version,
+            instance_id: format!("{:#018x}", response.instance_id),
+            scored_nodes: response.scored_node_count,
+            encode_us: response.encode_us,
+            score_us: response.score_us,
+            hits,
+        };
+        out = serde_json::to_string_pretty(&reply).context("serialising the reply")?;
+        out.push('\n');
+    } else {
+        use std::fmt::Write as _;
+        let _ = writeln!(
+            out,
+            "graph version {} ({} nodes scored; encode {} us, score {} us)",
+            response.graph_version, response.scored_node_count, response.encode_us, response.score_us
+        );
+        let _ = writeln!(out, "{:>4}  {:>6}  {:<6}  {:<24}  {:>6}  why", "rank", "id", "kind", "label", "score");
+        for (rank, h) in hits.iter().enumerate() {
+            let _ = writeln!(
+                out,
+                "{:>4}  {:>6}  {:<6}  {:<24}  {:>6.3}  {}: {}",
+                rank + 1,
+                h.node_id,
+                h.kind,
+                h.label,
+                h.score,
+                h.matched,
+                h.matched_text
+            );
+        }
+    }
+    write_output(None, &out)
+}
+
+/// `op3dsg bench query`.
+pub(super) fn bench(profile_path: Option<&Path>, overrides: &[String], seed: u64, json: Option<&Path>) -> Result<()> {
+    use op3dsg_sim::eval::query_bench;
+    let started = Instant::now();
+    let loaded = op3dsg_sim::load_profile(profile_path, overrides).map_err(|e| anyhow::anyhow!("bad profile: {e}"))?;
+    let mut encoder = super::eval::load_text_encoder(profile_path)?;
+    let mut graphs = Vec::new();
+    for room in op3dsg_synthetic::RoomKind::ALL {
+        eprintln!("mapping {} (seed {seed}) ...", room.as_str());
+        graphs.push(query_bench::room_graph(&loaded.profile, room, seed).map_err(|e| anyhow::anyhow!(e))?);
+    }
+    let report = query_bench::run(&graphs, &mut encoder).map_err(|e| anyhow::anyhow!("query benchmark: {e}"))?;
+    let mut text = format!(
+        "{} queries on 4 synthetic rooms (seed {seed}), {:.1} s\n",
+        query_bench::QUERIES.len(),
+        started.elapsed().as_secs_f64()
+    );
+    text.push_str(&query_bench::text(&report));
+    write_output(None, &text)?;
+    if let Some(path) = json {
+        let mut out = serde_json::to_string_pretty(&report).context("serialising the report")?;
+        out.push('\n');
+        write_output(Some(path), &out)?;
+    }
+    Ok(())
+}
