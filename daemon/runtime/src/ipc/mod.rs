@@ -271,17 +271,19 @@ pub fn create_node(node_name: &str) -> Result<Node<IpcService>, IpcError> {
         .map_err(|e| IpcError::Node { node: node_name.to_owned(), reason: format!("{e:?}") })
 }
 
-/// Removes the resources of dead nodes; returns how many were cleaned.
-fn cleanup_dead_nodes(node: &Node<IpcService>) -> u64 {
+/// Removes the resources of dead nodes; returns how many were cleaned and how many could not
+/// be (another user's, or removed by another process at the same moment).
+fn cleanup_dead_nodes(node: &Node<IpcService>) -> (u64, u64) {
     let state = node.try_cleanup_dead_nodes();
-    if state.failed_cleanups > 0 {
-        tracing::warn!(
-            cleaned = state.cleanups,
-            failed = state.failed_cleanups,
-            "could not remove the shared-memory leftovers of some dead iceoryx2 nodes (permissions?)"
-        );
-    }
-    state.cleanups
+    (state.cleanups, state.failed_cleanups)
+}
+
+fn warn_failed_cleanups(cleaned: u64, failed: u64) {
+    tracing::warn!(
+        cleaned,
+        failed,
+        "could not remove the shared-memory leftovers of some dead iceoryx2 nodes (permissions?)"
+    );
 }
 
 /// A fresh daemon instance id: random (std's per-process random hash keys), mixed with the start

@@ -18,7 +18,9 @@ use op3dsg_ipc_types::services::{
 };
 use op3dsg_ipc_types::{ClientError, GraphHeader, Health, PoseError, PoseStamped, ServiceNames, check_pose};
 
-use super::{GraphEncoder, IpcConfig, IpcError, IpcService, PublishReport, cleanup_dead_nodes, create_node};
+use super::{
+    GraphEncoder, IpcConfig, IpcError, IpcService, PublishReport, cleanup_dead_nodes, create_node, warn_failed_cleanups,
+};
 use super::{new_instance_id, service_err, service_name, wall_clock_ns};
 use crate::graph::SceneGraph;
 
@@ -34,6 +36,8 @@ pub struct GraphServer {
     pose_subscriber: Subscriber<IpcService, PoseStamped, ()>,
     pose_checks: PoseCheckCounts,
     dead_nodes_cleaned: u64,
+    /// Dead nodes the last cleanup could not remove (warned once per change).
+    failed_cleanups: u64,
     node: Node<IpcService>,
 }
 
@@ -44,7 +48,11 @@ impl GraphServer {
         config.validate("ipc").map_err(|reason| IpcError::InvalidPrefix { prefix: config.prefix.clone(), reason })?;
         let names = ServiceNames::new(&config.prefix);
         let node = create_node(node_name)?;
-        let dead_nodes_cleaned = if config.cleanup_dead_nodes_at_start { cleanup_dead_nodes(&node) } else { 0 };
+        let (dead_nodes_cleaned, failed_cleanups) =
+            if config.cleanup_dead_nodes_at_start { cleanup_dead_nodes(&node) } else { (0, 0) };
+        if failed_cleanups > 0 {
+            warn_failed_cleanups(dead_nodes_cleaned, failed_cleanups);
+        }
         tracing::info!(dead_nodes_cleaned, prefix = %config.prefix, "iceoryx2 stale-resource cleanup done");
 
         let name = service_name(&config.prefix, &names.graph)?;
@@ -121,6 +129,7 @@ impl GraphServer {
             pose_subscriber,
             pose_checks: PoseCheckCounts::default(),
             dead_nodes_cleaned,
+            failed_cleanups,
             node,
         })
     }
@@ -146,7 +155,12 @@ impl GraphServer {
     /// then), and how many dead nodes were removed since start. Called once per health period
     /// from the publisher thread: iceoryx2 lists the nodes from the file system, off the hot path.
     pub fn planner_health(&mut self, health: &mut Health) {
-        let cleaned = cleanup_dead_nodes(&self.node);
+        let (cleaned, failed) = cleanup_dead_nodes(&self.node);
+        // Once per change, not once per period: a leftover that cannot be removed stays.
+        if failed > 0 && failed != self.failed_cleanups {
+            warn_failed_cleanups(cleaned, failed);
+        }
+        self.failed_cleanups = failed;
         if cleaned > 0 {
             tracing::info!(
                 cleaned,
