@@ -1,6 +1,6 @@
 //! # `op3dsg bench perf`: the daemon's performance figures
 //!
-//! Three measurements, each a section of [`PerfReport`] (written as JSON) and of its Markdown
+//! Four measurements, each a section of [`PerfReport`] (written as JSON) and of its Markdown
 //! ([`PerfReport::to_markdown`]):
 //!
 //! 1. **Pipeline** ([`pipeline_run`]): the real pipeline of `op3dsgd` (named threads, bounded
@@ -19,6 +19,9 @@
 //! 3. **Fusion cost against map size** ([`fusion_curve`]): one 40-detection step of a real
 //!    kitchen keyframe into maps grown through several sizes (`fusion::workload`), with a PNG
 //!    plot ([`fusion_curve::plot_png`]).
+//! 4. **Fusion cost per keyframe next to the peer baseline's** ([`peer_fusion`]): the kitchen
+//!    path's keyframes into OP3DSG's fusion and ConceptGraphs' (the `bench quality` peer row's),
+//!    each call timed on one thread with the same input; skipped with the fusion curve.
 //!
 //! `op3dsg bench soak` ([`soak`]) runs the same pipeline for a long time with map snapshots on
 //! and off: RSS slope, snapshot write and copy cost, and the fusion stage's latency.
