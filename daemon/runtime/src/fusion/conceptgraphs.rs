@@ -17,7 +17,8 @@
 //!   `max(min_points_threshold, 4)` (16) points is skipped. The cloud is voxel-downsampled at
 //!   `downsample_voxel_size` (2.5 cm; Open3D's `voxel_down_sample`: one point per voxel, the mean
 //!   of its points) and denoised by DBSCAN (`pcd_denoise_dbscan`, below). A detection whose box
-//!   has no volume (< 1e-6 m³) is skipped.
+//!   has no volume (< 1e-6 m³) is skipped (so is a noise-free planar patch facing a world axis,
+//!   as theirs would be).
 //! * **Spatial similarity** (`compute_overlap_matrix_2set`, `spatial_sim_type = "overlap"`): for
 //!   each (object, detection) pair whose 3D boxes have an IoU > 0, the fraction of the
 //!   detection's points whose nearest object point is closer than the voxel size (their
@@ -737,6 +738,55 @@ impl Fusion for ConceptGraphsFusion {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::perception::Mask;
+    use op3dsg_drivers::frame::Intrinsics;
+
+    /// A slanted surface 1 to 1.3 m away (depth grows with the column), 64 x 48 px, f = 60.
+    fn slanted_frame() -> Frame {
+        let k = Intrinsics { width: 64, height: 48, fx: 60.0, fy: 60.0, cx: 32.0, cy: 24.0 };
+        let mut frame = Frame::new(k);
+        for y in 0..48 {
+            for x in 0..64 {
+                frame.depth[y * 64 + x] = 1000 + (x as u16) * 5;
+            }
+        }
+        frame
+    }
+
+    fn square(label: &str, x0: u32, y0: u32, size: u32, feature: [f32; 2]) -> Detection {
+        Detection {
+            label: label.into(),
+            kind: NodeKind::Object,
+            score: 0.9,
+            mask: Mask { x0, y0, width: size, height: size, data: vec![1; (size * size) as usize] },
+            semantic_feature: Some(feature.to_vec()),
+        }
+    }
+
+    #[test]
+    fn overlapping_similar_detections_fuse_and_unseen_ones_are_filtered_at_publication() {
+        let frame = slanted_frame();
+        let mut fusion = ConceptGraphsFusion::new(ConceptGraphsConfig::default());
+        let cabinet = square("cabinet", 4, 4, 20, [1.0, 0.0]);
+        // Same place, orthogonal feature: spatial 1 + visual 0 < 1.2, a new object.
+        let other = square("fridge", 4, 4, 20, [0.0, 1.0]);
+        let r = fusion.integrate(&frame, &Isometry::IDENTITY, &[cabinet.clone(), other]);
+        assert_eq!((r.created, r.merged), (2, 0));
+        for _ in 0..2 {
+            let r = fusion.integrate(&frame, &Isometry::IDENTITY, std::slice::from_ref(&cabinet));
+            assert_eq!((r.created, r.merged), (0, 1));
+        }
+        // A mask under 25 px is dropped before lifting.
+        let r = fusion.integrate(&frame, &Isometry::IDENTITY, &[square("knob", 40, 30, 4, [1.0, 0.0])]);
+        assert_eq!(r.ignored, 1);
+        assert_eq!(fusion.node_count(), 2);
+        // Publication filters objects under 3 detections (the fridge) and leaves the map as it is.
+        let mut graph = SceneGraph::default();
+        fusion.build_graph(&mut graph);
+        assert_eq!(graph.nodes.len(), 1);
+        assert_eq!((graph.nodes[0].label.as_str(), graph.nodes[0].observation_count), ("cabinet", 3));
+        assert_eq!(fusion.node_count(), 2);
+    }
 
     #[test]
     fn voxel_down_sample_averages_each_voxel() {
