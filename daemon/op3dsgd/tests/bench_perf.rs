@@ -118,10 +118,30 @@ fn bench_perf_runs_and_reports_sane_figures() {
     }
     assert!(fusion.points[1].copies > fusion.points[0].copies);
 
+    // Both fusions per keyframe on the same keyframes: ours, then the peer baseline's.
+    let peer = report.peer_fusion.as_ref().expect("peer fusion section");
+    assert_eq!(peer.keyframes, 4);
+    assert!(peer.detections > 0);
+    let names: Vec<&str> = peer.fusions.iter().map(|f| f.name.as_str()).collect();
+    assert_eq!(names, ["OP3DSG multi-view fusion", op3dsg_sim::eval::benchmark::PEER_ROW]);
+    for f in &peer.fusions {
+        sane(&f.keyframe, &f.name);
+        assert_eq!(f.keyframe.count, 4, "{}", f.name);
+        assert!(f.map_nodes > 0 && f.build_graph_ms >= 0.0, "{}", f.name);
+    }
+
     // Markdown on stdout and in the file; a PNG of the plot size.
     let markdown = std::fs::read_to_string(dir.path().join("perf.md")).expect("perf.md");
     assert_eq!(markdown, stdout);
-    for needle in ["### Performance", "| capture |", "| prior |", "| end_to_end |", "| 300 |", "fusion.png"] {
+    for needle in [
+        "### Performance",
+        "| capture |",
+        "| prior |",
+        "| end_to_end |",
+        "| 300 |",
+        "fusion.png",
+        "| peer: ConceptGraphs fusion |",
+    ] {
         assert!(markdown.contains(needle), "markdown lacks {needle:?}:\n{markdown}");
     }
     let png = image::open(dir.path().join("fusion.png")).expect("a readable PNG").to_rgb8();

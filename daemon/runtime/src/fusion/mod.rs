@@ -13,6 +13,7 @@ use crate::graph::SceneGraph;
 use crate::perception::Detection;
 
 pub mod colour;
+pub mod conceptgraphs;
 pub mod multiview;
 pub mod oriented_box;
 pub(crate) mod thread;

@@ -21,11 +21,12 @@
 //! | w/o prior graph | the reasoner gets a flat node list ([`op3dsg_runtime::reasoner::ablation`]) |
 //! | w/o split | one reasoner instead of the split ([`op3dsg_runtime::reasoner::ablation`]) |
 //!
-//! Two rows isolate a stage:
+//! Two rows isolate a stage, and one puts a peer's fusion in place of ours:
 //!
 //! | row | what it measures | what it cannot |
 //! |---|---|---|
 //! | reasoner on GT nodes | reasoning alone: the ground-truth nodes (exact labels, kinds, parents, boxes, `part of` edges) through the prior graph and the reasoner, scored on the same items as every row | its node columns are 100 by construction (the nodes are the ground truth's); says nothing of perception or fusion |
+//! | peer: ConceptGraphs fusion | ConceptGraphs' association and merging ([`op3dsg_runtime::fusion::conceptgraphs`], their published algorithm and config defaults) in place of OP3DSG's fusion, fed the full row's keyframes and detections in the same pass, reasoned by the same reasoner | ConceptGraphs' perception (CLIP crops, SAM masks, their tagger) is not reproduced: it gets the oracle's detections and their semantic feature; only fusion differs from the full row |
 //! | fusion on exact detections | fusion alone: the oracle with its noise off (every visible instance, canonical label, exact mask, unperturbed feature; `OracleConfig::clean` with the run's seed and semantic source) fused and reasoned like the full row | node columns are fusion's; the relation columns still include the reasoner; the detections are exact, so it bounds fusion from above |
 //!
 //! ## Leave one category out
@@ -77,6 +78,7 @@ use crate::backends::{oracle_config, set_oracle_config, set_synthetic_config, sy
 use crate::batch::{self, Lane, VisibilityThresholds};
 use crate::oracle::OracleConfig;
 use op3dsg_runtime::config::{Profile, ReasonerKind};
+use op3dsg_runtime::fusion::conceptgraphs::{ConceptGraphsConfig, ConceptGraphsFusion};
 use op3dsg_runtime::knowledge::KnowledgeBase;
 use op3dsg_runtime::pipeline::{make_enricher, make_fusion};
 use op3dsg_runtime::reasoner::ReasoningSetup;
@@ -84,15 +86,20 @@ use op3dsg_runtime::reasoner::fallback::{self, FallbackCounts};
 use std::sync::Arc;
 
 /// The rows of the table, in order.
-pub const ROWS: [&str; 7] = [
+pub const ROWS: [&str; 8] = [
     "full",
     "reasoner on GT nodes",
     "fusion on exact detections",
+    PEER_ROW,
     "w/o knowledge",
     "w/o colour",
     "w/o prior graph",
     "w/o split",
 ];
+/// The peer baseline's row: ConceptGraphs' association and merging
+/// ([`op3dsg_runtime::fusion::conceptgraphs`]) in place of OP3DSG's fusion, on the full row's
+/// keyframes and detections, reasoned by the same reasoner.
+pub const PEER_ROW: &str = "peer: ConceptGraphs fusion";
 /// Index of "reasoner on GT nodes" in [`ROWS`].
 pub const GT_NODES_ROW: usize = 1;
 /// Targets of the full row at R@3, percent: object, part, affordance, functional, spatial.
@@ -175,6 +182,16 @@ pub struct LocoRun {
     pub nearest: Option<(String, f32)>,
 }
 
+/// The peer baseline's fusion for `profile`: ConceptGraphs' defaults, with the profile's up axis
+/// and part attachment margin (the published graph is built like OP3DSG's).
+pub fn peer_fusion(profile: &Profile) -> Box<dyn op3dsg_runtime::fusion::Fusion> {
+    let config = ConceptGraphsConfig {
+        part_attach_margin_m: profile.fusion.part_attach_margin_m,
+        ..ConceptGraphsConfig::default()
+    };
+    Box::new(ConceptGraphsFusion::new(config).with_up_axis(profile.world.up_axis))
+}
+
 /// Runs one scene: the full system and the ablations over one rendering pass.
 pub fn run_scene(base: &Profile, room: RoomKind, seed: u64) -> Result<SceneRun, String> {
     let name = format!("{} seed {seed}", room.as_str());
@@ -208,7 +225,7 @@ pub fn run_scene(base: &Profile, room: RoomKind, seed: u64) -> Result<SceneRun, 
     oracle.part_prompts = op3dsg_runtime::perception::candidates::CandidateMode::Generic;
     set_oracle_config(&mut generic, &oracle);
     let lanes = vec![
-        Lane { detector: None, fusions: vec![make_fusion(&profile), make_fusion(&no_colour)] },
+        Lane { detector: None, fusions: vec![make_fusion(&profile), make_fusion(&no_colour), peer_fusion(&profile)] },
         Lane { detector: Some(generic.clone()), fusions: vec![make_fusion(&generic)] },
         Lane { detector: Some(exact.clone()), fusions: vec![make_fusion(&exact)] },
     ];
@@ -219,7 +236,7 @@ pub fn run_scene(base: &Profile, room: RoomKind, seed: u64) -> Result<SceneRun, 
     let (Some(exact_run), Some(generic_run), Some(mut lane)) = (exact_run, generic_run, runs.pop()) else {
         return Err(format!("{name}: the batch runner returned fewer runs than asked"));
     };
-    let (Some(no_colour_run), Some(full_run)) = (lane.pop(), lane.pop()) else {
+    let (Some(peer_run), Some(no_colour_run), Some(full_run)) = (lane.pop(), lane.pop(), lane.pop()) else {
         return Err(format!("{name}: the batch runner returned fewer runs than asked"));
     };
     let Some(scene) = full_run.scene.as_ref() else { return Err(format!("{name}: no ground truth")) };
@@ -257,6 +274,7 @@ pub fn run_scene(base: &Profile, room: RoomKind, seed: u64) -> Result<SceneRun, 
         enrich(&full_run.graph, ReasoningSetup::Split)?,
         gt_answer.clone(),
         enrich(&exact_run.graph, ReasoningSetup::Split)?,
+        enrich(&peer_run.graph, ReasoningSetup::Split)?,
         enrich(&generic_run.graph, ReasoningSetup::Split)?,
         enrich(&no_colour_run.graph, ReasoningSetup::Split)?,
         enrich(&full_run.graph, ReasoningSetup::FlatNodeList)?,

@@ -1,6 +1,6 @@
 //! # `op3dsg bench perf`: the daemon's performance figures
 //!
-//! Three measurements, each a section of [`PerfReport`] (written as JSON) and of its Markdown
+//! Four measurements, each a section of [`PerfReport`] (written as JSON) and of its Markdown
 //! ([`PerfReport::to_markdown`]):
 //!
 //! 1. **Pipeline** ([`pipeline_run`]): the real pipeline of `op3dsgd` (named threads, bounded
@@ -19,6 +19,9 @@
 //! 3. **Fusion cost against map size** ([`fusion_curve`]): one 40-detection step of a real
 //!    kitchen keyframe into maps grown through several sizes (`fusion::workload`), with a PNG
 //!    plot ([`fusion_curve::plot_png`]).
+//! 4. **Fusion cost per keyframe next to the peer baseline's** ([`peer_fusion`]): the kitchen
+//!    path's keyframes into OP3DSG's fusion and ConceptGraphs' (the `bench quality` peer row's),
+//!    each call timed on one thread with the same input; skipped with the fusion curve.
 //!
 //! `op3dsg bench soak` ([`soak`]) runs the same pipeline for a long time with map snapshots on
 //! and off: RSS slope, snapshot write and copy cost, and the fusion stage's latency.
@@ -33,6 +36,7 @@
 pub mod fusion_curve;
 pub mod ipc_latency;
 pub mod llm_hot_path;
+pub mod peer_fusion;
 pub mod pipeline_run;
 pub mod soak;
 
@@ -45,6 +49,7 @@ use serde::{Deserialize, Serialize};
 pub use fusion_curve::{FusionCurve, FusionPoint, fusion_curve};
 pub use ipc_latency::{IpcLatency, IpcRow, ipc_latency, ipc_peer};
 pub use llm_hot_path::{LlmHotPath, SlowChatServer, StageComparison, llm_hot_path};
+pub use peer_fusion::{FusionCost, PeerFusionCost, peer_fusion_cost};
 pub use pipeline_run::{PipelineRun, RssSample, StageRow, pipeline_run};
 
 use op3dsg_runtime::stats::LatencyHistogram;
@@ -120,6 +125,10 @@ pub struct PerfReport {
     pub ipc: Option<IpcLatency>,
     /// Fusion step cost against map size (`None` when skipped).
     pub fusion: Option<FusionCurve>,
+    /// Per-keyframe cost of OP3DSG's fusion and of the peer baseline's (ConceptGraphs) on the
+    /// same keyframes (`None` when skipped, with the fusion curve).
+    #[serde(default)]
+    pub peer_fusion: Option<PeerFusionCost>,
 }
 
 /// Runs every measurement `options` asks for, printing progress to standard error.
@@ -154,6 +163,15 @@ pub fn run(options: &PerfOptions) -> anyhow::Result<PerfReport> {
         eprintln!("bench perf: fusion cost, maps of {:?} nodes ...", options.fusion_sizes);
         Some(fusion_curve(options).context("fusion cost against map size")?)
     };
+    let peer_fusion = if options.fusion_sizes.is_empty() {
+        None
+    } else {
+        eprintln!(
+            "bench perf: fusion cost per keyframe, OP3DSG and ConceptGraphs, {} keyframes ...",
+            options.fusion_keyframes
+        );
+        Some(peer_fusion_cost(options).context("peer fusion cost")?)
+    };
     Ok(PerfReport {
         schema: REPORT_SCHEMA.to_owned(),
         machine: Machine::current(),
@@ -161,6 +179,7 @@ pub fn run(options: &PerfOptions) -> anyhow::Result<PerfReport> {
         pipeline,
         ipc,
         fusion,
+        peer_fusion,
     })
 }
 
@@ -240,6 +259,9 @@ impl PerfReport {
         }
         if let Some(fusion) = &self.fusion {
             fusion_markdown(&mut s, fusion, plot);
+        }
+        if let Some(peer) = &self.peer_fusion {
+            peer_fusion_markdown(&mut s, peer);
         }
         s
     }
@@ -408,6 +430,37 @@ fn fusion_markdown(s: &mut String, fusion: &FusionCurve, plot: Option<&str>) {
     }
     if let Some(path) = plot {
         let _ = writeln!(s, "\n![fusion step cost against map size]({path})");
+    }
+    let _ = writeln!(s);
+}
+
+fn peer_fusion_markdown(s: &mut String, peer: &PeerFusionCost) {
+    let _ = writeln!(
+        s,
+        "**Fusion cost per keyframe, OP3DSG and the peer baseline**: the {} keyframes of the kitchen \
+         path ({} detections, realistic oracle), each integrated into both fusions in turn on one \
+         thread (same frame, pose and detections); build graph is the final graph (for ConceptGraphs \
+         it includes their final denoise, filter and merge).\n",
+        peer.keyframes, peer.detections
+    );
+    let _ = writeln!(
+        s,
+        "| fusion | keyframe p50 ms | keyframe p99 ms | mean ms | build graph ms | map nodes | published nodes | map MiB |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|");
+    for f in &peer.fusions {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {} | {} | {:.1} |",
+            f.name,
+            ms(f.keyframe.p50_ms),
+            ms(f.keyframe.p99_ms),
+            ms(f.keyframe.mean_ms),
+            ms(f.build_graph_ms),
+            f.map_nodes,
+            f.graph_nodes,
+            f.memory_mib
+        );
     }
     let _ = writeln!(s);
 }

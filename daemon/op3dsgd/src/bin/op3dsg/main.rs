@@ -364,7 +364,9 @@ enum BenchCommand {
     /// (see `op3dsg eval`), with the paper's ablations as extra rows (w/o knowledge-guided part
     /// candidates, w/o colour features, a flat node list instead of the prior graph, a single
     /// reasoner instead of the split), and two stage-isolated rows (the reasoner on the
-    /// ground-truth nodes; fusion on exact detections). Then the leave-one-category-out test: per
+    /// ground-truth nodes; fusion on exact detections), and a peer baseline (ConceptGraphs'
+    /// association and merging in place of the fusion, on the same detections, reasoned alike).
+    /// Then the leave-one-category-out test: per
     /// object category, the reasoner's tables without it, scored on the items involving it, with
     /// the label fallback's counts. Prints the table, strict node recall, coverage (ground-truth
     /// nodes scored of all), where the full system loses recall, how often the knowledge base
