@@ -317,6 +317,14 @@ impl DetectorBackend for OracleBackend {
             );
         }
         let setup = OracleSetup::new(profile, truth.as_deref())?;
+        if setup.config.has_pose_noise() {
+            // The pipeline's poses come from its pose source; only the batch runner perturbs them.
+            warn!(
+                "detector.oracle.pose_drift_fraction / pose_drift_deg_per_m / pose_jitter_m / pose_jitter_deg are \
+                 applied by the batch runner only (bench quality, fusion-eval); the daemon fuses its pose source's \
+                 poses unchanged"
+            );
+        }
         Ok(Arc::new(move |worker| Box::new(setup.detector(worker)) as Box<dyn Detector>))
     }
 }
@@ -426,6 +434,13 @@ fn oracle_label_vectors(
     labels.dedup();
     let embeddings = encoder.encode_batch(&labels)?;
     Ok(Some(Arc::new(labels.iter().zip(embeddings).map(|(l, e)| ((*l).to_owned(), e.to_vec())).collect())))
+}
+
+/// The confusion table the oracle of `profile` would use for `instances` (`None` when
+/// `detector.oracle.confusion_rate` is 0), for reports.
+pub fn confusion_table(profile: &Profile, instances: &[InstanceInfo]) -> Result<Option<ConfusionTable>, StartError> {
+    let oracle = oracle_config(profile)?;
+    Ok(oracle_confusions(profile, &oracle, instances)?.map(|t| (*t).clone()))
 }
 
 /// With `detector.oracle.confusion_rate` above 0, the confusion table of the scene's labels
