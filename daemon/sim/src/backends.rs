@@ -38,7 +38,7 @@ use serde::Serialize;
 use serde::de::DeserializeOwned;
 use tracing::warn;
 
-use crate::oracle::{OracleConfig, OracleDetector, SemanticSource};
+use crate::oracle::{ConfusionTable, OracleConfig, OracleDetector, SemanticSource};
 
 /// `source.kind` of the synthetic rooms.
 pub const SYNTHETIC_SOURCE: &str = "synthetic";
@@ -317,6 +317,14 @@ impl DetectorBackend for OracleBackend {
             );
         }
         let setup = OracleSetup::new(profile, truth.as_deref())?;
+        if setup.config.has_pose_noise() {
+            // The pipeline's poses come from its pose source; only the batch runner perturbs them.
+            warn!(
+                "detector.oracle.pose_drift_fraction / pose_drift_deg_per_m / pose_jitter_m / pose_jitter_deg are \
+                 applied by the batch runner only (bench quality, fusion-eval); the daemon fuses its pose source's \
+                 poses unchanged"
+            );
+        }
         Ok(Arc::new(move |worker| Box::new(setup.detector(worker)) as Box<dyn Detector>))
     }
 }
@@ -330,6 +338,7 @@ pub struct OracleSetup {
     candidates: Option<Arc<PartCandidates>>,
     vectors: Option<LabelVectors>,
     instance_ids: Option<InstanceIdChannel>,
+    confusions: Option<Arc<ConfusionTable>>,
 }
 
 impl OracleSetup {
@@ -338,12 +347,25 @@ impl OracleSetup {
     pub fn new(profile: &Profile, truth: Option<&GroundTruth>) -> Result<Self, StartError> {
         let config = oracle_config(profile)?;
         let Some(truth) = truth else {
-            return Ok(Self { config, instances: Vec::new(), candidates: None, vectors: None, instance_ids: None });
+            return Ok(Self {
+                config,
+                instances: Vec::new(),
+                candidates: None,
+                vectors: None,
+                instance_ids: None,
+                confusions: None,
+            });
         };
         let instances = truth.scene.instances().to_vec();
         let candidates = oracle_candidates(profile, &config)?;
         let vectors = oracle_label_vectors(profile, &config, &instances)?;
-        Ok(Self { config, instances, candidates, vectors, instance_ids: Some(truth.instance_ids.clone()) })
+        let confusions = oracle_confusions(profile, &config, &instances)?;
+        Ok(Self { config, instances, candidates, vectors, instance_ids: Some(truth.instance_ids.clone()), confusions })
+    }
+
+    /// The confusion table (with `detector.oracle.confusion_rate` above 0).
+    pub fn confusions(&self) -> Option<&ConfusionTable> {
+        self.confusions.as_deref()
     }
 
     /// The detector of worker `worker`.
@@ -358,6 +380,9 @@ impl OracleSetup {
         if let Some(vectors) = &self.vectors {
             detector = detector.with_label_vectors(vectors);
         }
+        if let Some(confusions) = &self.confusions {
+            detector = detector.with_confusions(confusions);
+        }
         detector
     }
 }
@@ -371,8 +396,9 @@ fn expand_preset(section: &mut toml::Table) -> Result<(), SectionError> {
     let field = "preset".to_owned();
     let name =
         preset.as_str().ok_or_else(|| (field.clone(), format!("expected a string, found {}", preset.type_str())))?;
-    let config = OracleConfig::preset(name)
-        .ok_or_else(|| (field.clone(), format!("unknown preset \"{name}\", expected \"clean\" or \"realistic\"")))?;
+    let config = OracleConfig::preset(name).ok_or_else(|| {
+        (field.clone(), format!("unknown preset \"{name}\", expected one of {:?}", OracleConfig::PRESETS))
+    })?;
     let mut base = toml::Table::try_from(&config).map_err(|e| (field, e.to_string()))?;
     config::merge(&mut base, std::mem::take(section));
     *section = base;
@@ -408,6 +434,42 @@ fn oracle_label_vectors(
     labels.dedup();
     let embeddings = encoder.encode_batch(&labels)?;
     Ok(Some(Arc::new(labels.iter().zip(embeddings).map(|(l, e)| ((*l).to_owned(), e.to_vec())).collect())))
+}
+
+/// The confusion table the oracle of `profile` would use for `instances` (`None` when
+/// `detector.oracle.confusion_rate` is 0), for reports.
+pub fn confusion_table(profile: &Profile, instances: &[InstanceInfo]) -> Result<Option<ConfusionTable>, StartError> {
+    let oracle = oracle_config(profile)?;
+    Ok(oracle_confusions(profile, &oracle, instances)?.map(|t| (*t).clone()))
+}
+
+/// With `detector.oracle.confusion_rate` above 0, the confusion table of the scene's labels
+/// against the knowledge base's names, by the text encoder's embeddings (loaded here, so a
+/// missing model stops start-up, naming the knob).
+fn oracle_confusions(
+    profile: &Profile,
+    oracle: &OracleConfig,
+    instances: &[InstanceInfo],
+) -> Result<Option<Arc<ConfusionTable>>, StartError> {
+    if oracle.confusion_rate <= 0.0 {
+        return Ok(None);
+    }
+    let field = "detector.oracle.confusion_rate";
+    let fail = |reason: String| StartError::Incompatible {
+        field,
+        reason: format!("the confusion neighbours are chosen by text embedding: {reason}"),
+    };
+    let runtime = OnnxRuntime::init(&profile.onnx).map_err(|e| fail(format!("onnx: {e}")))?;
+    let mut encoder =
+        TextEncoder::new(&runtime, &profile.text_encoder).map_err(|e| fail(format!("text_encoder: {e}")))?;
+    let kb = knowledge_base(profile)?;
+    let words = crate::oracle::confusion_words(instances);
+    let mut embed = |texts: &[&str]| -> Result<Vec<Vec<f32>>, String> {
+        let out = encoder.encode_batch(texts).map_err(|e| e.to_string())?;
+        Ok(out.into_iter().map(|e| e.to_vec()).collect())
+    };
+    let table = ConfusionTable::build(&kb, &words, &mut embed).map_err(fail)?;
+    Ok(Some(Arc::new(table)))
 }
 
 #[cfg(test)]

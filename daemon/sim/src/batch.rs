@@ -40,7 +40,7 @@ use op3dsg_synthetic::{GroundTruth, InstanceKind, Scene};
 use tracing::warn;
 
 use crate::backends::{ORACLE_DETECTOR, OracleSetup, SYNTHETIC_SOURCE, ground_truth, synthetic_config};
-use crate::oracle::InstanceLog;
+use crate::oracle::{InstanceLog, PoseNoise};
 
 /// How many pixels of `Frame::instance_ids` make a ground-truth instance count as visible in a
 /// keyframe.
@@ -213,6 +213,15 @@ fn make_detector(
     Ok((factory(0), None))
 }
 
+/// The oracle's pose drift and jitter for a lane of `profile` (`detector.oracle.pose_*`), `None`
+/// without them or with another detector.
+fn lane_pose_noise(profile: &Profile) -> Result<Option<PoseNoise>, BatchError> {
+    if profile.detector.kind != ORACLE_DETECTOR {
+        return Ok(None);
+    }
+    Ok(PoseNoise::new(&crate::backends::oracle_config(profile)?))
+}
+
 /// Runs `profile`'s source and keyframe gate once and feeds every keyframe to each lane: the
 /// lane's detector, then each of its fusions. One [`BatchRun`] per fusion, grouped by lane:
 /// variants that differ in detector or fusion see exactly the same keyframes, rendered once.
@@ -264,11 +273,14 @@ pub fn run_lanes(
     }
     let mut detectors = Vec::with_capacity(lanes.len());
     let mut instance_logs = Vec::with_capacity(lanes.len());
+    let mut pose_noise = Vec::with_capacity(lanes.len());
     for lane in &mut lanes {
         let lane_profile = lane.detector.take();
-        let (detector, log) = make_detector(lane_profile.as_ref().unwrap_or(profile), &opened, truth.as_deref())?;
+        let lane_profile = lane_profile.as_ref().unwrap_or(profile);
+        let (detector, log) = make_detector(lane_profile, &opened, truth.as_deref())?;
         detectors.push(detector);
         instance_logs.push(log);
+        pose_noise.push(lane_pose_noise(lane_profile)?);
     }
     let source = &mut opened.source;
     let mut gate = KeyframeGate::new(&profile.keyframe, &profile.pose);
@@ -382,11 +394,13 @@ pub fn run_lanes(
                 detector_errors[lane_index] += 1;
             }
             detect_time[lane_index] += t.elapsed();
+            // The pose this lane's fusions are given: the true one, or with the oracle's pose noise.
+            let lane_pose = pose_noise[lane_index].as_mut().map_or(world_from_camera, |n| n.apply(&world_from_camera));
             for ((fusion, changed), time) in
                 lane.fusions.iter_mut().zip(&mut changed_keyframes[lane_index]).zip(&mut fusion_time[lane_index])
             {
                 let t = Instant::now();
-                let fused = keyframe_path::fuse(fusion.as_mut(), &frame, &world_from_camera, &detections);
+                let fused = keyframe_path::fuse(fusion.as_mut(), &frame, &lane_pose, &detections);
                 *time += t.elapsed();
                 *changed += u64::from(fused.changed());
             }

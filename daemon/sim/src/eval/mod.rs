@@ -5,6 +5,7 @@
 //! | [`fusion_match`] | fused nodes ↔ ground-truth nodes: matched fraction, fragmentation, wrong merges, false positives, and which stage lost each missed node |
 //! | [`agreement`] | how often the knowledge base gives the synthetic ground truth's functional relations and affordances (reasoner on ground-truth nodes) |
 //! | [`ablation`] | the colour-feature ablation on the `colour_panel` scene |
+//! | [`curves`] | `bench quality --curves`: the full row's R@3 against pose drift and against category confusion |
 //! | [`benchmark`] | the synthetic quality benchmark (`op3dsg bench quality`): scenes, ablation rows, where recall is lost |
 //! | [`recall`] | the benchmark's protocol: node, affordance, triplet and associated-node recall at K |
 
@@ -12,6 +13,7 @@ pub mod ablation;
 pub mod agreement;
 pub mod benchmark;
 pub mod coverage;
+pub mod curves;
 pub mod fusion_match;
 pub mod query_bench;
 pub mod recall;

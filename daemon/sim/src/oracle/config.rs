@@ -84,6 +84,54 @@ pub struct OracleConfig {
     /// `semantic_dim` long) or `text_encoder` (MiniLM embedding of the label, 384 long; needs
     /// `[text_encoder] enabled = true`).
     pub semantic_source: SemanticSource,
+    /// Probability that a detection's label is replaced by one of its confusable neighbours
+    /// (`drawer` for `cabinet`, for a part its part word: `cabinet button` for `cabinet knob`).
+    /// The neighbours are the knowledge base's category names nearest to the label by MiniLM
+    /// embedding (cosine at least 0.5, at most 3, never the label's own category; see
+    /// [`ConfusionTable`](super::ConfusionTable)), not the ground truth's synonyms. Needs the
+    /// text encoder's model when above 0. A label without a neighbour is kept. Unitless, [0, 1].
+    pub confusion_rate: f64,
+    /// Probability that a detected object comes out as two detections (its mask cut in two
+    /// across its longer side, both with its label): an over-segmenting detector. Unitless, [0, 1].
+    pub split_rate: f64,
+    /// Probability that a detection swallows an overlapping detection of the same kind (boxes
+    /// touching within 2 px): one detection with the union mask and the larger one's label, as
+    /// when a detector sees two adjacent things as one. Unitless, [0, 1].
+    pub merge_rate: f64,
+    /// Probability that a detection's mask bleeds into the background at depth edges: it grows
+    /// by up to `depth_bleed_px` pixels into neighbouring pixels whose depth is at least 0.15 m
+    /// behind the instance (or invalid), so the back-projected points fly into the background.
+    /// Unitless, [0, 1].
+    pub depth_bleed_rate: f64,
+    /// Width of the bleed of `depth_bleed_rate`, pixels (drawn uniformly in `1..=depth_bleed_px`).
+    pub depth_bleed_px: u32,
+    /// Probability that a detected part is reported as an object (kind error; the label stays
+    /// the part's). Unitless, [0, 1].
+    pub kind_error_rate: f64,
+    /// Probability that the image tagger misses a visible object's tag, so the prompt list lacks
+    /// its parts (prompt-list modes only). Unitless, [0, 1].
+    pub tag_miss_rate: f64,
+    /// Mean number of extra object tags per frame (Poisson), drawn from the knowledge base's
+    /// object names: the prompt list asks for parts of things that are not there (prompt-list
+    /// modes only).
+    pub tag_add_per_frame: f64,
+    /// Pose drift, as a fraction of the distance the camera travelled: the pose given to fusion
+    /// walks away from the true one by `pose_drift_fraction` x the distance between keyframes,
+    /// in a direction that itself wanders, so after a path of length D the error is at most
+    /// `pose_drift_fraction x D` (a VIO's "1-2 % of distance"). Applied by the batch runner
+    /// (`bench quality`, `fusion-eval`) to the keyframe poses; the live daemon's poses come from
+    /// its pose source and are not perturbed. Unitless, [0, 0.5].
+    pub pose_drift_fraction: f64,
+    /// Heading drift per metre travelled, degrees per metre (about the vertical axis through the
+    /// first keyframe's position, with a sign drawn per run). Batch runner only, as
+    /// `pose_drift_fraction`. [0, 10].
+    pub pose_drift_deg_per_m: f64,
+    /// Standard deviation of the per-keyframe pose jitter's translation (per axis, not
+    /// accumulated), metres. Batch runner only. [0, 0.5].
+    pub pose_jitter_m: f64,
+    /// Standard deviation of the per-keyframe pose jitter's rotation (about a random axis),
+    /// degrees. Batch runner only. [0, 10].
+    pub pose_jitter_deg: f64,
 }
 
 /// Where the oracle's semantic features come from (`detector.oracle.semantic_source`).
@@ -127,6 +175,18 @@ impl OracleConfig {
             seed: 0,
             part_prompts: CandidateMode::All,
             semantic_source: SemanticSource::LabelVector,
+            confusion_rate: 0.0,
+            split_rate: 0.0,
+            merge_rate: 0.0,
+            depth_bleed_rate: 0.0,
+            depth_bleed_px: 0,
+            kind_error_rate: 0.0,
+            tag_miss_rate: 0.0,
+            tag_add_per_frame: 0.0,
+            pose_drift_fraction: 0.0,
+            pose_drift_deg_per_m: 0.0,
+            pose_jitter_m: 0.0,
+            pose_jitter_deg: 0.0,
         }
     }
 
@@ -152,14 +212,60 @@ impl OracleConfig {
             seed: 0,
             part_prompts: CandidateMode::All,
             semantic_source: SemanticSource::LabelVector,
+            confusion_rate: 0.0,
+            split_rate: 0.0,
+            merge_rate: 0.0,
+            depth_bleed_rate: 0.0,
+            depth_bleed_px: 0,
+            kind_error_rate: 0.0,
+            tag_miss_rate: 0.0,
+            tag_add_per_frame: 0.0,
+            pose_drift_fraction: 0.0,
+            pose_drift_deg_per_m: 0.0,
+            pose_jitter_m: 0.0,
+            pose_jitter_deg: 0.0,
         }
     }
 
-    /// The preset called `name` (`clean`, `realistic`).
+    /// `realistic` plus perception as it is on a robot: confusion between similar categories,
+    /// split and merged instances, masks bleeding at depth edges, parts reported as objects, a
+    /// tagger that misses and adds tags, and pose drift (1.5 % of distance, 0.5 deg/m) with
+    /// jitter (5 mm, 0.2 deg).
+    pub fn field() -> Self {
+        Self {
+            confusion_rate: 0.1,
+            split_rate: 0.05,
+            merge_rate: 0.05,
+            depth_bleed_rate: 0.3,
+            depth_bleed_px: 4,
+            kind_error_rate: 0.05,
+            tag_miss_rate: 0.1,
+            tag_add_per_frame: 0.3,
+            pose_drift_fraction: 0.015,
+            pose_drift_deg_per_m: 0.5,
+            pose_jitter_m: 0.005,
+            pose_jitter_deg: 0.2,
+            ..Self::realistic()
+        }
+    }
+
+    /// Whether any pose noise is on (the batch runner then perturbs keyframe poses).
+    pub fn has_pose_noise(&self) -> bool {
+        self.pose_drift_fraction > 0.0
+            || self.pose_drift_deg_per_m > 0.0
+            || self.pose_jitter_m > 0.0
+            || self.pose_jitter_deg > 0.0
+    }
+
+    /// The preset names [`preset`](Self::preset) knows.
+    pub const PRESETS: [&'static str; 3] = ["clean", "realistic", "field"];
+
+    /// The preset called `name` (`clean`, `realistic`, `field`).
     pub fn preset(name: &str) -> Option<Self> {
         match name {
             "clean" => Some(Self::clean()),
             "realistic" => Some(Self::realistic()),
+            "field" => Some(Self::field()),
             _ => None,
         }
     }
@@ -177,6 +283,12 @@ impl OracleConfig {
             ("score_mean", self.score_mean),
             ("score_std", self.score_std),
             ("false_positive_score_mean", self.false_positive_score_mean),
+            ("confusion_rate", self.confusion_rate),
+            ("split_rate", self.split_rate),
+            ("merge_rate", self.merge_rate),
+            ("depth_bleed_rate", self.depth_bleed_rate),
+            ("kind_error_rate", self.kind_error_rate),
+            ("tag_miss_rate", self.tag_miss_rate),
         ];
         for (name, value) in unit_interval {
             if !(0.0..=1.0).contains(&value) {
@@ -208,6 +320,32 @@ impl OracleConfig {
         {
             if value > MAX_MORPH_RADIUS_PX {
                 return Err(format!("{}: must be at most {MAX_MORPH_RADIUS_PX} pixels, got {value}", field(name)));
+            }
+        }
+        if self.depth_bleed_px > MAX_MORPH_RADIUS_PX {
+            return Err(format!(
+                "{}: must be at most {MAX_MORPH_RADIUS_PX} pixels, got {}",
+                field("depth_bleed_px"),
+                self.depth_bleed_px
+            ));
+        }
+        if self.depth_bleed_rate > 0.0 && self.depth_bleed_px == 0 {
+            return Err(format!(
+                "{}: must be at least 1 pixel when depth_bleed_rate is above 0 ({})",
+                field("depth_bleed_px"),
+                self.depth_bleed_rate
+            ));
+        }
+        let bounded = [
+            ("tag_add_per_frame", self.tag_add_per_frame, MAX_FALSE_POSITIVES_PER_FRAME),
+            ("pose_drift_fraction", self.pose_drift_fraction, 0.5),
+            ("pose_drift_deg_per_m", self.pose_drift_deg_per_m, 10.0),
+            ("pose_jitter_m", self.pose_jitter_m, 0.5),
+            ("pose_jitter_deg", self.pose_jitter_deg, 10.0),
+        ];
+        for (name, value, max) in bounded {
+            if !(0.0..=max).contains(&value) {
+                return Err(format!("{}: must be within [0, {max}], got {value}", field(name)));
             }
         }
         if !(0.0..=MAX_FALSE_POSITIVES_PER_FRAME).contains(&self.false_positives_per_frame) {

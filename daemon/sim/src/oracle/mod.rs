@@ -55,6 +55,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
 mod config;
+mod field;
 mod labels;
 mod masks;
 mod noise;
@@ -62,6 +63,7 @@ mod noise;
 mod tests;
 
 pub use config::{OracleConfig, SemanticSource};
+pub use field::{BLEED_MIN_DEPTH_STEP_M, CONFUSION_MAX_NEIGHBOURS, CONFUSION_MIN_COSINE, ConfusionTable, PoseNoise};
 pub use labels::possible_labels;
 pub use noise::label_vector;
 
@@ -83,6 +85,8 @@ struct Prepared {
     parent_category: Option<ObjectId>,
     /// Normalised labels the detector may use for it (set with a prompt list).
     accepted_labels: Vec<String>,
+    /// The labels a confusion may give it (set with a confusion table).
+    confusions: Vec<String>,
 }
 
 /// Sentinel of `OracleDetector::index_of_id` for ids that are no instance.
@@ -156,6 +160,11 @@ pub struct OracleDetector {
     /// The ground-truth instance of each detection of the current frame (`None`: false
     /// positive), in output order; copied into `instance_log` (capacity grows once).
     provenance: Vec<Option<u16>>,
+    /// Object names an image tagger may add by mistake (the knowledge base's; set with a
+    /// prompt list).
+    tag_vocabulary: Vec<String>,
+    /// The current frame's extra (false) tags.
+    extra_tags: Vec<String>,
 }
 
 impl OracleDetector {
@@ -186,6 +195,7 @@ impl OracleDetector {
                     part_category: None,
                     parent_category: None,
                     accepted_labels: Vec::new(),
+                    confusions: Vec::new(),
                 }
             })
             .collect();
@@ -218,7 +228,38 @@ impl OracleDetector {
             instance_ids: None,
             instance_log: None,
             provenance: Vec::new(),
+            tag_vocabulary: Vec::new(),
+            extra_tags: Vec::new(),
         }
+    }
+
+    /// Confuses labels with their neighbours in `table` at `confusion_rate` (see
+    /// [`ConfusionTable`]): an object label becomes a neighbour of its label, a part label gets
+    /// its part word (the label without the parent's) replaced by a neighbour of that word.
+    pub fn with_confusions(mut self, table: &ConfusionTable) -> Self {
+        for (index, info) in self.instances.iter().enumerate() {
+            let prepared = &self.prepared[index];
+            let confusions = match (prepared.kind, confusion_word(&self.instances, prepared, info)) {
+                (NodeKind::Object, _) => table.neighbours(&info.label).iter().map(|(n, _)| n.clone()).collect(),
+                (NodeKind::Part, Some((word, parent))) => table
+                    .neighbours(&word)
+                    .iter()
+                    .map(|(n, _)| match &parent {
+                        Some((parent, true)) => format!("{parent} {n}"),
+                        Some((parent, false)) => format!("{n} {parent}"),
+                        None => n.clone(),
+                    })
+                    .collect(),
+                (NodeKind::Part, None) => Vec::new(),
+            };
+            self.prepared[index].confusions = confusions;
+        }
+        self
+    }
+
+    /// The labels a confusion may give instance `index` (for tests and reports).
+    pub fn confusions_of(&self, index: usize) -> &[String] {
+        &self.prepared[index].confusions
     }
 
     /// Reads the per-pixel instance ids of each frame from `channel`, the synthetic source's
@@ -243,6 +284,7 @@ impl OracleDetector {
             return self;
         }
         let kb = candidates.knowledge();
+        self.tag_vocabulary = kb.objects().iter().map(|o| o.name.clone()).collect();
         for (index, info) in self.instances.iter().enumerate() {
             let prepared = &mut self.prepared[index];
             if prepared.kind != NodeKind::Part {
@@ -275,17 +317,37 @@ impl OracleDetector {
         self
     }
 
-    /// Builds the frame's prompt list from the objects visible in it.
-    fn build_prompt_list(&mut self) {
+    /// Builds the frame's prompt list from the objects visible in it, as the tagger reports
+    /// them (`tag_miss_rate`, `tag_add_per_frame`, drawn from `field`).
+    fn build_prompt_list(&mut self, field: &mut ChaCha8Rng) {
         let Some(candidates) = &self.candidates else { return };
         self.tag_scratch.clear();
         for (index, s) in self.stats.iter().enumerate() {
             if s.count >= self.config.min_visible_px && self.prepared[index].kind == NodeKind::Object {
+                if self.config.tag_miss_rate > 0.0 && field.random_bool(self.config.tag_miss_rate) {
+                    continue;
+                }
                 self.tag_scratch.push(index);
             }
         }
-        let tags: Vec<&str> = self.tag_scratch.iter().map(|&i| self.instances[i].label.as_str()).collect();
+        self.extra_tags.clear();
+        if self.config.tag_add_per_frame > 0.0 && !self.tag_vocabulary.is_empty() {
+            for _ in 0..draw_poisson(self.config.tag_add_per_frame, field) {
+                let pick = field.random_range(0..self.tag_vocabulary.len());
+                self.extra_tags.push(self.tag_vocabulary[pick].clone());
+            }
+        }
+        let mut tags: Vec<&str> = self.tag_scratch.iter().map(|&i| self.instances[i].label.as_str()).collect();
+        tags.extend(self.extra_tags.iter().map(String::as_str));
         candidates.prompts(&tags, &mut self.prompt_list);
+    }
+
+    /// The current frame's tags as the tagger reported them (after `detect`; empty without a
+    /// prompt list).
+    pub fn last_tags(&self) -> Vec<String> {
+        let mut tags: Vec<String> = self.tag_scratch.iter().map(|&i| self.instances[i].label.clone()).collect();
+        tags.extend(self.extra_tags.iter().cloned());
+        tags
     }
 
     /// Whether the frame's prompt list asks for instance `index`, and under which label
@@ -449,6 +511,36 @@ impl OracleDetector {
         Some(v)
     }
 
+    /// Merges, at `merge_rate`, each true detection from `first` on with the next one of the
+    /// same kind whose box touches it (within 2 px): the union mask, the larger one's label,
+    /// feature and provenance.
+    fn merge_detections(&mut self, out: &mut Vec<Detection>, first: usize, field: &mut ChaCha8Rng) {
+        let mut i = first;
+        while i < out.len() {
+            if !field.random_bool(self.config.merge_rate) {
+                i += 1;
+                continue;
+            }
+            let partner = (i + 1..out.len()).find(|&j| {
+                out[j].kind == out[i].kind
+                    && self.provenance[j] != self.provenance[i]
+                    && field::boxes_touch(&out[i].mask, &out[j].mask, 2)
+            });
+            if let Some(j) = partner {
+                let other = out.remove(j);
+                let other_provenance = self.provenance.remove(j);
+                let union = field::union_mask(&out[i].mask, &other.mask);
+                let area = |m: &Mask| m.data.iter().filter(|v| **v != 0).count();
+                if area(&other.mask) > area(&out[i].mask) {
+                    out[i] = other;
+                    self.provenance[i] = other_provenance;
+                }
+                out[i].mask = union;
+            }
+            i += 1;
+        }
+    }
+
     /// A false-positive blob: an ellipse at a random place, clipped to the image.
     fn false_positive(&self, width: u32, height: u32, rng: &mut ChaCha8Rng) -> Option<Detection> {
         if self.scene_labels.is_empty() || width == 0 || height == 0 {
@@ -504,8 +596,10 @@ impl OracleDetector {
             return Ok(());
         }
         self.gather_stats(ids, width);
-        self.build_prompt_list();
+        let mut field = ChaCha8Rng::seed_from_u64(frame_seed(self.config.seed ^ field::FIELD_STREAM, frame.seq));
+        self.build_prompt_list(&mut field);
         let mut rng = ChaCha8Rng::seed_from_u64(frame_seed(self.config.seed, frame.seq));
+        let first_true = out.len();
 
         for index in 0..self.instances.len() {
             let s = self.stats[index];
@@ -524,13 +618,55 @@ impl OracleDetector {
             let Some(mask) = instance_mask(ids, width, height, id, s, morph) else { continue };
             let semantic_feature = self.semantic_feature(&self.instance_vectors[index], &mut rng);
             // Decided after the draws, so the list changes nothing else in the frame.
-            let label = match self.asked_for(index) {
+            let mut label = match self.asked_for(index) {
                 None => continue,
                 Some(None) => label,
                 Some(Some(prompt)) => prompt.to_owned(),
             };
-            out.push(Detection { label, kind: self.prepared[index].kind, score, mask, semantic_feature });
+            // The field noise, from its own stream.
+            let c = &self.config;
+            let (confusion, kind_error, bleed, split) = (
+                c.confusion_rate > 0.0 && field.random_bool(c.confusion_rate),
+                c.kind_error_rate > 0.0 && field.random_bool(c.kind_error_rate),
+                c.depth_bleed_rate > 0.0 && field.random_bool(c.depth_bleed_rate),
+                c.split_rate > 0.0 && field.random_bool(c.split_rate),
+            );
+            let confusions = &self.prepared[index].confusions;
+            if confusion && !confusions.is_empty() {
+                label = confusions[field.random_range(0..confusions.len())].clone();
+            }
+            let mut kind = self.prepared[index].kind;
+            if kind_error && kind == NodeKind::Part {
+                kind = NodeKind::Object;
+            }
+            let mut mask = mask;
+            if bleed {
+                let radius = field.random_range(1..=self.config.depth_bleed_px.max(1));
+                if let Some(median) = self.median_depth_m(frame, ids, id, s) {
+                    let units = f64::from(frame.depth_units_per_m);
+                    mask = field::bleed_mask(&mask, &frame.depth, width, height, units, median, radius);
+                }
+            }
+            if split
+                && self.prepared[index].kind == NodeKind::Object
+                && let Some((a, b)) = field::split_mask(&mask)
+            {
+                let first = Detection {
+                    label: label.clone(),
+                    kind,
+                    score,
+                    mask: a,
+                    semantic_feature: semantic_feature.clone(),
+                };
+                out.push(first);
+                self.provenance.push(Some(id));
+                mask = b;
+            }
+            out.push(Detection { label, kind, score, mask, semantic_feature });
             self.provenance.push(Some(id));
+        }
+        if self.config.merge_rate > 0.0 {
+            self.merge_detections(out, first_true, &mut field);
         }
 
         if self.config.false_positives_per_frame > 0.0 {
@@ -544,6 +680,47 @@ impl OracleDetector {
         }
         Ok(())
     }
+}
+
+/// The part word of a part's label and where its parent's label sits: `("knob", Some(("cabinet",
+/// true)))` for `cabinet knob` (`true`: the parent comes first); `None` for an object.
+fn confusion_word(
+    instances: &[InstanceInfo],
+    prepared: &Prepared,
+    info: &InstanceInfo,
+) -> Option<(String, Option<(String, bool)>)> {
+    if prepared.kind != NodeKind::Part {
+        return None;
+    }
+    match prepared.parent.zip(prepared.parent_label_at) {
+        Some((p, at)) => {
+            let parent = &instances[p].label;
+            let (before, after) = (info.label[..at].trim(), info.label[at + parent.len()..].trim());
+            match (before.is_empty(), after.is_empty()) {
+                (true, false) => Some((after.to_owned(), Some((parent.clone(), true)))),
+                (false, true) => Some((before.to_owned(), Some((parent.clone(), false)))),
+                _ => Some((info.label.clone(), None)),
+            }
+        }
+        None => Some((info.label.clone(), None)),
+    }
+}
+
+/// The part words and object labels of `instances` a confusion table needs (`(word, is_part)`),
+/// sorted and without duplicates.
+pub fn confusion_words(instances: &[InstanceInfo]) -> Vec<(String, bool)> {
+    let detector = OracleDetector::new(OracleConfig::clean(), instances.to_vec(), 0);
+    let mut words: Vec<(String, bool)> = instances
+        .iter()
+        .zip(&detector.prepared)
+        .map(|(info, prepared)| match confusion_word(instances, prepared, info) {
+            Some((word, _)) => (word, true),
+            None => (info.label.clone(), false),
+        })
+        .collect();
+    words.sort();
+    words.dedup();
+    words
 }
 
 impl Detector for OracleDetector {

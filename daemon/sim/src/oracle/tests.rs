@@ -614,3 +614,293 @@ fn label_vectors_can_be_replaced() {
     let (stove, _) = out.iter().find(|(_, instance)| *instance == Some(3)).unwrap();
     assert_eq!(stove.semantic_feature.as_ref().map(Vec::len), Some(SEMANTIC_DIM));
 }
+
+// ---- Perception as it is on a robot (the `field` preset's knobs) ----
+
+/// A confusion table given directly: cabinet ↔ drawer, knob → button / dial.
+fn small_table() -> ConfusionTable {
+    let mut neighbours = HashMap::new();
+    neighbours.insert("cabinet".to_owned(), vec![("drawer".to_owned(), 0.7)]);
+    neighbours.insert("knob".to_owned(), vec![("button".to_owned(), 0.6), ("dial".to_owned(), 0.55)]);
+    ConfusionTable::from_neighbours(neighbours)
+}
+
+#[test]
+fn confusion_is_only_between_the_chosen_neighbours_at_the_rate() {
+    let (mut shot, instances) = kitchen();
+    let config = OracleConfig { confusion_rate: 0.3, ..no_noise() };
+    let mut oracle = Oracle::wire(OracleDetector::new(config, instances.clone(), 0).with_confusions(&small_table()));
+    assert_eq!(oracle.detector.confusions_of(0), ["drawer"]);
+    assert_eq!(oracle.detector.confusions_of(3), ["stove button", "stove dial"]);
+    assert!(oracle.detector.confusions_of(2).is_empty(), "the stove has no neighbour");
+    let all = run(&mut oracle, &mut shot, 600);
+    let mut seen: HashMap<u16, HashMap<String, usize>> = HashMap::new();
+    for (d, instance) in all.iter().flatten() {
+        *seen.entry(instance.unwrap()).or_default().entry(d.label.clone()).or_default() += 1;
+    }
+    let allowed: HashMap<u16, &[&str]> = HashMap::from([
+        (1, &["cabinet", "drawer"][..]),
+        (2, &["cabinet handle"][..]),
+        (3, &["stove"][..]),
+        (4, &["stove knob", "stove button", "stove dial"][..]),
+        (5, &["light switch"][..]),
+    ]);
+    for (id, labels) in &seen {
+        for label in labels.keys() {
+            assert!(allowed[id].contains(&label.as_str()), "instance {id} labelled {label}");
+        }
+    }
+    let rate = |id: u16, canonical: &str| {
+        let labels = &seen[&id];
+        1.0 - labels[canonical] as f64 / labels.values().sum::<usize>() as f64
+    };
+    assert!((rate(1, "cabinet") - 0.3).abs() < 0.06, "cabinet confused at {}", rate(1, "cabinet"));
+    assert!((rate(4, "stove knob") - 0.3).abs() < 0.06, "knob confused at {}", rate(4, "stove knob"));
+    // Both neighbours of the knob are drawn.
+    assert!(seen[&4].contains_key("stove button") && seen[&4].contains_key("stove dial"));
+}
+
+#[test]
+fn field_noise_has_its_own_stream_so_a_knob_changes_only_what_it_is_about() {
+    let (mut shot, instances) = kitchen();
+    let base = OracleConfig { min_visible_px: 1, ..OracleConfig::realistic() };
+    let confused = OracleConfig { confusion_rate: 0.5, ..base.clone() };
+    let mut a = Oracle::new(base, instances.clone(), 0);
+    let mut b = Oracle::wire(OracleDetector::new(confused, instances, 0).with_confusions(&small_table()));
+    let (ra, rb) = (run(&mut a, &mut shot, 100), run(&mut b, &mut shot, 100));
+    let mut relabelled = 0;
+    for (fa, fb) in ra.iter().zip(&rb) {
+        assert_eq!(fa.len(), fb.len());
+        for ((da, ia), (db, ib)) in fa.iter().zip(fb) {
+            assert_eq!((ia, &da.mask, da.score, da.kind), (ib, &db.mask, db.score, db.kind));
+            relabelled += usize::from(da.label != db.label);
+        }
+    }
+    assert!(relabelled > 20, "{relabelled} labels changed");
+}
+
+#[test]
+fn confusion_table_keeps_near_names_of_other_categories_only() {
+    use op3dsg_runtime::knowledge::KnowledgeBase;
+    let kb = KnowledgeBase::builtin().unwrap();
+    // Pseudo-random 64-d vectors (cosines about ±0.25) except where set: drawer and cupboard
+    // (a synonym of cabinet in the tables) are near cabinet, button near knob.
+    let near = |base: &str, salt: &str, w: f32| {
+        let (a, b) = (label_vector(base, 64), label_vector(salt, 64));
+        let mut v: Vec<f32> = a.iter().zip(&b).map(|(x, y)| x + w * y).collect();
+        normalise(&mut v);
+        v
+    };
+    let mut embed = |texts: &[&str]| -> Result<Vec<Vec<f32>>, String> {
+        Ok(texts
+            .iter()
+            .map(|t| match *t {
+                "drawer" => near("cabinet", "drawer", 0.6),
+                "cupboard" => near("cabinet", "cupboard", 0.1),
+                "button" => near("knob", "button", 0.8),
+                other => label_vector(other, 64),
+            })
+            .collect())
+    };
+    let words = vec![("cabinet".to_owned(), false), ("knob".to_owned(), true), ("stove".to_owned(), false)];
+    let table = ConfusionTable::build(&kb, &words, &mut embed).unwrap();
+    let names = |w: &str| table.neighbours(w).iter().map(|(n, _)| n.clone()).collect::<Vec<_>>();
+    assert_eq!(names("cabinet"), ["drawer"], "{:?}", table.entries());
+    assert_eq!(names("knob"), ["button"], "{:?}", table.entries());
+    assert!(names("stove").is_empty(), "{:?}", table.entries());
+    assert!(
+        table
+            .entries()
+            .iter()
+            .all(|(_, n)| n.len() <= CONFUSION_MAX_NEIGHBOURS && n.iter().all(|(_, c)| *c >= CONFUSION_MIN_COSINE))
+    );
+}
+
+/// Two objects side by side (boxes touching) on a 200 x 100 frame, and a part of the first.
+fn side_by_side() -> (Shot, Vec<InstanceInfo>) {
+    let mut shot = Shot::new(200, 100);
+    let instances = vec![
+        info(1, "cabinet", InstanceKind::Object, None, &[]),
+        info(2, "dishwasher", InstanceKind::Object, None, &[]),
+        info(3, "cabinet handle", InstanceKind::Part, Some(1), &[]),
+    ];
+    paint(&mut shot, 1, 10, 10, 80, 80, 2.0);
+    paint(&mut shot, 2, 90, 10, 80, 80, 2.0);
+    paint(&mut shot, 3, 40, 40, 10, 20, 1.95);
+    (shot, instances)
+}
+
+#[test]
+fn splits_and_merges_follow_their_rates() {
+    let (mut shot, instances) = side_by_side();
+    let frames = 800;
+    let mut split = Oracle::new(OracleConfig { split_rate: 0.2, ..no_noise() }, instances.clone(), 0);
+    let all = run(&mut split, &mut shot, frames);
+    let mut splits = 0;
+    for f in &all {
+        for id in [1u16, 2] {
+            let pieces: Vec<&Detection> = f.iter().filter(|(_, i)| *i == Some(id)).map(|(d, _)| d).collect();
+            assert!(pieces.len() <= 2);
+            if pieces.len() == 2 {
+                splits += 1;
+                // The halves share the label and cover the object.
+                assert_eq!(pieces[0].label, pieces[1].label);
+                let area: usize = pieces.iter().map(|d| d.mask.data.iter().filter(|v| **v != 0).count()).sum();
+                assert_eq!(area, shot.ids.iter().filter(|i| **i == id).count());
+            }
+        }
+        // Parts are never split.
+        assert_eq!(f.iter().filter(|(_, i)| *i == Some(3)).count(), 1);
+    }
+    let rate = splits as f64 / (2 * frames) as f64;
+    assert!((rate - 0.2).abs() < 0.04, "split rate {rate}");
+
+    let mut merge = Oracle::new(OracleConfig { merge_rate: 0.2, ..no_noise() }, instances, 0);
+    let all = run(&mut merge, &mut shot, frames);
+    let mut merges = 0;
+    for f in &all {
+        let objects: Vec<&Detection> = f.iter().map(|(d, _)| d).filter(|d| d.kind == NodeKind::Object).collect();
+        if objects.len() == 1 {
+            merges += 1;
+            let both = shot.ids.iter().filter(|i| **i == 1 || **i == 2).count();
+            assert_eq!(objects[0].mask.data.iter().filter(|v| **v != 0).count(), both);
+        } else {
+            assert_eq!(objects.len(), 2);
+        }
+        // The part never merges with an object.
+        assert_eq!(f.iter().filter(|(d, _)| d.kind == NodeKind::Part).count(), 1);
+    }
+    let rate = merges as f64 / frames as f64;
+    assert!((rate - 0.2).abs() < 0.04, "merge rate {rate}");
+}
+
+#[test]
+fn kind_errors_report_parts_as_objects_at_the_rate() {
+    let (mut shot, instances) = side_by_side();
+    let mut oracle = Oracle::new(OracleConfig { kind_error_rate: 0.25, ..no_noise() }, instances, 0);
+    let all = run(&mut oracle, &mut shot, 800);
+    let mut as_object = 0;
+    for (d, i) in all.iter().flatten() {
+        match i {
+            Some(3) => as_object += usize::from(d.kind == NodeKind::Object),
+            _ => assert_eq!(d.kind, NodeKind::Object, "objects stay objects"),
+        }
+        if *i == Some(3) {
+            assert_eq!(d.label, "cabinet handle");
+        }
+    }
+    let rate = as_object as f64 / 800.0;
+    assert!((rate - 0.25).abs() < 0.05, "kind error rate {rate}");
+}
+
+#[test]
+fn masks_bleed_into_the_background_at_depth_edges_only() {
+    // A cabinet at 2 m; left of it a wall 2 m behind, right of it a dishwasher 2 cm behind.
+    let mut shot = Shot::new(200, 100);
+    let instances = vec![
+        info(1, "cabinet", InstanceKind::Object, None, &[]),
+        info(2, "dishwasher", InstanceKind::Object, None, &[]),
+        info(3, "wall", InstanceKind::Object, None, &[]),
+    ];
+    paint(&mut shot, 3, 0, 0, 50, 100, 4.0);
+    paint(&mut shot, 1, 50, 20, 60, 60, 2.0);
+    paint(&mut shot, 2, 110, 20, 60, 60, 2.02);
+    let config = OracleConfig { depth_bleed_rate: 1.0, depth_bleed_px: 4, ..no_noise() };
+    let mut oracle = Oracle::new(config, instances, 0);
+    let mut grew_left = false;
+    for f in run(&mut oracle, &mut shot, 20) {
+        let (d, _) = f.iter().find(|(_, i)| *i == Some(1)).unwrap();
+        let m = &d.mask;
+        assert!(m.x0 >= 46 && m.x0 <= 49, "bleeds 1..=4 px into the wall: x0 {}", m.x0);
+        grew_left |= m.x0 < 50;
+        // Never into the dishwasher just behind it; above and below it is depth 0 (no
+        // return), which counts as background.
+        for y in 20..80 {
+            for x in 110..(m.x0 + m.width) {
+                if y >= m.y0 && y < m.y0 + m.height {
+                    let inside = m.data[((y - m.y0) * m.width + (x - m.x0)) as usize] != 0;
+                    assert!(!inside, "bled into the near neighbour at ({x}, {y})");
+                }
+            }
+        }
+        assert!(m.y0 < 20 && m.y0 + m.height > 80);
+    }
+    assert!(grew_left);
+}
+
+#[test]
+fn the_tagger_misses_and_adds_tags() {
+    use op3dsg_runtime::knowledge::KnowledgeBase;
+    let kb = Arc::new(KnowledgeBase::builtin().unwrap());
+    let (mut shot, instances) = kitchen();
+    let with = |config: OracleConfig| {
+        Oracle::wire(
+            OracleDetector::new(config, instances.clone(), 0)
+                .with_candidates(Arc::new(PartCandidates::new(kb.clone(), CandidateMode::Knowledge))),
+        )
+    };
+    // Every tag missed: no part is asked for, objects are still detected.
+    let mut blind = with(OracleConfig { tag_miss_rate: 1.0, ..no_noise() });
+    let found = blind.detect(&mut shot);
+    assert!(found.iter().all(|(d, _)| d.kind == NodeKind::Object), "{found:?}");
+    assert_eq!(found.len(), 3);
+    // Added tags: about tag_add_per_frame a frame, from the tables' object names.
+    let mut chatty = with(OracleConfig { tag_add_per_frame: 2.0, ..no_noise() });
+    let mut added = 0;
+    for seq in 0..400 {
+        shot.frame.seq = seq;
+        chatty.detect(&mut shot);
+        let tags = chatty.detector.last_tags();
+        assert!(tags.len() >= 3, "the visible objects are tagged");
+        added += tags.len() - 3;
+        assert!(tags[3..].iter().all(|t| kb.object_category(t).is_some()), "{tags:?}");
+    }
+    let mean = added as f64 / 400.0;
+    assert!((mean - 2.0).abs() < 0.25, "added tags per frame {mean}");
+}
+
+#[test]
+fn pose_drift_grows_with_distance_within_its_bounds_and_jitter_does_not_accumulate() {
+    let truth = |x: f64| op3dsg_drivers::pose::Isometry {
+        rotation: glam::DQuat::IDENTITY,
+        translation: glam::DVec3::new(x, 0.0, 1.0),
+    };
+    let config = OracleConfig { pose_drift_fraction: 0.02, pose_drift_deg_per_m: 0.5, ..OracleConfig::clean() };
+    let mut noise = PoseNoise::new(&config).unwrap();
+    let mut again = PoseNoise::new(&config).unwrap();
+    for i in 0..=200 {
+        let pose = noise.apply(&truth(f64::from(i) * 0.1));
+        assert_eq!(pose, again.apply(&truth(f64::from(i) * 0.1)), "deterministic");
+    }
+    let travelled = noise.travelled_m();
+    assert!((travelled - 20.0).abs() < 1e-9);
+    let per_m = noise.drift_m() / travelled;
+    assert!((0.005..=0.02 + 1e-12).contains(&per_m), "translation drift {per_m} of distance");
+    assert!((noise.heading_error_deg().abs() - 10.0).abs() < 1e-9, "{} deg", noise.heading_error_deg());
+    // Standing still: no drift.
+    let mut still = PoseNoise::new(&config).unwrap();
+    for _ in 0..50 {
+        assert_eq!(still.apply(&truth(3.0)), truth(3.0));
+    }
+    // Jitter alone: independent per keyframe, about pose_jitter_m per axis.
+    let jitter = OracleConfig { pose_jitter_m: 0.01, pose_jitter_deg: 0.5, ..OracleConfig::clean() };
+    let mut noise = PoseNoise::new(&jitter).unwrap();
+    let errors: Vec<f64> = (0..2000).map(|i| noise.apply(&truth(f64::from(i) * 0.1)).translation.y).collect();
+    let std = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len() as f64).sqrt();
+    assert!((std - 0.01).abs() < 0.001, "jitter std {std}");
+    assert!(noise.drift_m() == 0.0);
+    assert!(PoseNoise::new(&OracleConfig::realistic()).is_none());
+}
+
+#[test]
+fn field_preset_is_realistic_plus_robot_noise_and_validates() {
+    let field = OracleConfig::preset("field").unwrap();
+    field.validate("detector.oracle").unwrap();
+    assert!(field.confusion_rate > 0.0 && field.split_rate > 0.0 && field.has_pose_noise());
+    let back = OracleConfig { ..field.clone() };
+    assert_eq!(back.object_miss_rate, OracleConfig::realistic().object_miss_rate);
+    let bad = OracleConfig { pose_drift_fraction: 0.9, ..field.clone() };
+    assert!(bad.validate("detector.oracle").unwrap_err().starts_with("detector.oracle.pose_drift_fraction"));
+    let bad = OracleConfig { depth_bleed_px: 0, ..field };
+    assert!(bad.validate("detector.oracle").unwrap_err().starts_with("detector.oracle.depth_bleed_px"));
+}

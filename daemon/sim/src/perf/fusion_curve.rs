@@ -117,17 +117,21 @@ fn plot_err(what: &str, e: impl std::fmt::Debug) -> anyhow::Error {
     anyhow!("drawing the plot ({what}): {e:?}")
 }
 
-/// Draws the curve (p50 and p99 of the step against map nodes, log x axis) into a PNG at `path`.
-/// Text uses DejaVu Sans embedded in the binary, so no font needs to be installed.
-pub fn plot_png(curve: &FusionCurve, path: &Path) -> anyhow::Result<()> {
-    use plotters::prelude::*;
+/// Registers DejaVu Sans (embedded by the `dejavu` crate) as plotters' `sans-serif`, once.
+pub(crate) fn register_font() -> anyhow::Result<()> {
+    use plotters::style::FontStyle;
     static FONT: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     let registered = *FONT.get_or_init(|| {
         plotters::style::register_font("sans-serif", FontStyle::Normal, dejavu::sans::regular()).is_ok()
     });
-    if !registered {
-        return Err(anyhow!("the embedded DejaVu Sans font could not be loaded"));
-    }
+    if registered { Ok(()) } else { Err(anyhow!("the embedded DejaVu Sans font could not be loaded")) }
+}
+
+/// Draws the curve (p50 and p99 of the step against map nodes, log x axis) into a PNG at `path`.
+/// Text uses DejaVu Sans embedded in the binary, so no font needs to be installed.
+pub fn plot_png(curve: &FusionCurve, path: &Path) -> anyhow::Result<()> {
+    use plotters::prelude::*;
+    register_font()?;
     if curve.points.is_empty() {
         return Err(anyhow!("no fusion measurements to plot"));
     }

@@ -144,16 +144,56 @@ pub(super) fn ipc_peer(prefix: &str, pairs: usize) -> Result<()> {
 }
 
 /// `op3dsg bench quality`.
+/// With `detector.oracle.confusion_rate` above 0, the confusion table over the labels of the
+/// first `scenes` benchmark scenes, one line per label.
+fn confusion_lines(
+    profile: &op3dsg_runtime::config::Profile,
+    scenes: usize,
+) -> Result<(String, Option<op3dsg_sim::oracle::ConfusionTable>)> {
+    let mut instances = Vec::new();
+    for i in 0..scenes {
+        let (room, seed) = op3dsg_sim::eval::benchmark::scene(i);
+        instances.extend(op3dsg_synthetic::Scene::generate(room, seed).instances().iter().cloned());
+    }
+    let Some(table) = op3dsg_sim::backends::confusion_table(profile, &instances)? else {
+        return Ok((String::new(), None));
+    };
+    let mut out = format!(
+        "confusable neighbours (MiniLM cosine >= {}, at most {}, against the knowledge base's names; a part's word is replaced in its label):\n",
+        op3dsg_sim::oracle::CONFUSION_MIN_COSINE,
+        op3dsg_sim::oracle::CONFUSION_MAX_NEIGHBOURS
+    );
+    for (word, near) in table.entries() {
+        let near: Vec<String> = near.iter().map(|(n, c)| format!("{n} {c:.2}")).collect();
+        out.push_str(&format!("    {word:<22} -> {}\n", near.join(", ")));
+    }
+    Ok((out, Some(table)))
+}
+
+/// What `bench quality` writes and checks besides the printed table.
+pub(super) struct QualityOutputs<'a> {
+    /// The report as JSON.
+    pub(super) json: Option<&'a Path>,
+    /// The tables as Markdown.
+    pub(super) markdown: Option<&'a Path>,
+    /// Fail when a target is missed.
+    pub(super) check: bool,
+    /// With `--curves`, where the curves' PNG goes.
+    pub(super) curves_png: Option<&'a Path>,
+}
+
+/// Label word → confusable neighbours with their cosines, as the JSON carries them.
+type ConfusionEntries<'a> = Vec<(&'a str, &'a [(String, f32)])>;
+
 pub(super) fn quality(
     profile_path: Option<&Path>,
     overrides: &[String],
     scenes: usize,
     threads: usize,
-    json: Option<&Path>,
-    markdown: Option<&Path>,
-    check: bool,
+    outputs: QualityOutputs<'_>,
 ) -> Result<()> {
-    use op3dsg_sim::eval::benchmark;
+    let QualityOutputs { json, markdown, check, curves_png } = outputs;
+    use op3dsg_sim::eval::{benchmark, curves};
     let started = Instant::now();
     let loaded = op3dsg_sim::load_profile(profile_path, overrides).map_err(|e| anyhow::anyhow!("bad profile: {e}"))?;
     let mut encoder = load_text_encoder(profile_path)?;
@@ -179,7 +219,21 @@ pub(super) fn quality(
         wall_s
     );
     text.push_str(&benchmark::text(&report));
+    let (confusion_text, confusions) = confusion_lines(&loaded.profile, scenes)?;
+    text.push_str(&confusion_text);
     write_output(None, &text)?;
+    let curves = match curves_png {
+        None => None,
+        Some(png) => {
+            let progress = |line: &str| eprintln!("curves: {line} done");
+            let curves = curves::run(&loaded.profile, scenes, threads, &mut encoder, &progress)
+                .map_err(|e| anyhow::anyhow!("curves: {e}"))?;
+            write_output(None, &curves::text(&curves))?;
+            curves::plot_png(&curves, png)?;
+            println!("curves drawn to {}", png.display());
+            Some(curves)
+        }
+    };
     if let Some(path) = json {
         #[derive(serde::Serialize)]
         struct Out<'a> {
@@ -188,14 +242,31 @@ pub(super) fn quality(
             threads: usize,
             wall_s: f64,
             report: &'a benchmark::QualityReport,
+            #[serde(skip_serializing_if = "Option::is_none")]
+            curves: Option<&'a curves::Curves>,
+            /// Label word → confusable neighbours with their cosines.
+            #[serde(skip_serializing_if = "Option::is_none")]
+            confusions: Option<ConfusionEntries<'a>>,
         }
-        let mut out = serde_json::to_string_pretty(&Out { overrides, frames, threads, wall_s, report: &report })
-            .context("serialising the report")?;
+        let out = Out {
+            overrides,
+            frames,
+            threads,
+            wall_s,
+            report: &report,
+            curves: curves.as_ref(),
+            confusions: confusions.as_ref().map(|t| t.entries()),
+        };
+        let mut out = serde_json::to_string_pretty(&out).context("serialising the report")?;
         out.push('\n');
         write_output(Some(path), &out)?;
     }
     if let Some(path) = markdown {
-        write_output(Some(path), &benchmark::markdown(&report))?;
+        let mut md = benchmark::markdown(&report);
+        if let Some(curves) = &curves {
+            md.push_str(&curves::markdown(curves));
+        }
+        write_output(Some(path), &md)?;
     }
     if check && !benchmark::missed_targets(&report).is_empty() {
         bail!("quality targets missed");

@@ -373,7 +373,9 @@ enum BenchCommand {
     /// gives the rooms' own ground truth (reasoner on ground-truth nodes), and the
     /// functional-relation mix next to the benchmark's. Deterministic: the same options give the same table. Needs .models/ for the encoder.
     Quality {
-        /// Oracle noise preset (clean | realistic).
+        /// Oracle noise preset: clean | realistic | field (realistic plus category confusion,
+        /// split and merged instances, masks bleeding at depth edges, parts reported as objects,
+        /// a tagger that misses and adds tags, pose drift and jitter).
         #[arg(long, default_value = "realistic")]
         preset: String,
         /// Scenes (scene i: room i mod 4, seed i / 4 + 1).
@@ -400,6 +402,16 @@ enum BenchCommand {
         /// Exit with code 1 when a target of the full row (R@3) is missed.
         #[arg(long)]
         check: bool,
+        /// Also run the noise curves: the full row's R@3 per column against pose drift (0, 1,
+        /// 2, 5 % of distance travelled, with 25 x that in degrees per metre of heading drift)
+        /// and against category confusion (0, 10, 20, 30 %), each point a whole run on the
+        /// preset with only that knob changed (about 8 times the run time). Printed as a
+        /// table, in the JSON (`curves`), in the Markdown, and drawn as a PNG.
+        #[arg(long)]
+        curves: bool,
+        /// Where --curves writes its PNG (default: quality_curves.png in the current directory).
+        #[arg(long, value_name = "FILE", requires = "curves")]
+        curves_png: Option<PathBuf>,
     },
 }
 
@@ -591,7 +603,19 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Bench {
             command:
-                BenchCommand::Quality { preset, scenes, frames, threads, profile, overrides, json, markdown, check },
+                BenchCommand::Quality {
+                    preset,
+                    scenes,
+                    frames,
+                    threads,
+                    profile,
+                    overrides,
+                    json,
+                    markdown,
+                    check,
+                    curves,
+                    curves_png,
+                },
         } => {
             let mut sets =
                 vec![format!("source.synthetic.frame_count={frames}"), format!("detector.oracle.preset={preset}")];
@@ -602,9 +626,14 @@ fn run(cli: Cli) -> Result<()> {
                 &sets,
                 scenes as usize,
                 threads,
-                json.as_deref(),
-                markdown.as_deref(),
-                check,
+                bench::QualityOutputs {
+                    json: json.as_deref(),
+                    markdown: markdown.as_deref(),
+                    check,
+                    curves_png: curves
+                        .then(|| curves_png.unwrap_or_else(|| PathBuf::from("quality_curves.png")))
+                        .as_deref(),
+                },
             )
         }
     }
