@@ -195,15 +195,7 @@ pub fn peer_fusion(profile: &Profile) -> Box<dyn op3dsg_runtime::fusion::Fusion>
 /// Runs one scene: the full system and the ablations over one rendering pass.
 pub fn run_scene(base: &Profile, room: RoomKind, seed: u64) -> Result<SceneRun, String> {
     let name = format!("{} seed {seed}", room.as_str());
-    let mut profile = base.clone();
-    let setting = |e: op3dsg_runtime::pipeline::StartError| format!("{name}: {e}");
-    let mut synthetic = synthetic_config(&profile).map_err(setting)?;
-    synthetic.room = room;
-    synthetic.seed = seed;
-    set_synthetic_config(&mut profile, &synthetic);
-    let mut oracle = oracle_config(&profile).map_err(setting)?;
-    oracle.part_prompts = op3dsg_runtime::perception::candidates::CandidateMode::Knowledge;
-    set_oracle_config(&mut profile, &oracle);
+    let (profile, mut oracle) = scene_profile(base, room, seed)?;
     // Enrichment runs below, once per row.
     let mut unenriched = profile.clone();
     unenriched.reasoner.kind = ReasonerKind::None;
@@ -344,6 +336,22 @@ pub fn run_scene(base: &Profile, room: RoomKind, seed: u64) -> Result<SceneRun, 
 
 /// Runs scenes `0..scenes` on `threads` named threads; `progress` is called after each scene.
 /// Results come back in scene order whatever thread ran them.
+/// `base` on synthetic `room` / `seed` with the oracle's knowledge-guided part prompts, as the
+/// benchmark runs every scene; the oracle's configuration with it.
+pub fn scene_profile(base: &Profile, room: RoomKind, seed: u64) -> Result<(Profile, OracleConfig), String> {
+    let name = format!("{} seed {seed}", room.as_str());
+    let mut profile = base.clone();
+    let setting = |e: op3dsg_runtime::pipeline::StartError| format!("{name}: {e}");
+    let mut synthetic = synthetic_config(&profile).map_err(setting)?;
+    synthetic.room = room;
+    synthetic.seed = seed;
+    set_synthetic_config(&mut profile, &synthetic);
+    let mut oracle = oracle_config(&profile).map_err(setting)?;
+    oracle.part_prompts = op3dsg_runtime::perception::candidates::CandidateMode::Knowledge;
+    set_oracle_config(&mut profile, &oracle);
+    Ok((profile, oracle))
+}
+
 pub fn run_scenes(
     base: &Profile,
     scenes: usize,

@@ -13,7 +13,7 @@
 
 use std::path::Path;
 
-use anyhow::{Context as _, anyhow};
+use anyhow::anyhow;
 use op3dsg_runtime::config::Profile;
 use serde::Serialize;
 
@@ -211,10 +211,7 @@ pub fn plot_png(curves: &Curves, path: &Path) -> anyhow::Result<()> {
         }
         root.present().map_err(|e| plot_err("present", e))?;
     }
-    let image = image::RgbImage::from_raw(width, height, buffer).ok_or_else(|| anyhow!("plot buffer size"))?;
-    image
-        .save_with_format(path, image::ImageFormat::Png)
-        .with_context(|| format!("writing the curves plot {}", path.display()))
+    crate::perf::fusion_curve::save_png(buffer, (width, height), path, "curves plot")
 }
 
 #[cfg(test)]

@@ -27,7 +27,6 @@ use op3dsg_synthetic::RoomKind;
 use serde::Serialize;
 
 use super::fusion_match::{self, MatchCriteria};
-use crate::backends::{oracle_config, set_oracle_config, set_synthetic_config, synthetic_config};
 use crate::batch::{self, VisibilityThresholds};
 
 /// One benchmark query: the room, the words, and the node the room's ground truth gives.
@@ -153,15 +152,7 @@ impl RoomGraph {
 /// profile's enricher (prior graph + knowledge reasoner).
 pub fn room_graph(base: &Profile, room: RoomKind, seed: u64) -> Result<RoomGraph, String> {
     let name = format!("{} seed {seed}", room.as_str());
-    let mut profile = base.clone();
-    let setting = |e: op3dsg_runtime::pipeline::StartError| format!("{name}: {e}");
-    let mut synthetic = synthetic_config(&profile).map_err(setting)?;
-    synthetic.room = room;
-    synthetic.seed = seed;
-    set_synthetic_config(&mut profile, &synthetic);
-    let mut oracle = oracle_config(&profile).map_err(setting)?;
-    oracle.part_prompts = op3dsg_runtime::perception::candidates::CandidateMode::Knowledge;
-    set_oracle_config(&mut profile, &oracle);
+    let (profile, _) = super::benchmark::scene_profile(base, room, seed)?;
     let mut unenriched = profile.clone();
     unenriched.reasoner.kind = ReasonerKind::None;
     let run = batch::run(&unenriched, &VisibilityThresholds::default()).map_err(|e| format!("{name}: {e}"))?;

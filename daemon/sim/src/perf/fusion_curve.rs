@@ -188,10 +188,15 @@ pub fn plot_png(curve: &FusionCurve, path: &Path) -> anyhow::Result<()> {
             .map_err(|e| plot_err("legend", e))?;
         root.present().map_err(|e| plot_err("present", e))?;
     }
-    let image = image::RgbImage::from_raw(width, height, buffer).ok_or_else(|| anyhow!("plot buffer size"))?;
+    save_png(buffer, (width, height), path, "plot")
+}
+
+/// Writes an RGB8 plot buffer of `size` as a PNG at `path` (`what` names it in the error).
+pub(crate) fn save_png(buffer: Vec<u8>, size: (u32, u32), path: &Path, what: &str) -> anyhow::Result<()> {
+    let image = image::RgbImage::from_raw(size.0, size.1, buffer).ok_or_else(|| anyhow!("{what} buffer size"))?;
     image
         .save_with_format(path, image::ImageFormat::Png)
-        .with_context(|| format!("writing the plot {}", path.display()))
+        .with_context(|| format!("writing the {what} {}", path.display()))
 }
 
 #[cfg(test)]
