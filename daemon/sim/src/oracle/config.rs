@@ -212,18 +212,8 @@ impl OracleConfig {
             seed: 0,
             part_prompts: CandidateMode::All,
             semantic_source: SemanticSource::LabelVector,
-            confusion_rate: 0.0,
-            split_rate: 0.0,
-            merge_rate: 0.0,
-            depth_bleed_rate: 0.0,
-            depth_bleed_px: 0,
-            kind_error_rate: 0.0,
-            tag_miss_rate: 0.0,
-            tag_add_per_frame: 0.0,
-            pose_drift_fraction: 0.0,
-            pose_drift_deg_per_m: 0.0,
-            pose_jitter_m: 0.0,
-            pose_jitter_deg: 0.0,
+            // No field noise: the clean preset's zeros.
+            ..Self::clean()
         }
     }
 
