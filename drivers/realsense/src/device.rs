@@ -94,6 +94,8 @@ pub struct RealsenseSource {
     repeated_sets: u64,
     warned_hardware_clock: bool,
     delivered_any: bool,
+    /// A frame set came from the pipeline (delivered or passed over) since the streams started.
+    received_any: bool,
     connected: bool,
     retry_at: Instant,
     backoff: Duration,
@@ -459,6 +461,7 @@ impl RealsenseSource {
             repeated_sets: 0,
             warned_hardware_clock: false,
             delivered_any: false,
+            received_any: false,
             connected: false,
             retry_at: Instant::now(),
             backoff: Duration::from_millis(config.reconnect.initial_ms),
@@ -623,6 +626,7 @@ impl RealsenseSource {
         self.playback = None;
         self.last_numbers = None;
         self.delivered_any = false;
+        self.received_any = false;
         Ok(Streams { colour, depth_units_per_m, colour_order, half_period_ms })
     }
 
@@ -723,6 +727,33 @@ impl RealsenseSource {
         let (Some(depth), Some(colour)) = (depth, colour) else {
             return Err(device_err(format!("{}: frame set without depth and colour", self.name())));
         };
+        // The device behind the first frame set received (delivered or passed over): playback
+        // pacing and its end, the motion sensor.
+        if !self.received_any {
+            self.received_any = true;
+            if (self.bag.is_some() || self.imu.is_some())
+                && let Some(first) = set.frames_of_type::<DepthFrame>().into_iter().next()
+            {
+                match DeviceHandle::from_frame(first) {
+                    Ok(device) => {
+                        if self.imu.is_some() {
+                            self.open_motion(&device)?;
+                        }
+                        if self.bag.is_some() {
+                            match device.set_real_time(self.config.bag_real_time) {
+                                Ok(()) => self.playback = Some(device),
+                                Err(e) => {
+                                    warn!(bag = %self.name(), error = %e, "cannot control playback pacing; playing in real time")
+                                }
+                            }
+                        }
+                    }
+                    Err(e) => {
+                        warn!(source = %self.name(), error = %e, "no device handle behind the first frame: no playback pacing, no IMU")
+                    }
+                }
+            }
+        }
         let numbers = (depth.frame_number(), colour.frame_number());
         let repeated = self.last_numbers.is_some_and(|(d, c)| numbers.0 == d || numbers.1 == c);
         let apart_ms = (depth.timestamp() - colour.timestamp()).abs();
@@ -804,29 +835,7 @@ impl RealsenseSource {
         frame.depth_units_per_m = self.streams.depth_units_per_m;
         frame.world_from_camera = self.world_from_camera;
         self.seq += 1;
-        if !self.delivered_any {
-            self.delivered_any = true;
-            if self.bag.is_some() || self.imu.is_some() {
-                match DeviceHandle::from_frame(depth) {
-                    Ok(device) => {
-                        if self.imu.is_some() {
-                            self.open_motion(&device)?;
-                        }
-                        if self.bag.is_some() {
-                            match device.set_real_time(self.config.bag_real_time) {
-                                Ok(()) => self.playback = Some(device),
-                                Err(e) => {
-                                    warn!(bag = %self.name(), error = %e, "cannot control playback pacing; playing in real time")
-                                }
-                            }
-                        }
-                    }
-                    Err(e) => {
-                        warn!(source = %self.name(), error = %e, "no device handle behind the first frame: no playback pacing, no IMU")
-                    }
-                }
-            }
-        }
+        self.delivered_any = true;
         Ok(SourceStatus::Frame)
     }
 }
@@ -918,7 +927,7 @@ impl FrameSource for RealsenseSource {
         let timeout = if self.playback.as_ref().is_some_and(DeviceHandle::stopped) {
             // Playback read the whole file: drain what the pipeline still holds, then end.
             END_DRAIN_TIMEOUT
-        } else if self.delivered_any {
+        } else if self.received_any {
             Duration::from_millis(self.config.frame_timeout_ms)
         } else {
             FIRST_FRAME_TIMEOUT.max(Duration::from_millis(self.config.frame_timeout_ms))
@@ -939,8 +948,13 @@ impl FrameSource for RealsenseSource {
             },
             Err(e) => {
                 if self.bag.is_some() {
-                    // librealsense shows the end of a non-looping file only as a timeout.
-                    if self.delivered_any {
+                    // librealsense shows the end of a non-looping file only as a timeout. (Its
+                    // syncer may pair every set of a short file across frame numbers, all
+                    // passed over: the file still ended, with nothing to deliver.)
+                    if self.received_any {
+                        if !self.delivered_any {
+                            warn!(bag = %self.name(), passed_over = self.repeated_sets, "recording ended without a frame set whose depth and colour belong together");
+                        }
                         self.pipeline = None;
                         return Ok(SourceStatus::EndOfStream);
                     }

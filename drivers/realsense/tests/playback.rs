@@ -9,6 +9,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::sync::{Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use op3dsg_drivers::frame::{Frame, Intrinsics};
@@ -22,6 +23,20 @@ use op3dsg_realsense::rotate::Rotation;
 const W: u32 = 80;
 const H: u32 = 60;
 const FRAMES: usize = 10;
+/// The recordings' frame rate: 5 Hz leaves the debug-built reader 200 ms per frame set.
+/// Real-time playback drops a set the reader has not taken when the next one is due, and at
+/// 30 Hz (and 10 Hz, with the distorted lenses' alignment) a loaded CI machine's debug build
+/// is late now and then; the content is what these tests check, not the pace.
+const FPS: &str = "5";
+
+/// One recording and playback at a time: the tests of this file run in parallel, and each
+/// playback thread and reader competes for the same two cores otherwise.
+static PLAYBACK: Mutex<()> = Mutex::new(());
+
+fn one_at_a_time() -> MutexGuard<'static, ()> {
+    // A test that failed while holding the lock poisons it; the others still run.
+    PLAYBACK.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
 
 struct Recording {
     _dir: tempfile::TempDir,
@@ -52,6 +67,7 @@ fn record_with(frames: usize, args: &[&str]) -> Recording {
         .arg(&script)
         .arg(&bag)
         .args(["--frames", &frames.to_string()])
+        .args(if args.contains(&"--fps") { &[][..] } else { &["--fps", FPS][..] })
         .args(args)
         .output()
         .expect("run the recorder");
@@ -105,17 +121,57 @@ fn config_aligned_by(rec: &Recording, align: AlignMode, rotate: Rotation) -> Rea
     RealsenseConfig { align, ..config(rec, true, rotate) }
 }
 
+/// Playbacks tried before a test gives up on getting every frame set of a recording.
+const ATTEMPTS: usize = 3;
+
+/// Opens a source with `cfg` and plays the whole file until every frame set librealsense can
+/// deliver of `rec` came through (`rec`'s frames less [`FIRST_DELIVERED`]). librealsense's
+/// playback drops a frame set whose reader is late (in real time when the next one is due, as
+/// fast as possible when the file reader is ahead), and its syncer now and then pairs a depth
+/// frame with the previous colour frame (the source passes such sets over), on an idle machine
+/// too: pyrealsense2's own pipeline gives 2 to 4 sets of a 3-frame file from one playback to
+/// the next. A playback short of sets is played again, at most [`ATTEMPTS`] times, and one that
+/// never delivers every set fails the test.
+fn play_complete(rec: &Recording, cfg: &RealsenseConfig) -> (RealsenseSource, Vec<Frame>) {
+    let want = rec.stamps_ms.len() - FIRST_DELIVERED;
+    let mut counts = Vec::new();
+    for _ in 0..ATTEMPTS {
+        let mut source = RealsenseSource::open(cfg, None).expect("open the bag");
+        match try_play(&mut source) {
+            Ok(frames) if frames.len() == want => return (source, frames),
+            Ok(frames) => {
+                eprintln!(
+                    "librealsense delivered {} of {want} frame sets ({} passed over); playing again",
+                    frames.len(),
+                    source.repeated_sets()
+                );
+                counts.push(frames.len().to_string());
+            }
+            Err(e) => {
+                eprintln!("playback failed: {e}; playing again");
+                counts.push(e.to_string());
+            }
+        }
+    }
+    panic!("no playback of {ATTEMPTS} delivered all {want} frame sets: {counts:?}");
+}
+
 /// Plays the whole file: the frames as delivered.
 fn play(source: &mut RealsenseSource) -> Vec<Frame> {
+    try_play(source).expect("next_frame")
+}
+
+/// Plays the whole file: the frames as delivered, or the source's first error.
+fn try_play(source: &mut RealsenseSource) -> Result<Vec<Frame>, SourceError> {
     let mut frames = Vec::new();
     let mut frame = Frame::new(source.intrinsics());
     let deadline = Instant::now() + Duration::from_secs(60);
     loop {
         assert!(Instant::now() < deadline, "playback did not end");
-        match source.next_frame(&mut frame).expect("next_frame") {
+        match source.next_frame(&mut frame)? {
             SourceStatus::Frame => frames.push(frame.clone()),
             SourceStatus::Pending => {}
-            SourceStatus::EndOfStream => return frames,
+            SourceStatus::EndOfStream => return Ok(frames),
         }
     }
 }
@@ -134,17 +190,12 @@ const FIRST_DELIVERED: usize = 1;
 
 #[test]
 fn playback_delivers_the_recorded_frames_exactly() {
+    let _one = one_at_a_time();
     let rec = record(FRAMES);
-    let mut source = RealsenseSource::open(&config(&rec, true, Rotation::None), None).expect("open the bag");
+    let (source, frames) = play_complete(&rec, &config(&rec, true, Rotation::None));
     assert_eq!(source.intrinsics(), rec.intrinsics, "intrinsics from the recording");
     assert!(!source.has_poses());
-    let frames = play(&mut source);
-    assert_eq!(
-        frames.len(),
-        FRAMES - FIRST_DELIVERED,
-        "frames delivered (repeated sets passed over: {})",
-        source.repeated_sets()
-    );
+    assert_eq!(frames.len(), FRAMES - FIRST_DELIVERED, "frames delivered");
     for (k, frame) in frames.iter().enumerate() {
         let i = k + FIRST_DELIVERED;
         assert_eq!(frame.seq, k as u64);
@@ -171,13 +222,13 @@ fn playback_delivers_the_recorded_frames_exactly() {
 
 #[test]
 fn rotation_puts_a_known_pixel_where_it_belongs() {
+    let _one = one_at_a_time();
     let rec = record(3);
-    let mut source = RealsenseSource::open(&config(&rec, true, Rotation::Cw90), None).expect("open the bag");
+    let (source, frames) = play_complete(&rec, &config(&rec, true, Rotation::Cw90));
     let upright = Rotation::Cw90.intrinsics(&rec.intrinsics);
     assert_eq!(source.intrinsics(), upright);
     assert_eq!((upright.width, upright.height), (H, W));
     assert_eq!(source.camera_intrinsics(), rec.intrinsics);
-    let frames = play(&mut source);
     assert_eq!(frames.len(), 3 - FIRST_DELIVERED);
     let frame = &frames[0];
     // Pixel (10, 5) of the camera image (its top-left area) is at (H - 1 - 5, 10) upright:
@@ -202,6 +253,7 @@ fn rotation_puts_a_known_pixel_where_it_belongs() {
 
 #[test]
 fn real_time_playback_keeps_the_recorded_pace() {
+    let _one = one_at_a_time();
     let rec = record(FRAMES);
     let mut source = RealsenseSource::open(&config(&rec, true, Rotation::None), None).expect("open the bag");
     let started = Instant::now();
@@ -259,13 +311,13 @@ fn agreement(ours: &[u16], theirs: &[u16]) -> Agreement {
 fn assert_alignments_agree(rec: &Recording, rotate: Rotation, what: &str) {
     // One after the other: an open playback runs (and drops frame sets nobody takes).
     let play_with = |align: AlignMode| {
-        let mut source = RealsenseSource::open(&config_aligned_by(rec, align, rotate), None).expect("open the bag");
+        let (source, frames) = play_complete(rec, &config_aligned_by(rec, align, rotate));
         assert_eq!(
             source.intrinsics(),
             rotate.intrinsics(&rec.intrinsics),
             "frames have the colour stream's intrinsics"
         );
-        play(&mut source)
+        frames
     };
     let (ours, theirs) = (play_with(AlignMode::Op3dsg), play_with(AlignMode::Librealsense));
     assert!(!ours.is_empty() && ours.len() == theirs.len(), "{what}: {} vs {} frames", ours.len(), theirs.len());
@@ -285,6 +337,7 @@ fn assert_alignments_agree(rec: &Recording, rotate: Rotation, what: &str) {
 
 #[test]
 fn own_alignment_equals_librealsense_align_on_a_d435i_like_recording() {
+    let _one = one_at_a_time();
     // 848x480 depth to 1280x720 colour (rectangles: colour has more pixels per degree), a
     // 15 mm baseline with a little vertical and forward offset, 0.4 degrees of yaw; a slanted
     // wall, a box in front of it (occlusion), scattered holes.
@@ -322,6 +375,7 @@ fn own_alignment_equals_librealsense_align_on_a_d435i_like_recording() {
 
 #[test]
 fn own_alignment_equals_librealsense_align_with_lens_distortion() {
+    let _one = one_at_a_time();
     // Radial coefficients of the size a D435i's colour camera reports (modified Brown-Conrady,
     // what librealsense's align projects with) and an inverse Brown-Conrady depth lens (what it
     // deprojects with), tangential terms zero: librealsense's SSE align applies those as
@@ -375,6 +429,7 @@ fn own_alignment_equals_librealsense_align_with_lens_distortion() {
 
 #[test]
 fn own_alignment_equals_librealsense_align_at_equal_resolution() {
+    let _one = one_at_a_time();
     // Same size, colour with a shorter focal length (depth has more pixels per degree: each depth
     // pixel fills one colour pixel) and a 5 cm baseline: the box's shadow and the colour image's
     // rim beyond the depth's field of view are holes.
@@ -410,15 +465,17 @@ fn own_alignment_equals_librealsense_align_at_equal_resolution() {
 
 #[test]
 fn imu_samples_come_through_stamped_and_exact() {
-    let rec = record_with(FRAMES, &["--width", &W.to_string(), "--height", &H.to_string(), "--imu"]);
+    let _one = one_at_a_time();
+    // 30 Hz: as fast as possible, the file reader runs ahead of the reader by a frame set per
+    // 40 motion samples at 5 Hz and librealsense drops most sets (2 of 9 delivered).
+    let rec = record_with(FRAMES, &["--width", &W.to_string(), "--height", &H.to_string(), "--imu", "--fps", "30"]);
     assert!(rec.gyro.len() >= 40 && rec.accel.len() >= 20, "recorder wrote the motion streams");
     // As fast as the reader takes frames: in real time librealsense's playback itself skips a
     // motion frame now and then when its reading thread is late (seen here, not a camera's
     // behaviour).
     let with_imu = RealsenseConfig { imu: true, ..config(&rec, false, Rotation::None) };
-    let mut source = RealsenseSource::open(&with_imu, None).expect("open the bag with imu = true");
+    let (source, frames) = play_complete(&rec, &with_imu);
     let imu = source.imu().expect("imu buffer with imu = true");
-    let frames = play(&mut source);
     // Video as without the IMU.
     assert_eq!(frames.len(), FRAMES - FIRST_DELIVERED, "video frames with imu = true");
     for (k, frame) in frames.iter().enumerate() {
@@ -446,7 +503,7 @@ fn imu_samples_come_through_stamped_and_exact() {
         }
     }
     // Without the key: no buffer.
-    let mut plain = RealsenseSource::open(&config(&rec, true, Rotation::None), None).expect("open the bag");
+    let (plain, frames) = play_complete(&rec, &config(&rec, true, Rotation::None));
     assert!(plain.imu().is_none());
-    assert_eq!(play(&mut plain).len(), FRAMES - FIRST_DELIVERED);
+    assert_eq!(frames.len(), FRAMES - FIRST_DELIVERED);
 }
