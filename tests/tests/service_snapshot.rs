@@ -204,3 +204,40 @@ fn a_corrupted_snapshot_is_moved_aside_and_reported_and_the_daemon_starts_empty(
     let info = map_info(dir.path()).expect("the new final snapshot reads back");
     assert!(info["keyframes"].as_u64() <= Some(1), "{info}");
 }
+
+#[test]
+fn the_conceptgraphs_fusion_maps_the_scene_and_leaves_a_saved_map_as_it_is() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    // A saved OP3DSG map first.
+    let mut daemon = start(&unique_prefix("snap-cg-first"), &snapshot_args(dir.path(), &["--max-frames", "60"]), &[]);
+    let status = daemon.wait_exit(Duration::from_secs(120)).expect("the finite run exits");
+    assert!(status.success(), "{status}");
+    let snapshot = dir.path().join("map.snapshot");
+    let saved = std::fs::read(&snapshot).expect("the final snapshot exists");
+    let list = || {
+        let mut files: Vec<_> = std::fs::read_dir(dir.path()).expect("list").flatten().map(|e| e.file_name()).collect();
+        files.sort();
+        files
+    };
+    let before = list();
+
+    // ConceptGraphs' fusion (it has no saved form): it maps the scene, and the snapshot
+    // directory is neither restored from (which would move the OP3DSG map aside) nor written.
+    let prefix = unique_prefix("snap-cg");
+    let args = snapshot_args(
+        dir.path(),
+        &["--set", "fusion.method=\"conceptgraphs\"", "--set", "run.max_frames=150", "--set", "health.period_ms=100"],
+    );
+    let daemon = start(&prefix, &args, &[]);
+    let mut graphs = daemon.graph_subscriber("snap-cg-graphs");
+    let graph = wait_for("a graph with nodes from the conceptgraphs fusion", Duration::from_secs(120), || {
+        graphs.latest().ok().flatten().filter(|g| g.node_count() > 0).cloned()
+    });
+    assert!(graph.nodes().any(|n| !n.label().is_empty()), "labelled nodes");
+    let mut health = daemon.health_subscriber("snap-cg-health");
+    let state = wait_for("health", Duration::from_secs(30), || health.latest().ok().flatten().map(|h| h.snapshot));
+    assert_eq!(SNAPSHOT_STATES[state.state as usize], "off", "{state:?}");
+    drop(daemon);
+    assert_eq!(list(), before, "nothing moved aside or added");
+    assert_eq!(std::fs::read(&snapshot).expect("read the snapshot"), saved, "the saved map is untouched");
+}

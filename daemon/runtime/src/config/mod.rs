@@ -546,6 +546,22 @@ mod tests {
     }
 
     #[test]
+    fn the_fusion_method_is_checked_by_name_and_its_section_by_field() {
+        let dir = tempfile::tempdir().unwrap();
+        let path =
+            write(&dir, "cg.toml", "[fusion]\nmethod = \"conceptgraphs\"\n[fusion.conceptgraphs]\nvoxel_m = 0.02\n");
+        let fusion = load(Some(&path), &[]).unwrap().profile.fusion;
+        assert_eq!((fusion.method, fusion.conceptgraphs.voxel_m), (crate::fusion::FusionMethod::Conceptgraphs, 0.02));
+        assert!(crate::fusion::build(&fusion, UpAxis::Z).export_state().is_none(), "no saved form");
+        let path = write(&dir, "typo.toml", "[fusion]\nmethod = \"concept_graphs\"\n");
+        let err = load(Some(&path), &[]).unwrap_err();
+        assert!(err.message.starts_with("fusion.method") && err.message.contains("conceptgraphs"), "{err}");
+        let path = write(&dir, "bad.toml", "[fusion.conceptgraphs]\ndbscan_eps_m = 0.0\n");
+        let err = load(Some(&path), &[]).unwrap_err();
+        assert!(err.to_string().contains("fusion.conceptgraphs.dbscan_eps_m: must be within"), "{err}");
+    }
+
+    #[test]
     fn wrong_type_names_file_and_field() {
         let dir = tempfile::tempdir().unwrap();
         let path = write(&dir, "robot.toml", "[detector]\nworkers = \"two\"\n");

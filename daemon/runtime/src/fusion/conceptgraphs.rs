@@ -186,6 +186,38 @@ impl Default for ConceptGraphsConfig {
     }
 }
 
+impl ConceptGraphsConfig {
+    /// Range checks; messages start with `path.field`.
+    pub fn validate(&self, path: &str) -> Result<(), String> {
+        let within = [
+            ("voxel_m", self.voxel_m, 0.001, 1.0),
+            ("dbscan_eps_m", self.dbscan_eps_m, 0.001, 10.0),
+            ("mask_conf_threshold", self.mask_conf_threshold, 0.0, 1.0),
+            ("max_bbox_area_ratio", self.max_bbox_area_ratio, 0.0, 1.0),
+            ("sim_threshold", self.sim_threshold, -2.0, 4.0),
+            ("phys_bias", self.phys_bias, -10.0, 10.0),
+            ("merge_visual_sim_thresh", self.merge_visual_sim_thresh, -1.0, 1.0),
+            ("merge_text_sim_thresh", self.merge_text_sim_thresh, -1.0, 1.0),
+            ("part_attach_margin_m", self.part_attach_margin_m, 0.0, 1.0),
+        ];
+        for (name, v, lo, hi) in within {
+            if !(lo..=hi).contains(&v) {
+                return Err(format!("{path}.{name}: must be within [{lo}, {hi}], got {v}"));
+            }
+        }
+        if !(self.merge_overlap_thresh <= 1.0) {
+            return Err(format!(
+                "{path}.merge_overlap_thresh: must be at most 1 (negative: no merging), got {}",
+                self.merge_overlap_thresh
+            ));
+        }
+        if self.min_points_threshold < 4 {
+            return Err(format!("{path}.min_points_threshold: must be at least 4, got {}", self.min_points_threshold));
+        }
+        Ok(())
+    }
+}
+
 /// Their `bg_classes`.
 const BACKGROUND_CLASSES: [&str; 3] = ["wall", "floor", "ceiling"];
 

@@ -26,6 +26,15 @@ use colour::ColourParams;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct FusionConfig {
+    /// Which fusion builds the map: `op3dsg` (the paper's, configured by the keys below) or
+    /// `conceptgraphs` (ConceptGraphs' association and merging, [`conceptgraphs`], configured
+    /// by `[fusion.conceptgraphs]`; its maps are not saved in snapshots).
+    #[serde(default)]
+    pub method: FusionMethod,
+    /// `[fusion.conceptgraphs]`: ConceptGraphs' settings, used with `method = "conceptgraphs"`
+    /// (defaults: their `base_mapping.yaml`).
+    #[serde(default)]
+    pub conceptgraphs: conceptgraphs::ConceptGraphsConfig,
     /// Back-project at least every n-th pixel of a mask in x and y (1 = every pixel); the
     /// smallest stride of the adaptive sampling.
     pub pixel_stride: u32,
@@ -104,6 +113,18 @@ pub struct FusionConfig {
     pub part_attach_margin_m: f32,
 }
 
+/// `fusion.method`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FusionMethod {
+    /// The OP3DSG paper's part-aware fusion ([`multiview`]).
+    #[default]
+    Op3dsg,
+    /// ConceptGraphs' fusion ([`conceptgraphs`]): the peer baseline of `op3dsg bench quality`,
+    /// here for a user who wants to compare both on their own robot.
+    Conceptgraphs,
+}
+
 impl FusionConfig {
     /// Range checks; messages start with `path.field`.
     pub fn validate(&self, path: &str) -> Result<(), String> {
@@ -175,6 +196,7 @@ impl FusionConfig {
                 ));
             }
         }
+        self.conceptgraphs.validate(&format!("{path}.conceptgraphs"))?;
         self.colour.validate(&format!("{path}.colour"))
     }
 }
@@ -237,7 +259,13 @@ pub trait Fusion: Send {
     }
 }
 
-/// The fusion the profile asks for; `up_axis` (`world.up_axis`) orients the nodes' boxes.
+/// The fusion the profile asks for (`fusion.method`); `up_axis` (`world.up_axis`) orients the
+/// nodes' boxes.
 pub fn build(config: &FusionConfig, up_axis: crate::config::UpAxis) -> Box<dyn Fusion> {
-    Box::new(multiview::MultiViewFusion::new(config.clone()).with_up_axis(up_axis))
+    match config.method {
+        FusionMethod::Op3dsg => Box::new(multiview::MultiViewFusion::new(config.clone()).with_up_axis(up_axis)),
+        FusionMethod::Conceptgraphs => {
+            Box::new(conceptgraphs::ConceptGraphsFusion::new(config.conceptgraphs.clone()).with_up_axis(up_axis))
+        }
+    }
 }

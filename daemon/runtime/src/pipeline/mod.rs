@@ -54,7 +54,7 @@ use crossbeam_channel::{Receiver, Sender};
 use op3dsg_drivers::frame::FramePool;
 use op3dsg_drivers::source::{SourceError, StepControl};
 use op3dsg_ipc_types::PoseStamped;
-use tracing::{debug, error, info};
+use tracing::{debug, error, info, warn};
 
 use crate::backend::{Backends, OpenedSource};
 use crate::config::{PoseSourceKind, Profile};
@@ -251,6 +251,12 @@ impl Pipeline {
         let snapshots = match profile.snapshot.resolve_dir() {
             None => {
                 info!("map snapshots off (snapshot.dir unset outside systemd, or snapshot.enabled = false)");
+                None
+            }
+            Some(dir) if profile.fusion.method == crate::fusion::FusionMethod::Conceptgraphs => {
+                // Its map has no saved form: neither restore (which would move a saved OP3DSG
+                // map aside) nor write.
+                warn!(dir = %dir.display(), "map snapshots off: fusion.method = \"conceptgraphs\" cannot save or restore its map (a snapshot there is left as it is)");
                 None
             }
             Some(dir) => {
