@@ -205,7 +205,7 @@ impl ConceptGraphsConfig {
                 return Err(format!("{path}.{name}: must be within [{lo}, {hi}], got {v}"));
             }
         }
-        if !(self.merge_overlap_thresh <= 1.0) {
+        if self.merge_overlap_thresh.is_nan() || self.merge_overlap_thresh > 1.0 {
             return Err(format!(
                 "{path}.merge_overlap_thresh: must be at most 1 (negative: no merging), got {}",
                 self.merge_overlap_thresh
