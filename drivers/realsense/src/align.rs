@@ -26,9 +26,9 @@
 //! way (align first, then rotate, in one pass: the z-buffer works on the rotated index of the
 //! same colour pixel). The per-frame loop is compiled twice, for baseline x86-64 and for AVX2
 //! (chosen once at run time from the CPU; no FMA, which would round differently from
-//! librealsense). Where the colour stream has at least 1.5 times the depth's pixels per degree
-//! (848x480 depth to 1280x720 colour) rectangles are written as fixed 3x3 blocks, without a
-//! branch on each rectangle's size; below that, with a loop sized per pixel.
+//! librealsense). Where the colour stream has at least 1.25 times the depth's pixels per degree
+//! (the D435i's 848x480 depth to 848x480 or 1280x720 colour) rectangles are written as fixed 3x3
+//! blocks, without a branch on each rectangle's size; below that, with a loop sized per pixel.
 //!
 //! **Lens models**, as librealsense's align block (its SSE build, what the PyPI library and
 //! Intel's x86 packages run) applies them: depth rays through the inverse Brown-Conrady formula
@@ -242,11 +242,14 @@ const CHUNK: usize = 64;
 /// Rectangles up to this many colour pixels on a side are written as one fixed block.
 const KERNEL: usize = 3;
 /// Colour pixels per depth pixel (in both directions) from which rectangles are written as
-/// blocks: with 1.5 or more a rectangle is mostly 3 pixels a side, and the fixed block (no
-/// branch on its size) wins; below, most rectangles are 2 a side and a block would write each
-/// cell twice. Measured by the `frame_handling` benchmark: 848x480 depth to 1280x720 colour
-/// (1.9 and 2.1) is faster with blocks, to 848x480 colour (1.3 and 1.4) without.
-const BLOCK_RATIO: f32 = 1.5;
+/// blocks. A rectangle spans the projections of a depth pixel's corners, rounded: at 1.25 or
+/// more it is 2 or 3 pixels a side, and the fixed block (no branch on its size, each cell
+/// written through [`nearest`]) wins; nearer 1 most rectangles are 1 or 2 a side and a block
+/// would write most cells several times. Measured by the `frame_handling` benchmark (synthetic
+/// room, one core): 848x480 depth to 848x480 colour (1.3 and 1.4 colour pixels per depth pixel)
+/// 2.03-2.15 ms with blocks against 2.26-2.36 ms with the sized loop; to 1280x720 colour (1.9
+/// and 2.1) blocks were already the faster.
+const BLOCK_RATIO: f32 = 1.25;
 /// How each depth pixel is written: one colour pixel ...
 const PIXELS: u8 = 0;
 /// ... the rectangle between its corners, loop sized per pixel ...
@@ -597,7 +600,7 @@ impl DepthToColour {
                             let row_at = base + dy.min(dy_max) * place.step_y;
                             for dx in 0..KERNEL as isize {
                                 let at = (row_at + dx.min(dx_max) * place.step_x) as usize;
-                                out[at] = out[at].wrapping_sub(1).min(z1) + 1;
+                                nearest(out, at, z1);
                             }
                         }
                         continue;
@@ -606,7 +609,7 @@ impl DepthToColour {
                     for _ in ya..=yb {
                         let mut at = row_at;
                         for _ in xa..=xb {
-                            out[at as usize] = out[at as usize].wrapping_sub(1).min(z1) + 1;
+                            nearest(out, at as usize, z1);
                             at += place.step_x;
                         }
                         row_at += place.step_y;
@@ -616,6 +619,23 @@ impl DepthToColour {
             }
         }
     }
+}
+
+/// Keeps the nearer of `out[at]` and depth `z1 + 1`; 0 (nothing yet) counts as farthest:
+/// `min(out - 1, z1) + 1` in wrapping `u16` arithmetic.
+///
+/// `at` lies inside `out` by construction: the callers clamp every rectangle to the colour
+/// image (`0 <= x < width`, `0 <= y < height`) before placing it, and [`Placement`] maps that
+/// image onto `out`, which [`DepthToColour::align`] checked to be width x height long. The
+/// check is compiled out of release builds: on this hot path (about six writes per depth pixel)
+/// the bounds checks cost a measurable share of the alignment (the `frame_handling` benchmark).
+#[inline(always)]
+#[allow(unsafe_code)] // One unchecked index on the hot path, argued above.
+fn nearest(out: &mut [u16], at: usize, z1: u16) {
+    debug_assert!(at < out.len(), "aligned depth index {at} outside {} values", out.len());
+    // SAFETY: `at < out.len()` as argued above (and checked in debug builds).
+    let cell = unsafe { out.get_unchecked_mut(at) };
+    *cell = cell.wrapping_sub(1).min(z1) + 1;
 }
 
 /// [`DepthToColour::align_rows`], compiled for the baseline and for AVX2 (picked once at run
@@ -885,11 +905,13 @@ mod tests {
             assert!(want.iter().filter(|&&z| z != 0).count() > 70 * 50, "{rotation:?}");
             assert_eq!(run(&blocks, &depth, rotation), want, "{rotation:?}");
         }
-        // The D435i's 848x480 depth to 848x480 colour: rectangles, but not as blocks.
+        // The D435i's 848x480 depth to 848x480 colour (1.44 colour pixels per depth pixel):
+        // blocks; nearer 1 (1.1), rectangles written by the sized loop.
         let d435i = Lens::pinhole(848, 480, 421.0, 421.0, 423.5, 239.5);
-        let same =
-            DepthToColour::new(d435i, Lens::pinhole(848, 480, 605.0, 605.0, 423.5, 239.5), translation(0.015), MM)
-                .unwrap();
-        assert!(same.maps_rectangles() && !same.blocks);
+        let colour = |f: f32| Lens::pinhole(848, 480, f, f, 423.5, 239.5);
+        let same = DepthToColour::new(d435i, colour(605.0), translation(0.015), MM).unwrap();
+        assert!(same.maps_rectangles() && same.blocks);
+        let near_one = DepthToColour::new(d435i, colour(463.0), translation(0.015), MM).unwrap();
+        assert!(near_one.maps_rectangles() && !near_one.blocks);
     }
 }
