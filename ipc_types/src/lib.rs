@@ -114,6 +114,7 @@ pub use iceoryx2::prelude::{PlacementDefault, ZeroCopySend};
 pub mod client;
 mod graph_types;
 mod health_types;
+pub mod occupancy_types;
 mod pose_types;
 pub mod publish;
 pub mod query_types;
@@ -135,10 +136,14 @@ pub use health_types::{
     ModelHealth, PoseHealth, QueueHealth, RECORDER_STATES, REFINER_ERRORS, REFINER_FORMATS, REFINER_REJECTIONS,
     REFINER_STATES, RecorderHealth, RefinerHealth, SNAPSHOT_STATES, SnapshotHealth, StageHealth,
 };
+pub use occupancy_types::{
+    OCCUPANCY_FREE_MAX_PERCENT, OCCUPANCY_MAX_SIDE_CELLS, OCCUPANCY_OCCUPIED_MIN_PERCENT, OCCUPANCY_SCHEMA_VERSION,
+    OCCUPANCY_UNKNOWN, OccupancyHeader,
+};
 pub use pose_types::{PoseError, PoseKind, PoseStamped, check_pose};
 pub use query_types::{
-    QUERY_MAX_K, QUERY_SCHEMA_VERSION, QUERY_TEXT_CAPACITY_BYTES, QueryHit, QueryMatch, QueryRequest, QueryResponse,
-    QueryStatus,
+    ApproachStatus, QUERY_MAX_K, QUERY_SCHEMA_VERSION, QUERY_TEXT_CAPACITY_BYTES, QueryHit, QueryMatch, QueryRequest,
+    QueryResponse, QueryStatus,
 };
 pub use services::{IpcService, PrefixError, ServiceKind, ServiceNames, validate_prefix};
 pub use text::{fixed_str, write_fixed_str};

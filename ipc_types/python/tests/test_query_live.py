@@ -15,8 +15,9 @@ from conftest import FAST, wait_for
 
 
 def test_layouts_are_the_rust_ones():
-    assert (ctypes.sizeof(QueryRequest), ctypes.sizeof(QueryHit), ctypes.sizeof(QueryResponse)) == (264, 160, 2784)
+    assert (ctypes.sizeof(QueryRequest), ctypes.sizeof(QueryHit), ctypes.sizeof(QueryResponse)) == (272, 192, 3296)
     assert (QueryResponse.message.offset, QueryResponse.hits.offset) == (64, 224)
+    assert (QueryRequest.node_id.offset, QueryHit.approach_status.offset, QueryHit.approach_x_m.offset) == (264, 160, 164)
 
 
 def test_query_hits_are_nodes_of_the_published_graph(prefix, daemons):
