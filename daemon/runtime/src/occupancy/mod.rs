@@ -350,6 +350,7 @@ pub struct OccupancyGrid {
     robot: Option<RobotPose>,
     keyframes: u64,
     stamp_ns: u64,
+    memory_bytes: usize,
 }
 
 impl OccupancyGrid {
@@ -374,7 +375,9 @@ impl OccupancyGrid {
             robot: None,
             keyframes: 0,
             stamp_ns: 0,
+            memory_bytes: 0,
         };
+        grid.memory_bytes = grid.allocated_bytes();
         if let Some(centre) = config.centre_m {
             grid.place(centre);
         }
@@ -417,8 +420,13 @@ impl OccupancyGrid {
         &self.config
     }
 
-    /// Heap bytes held (fixed at construction).
+    /// Heap bytes allocated at construction (fixed: integration never grows a buffer; a clone
+    /// reports its original's figure).
     pub fn memory_bytes(&self) -> usize {
+        self.memory_bytes
+    }
+
+    fn allocated_bytes(&self) -> usize {
         self.log_odds.capacity() * size_of::<f32>()
             + self.marks.capacity() * size_of::<u32>()
             + self.ends.capacity() * size_of::<(i32, i32, bool)>()
@@ -686,10 +694,11 @@ mod tests {
         let mut grid = OccupancyGrid::new(&config, UpAxis::Z, 0.2, &k);
         let mut scan = DepthScan::with_capacity(&k, config.pixel_stride);
         scan.fill(&depth, &k, 1000.0, &pose, 1);
-        let memory = grid.memory_bytes();
+        let memory = grid.allocated_bytes();
         grid.integrate(&scan);
         grid.integrate(&scan);
-        assert_eq!(grid.memory_bytes(), memory, "integration allocates nothing");
+        assert_eq!(grid.allocated_bytes(), memory, "integration grows no buffer");
+        assert_eq!(grid.memory_bytes(), memory);
         let g = grid.geometry();
         let at = |x: f32, y: f32| {
             let (c, r) = g.cell_of([x, y]);

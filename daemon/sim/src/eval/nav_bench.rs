@@ -283,6 +283,62 @@ fn angle_deg(a: f32, b: f32) -> f32 {
     d.min(std::f32::consts::TAU - d).to_degrees()
 }
 
+/// The band, facing and side checks of a pose at `p` with heading `yaw_rad` for the true
+/// instance `info` (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Judged {
+    /// Distance to the true footprint, metres.
+    pub true_standoff_m: f32,
+    /// Within the band (with tolerance).
+    pub in_band: bool,
+    /// Angle to the true centre, degrees.
+    pub facing_error_deg: f32,
+    /// Facing.
+    pub facing: bool,
+    /// On the part's side (`None` for objects and parts without a parent).
+    pub on_side: Option<bool>,
+}
+
+/// Judges a pose against the true instance `info` of `scene`.
+pub fn judge(
+    scene: &Scene,
+    info: &op3dsg_synthetic::InstanceInfo,
+    p: [f32; 2],
+    yaw_rad: f32,
+    nav: &op3dsg_runtime::occupancy::NavigationConfig,
+    checks: &NavCriteria,
+) -> Judged {
+    let (min, max) = ([info.box_min_m.x, info.box_min_m.y], [info.box_max_m.x, info.box_max_m.y]);
+    let centre = [(min[0] + max[0]) * 0.5, (min[1] + max[1]) * 0.5];
+    let standoff = rect_distance(min, max, p);
+    let in_band = standoff >= nav.standoff_min_m - checks.standoff_tolerance_m
+        && standoff <= nav.standoff_max_m + checks.standoff_tolerance_m;
+    let error = angle_deg(yaw_rad, (centre[1] - p[1]).atan2(centre[0] - p[0]));
+    let facing = error <= checks.facing_tolerance_deg || ray_hits_rect(p, yaw_rad, min, max);
+    let on_side = info.parent.and_then(|id| scene.instance(id)).map(|parent| {
+        let pc = (parent.box_min_m + parent.box_max_m) * 0.5;
+        let dir = [centre[0] - pc.x, centre[1] - pc.y];
+        if dir[0].hypot(dir[1]) < 0.02 {
+            return true;
+        }
+        (p[0] - centre[0]) * dir[0] + (p[1] - centre[1]) * dir[1] > 0.0
+    });
+    Judged { true_standoff_m: standoff, in_band, facing_error_deg: error, facing, on_side }
+}
+
+/// Whether the robot's disc at `p` is free in `scene`'s true geometry (walls and every primitive
+/// reaching into the obstacle band `band_m`, world heights), and its clearance.
+pub fn free_in_truth(
+    scene: &Scene,
+    band_m: [f32; 2],
+    robot_radius_m: f32,
+    tolerance_m: f32,
+    p: [f32; 2],
+) -> (bool, f32) {
+    let clear = clearance(scene, &obstacles(scene, band_m), p);
+    (clear >= robot_radius_m - tolerance_m, clear)
+}
+
 /// Maps `room` (seed `seed`) with `base` and checks every node's approach pose.
 pub fn room_nav(base: &Profile, room: RoomKind, seed: u64) -> Result<RoomNav, String> {
     let name = format!("{} seed {seed}", room.as_str());
@@ -374,32 +430,17 @@ pub fn room_nav(base: &Profile, room: RoomKind, seed: u64) -> Result<RoomNav, St
                     }
                     Some(info) => {
                         counts.reachable += 1;
-                        let (min, max) = ([info.box_min_m.x, info.box_min_m.y], [info.box_max_m.x, info.box_max_m.y]);
-                        let centre = [(min[0] + max[0]) * 0.5, (min[1] + max[1]) * 0.5];
-                        let standoff = rect_distance(min, max, p);
-                        let in_band = standoff >= nav.standoff_min_m - checks.standoff_tolerance_m
-                            && standoff <= nav.standoff_max_m + checks.standoff_tolerance_m;
-                        let error = angle_deg(approach.yaw_rad, (centre[1] - p[1]).atan2(centre[0] - p[0]));
-                        let facing =
-                            error <= checks.facing_tolerance_deg || ray_hits_rect(p, approach.yaw_rad, min, max);
-                        let on_side = info.parent.and_then(|id| scene.instance(id)).map(|parent| {
-                            let pc = (parent.box_min_m + parent.box_max_m) * 0.5;
-                            let dir = [centre[0] - pc.x, centre[1] - pc.y];
-                            if dir[0].hypot(dir[1]) < 0.02 {
-                                return true;
-                            }
-                            (p[0] - centre[0]) * dir[0] + (p[1] - centre[1]) * dir[1] > 0.0
-                        });
-                        outcome.true_standoff_m = Some(standoff);
-                        outcome.facing_error_deg = Some(error);
-                        outcome.in_band = Some(in_band);
-                        outcome.facing = Some(facing);
-                        outcome.on_side = on_side;
+                        let judged = judge(&scene, info, p, approach.yaw_rad, nav, &checks);
+                        outcome.true_standoff_m = Some(judged.true_standoff_m);
+                        outcome.facing_error_deg = Some(judged.facing_error_deg);
+                        outcome.in_band = Some(judged.in_band);
+                        outcome.facing = Some(judged.facing);
+                        outcome.on_side = judged.on_side;
                         counts.not_free += u32::from(!free);
-                        counts.out_of_band += u32::from(!in_band);
-                        counts.not_facing += u32::from(!facing);
-                        counts.wrong_side += u32::from(on_side == Some(false));
-                        outcome.correct = free && in_band && facing && on_side != Some(false);
+                        counts.out_of_band += u32::from(!judged.in_band);
+                        counts.not_facing += u32::from(!judged.facing);
+                        counts.wrong_side += u32::from(judged.on_side == Some(false));
+                        outcome.correct = free && judged.in_band && judged.facing && judged.on_side != Some(false);
                         counts.correct += u32::from(outcome.correct);
                     }
                 }
@@ -550,5 +591,72 @@ mod tests {
             half_length: 0.5,
         };
         assert!((footprint_distance(&post, [1.5, 1.0]) - 0.3).abs() < 1e-6);
+    }
+
+    /// The checks catch wrong poses: inside furniture, too far, looking away, behind a part.
+    #[test]
+    fn the_ground_truth_checks_reject_wrong_poses() {
+        let scene = Scene::generate(RoomKind::Kitchen, 1);
+        let nav = op3dsg_runtime::occupancy::NavigationConfig::default();
+        let checks = NavCriteria::for_cell(0.05);
+        let band = [0.05, 1.5];
+        let fridge = scene.instances().iter().find(|i| i.label == "fridge").expect("a fridge");
+        let centre = [(fridge.box_min_m.x + fridge.box_max_m.x) * 0.5, (fridge.box_min_m.y + fridge.box_max_m.y) * 0.5];
+        assert!(
+            !free_in_truth(&scene, band, nav.robot_radius_m, checks.free_tolerance_m, centre).0,
+            "inside the fridge"
+        );
+        assert!(
+            !free_in_truth(&scene, band, nav.robot_radius_m, checks.free_tolerance_m, [0.05, 0.05]).0,
+            "in a corner"
+        );
+        let handle = scene
+            .instances()
+            .iter()
+            .find(|i| i.label == "fridge handle" && i.parent == Some(fridge.id))
+            .expect("a fridge handle");
+        let hc = [(handle.box_min_m.x + handle.box_max_m.x) * 0.5, (handle.box_min_m.y + handle.box_max_m.y) * 0.5];
+        // 0.6 m in front of the handle (out of the fridge), facing it.
+        let out = [hc[0] - centre[0], hc[1] - centre[1]];
+        let len = out[0].hypot(out[1]);
+        let front = [hc[0] + out[0] / len * 0.6, hc[1] + out[1] / len * 0.6];
+        let facing = (hc[1] - front[1]).atan2(hc[0] - front[0]);
+        let good = judge(&scene, handle, front, facing, &nav, &checks);
+        assert!(good.in_band && good.facing && good.on_side == Some(true), "{good:?}");
+        assert!(free_in_truth(&scene, band, nav.robot_radius_m, checks.free_tolerance_m, front).0, "in front is free");
+        let away = judge(&scene, handle, front, facing + std::f32::consts::PI, &nav, &checks);
+        assert!(!away.facing, "{away:?}");
+        let far = [hc[0] + out[0] / len * 2.0, hc[1] + out[1] / len * 2.0];
+        assert!(!judge(&scene, handle, far, facing, &nav, &checks).in_band, "2 m is out of the band");
+        let behind = [hc[0] - out[0] / len * 0.6, hc[1] - out[1] / len * 0.6];
+        assert_eq!(judge(&scene, handle, behind, facing, &nav, &checks).on_side, Some(false), "behind the handle");
+    }
+
+    /// The navigation check on every room (debug build, 300 frames a room): most matched nodes
+    /// get a pose, and nearly every pose passes the ground-truth checks.
+    #[test]
+    fn approach_poses_pass_the_ground_truth_checks_in_every_room() {
+        let loaded = crate::load_profile(None, &["source.synthetic.frame_count=300".to_owned()]).expect("profile");
+        let mut rooms = Vec::new();
+        for room in RoomKind::ALL {
+            let nav = room_nav(&loaded.profile, room, 1).expect("room");
+            assert!(nav.objects.matched >= 2, "{}: {:?}", nav.room, nav.objects);
+            assert!(nav.objects.correct + nav.parts.correct >= 1, "{}: no correct approach pose", nav.room);
+            assert!(!nav.integrate_us.is_empty() && nav.map_memory_bytes > 0);
+            rooms.push(nav);
+        }
+        let report = report(&loaded.profile, rooms);
+        let correct = report.objects.correct + report.parts.correct;
+        let reachable = report.objects.reachable + report.parts.reachable;
+        let matched = report.objects.matched + report.parts.matched;
+        eprintln!("{}", text(&report));
+        assert!(
+            f64::from(reachable) >= 0.8 * f64::from(matched),
+            "{reachable} of {matched} matched nodes got an approach pose"
+        );
+        assert!(
+            f64::from(correct) >= 0.85 * f64::from(reachable),
+            "{correct} of {reachable} approach poses pass the ground-truth checks"
+        );
     }
 }
