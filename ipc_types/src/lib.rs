@@ -63,6 +63,8 @@
 //! | `<prefix>/graph_updated`| event             | event id 0         | notified after each graph sample      |
 //! | `<prefix>/health`       | publish-subscribe | [`Health`]         | history 1, safe overflow              |
 //! | `<prefix>/pose`         | publish-subscribe | [`PoseStamped`]    | input: the navigation stack publishes |
+//! | `<prefix>/query`        | request-response  | [`QueryRequest`] → [`QueryResponse`] | one reply per request; hits with approach poses |
+//! | `<prefix>/occupancy`    | publish-subscribe | `[i8]` cells + [`OccupancyHeader`] | history 1, about 1 Hz ([`occupancy_types`]) |
 //!
 //! The exact figures and who creates which service are in [`services`]. `pose` may be created
 //! first by the navigation stack with iceoryx2's default QoS: the daemon opens it as it is.

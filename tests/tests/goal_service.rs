@@ -9,7 +9,9 @@
 //!   centre; nodes without a pose say why (no free cell within the band, unreachable);
 //! - an unknown node id gets a "bad request" naming `node_id`;
 //! - `op3dsg goal <id> --json`, a process of its own, prints the same pose; `op3dsg goal TEXT`
-//!   without the text encoder fails naming it.
+//!   without the text encoder fails naming it;
+//! - the map is saved beside the map snapshot at shutdown and a restarted daemon publishes it
+//!   again (its keyframe count goes on).
 //!
 //! Whether the poses are right in the true geometry of the room is `op3dsg bench nav`'s check
 //! (`daemon/sim/src/eval/nav_bench.rs`, and its test on every room).
@@ -183,5 +185,44 @@ fn a_planner_gets_approach_poses_on_free_cells_of_the_published_map() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(stderr.contains("encoder_off"), "{stderr}");
+    drop(daemon);
+}
+
+#[test]
+fn the_occupancy_map_survives_a_restart_beside_the_map_snapshot() {
+    let prefix = unique_prefix("goal-restart");
+    let dir = tempfile::tempdir().expect("snapshot dir");
+    let dir_arg = format!("snapshot.dir={}", dir.path().display());
+    let args = ["--set", "source.rate_hz=15", "--set", &dir_arg];
+    let node = NodeBuilder::new().create::<IpcService>().expect("a plain iceoryx2 node");
+    let name = ServiceName::new(&occupancy_service_name(&prefix)).expect("service name");
+    let first_map = |what: &str, above: u64| -> OccupancyHeader {
+        let service = wait_for("the occupancy service", Duration::from_secs(60), || {
+            node.service_builder(&name).publish_subscribe::<[i8]>().user_header::<OccupancyHeader>().open().ok()
+        });
+        let subscriber = service.subscriber_builder().create().expect("occupancy subscriber");
+        let mut map = None;
+        wait_for(what, Duration::from_secs(120), || {
+            latest_map(&subscriber, &mut map);
+            map.as_ref().map(|(h, _)| *h).filter(|h| h.keyframes_integrated > above)
+        })
+    };
+
+    let mut daemon = Daemon::start(&prefix, &args);
+    let before = first_map("a map of 10 keyframes", 9);
+    daemon.sigterm();
+    assert!(daemon.wait_exit(Duration::from_secs(30)).is_some_and(|s| s.success()), "clean exit");
+    let saved = dir.path().join("occupancy.snapshot");
+    assert!(saved.exists(), "{} written at shutdown", saved.display());
+
+    let daemon = Daemon::start(&prefix, &args);
+    let after = first_map("the restored map", 0);
+    assert!(
+        after.keyframes_integrated >= before.keyframes_integrated,
+        "restored: {} keyframes after, {} before",
+        after.keyframes_integrated,
+        before.keyframes_integrated
+    );
+    assert_eq!((after.origin_x_m, after.origin_y_m), (before.origin_x_m, before.origin_y_m), "same grid");
     drop(daemon);
 }

@@ -45,6 +45,7 @@
 //! a fixed buffer of ray ends.
 
 pub mod nav;
+pub mod persist;
 pub mod service;
 
 use glam::{DVec3, Vec3};
@@ -566,6 +567,90 @@ impl OccupancyGrid {
                 }
             }
         }
+    }
+
+    /// The map's saved form ([`persist`]): geometry, robot, counters, every cell's log-odds and
+    /// whether it was observed; appended to `out`.
+    pub fn encode_into(&self, out: &mut Vec<u8>) {
+        let g = &self.geometry;
+        out.extend_from_slice(&g.width.to_le_bytes());
+        out.extend_from_slice(&g.height.to_le_bytes());
+        out.extend_from_slice(&g.cell_size_m.to_le_bytes());
+        out.extend_from_slice(&g.origin_m[0].to_le_bytes());
+        out.extend_from_slice(&g.origin_m[1].to_le_bytes());
+        out.extend_from_slice(&self.keyframes.to_le_bytes());
+        out.extend_from_slice(&self.stamp_ns.to_le_bytes());
+        let robot = self.robot.unwrap_or_default();
+        out.push(u8::from(self.robot.is_some()));
+        for v in [robot.xy[0], robot.xy[1], robot.yaw_rad] {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        for l in &self.log_odds {
+            out.extend_from_slice(&l.to_le_bytes());
+        }
+        for chunk in self.marks.chunks(8) {
+            out.push(chunk.iter().enumerate().fold(0u8, |b, (i, m)| b | (u8::from(*m != MARK_NONE) << i)));
+        }
+    }
+
+    /// Restores a map written by [`Self::encode_into`]; the geometry (cells a side, cell size and,
+    /// with `centre_m` set, the origin) must be this grid's. Nothing changes on an error, which
+    /// names what differs.
+    pub fn restore_from(&mut self, bytes: &[u8]) -> Result<(), String> {
+        let mut at = 0usize;
+        let mut take = |n: usize| -> Result<&[u8], String> {
+            let slice = bytes.get(at..at + n).ok_or_else(|| format!("truncated at byte {at}"))?;
+            at += n;
+            Ok(slice)
+        };
+        let u32_of = |b: &[u8]| u32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+        let f32_of = |b: &[u8]| f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+        let u64_of = |b: &[u8]| {
+            let mut a = [0u8; 8];
+            a.copy_from_slice(b);
+            u64::from_le_bytes(a)
+        };
+        let (width, height) = (u32_of(take(4)?), u32_of(take(4)?));
+        let cell_size_m = f32_of(take(4)?);
+        let origin_m = [f32_of(take(4)?), f32_of(take(4)?)];
+        let g = self.geometry;
+        if (width, height) != (g.width, g.height) || (cell_size_m - g.cell_size_m).abs() > 1e-6 {
+            return Err(format!(
+                "saved grid is {width} x {height} cells of {cell_size_m} m, the profile's {} x {} of {} m                  (occupancy.size_m, occupancy.cell_size_m)",
+                g.width, g.height, g.cell_size_m
+            ));
+        }
+        if self.placed && (origin_m[0] - g.origin_m[0]).abs().max((origin_m[1] - g.origin_m[1]).abs()) > 1e-4 {
+            return Err(format!(
+                "saved grid's origin {origin_m:?} is not the one occupancy.centre_m gives ({:?})",
+                g.origin_m
+            ));
+        }
+        let keyframes = u64_of(take(8)?);
+        let stamp_ns = u64_of(take(8)?);
+        let robot_valid = take(1)?[0] == 1;
+        let robot = RobotPose { xy: [f32_of(take(4)?), f32_of(take(4)?)], yaw_rad: f32_of(take(4)?) };
+        let n = g.cell_count();
+        let log_odds = take(n * 4)?;
+        let observed = take(n.div_ceil(8))?;
+        if at != bytes.len() {
+            return Err(format!("{} bytes after the cells", bytes.len() - at));
+        }
+        let clamp = self.config.max_log_odds;
+        for (i, l) in self.log_odds.iter_mut().enumerate() {
+            let v = f32_of(&log_odds[i * 4..i * 4 + 4]);
+            *l = if v.is_finite() { v.clamp(-clamp, clamp) } else { 0.0 };
+        }
+        for (i, m) in self.marks.iter_mut().enumerate() {
+            *m = u32::from(observed[i / 8] >> (i % 8) & 1 == 1);
+        }
+        self.geometry.origin_m = origin_m;
+        self.placed = true;
+        self.keyframes = keyframes;
+        self.stamp_ns = stamp_ns;
+        self.robot = robot_valid.then_some(robot);
+        self.scan = 0;
+        Ok(())
     }
 
     /// Cell `index` as published: -1 unknown, else the occupancy probability in percent.

@@ -224,14 +224,21 @@ pub struct OccupancyThread {
     pub exit_at_end: bool,
     /// Integration cost per keyframe.
     pub cost: Arc<StageStats>,
+    /// Where the map is saved (the snapshot directory), `None` with snapshots off.
+    pub store: Option<super::persist::OccupancyStore>,
+    /// How often a changing map is saved (`snapshot.period_s`; `None`: only at the end).
+    pub save_period: Option<Duration>,
 }
 
 /// The occupancy thread's loop.
 pub fn occupancy_loop(mut thread: OccupancyThread, stop: &AtomicBool) {
     let mut last_publish = Instant::now();
+    let mut last_save = Instant::now();
     let mut publish_errors = 0u64;
+    let mut save_errors = 0u64;
     let mut fed = true;
     let mut dirty = false;
+    let mut unsaved = false;
     loop {
         if stop.load(Ordering::Relaxed) {
             break;
@@ -244,6 +251,7 @@ pub fn occupancy_loop(mut thread: OccupancyThread, stop: &AtomicBool) {
                     thread.cost.record(started);
                     let _ = thread.intake.free.try_send(scan);
                     dirty = true;
+                    unsaved = true;
                 }
                 Err(RecvTimeoutError::Timeout) => {}
                 Err(RecvTimeoutError::Disconnected) => fed = false,
@@ -259,8 +267,26 @@ pub fn occupancy_loop(mut thread: OccupancyThread, stop: &AtomicBool) {
             publish(&mut thread, &mut publish_errors, dirty);
             dirty = false;
         }
+        if unsaved && thread.save_period.is_some_and(|period| last_save.elapsed() >= period) {
+            last_save = Instant::now();
+            save(&mut thread, &mut save_errors);
+            unsaved = false;
+        }
     }
     publish(&mut thread, &mut publish_errors, true);
+    if unsaved {
+        save(&mut thread, &mut save_errors);
+    }
+}
+
+fn save(thread: &mut OccupancyThread, errors: &mut u64) {
+    let Some(store) = thread.store.as_mut() else { return };
+    if let Err(e) = store.save(&thread.grid) {
+        *errors += 1;
+        if errors.is_power_of_two() {
+            warn!(path = %store.path().display(), error = %e, save_errors = *errors, "occupancy map not saved");
+        }
+    }
 }
 
 fn publish(thread: &mut OccupancyThread, errors: &mut u64, changed: bool) {

@@ -36,6 +36,9 @@
 //! 6. `query-rx` and `query` (the language query service, `crate::query::service`) end with the
 //!    stop flag, or once the publisher has ended; requests still queued get a `shutting_down`
 //!    reply.
+//! 7. `occupancy` (the occupancy map, `crate::occupancy::service`) integrates what the gate
+//!    queued and ends with the stop flag, or once the gate has ended with `run.exit_at_end`,
+//!    after a last publish of the map.
 //!
 //! A stage that has not finished `run.shutdown_timeout_s` after the stop is named in the log and
 //! the daemon exits with an error; a second signal exits at once (see the `op3dsgd` binary).
@@ -167,7 +170,13 @@ fn start_occupancy_thread(
     use crate::occupancy::OccupancyGrid;
     use crate::occupancy::service::{OccupancyPublisher, OccupancyThread, occupancy_loop, scan_queue};
     let config = &profile.occupancy;
-    let grid = OccupancyGrid::new(config, profile.world.up_axis, profile.navigation.robot_radius_m, intrinsics);
+    let mut grid = OccupancyGrid::new(config, profile.world.up_axis, profile.navigation.robot_radius_m, intrinsics);
+    // Beside the map snapshot: restored now (a file that does not fit is moved aside, named in
+    // the log), saved by the thread (crate::occupancy::persist).
+    let store = profile.snapshot.resolve_dir().map(|dir| crate::occupancy::persist::OccupancyStore::new(&dir));
+    if let Some(store) = &store {
+        let _ = store.restore(&mut grid);
+    }
     let publisher = OccupancyPublisher::open(&profile.ipc.prefix, grid.geometry().cell_count())
         .map_err(|e| StartError::Ipc(e.to_string()))?;
     info!(
@@ -185,6 +194,8 @@ fn start_occupancy_thread(
         period: Duration::from_millis(config.publish_period_ms),
         exit_at_end: profile.run.exit_at_end,
         cost: Arc::new(crate::stats::StageStats::new("occupancy")),
+        store,
+        save_period: (profile.snapshot.period_s > 0.0).then(|| Duration::from_secs_f64(profile.snapshot.period_s)),
     };
     let stop = stop.clone();
     handles.push(spawn_stage("occupancy", finished_tx, move || occupancy_loop(thread, &stop))?);

@@ -11,6 +11,11 @@
 //! - The receiver never blocks: a request finds room in the bounded job queue or is refused at
 //!   once with [`QueryStatus::Busy`] (counted; the count travels in every reply). Malformed
 //!   requests and, without the text encoder, every request get their error reply here.
+//! - Every reply's hits carry approach poses ([`Navigator`]: the newest occupancy map the
+//!   occupancy thread handed over, inflated and flooded once per map version, A* per hit; see
+//!   [`crate::occupancy::nav`]). A request naming a node (`QueryRequest::node_id`) is answered
+//!   with that node alone and needs no text encoder, so the worker runs with the encoder off
+//!   too; text requests then get [`QueryStatus::EncoderOff`] from the receiver at once.
 //! - The worker holds the only [`TextEncoder`] of the service (ONNX Runtime with the profile's
 //!   `text_encoder.intra_op_threads`), so at most one query is scored at a time and the fusion
 //!   thread never waits on a query. It takes the newest graph the publisher has sent
