@@ -68,16 +68,16 @@ impl NavigationConfig {
     /// Range checks; errors are `path.field: message`.
     pub fn validate(&self, path: &str) -> Result<(), String> {
         let (min, preferred, max) = (self.standoff_min_m, self.standoff_m, self.standoff_max_m);
-        if !(min.is_finite()
-            && max.is_finite()
-            && preferred.is_finite()
-            && 0.0 <= min
-            && min <= preferred
-            && preferred <= max)
-        {
-            return Err(format!(
-                "{path}.standoff_m: need 0 <= standoff_min_m <= standoff_m <= standoff_max_m, got {min}, {preferred}, {max}"
-            ));
+        for (value, field) in [(min, "standoff_min_m"), (preferred, "standoff_m"), (max, "standoff_max_m")] {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(format!("{path}.{field}: must be a distance >= 0 m, got {value}"));
+            }
+        }
+        if min > preferred {
+            return Err(format!("{path}.standoff_min_m: must be at most standoff_m ({preferred} m), got {min}"));
+        }
+        if preferred > max {
+            return Err(format!("{path}.standoff_max_m: must be at least standoff_m ({preferred} m), got {max}"));
         }
         if max > 5.0 {
             return Err(format!("{path}.standoff_max_m: must be at most 5 m, got {max}"));
@@ -508,7 +508,9 @@ mod tests {
     #[test]
     fn validation_names_the_field() {
         let bad = NavigationConfig { standoff_min_m: 0.9, ..Default::default() };
-        assert!(bad.validate("navigation").unwrap_err().starts_with("navigation.standoff_m"));
+        assert!(bad.validate("navigation").unwrap_err().starts_with("navigation.standoff_min_m"));
+        let bad = NavigationConfig { standoff_max_m: 0.5, ..Default::default() };
+        assert!(bad.validate("navigation").unwrap_err().starts_with("navigation.standoff_max_m"));
         let bad = NavigationConfig { robot_radius_m: -1.0, ..Default::default() };
         assert!(bad.validate("navigation").unwrap_err().starts_with("navigation.robot_radius_m"));
         assert!(NavigationConfig::default().validate("navigation").is_ok());

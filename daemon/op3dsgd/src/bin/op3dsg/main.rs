@@ -44,7 +44,8 @@ use op3dsg_synthetic::RoomKind;
 /// Client of the op3dsg scene-graph daemon (op3dsgd).
 ///
 /// op3dsgd serves a live, part-aware 3D scene graph over iceoryx2 shared memory under a service
-/// prefix (services <prefix>/graph, <prefix>/graph_updated, <prefix>/health, <prefix>/pose).
+/// prefix (services <prefix>/graph, <prefix>/graph_updated, <prefix>/health, <prefix>/pose,
+/// <prefix>/query, <prefix>/occupancy).
 /// This tool watches it, dumps it, shows its health, and writes synthetic ground truth.
 #[derive(Debug, Parser)]
 #[command(name = "op3dsg", version, propagate_version = true)]
