@@ -63,6 +63,8 @@
 //! | `<prefix>/graph_updated`| event             | event id 0         | notified after each graph sample      |
 //! | `<prefix>/health`       | publish-subscribe | [`Health`]         | history 1, safe overflow              |
 //! | `<prefix>/pose`         | publish-subscribe | [`PoseStamped`]    | input: the navigation stack publishes |
+//! | `<prefix>/query`        | request-response  | [`QueryRequest`] → [`QueryResponse`] | one reply per request; hits with approach poses |
+//! | `<prefix>/occupancy`    | publish-subscribe | `[i8]` cells + [`OccupancyHeader`] | history 1, about 1 Hz ([`occupancy_types`]) |
 //!
 //! The exact figures and who creates which service are in [`services`]. `pose` may be created
 //! first by the navigation stack with iceoryx2's default QoS: the daemon opens it as it is.
@@ -114,6 +116,7 @@ pub use iceoryx2::prelude::{PlacementDefault, ZeroCopySend};
 pub mod client;
 mod graph_types;
 mod health_types;
+pub mod occupancy_types;
 mod pose_types;
 pub mod publish;
 pub mod query_types;
@@ -135,10 +138,14 @@ pub use health_types::{
     ModelHealth, PoseHealth, QueueHealth, RECORDER_STATES, REFINER_ERRORS, REFINER_FORMATS, REFINER_REJECTIONS,
     REFINER_STATES, RecorderHealth, RefinerHealth, SNAPSHOT_STATES, SnapshotHealth, StageHealth,
 };
+pub use occupancy_types::{
+    OCCUPANCY_FREE_MAX_PERCENT, OCCUPANCY_MAX_SIDE_CELLS, OCCUPANCY_OCCUPIED_MIN_PERCENT, OCCUPANCY_SCHEMA_VERSION,
+    OCCUPANCY_UNKNOWN, OccupancyHeader,
+};
 pub use pose_types::{PoseError, PoseKind, PoseStamped, check_pose};
 pub use query_types::{
-    QUERY_MAX_K, QUERY_SCHEMA_VERSION, QUERY_TEXT_CAPACITY_BYTES, QueryHit, QueryMatch, QueryRequest, QueryResponse,
-    QueryStatus,
+    ApproachStatus, QUERY_MAX_K, QUERY_SCHEMA_VERSION, QUERY_TEXT_CAPACITY_BYTES, QueryHit, QueryMatch, QueryRequest,
+    QueryResponse, QueryStatus,
 };
 pub use services::{IpcService, PrefixError, ServiceKind, ServiceNames, validate_prefix};
 pub use text::{fixed_str, write_fixed_str};

@@ -9,9 +9,24 @@
 //!
 //! | type | type name | bytes |
 //! |---|---|---|
-//! | [`QueryRequest`] | `op3dsg::QueryRequest` | 264 |
-//! | [`QueryHit`] | (inside the response) | 160 |
-//! | [`QueryResponse`] | `op3dsg::QueryResponse` | 224 + 16 × 160 = 2784 (`message` at 64, `hits` at 224) |
+//! | [`QueryRequest`] | `op3dsg::QueryRequest` | 272 |
+//! | [`QueryHit`] | (inside the response) | 192 (`approach_status` at 160) |
+//! | [`QueryResponse`] | `op3dsg::QueryResponse` | 224 + 16 × 192 = 3296 (`message` at 64, `hits` at 224) |
+//!
+//! ## Schema versions
+//!
+//! - **2** (current): a request may name a node instead of a text ([`QueryRequest::node_id`],
+//!   the text encoder is then not needed), and every hit carries a navigation target (the
+//!   `approach_*` fields of [`QueryHit`], status [`ApproachStatus`]): a free cell of the daemon's
+//!   occupancy map at the profile's standoff from the node, facing it, reachable from the robot's
+//!   latest pose. Request 264 → 272 bytes (`node_id`, `reserved` appended), hit 160 → 192 bytes
+//!   (the approach fields appended), response 2784 → 3296 bytes; every version-1 field keeps its
+//!   offset inside its record.
+//! - **1**: text requests, hits without approach poses.
+//!
+//! Across versions the payload sizes differ, so iceoryx2 refuses to open the service for a client
+//! of the other version (payload type mismatch at open): rebuild the client. A same-sized request
+//! with another `schema_version` gets [`QueryStatus::BadRequest`] naming `schema_version`.
 //!
 //! One request gets exactly one response. A request the daemon cannot take now (its bounded
 //! request queue is full) gets a [`QueryStatus::Busy`] response at once, never silence.
@@ -22,7 +37,7 @@ use crate::text::{fixed_str, write_fixed_str};
 use crate::{LABEL_CAPACITY_BYTES, NO_NODE, NodeKind};
 
 /// Version of the query request and response layouts.
-pub const QUERY_SCHEMA_VERSION: u32 = 1;
+pub const QUERY_SCHEMA_VERSION: u32 = 2;
 /// Bytes of a query text (UTF-8, NUL padded); a longer text is refused.
 pub const QUERY_TEXT_CAPACITY_BYTES: usize = 256;
 /// Most hits one response carries (a larger `k` is answered with this many).
@@ -41,13 +56,26 @@ pub struct QueryRequest {
     pub schema_version: u32,
     /// Nodes wanted, 1..=[`QUERY_MAX_K`] (0 is a bad request; more is cut to [`QUERY_MAX_K`]).
     pub k: u32,
-    /// The need, UTF-8, NUL padded ("somewhere to wash my hands").
+    /// The need, UTF-8, NUL padded ("somewhere to wash my hands"); ignored (may be empty) when
+    /// `node_id` names a node.
     pub text: [u8; QUERY_TEXT_CAPACITY_BYTES],
+    /// [`NO_NODE`]: a text query. Any other value: the reply holds that node alone (score 1,
+    /// matched `label`) with its approach pose, or [`QueryStatus::BadRequest`] naming `node_id`
+    /// when the current graph has no such node. Needs no text encoder. Since schema 2.
+    pub node_id: u32,
+    /// Reserved, zero.
+    pub reserved: u32,
 }
 
 impl Default for QueryRequest {
     fn default() -> Self {
-        Self { schema_version: QUERY_SCHEMA_VERSION, k: 5, text: [0; QUERY_TEXT_CAPACITY_BYTES] }
+        Self {
+            schema_version: QUERY_SCHEMA_VERSION,
+            k: 5,
+            text: [0; QUERY_TEXT_CAPACITY_BYTES],
+            node_id: NO_NODE,
+            reserved: 0,
+        }
     }
 }
 
@@ -57,6 +85,16 @@ impl QueryRequest {
     pub fn new(text: &str, k: u32) -> Option<Self> {
         let mut request = Self { k, ..Self::default() };
         write_fixed_str(&mut request.text, text).then_some(request)
+    }
+
+    /// A request for node `node_id` alone (its approach pose).
+    pub fn for_node(node_id: u32) -> Self {
+        Self { k: 1, node_id, ..Self::default() }
+    }
+
+    /// The node asked for, `None` for a text query.
+    pub fn asked_node(&self) -> Option<u32> {
+        (self.node_id != NO_NODE).then_some(self.node_id)
     }
 
     /// The text.
@@ -153,6 +191,64 @@ impl QueryMatch {
     }
 }
 
+/// Whether a hit carries a navigation target ([`QueryHit::approach_status`]).
+#[repr(u8)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ApproachStatus {
+    /// The daemon builds no occupancy map (`occupancy.enabled = false`): no target computed.
+    Off = 0,
+    /// `approach_*` hold a free, reachable pose facing the node.
+    Ok = 1,
+    /// No free cell of the map lies within the standoff band around the node (for a part: on
+    /// the side it faces).
+    NoFreeCell = 2,
+    /// Free cells lie within the band, but none is reachable from the robot's latest pose.
+    Unreachable = 3,
+    /// No occupancy map yet (no keyframe integrated).
+    NoMap = 4,
+    /// The robot's latest position is outside the map or not on a free cell.
+    RobotNotOnMap = 5,
+}
+
+impl ApproachStatus {
+    /// Decodes the wire value.
+    pub fn from_u8(value: u8) -> Option<Self> {
+        Some(match value {
+            0 => Self::Off,
+            1 => Self::Ok,
+            2 => Self::NoFreeCell,
+            3 => Self::Unreachable,
+            4 => Self::NoMap,
+            5 => Self::RobotNotOnMap,
+            _ => return None,
+        })
+    }
+
+    /// Lower-case name ("off", "ok", "no_free_cell", "unreachable", "no_map", "robot_not_on_map").
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Off => "off",
+            Self::Ok => "ok",
+            Self::NoFreeCell => "no_free_cell",
+            Self::Unreachable => "unreachable",
+            Self::NoMap => "no_map",
+            Self::RobotNotOnMap => "robot_not_on_map",
+        }
+    }
+
+    /// A sentence for people ("no free cell within the standoff band", ...).
+    pub fn explain(self) -> &'static str {
+        match self {
+            Self::Off => "the daemon builds no occupancy map (occupancy.enabled = false)",
+            Self::Ok => "approach pose found",
+            Self::NoFreeCell => "no free cell within the standoff band",
+            Self::Unreachable => "unreachable from the robot's pose",
+            Self::NoMap => "no occupancy map yet (no keyframe integrated)",
+            Self::RobotNotOnMap => "the robot's latest position is not on a free cell of the map",
+        }
+    }
+}
+
 /// One node of a response.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
@@ -175,6 +271,26 @@ pub struct QueryHit {
     pub label: [u8; LABEL_CAPACITY_BYTES],
     /// The text that matched best, UTF-8, NUL padded.
     pub matched_text: [u8; QUERY_MATCHED_TEXT_CAPACITY_BYTES],
+    /// [`ApproachStatus`] as `u8`; the `approach_*` values below hold only with `Ok` (1).
+    /// Since schema 2.
+    pub approach_status: u8,
+    /// Reserved, zero.
+    pub reserved2: [u8; 3],
+    /// Where to stand: the approach cell's centre on the floor plane, first axis (see
+    /// [`occupancy_types`](crate::occupancy_types) for the plane's axes), metres.
+    pub approach_x_m: f32,
+    /// The same, second axis, metres.
+    pub approach_y_m: f32,
+    /// Heading that faces the node's centre from there, `atan2(second, first)`, radians.
+    pub approach_yaw_rad: f32,
+    /// Distance from the approach position to the node's footprint (its box on the floor
+    /// plane), metres: within `[navigation.standoff_min_m, navigation.standoff_max_m]`.
+    pub approach_standoff_m: f32,
+    /// Length of the A* path from the robot's latest position to the approach position on the
+    /// occupancy map, metres.
+    pub approach_path_m: f32,
+    /// Reserved, zero.
+    pub reserved3: [u32; 2],
 }
 
 impl Default for QueryHit {
@@ -188,6 +304,14 @@ impl Default for QueryHit {
             score: 0.0,
             label: [0; LABEL_CAPACITY_BYTES],
             matched_text: [0; QUERY_MATCHED_TEXT_CAPACITY_BYTES],
+            approach_status: ApproachStatus::Off as u8,
+            reserved2: [0; 3],
+            approach_x_m: 0.0,
+            approach_y_m: 0.0,
+            approach_yaw_rad: 0.0,
+            approach_standoff_m: 0.0,
+            approach_path_m: 0.0,
+            reserved3: [0; 2],
         }
     }
 }
@@ -208,6 +332,10 @@ impl QueryHit {
     /// What matched, `None` for an unknown value.
     pub fn query_match(&self) -> Option<QueryMatch> {
         QueryMatch::from_u8(self.matched)
+    }
+    /// The approach status, `None` for an unknown value.
+    pub fn approach(&self) -> Option<ApproachStatus> {
+        ApproachStatus::from_u8(self.approach_status)
     }
 }
 
@@ -298,13 +426,18 @@ mod tests {
 
     #[test]
     fn layouts_are_the_documented_ones() {
-        assert_eq!(size_of::<QueryRequest>(), 264);
-        assert_eq!(size_of::<QueryHit>(), 160);
+        assert_eq!(size_of::<QueryRequest>(), 272);
+        assert_eq!(offset_of!(QueryRequest, text), 8);
+        assert_eq!(offset_of!(QueryRequest, node_id), 264);
+        assert_eq!(size_of::<QueryHit>(), 192);
         assert_eq!(offset_of!(QueryHit, label), 16);
         assert_eq!(offset_of!(QueryHit, matched_text), 64);
+        assert_eq!(offset_of!(QueryHit, approach_status), 160);
+        assert_eq!(offset_of!(QueryHit, approach_x_m), 164);
+        assert_eq!(offset_of!(QueryHit, approach_path_m), 180);
         assert_eq!(offset_of!(QueryResponse, message), 64);
         assert_eq!(offset_of!(QueryResponse, hits), 224);
-        assert_eq!(size_of::<QueryResponse>(), 224 + QUERY_MAX_K * 160);
+        assert_eq!(size_of::<QueryResponse>(), 224 + QUERY_MAX_K * 192);
     }
 
     #[test]
@@ -326,7 +459,12 @@ mod tests {
             if let Some(status) = QueryStatus::from_u8(value) {
                 assert_eq!(status as u8, value);
             }
+            if let Some(status) = ApproachStatus::from_u8(value) {
+                assert_eq!(status as u8, value);
+            }
         }
+        let by_id = QueryRequest::for_node(7);
+        assert_eq!((by_id.asked_node(), QueryRequest::default().asked_node()), (Some(7), None));
         let failure = QueryResponse::failure(QueryStatus::Busy, "queue full");
         assert_eq!(
             (failure.query_status(), failure.message_str(), failure.hits().len()),

@@ -14,6 +14,18 @@
 //! |---|---|---|---|---|---|---|
 //! | query: `<prefix>/query` | [`QueryRequest`] (`op3dsg::QueryRequest`) → [`QueryResponse`] (`op3dsg::QueryResponse`) | 1 | 16 | 4 | 4 | 18 |
 //!
+//! The occupancy map (publish-subscribe, but in a table of its own so the one above stays the
+//! graph services' contract):
+//!
+//! | occupancy service | payload (type name) | history | buffer | borrowed | overflow | publishers | subscribers | nodes | rate |
+//! |---|---|---|---|---|---|---|---|---|---|
+//! | occupancy: `<prefix>/occupancy` | `[i8]` slice (`i8`), user header [`OccupancyHeader`] (`op3dsg::OccupancyHeader`) | 1 | 1 | 1 | safe | 1 | 8 | 10 | `occupancy.publish_period_ms` (1 s) |
+//!
+//! Its sample holds the whole grid (`width_cells * height_cells` bytes, fixed by the profile at
+//! start: the publisher reserves that slice length once); see
+//! [`occupancy_types`](crate::occupancy_types) for the cell encoding. The daemon creates it when
+//! `occupancy.enabled` (default); clients open it.
+//!
 //! Every request gets exactly one response; a request beyond the daemon's bounded queue gets
 //! [`QueryStatus::Busy`](crate::QueryStatus::Busy) at once (see [`query_types`](crate::query_types)).
 //! The daemon creates `query`; clients open it.
@@ -76,7 +88,7 @@ use iceoryx2::prelude::ServiceName;
 use iceoryx2::service::service_name::ServiceNameError;
 
 #[cfg(doc)]
-use crate::{GraphHeader, Health, PoseStamped, QueryRequest, QueryResponse};
+use crate::{GraphHeader, Health, OccupancyHeader, PoseStamped, QueryRequest, QueryResponse};
 
 /// The iceoryx2 service flavour of every port: inter-process, and `Send` so a port may be built
 /// on one thread and used on another. It shares its resources with plain `ipc::Service` peers
@@ -157,6 +169,26 @@ pub const QUERY_MAX_ACTIVE_REQUESTS_PER_CLIENT: usize = 4;
 pub const QUERY_RESPONSE_BUFFER: usize = 4;
 /// Nodes that may open `query`: every client, the daemon and one spare.
 pub const QUERY_MAX_NODES: usize = QUERY_MAX_CLIENTS + 2;
+
+/// Name of the occupancy map service after `<prefix>/`.
+pub const OCCUPANCY_SUFFIX: &str = "occupancy";
+/// History of `occupancy`: a late joiner gets the newest map.
+pub const OCCUPANCY_HISTORY_SIZE: usize = 1;
+/// Samples buffered per `occupancy` subscriber (older maps are worthless once a newer came).
+pub const OCCUPANCY_SUBSCRIBER_BUFFER: usize = 1;
+/// Samples an `occupancy` subscriber may hold at once.
+pub const OCCUPANCY_SUBSCRIBER_MAX_BORROWED_SAMPLES: usize = 1;
+/// Publishers of `occupancy`: the daemon.
+pub const OCCUPANCY_MAX_PUBLISHERS: usize = 1;
+/// Subscribers of `occupancy`.
+pub const OCCUPANCY_MAX_SUBSCRIBERS: usize = 8;
+/// Nodes that may open `occupancy`: every subscriber, the daemon and one spare.
+pub const OCCUPANCY_MAX_NODES: usize = OCCUPANCY_MAX_SUBSCRIBERS + 2;
+
+/// The full name of the occupancy service under `prefix` (a trailing `/` of the prefix is ignored).
+pub fn occupancy_service_name(prefix: &str) -> String {
+    format!("{}/{OCCUPANCY_SUFFIX}", prefix.trim_end_matches('/'))
+}
 
 /// The full name of the query service under `prefix` (a trailing `/` of the prefix is ignored).
 pub fn query_service_name(prefix: &str) -> String {

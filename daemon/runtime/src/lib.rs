@@ -16,6 +16,8 @@
 //! | fusion | [`fusion`] | the map: multi-view association of detections into 3D nodes; the fusion thread |
 //! | prior graph | [`prior`] | neighbours through a grid, spatial relations from geometry and gravity |
 //! | reasoning | [`reasoner`], [`knowledge`] | the offline knowledge reasoner, the asynchronous LLM refiner, their tables |
+//! | occupancy, navigation | [`occupancy`] | the 2D occupancy map from keyframes' depth (own thread, `<prefix>/occupancy`), approach poses and A* on it |
+//! | queries | [`query`] | language queries on `<prefix>/query`, with approach poses |
 //! | publish | [`ipc`] | the iceoryx2 server: graph, update event, health, pose input; the publisher thread |
 //! | service | [`service`] | sd_notify readiness, status and watchdog from stage heartbeats; map snapshots and their restoration |
 //! | support | [`graph`], [`queue`], [`stats`] | the in-memory scene graph; bounded queues with drop counters; per-stage latency percentiles |
@@ -40,6 +42,7 @@ pub mod ipc;
 pub mod keyframe;
 pub mod keyframe_path;
 pub mod knowledge;
+pub mod occupancy;
 pub mod onnx;
 pub mod perception;
 pub mod pipeline;

@@ -113,6 +113,12 @@ pub struct BatchRun {
     pub map_memory_bytes: usize,
     /// Where the time went.
     pub timing: BatchTiming,
+    /// The occupancy map integrated from every keyframe (`occupancy.enabled`), as the daemon's
+    /// occupancy thread builds it ([`op3dsg_runtime::occupancy`]).
+    pub occupancy: Option<op3dsg_runtime::occupancy::OccupancyGrid>,
+    /// Per keyframe: the cost of subsampling its depth and integrating it into the map,
+    /// microseconds (empty without the map).
+    pub occupancy_integrate_us: Vec<u32>,
 }
 
 impl BatchRun {
@@ -284,6 +290,18 @@ pub fn run_lanes(
     }
     let source = &mut opened.source;
     let mut gate = KeyframeGate::new(&profile.keyframe, &profile.pose);
+    // The occupancy map, as the daemon's occupancy thread builds it.
+    let occ = &profile.occupancy;
+    let mut occupancy = occ.enabled.then(|| {
+        op3dsg_runtime::occupancy::OccupancyGrid::new(
+            occ,
+            profile.world.up_axis,
+            profile.navigation.robot_radius_m,
+            &source.intrinsics(),
+        )
+    });
+    let mut depth_scan = op3dsg_runtime::occupancy::DepthScan::with_capacity(&source.intrinsics(), occ.pixel_stride);
+    let mut occupancy_integrate_us = Vec::new();
     let mut frame = Frame::new(source.intrinsics());
 
     // Ground-truth bookkeeping: per instance id, its kind's pixel threshold.
@@ -365,6 +383,18 @@ pub fn run_lanes(
         }
         keyframes += 1;
         stamp_ns = stamp_ns.max(frame.stamp_ns);
+        if let Some(grid) = occupancy.as_mut() {
+            let t = Instant::now();
+            depth_scan.fill(
+                &frame.depth,
+                &frame.intrinsics,
+                frame.depth_units_per_m,
+                &world_from_camera,
+                frame.stamp_ns,
+            );
+            grid.integrate(&depth_scan);
+            occupancy_integrate_us.push(t.elapsed().as_micros().min(u128::from(u32::MAX)) as u32);
+        }
 
         if id_count > 0 {
             let t = Instant::now();
@@ -453,6 +483,8 @@ pub fn run_lanes(
                 map_nodes: fusion.node_count(),
                 map_memory_bytes: fusion.memory_bytes(),
                 timing,
+                occupancy: occupancy.clone(),
+                occupancy_integrate_us: occupancy_integrate_us.clone(),
             });
         }
         out.push(runs);

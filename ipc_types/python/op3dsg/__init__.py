@@ -10,7 +10,10 @@ Two lines read the graph as numpy views of the daemon's shared memory (no copy):
   sample, ``copy()`` to an owned :class:`Graph`, labels decoded on demand).
 - :class:`PosePublisher` — sends poses on ``<prefix>/pose`` (creates the service if nobody has).
 - :func:`query` / :class:`QueryClient` — the nodes that serve a need in words ("somewhere to
-  wash my hands"), from ``<prefix>/query`` (needs the daemon's text encoder).
+  wash my hands"), from ``<prefix>/query`` (needs the daemon's text encoder), each with its
+  approach pose.
+- :func:`goal` — where to stand to reach a node (by id, or the top hit of a need in words): an
+  approach pose on the daemon's occupancy map, reachable from the robot's pose.
 - :func:`health` / :class:`HealthClient` — the daemon's health record, without a graph subscriber.
 - :mod:`op3dsg.wire` — the ctypes mirror of the Rust wire types, numpy dtypes, constants.
 
@@ -30,7 +33,7 @@ from .errors import (
 )
 from .graph import Graph, GraphClient, GraphView, wait_for_graph
 from .health import HealthClient, health
-from .query import Hit, QueryClient, QueryError, QueryResult, query
+from .query import Approach, Goal, GoalError, Hit, QueryClient, QueryError, QueryResult, goal, query
 from .pose import PosePublisher, PoseService, check_pose, make_pose, open_or_create_pose_service
 from .wire import (
     AFFORDANCES,
@@ -56,6 +59,10 @@ from .wire import (
 __version__ = "0.1.0"
 
 __all__ = [
+    "Approach",
+    "Goal",
+    "GoalError",
+    "goal",
     "Hit",
     "QueryClient",
     "QueryError",

@@ -5,10 +5,19 @@ service (iceoryx2 request-response) for the nodes that serve a need in words::
     for hit in op3dsg.query("somewhere to wash my hands", k=3):
         print(hit.node_id, hit.kind, hit.label, round(hit.score, 3), hit.matched, hit.matched_text)
 
-The ctypes mirrors of the Rust ``op3dsg_ipc_types::query_types`` (``QueryRequest`` 264 bytes,
-``QueryHit`` 160, ``QueryResponse`` 2784) are here; their ``type_name()`` are the Rust
-``#[type_name]``. The daemon needs ``text_encoder.enabled = true``; otherwise, or when it is
-busy, :class:`QueryError` carries its status and message.
+Every hit carries a navigation target (:class:`Approach`: where to stand on the daemon's
+occupancy map, facing the node, reachable from the robot's latest pose by A*), or the reason
+there is none (``approach_status``). :func:`goal` asks for one node's target, by id or by a
+need in words (the query's top hit)::
+
+    g = op3dsg.goal(12)                      # or op3dsg.goal("somewhere to wash my hands")
+    print(g.x_m, g.y_m, g.yaw_rad, g.standoff_m, g.path_m)
+
+The ctypes mirrors of the Rust ``op3dsg_ipc_types::query_types`` (query schema 2:
+``QueryRequest`` 272 bytes, ``QueryHit`` 192, ``QueryResponse`` 3296) are here; their
+``type_name()`` are the Rust ``#[type_name]``. Text queries need the daemon's
+``text_encoder.enabled = true``; otherwise, or when it is busy, :class:`QueryError` carries its
+status and message. Queries by node id need no encoder.
 """
 
 from __future__ import annotations
@@ -24,7 +33,7 @@ from . import _iox
 from .errors import Op3dsgError
 from .wire import DEFAULT_PREFIX, LABEL_CAPACITY_BYTES, NO_NODE, NODE_KINDS, _Wire, fixed_str, write_fixed_str
 
-QUERY_SCHEMA_VERSION = 1
+QUERY_SCHEMA_VERSION = 2
 QUERY_TEXT_CAPACITY_BYTES = 256
 QUERY_MAX_K = 16
 QUERY_MATCHED_TEXT_CAPACITY_BYTES = 96
@@ -35,12 +44,31 @@ QUERY_MAX_ACTIVE_REQUESTS_PER_CLIENT = 4
 QUERY_STATUSES = ("ok", "busy", "encoder_off", "no_graph", "bad_request", "encoder_failed", "shutting_down")
 #: ``QueryHit.matched`` values, by wire value.
 QUERY_MATCHES = ("label", "parent_label", "affordance", "functional")
+#: ``QueryHit.approach_status`` values, by wire value.
+APPROACH_STATUSES = ("off", "ok", "no_free_cell", "unreachable", "no_map", "robot_not_on_map")
+#: What each approach status means, for people.
+APPROACH_REASONS = {
+    "off": "the daemon builds no occupancy map (occupancy.enabled = false)",
+    "ok": "approach pose found",
+    "no_free_cell": "no free cell within the standoff band",
+    "unreachable": "unreachable from the robot's pose",
+    "no_map": "no occupancy map yet (no keyframe integrated)",
+    "robot_not_on_map": "the robot's latest position is not on a free cell of the map",
+}
+#: ``QueryRequest.node_id`` of a text query.
+NO_NODE_REQUEST = 0xFFFF_FFFF
 
 _u8, _u32, _u64, _f32 = ctypes.c_uint8, ctypes.c_uint32, ctypes.c_uint64, ctypes.c_float
 
 
 class QueryRequest(_Wire):
-    _fields_ = [("schema_version", _u32), ("k", _u32), ("text", _u8 * QUERY_TEXT_CAPACITY_BYTES)]
+    _fields_ = [
+        ("schema_version", _u32),
+        ("k", _u32),
+        ("text", _u8 * QUERY_TEXT_CAPACITY_BYTES),
+        ("node_id", _u32),
+        ("reserved", _u32),
+    ]
 
     @staticmethod
     def type_name() -> str:
@@ -57,6 +85,14 @@ class QueryHit(_Wire):
         ("score", _f32),
         ("label", _u8 * LABEL_CAPACITY_BYTES),
         ("matched_text", _u8 * QUERY_MATCHED_TEXT_CAPACITY_BYTES),
+        ("approach_status", _u8),
+        ("reserved2", _u8 * 3),
+        ("approach_x_m", _f32),
+        ("approach_y_m", _f32),
+        ("approach_yaw_rad", _f32),
+        ("approach_standoff_m", _f32),
+        ("approach_path_m", _f32),
+        ("reserved3", _u32 * 2),
     ]
 
     @staticmethod
@@ -98,6 +134,63 @@ class QueryError(Op3dsgError):
         self.message = message
 
 
+class GoalError(Op3dsgError):
+    """The node exists but has no approach pose: ``status`` (``no_free_cell``, ``unreachable``,
+    ``no_map``, ``robot_not_on_map``, ``off``) and ``reason`` (a sentence), with the node."""
+
+    def __init__(self, service: str, node_id: int, label: str, status: str):
+        self.status = status
+        self.reason = APPROACH_REASONS.get(status, f"unknown approach status {status}")
+        self.node_id = node_id
+        self.label = label
+        super().__init__(service, "goal", f"node {node_id} ({label}): no approach pose: {self.reason}")
+
+
+@dataclass(frozen=True)
+class Approach:
+    """Where to stand to reach a node, on the floor plane of the world frame (x, y with z up)."""
+
+    x_m: float
+    y_m: float
+    #: Heading facing the node's centre, ``atan2(dy, dx)``, radians.
+    yaw_rad: float
+    #: Distance to the node's footprint (its box on the floor), metres.
+    standoff_m: float
+    #: Length of the A* path from the robot's latest position, metres.
+    path_m: float
+
+
+@dataclass(frozen=True)
+class Goal:
+    """The answer of :func:`goal`: the node and where to stand."""
+
+    node_id: int
+    kind: str
+    label: str
+    graph_version: int
+    approach: Approach
+
+    @property
+    def x_m(self) -> float:
+        return self.approach.x_m
+
+    @property
+    def y_m(self) -> float:
+        return self.approach.y_m
+
+    @property
+    def yaw_rad(self) -> float:
+        return self.approach.yaw_rad
+
+    @property
+    def standoff_m(self) -> float:
+        return self.approach.standoff_m
+
+    @property
+    def path_m(self) -> float:
+        return self.approach.path_m
+
+
 @dataclass(frozen=True)
 class Hit:
     """One node of a reply, best first."""
@@ -110,6 +203,10 @@ class Hit:
     #: Which text matched best: ``label``, ``parent_label``, ``affordance`` or ``functional``.
     matched: str
     matched_text: str
+    #: ``ok`` or why there is no approach pose (see ``APPROACH_REASONS``).
+    approach_status: str = "off"
+    #: Where to stand, with ``approach_status == "ok"``.
+    approach: Optional[Approach] = None
 
 
 @dataclass(frozen=True)
@@ -132,6 +229,18 @@ class QueryResult:
 
 def _name(names, index: int) -> str:
     return names[index] if 0 <= index < len(names) else f"unknown({index})"
+
+
+def _approach(h: QueryHit) -> Optional[Approach]:
+    if _name(APPROACH_STATUSES, h.approach_status) != "ok":
+        return None
+    return Approach(
+        x_m=float(h.approach_x_m),
+        y_m=float(h.approach_y_m),
+        yaw_rad=float(h.approach_yaw_rad),
+        standoff_m=float(h.approach_standoff_m),
+        path_m=float(h.approach_path_m),
+    )
 
 
 class QueryClient:
@@ -166,9 +275,39 @@ class QueryClient:
         bytes or a bad ``k``."""
         if not 1 <= int(k) <= QUERY_MAX_K:
             raise ValueError(f"k: must be within [1, {QUERY_MAX_K}], got {k}")
-        request = QueryRequest(schema_version=QUERY_SCHEMA_VERSION, k=int(k))
+        request = QueryRequest(schema_version=QUERY_SCHEMA_VERSION, k=int(k), node_id=NO_NODE_REQUEST)
         raw = write_fixed_str(text, QUERY_TEXT_CAPACITY_BYTES)
         ctypes.memmove(request.text, raw, len(raw))
+        return self._send(request, timeout)
+
+    def query_node(self, node_id: int, timeout: float = 5.0) -> QueryResult:
+        """Asks for node ``node_id`` alone (with its approach pose); needs no text encoder.
+        Raises :class:`QueryError` (``bad_request``) when the current graph has no such node."""
+        node_id = int(node_id)
+        if not 0 <= node_id < NO_NODE_REQUEST:
+            raise ValueError(f"node_id: must be within [0, {NO_NODE_REQUEST - 1}], got {node_id}")
+        request = QueryRequest(schema_version=QUERY_SCHEMA_VERSION, k=1, node_id=node_id)
+        return self._send(request, timeout)
+
+    def goal(self, target, timeout: float = 5.0) -> Goal:
+        """The approach pose of ``target``: a node id (``int``) or a need in words (``str``,
+        answered by the query's top hit). Raises :class:`GoalError` when the node has no pose
+        (no free cell within the standoff band, unreachable, no map yet), :class:`QueryError`
+        when the daemon cannot answer."""
+        if isinstance(target, int):
+            result = self.query_node(target, timeout)
+        else:
+            result = self.query(str(target), 1, timeout)
+        if not result.hits:
+            raise QueryError(self.service, "no_hit", f"graph version {result.graph_version} has no node for {target!r}")
+        hit = result.hits[0]
+        if hit.approach is None:
+            raise GoalError(self.service, hit.node_id, hit.label, hit.approach_status)
+        return Goal(
+            node_id=hit.node_id, kind=hit.kind, label=hit.label, graph_version=result.graph_version, approach=hit.approach
+        )
+
+    def _send(self, request: QueryRequest, timeout: float) -> QueryResult:
         try:
             pending = self._client.send_copy(request)
         except Exception as e:
@@ -208,6 +347,8 @@ class QueryClient:
                 score=float(h.score),
                 matched=_name(QUERY_MATCHES, h.matched),
                 matched_text=fixed_str(bytes(h.matched_text)),
+                approach_status=_name(APPROACH_STATUSES, h.approach_status),
+                approach=_approach(h),
             )
             for h in reply.hits[: min(reply.hit_count, QUERY_MAX_K)]
         ]
@@ -226,3 +367,11 @@ def query(text: str, k: int = 5, prefix: str = DEFAULT_PREFIX, timeout: float = 
     started = time.monotonic()
     client = QueryClient(prefix, timeout=timeout)
     return client.query(text, k, max(0.1, timeout - (time.monotonic() - started)))
+
+
+def goal(target, prefix: str = DEFAULT_PREFIX, timeout: float = 5.0) -> Goal:
+    """The approach pose of ``target`` (node id or need in words) with a client made for it
+    (waiting up to ``timeout`` for the daemon too); see :meth:`QueryClient.goal`."""
+    started = time.monotonic()
+    client = QueryClient(prefix, timeout=timeout)
+    return client.goal(target, max(0.1, timeout - (time.monotonic() - started)))

@@ -178,6 +178,18 @@ impl QueryClient {
     /// or an error status included: look at [`QueryResponse::query_status`].
     pub fn query(&self, text: &str, k: u32, timeout: Duration) -> Result<QueryResponse, QueryClientError> {
         let request = QueryRequest::new(text, k).ok_or(QueryClientError::TextTooLong { len: text.len() })?;
+        self.send(request, timeout)
+    }
+
+    /// Asks for node `node_id` alone: the reply holds it with its approach pose
+    /// ([`QueryHit::approach`](crate::QueryHit::approach)), or
+    /// [`QueryStatus::BadRequest`](crate::QueryStatus::BadRequest) naming `node_id` when the current
+    /// graph has no such node. Needs no text encoder.
+    pub fn query_node(&self, node_id: u32, timeout: Duration) -> Result<QueryResponse, QueryClientError> {
+        self.send(QueryRequest::for_node(node_id), timeout)
+    }
+
+    fn send(&self, request: QueryRequest, timeout: Duration) -> Result<QueryResponse, QueryClientError> {
         let service = || self.service.clone();
         let pending = self
             .client

@@ -102,6 +102,12 @@ pub struct Profile {
     /// The language query service `<prefix>/query` (`crate::query`).
     #[serde(default)]
     pub query: crate::query::QueryConfig,
+    /// The 2D occupancy map `<prefix>/occupancy` (`crate::occupancy`).
+    #[serde(default)]
+    pub occupancy: crate::occupancy::OccupancyConfig,
+    /// Approach poses on the occupancy map (`crate::occupancy::nav`).
+    #[serde(default)]
+    pub navigation: crate::occupancy::NavigationConfig,
     /// The sections of registered backends, by dotted path (`source.synthetic`,
     /// `detector.oracle`), as their backend checked and completed them at load time.
     #[serde(skip)]
@@ -419,6 +425,8 @@ impl Profile {
         self.text_encoder.validate("text_encoder").map_err(split_message)?;
         self.snapshot.validate("snapshot").map_err(split_message)?;
         self.query.validate("query").map_err(split_message)?;
+        self.occupancy.validate("occupancy").map_err(split_message)?;
+        self.navigation.validate("navigation").map_err(split_message)?;
         let r = &self.reasoner;
         check(r.neighbour_radius_m > 0.0 && r.neighbour_radius_m <= 10.0, "reasoner.neighbour_radius_m", || {
             format!("must be within (0, 10] metres, got {}", r.neighbour_radius_m)

@@ -76,6 +76,7 @@ pub(crate) fn keyframe_loop(
     stats: &PipelineStats,
     stop: &AtomicBool,
     mut recorder: Option<(RecordSender, Vec<Box<dyn SideChannelTap>>)>,
+    occupancy: Option<crate::occupancy::service::OccupancyFeed>,
 ) {
     let stage = stats.stage("keyframe");
     let mut gate = KeyframeGate::new(config, pose_config);
@@ -143,6 +144,10 @@ pub(crate) fn keyframe_loop(
                         stats.keyframes.fetch_add(1, Ordering::Relaxed);
                         if let Some((sender, _)) = recorder.as_mut() {
                             sender.offer_keyframe(frame.stamp_ns, &world_from_camera);
+                        }
+                        // The occupancy map's copy of the subsampled depth (never waits).
+                        if let Some(feed) = &occupancy {
+                            feed.offer(&frame, &world_from_camera);
                         }
                         kf_tx.push(KeyframeItem { frame, captured_at, world_from_camera });
                     }

@@ -36,6 +36,9 @@
 //! 6. `query-rx` and `query` (the language query service, `crate::query::service`) end with the
 //!    stop flag, or once the publisher has ended; requests still queued get a `shutting_down`
 //!    reply.
+//! 7. `occupancy` (the occupancy map, `crate::occupancy::service`) integrates what the gate
+//!    queued and ends with the stop flag, or once the gate has ended with `run.exit_at_end`,
+//!    after a last publish of the map.
 //!
 //! A stage that has not finished `run.shutdown_timeout_s` after the stop is named in the log and
 //! the daemon exits with an error; a second signal exits at once (see the `op3dsgd` binary).
@@ -153,30 +156,75 @@ pub fn make_enricher(profile: &Profile) -> Result<Option<GraphEnricher>, StartEr
     })
 }
 
-/// Starts `query-rx` (it creates `<prefix>/query`; returns once it exists) and, with the text
-/// encoder on, the `query` worker.
+/// Creates `<prefix>/occupancy` and the map (allocated now), starts `occupancy`, and returns
+/// the keyframe gate's end of its queue.
+fn start_occupancy_thread(
+    profile: &Profile,
+    intrinsics: &op3dsg_drivers::frame::Intrinsics,
+    latest: Option<Arc<crate::occupancy::service::LatestOccupancy>>,
+    stop: &Arc<AtomicBool>,
+    finished_tx: &Sender<&'static str>,
+    handles: &mut Vec<std::thread::JoinHandle<()>>,
+    running: &mut Vec<&'static str>,
+) -> Result<crate::occupancy::service::OccupancyFeed, StartError> {
+    use crate::occupancy::OccupancyGrid;
+    use crate::occupancy::service::{OccupancyPublisher, OccupancyThread, occupancy_loop, scan_queue};
+    let config = &profile.occupancy;
+    let mut grid = OccupancyGrid::new(config, profile.world.up_axis, profile.navigation.robot_radius_m, intrinsics);
+    // Beside the map snapshot: restored now (a file that does not fit is moved aside, named in
+    // the log), saved by the thread (crate::occupancy::persist).
+    let store = profile.snapshot.resolve_dir().map(|dir| crate::occupancy::persist::OccupancyStore::new(&dir));
+    if let Some(store) = &store {
+        let _ = store.restore(&mut grid);
+    }
+    let publisher = OccupancyPublisher::open(&profile.ipc.prefix, grid.geometry().cell_count())
+        .map_err(|e| StartError::Ipc(e.to_string()))?;
+    info!(
+        cells = grid.geometry().cell_count(),
+        cell_size_m = config.cell_size_m,
+        memory_bytes = grid.memory_bytes(),
+        "occupancy map on"
+    );
+    let (feed, intake) = scan_queue(config.queue_capacity, intrinsics, config.pixel_stride);
+    let thread = OccupancyThread {
+        grid,
+        intake,
+        publisher,
+        latest,
+        period: Duration::from_millis(config.publish_period_ms),
+        exit_at_end: profile.run.exit_at_end,
+        cost: Arc::new(crate::stats::StageStats::new("occupancy")),
+        store,
+        save_period: (profile.snapshot.period_s > 0.0).then(|| Duration::from_secs_f64(profile.snapshot.period_s)),
+    };
+    let stop = stop.clone();
+    handles.push(spawn_stage("occupancy", finished_tx, move || occupancy_loop(thread, &stop))?);
+    running.push("occupancy");
+    Ok(feed)
+}
+
+/// Starts `query-rx` (it creates `<prefix>/query`; returns once it exists) and the `query`
+/// worker (text queries need the text encoder; node queries and approach poses do not).
 fn start_query_threads(
     profile: &Profile,
     latest: Arc<crate::query::service::LatestGraph>,
+    occupancy: Option<Arc<crate::occupancy::service::LatestOccupancy>>,
     stop: &Arc<AtomicBool>,
     finished_tx: &Sender<&'static str>,
     handles: &mut Vec<std::thread::JoinHandle<()>>,
     running: &mut Vec<&'static str>,
 ) -> Result<Arc<crate::query::service::QueryCounters>, StartError> {
-    use crate::query::service::{EncoderSetup, QueryCounters, QueryReceiver, receive_loop, worker_loop};
+    use crate::query::service::{
+        EncoderSetup, NavigationSetup, QueryCounters, QueryReceiver, receive_loop, worker_loop,
+    };
     let counters = Arc::new(QueryCounters::default());
     let config = profile.query.clone();
     let setup = profile
         .text_encoder
         .enabled
         .then(|| EncoderSetup { onnx: profile.onnx.clone(), text_encoder: profile.text_encoder.clone() });
-    let (jobs_tx, jobs_rx) = match setup {
-        Some(_) => {
-            let (tx, rx) = crossbeam_channel::bounded(config.queue_capacity);
-            (Some(tx), Some(rx))
-        }
-        None => (None, None),
-    };
+    let encoder_on = setup.is_some();
+    let (jobs_tx, jobs_rx) = crossbeam_channel::bounded(config.queue_capacity);
     let (ready_tx, ready_rx) = crossbeam_channel::bounded::<Result<(), String>>(1);
     {
         let (prefix, config, counters, latest, stop) =
@@ -192,7 +240,7 @@ fn start_query_threads(
                     return;
                 }
             };
-            receive_loop(receiver, jobs_tx, &config, &counters, &latest, &stop);
+            receive_loop(receiver, jobs_tx, encoder_on, &config, &counters, &latest, &stop);
         })?);
         running.push("query-rx");
     }
@@ -201,10 +249,11 @@ fn start_query_threads(
         Ok(Err(reason)) => return Err(StartError::Ipc(reason)),
         Err(_) => return Err(StartError::Ipc("query receiver thread ended during start-up".to_owned())),
     }
-    if let (Some(setup), Some(jobs_rx)) = (setup, jobs_rx) {
+    let navigation = NavigationSetup { occupancy, config: profile.navigation.clone(), up_axis: profile.world.up_axis };
+    {
         let (counters, latest, stop) = (counters.clone(), latest.clone(), stop.clone());
         handles.push(spawn_stage("query", finished_tx, move || {
-            worker_loop(&setup, &jobs_rx, &config, &counters, &latest, &stop);
+            worker_loop(setup.as_ref(), navigation, &jobs_rx, &config, &counters, &latest, &stop);
         })?);
         running.push("query");
     }
@@ -346,11 +395,34 @@ impl Pipeline {
             Err(_) => return Err(StartError::Ipc("publisher thread ended during start-up".to_owned())),
         }
 
+        // The occupancy map: its own thread, fed by the keyframe gate through a bounded queue.
+        let (occupancy_feed, latest_occupancy) = if profile.occupancy.enabled {
+            let latest = Arc::new(crate::occupancy::service::LatestOccupancy::new());
+            let feed = start_occupancy_thread(
+                profile,
+                &source.intrinsics(),
+                query_graph.is_some().then(|| latest.clone()),
+                &stop,
+                &finished_tx,
+                &mut handles,
+                &mut running,
+            )?;
+            (Some(feed), query_graph.is_some().then_some(latest))
+        } else {
+            (None, None)
+        };
+
         // Language queries: a receiver and one worker of their own, never the fusion thread.
         let query_counters = match query_graph {
-            Some(latest) => {
-                Some(start_query_threads(profile, latest, &stop, &finished_tx, &mut handles, &mut running)?)
-            }
+            Some(latest) => Some(start_query_threads(
+                profile,
+                latest,
+                latest_occupancy,
+                &stop,
+                &finished_tx,
+                &mut handles,
+                &mut running,
+            )?),
             None => None,
         };
 
@@ -419,6 +491,7 @@ impl Pipeline {
                     &stats,
                     &stop,
                     recorder,
+                    occupancy_feed,
                 );
             })?);
             running.push("keyframe");

@@ -11,6 +11,11 @@
 //! - The receiver never blocks: a request finds room in the bounded job queue or is refused at
 //!   once with [`QueryStatus::Busy`] (counted; the count travels in every reply). Malformed
 //!   requests and, without the text encoder, every request get their error reply here.
+//! - Every reply's hits carry approach poses ([`Navigator`]: the newest occupancy map the
+//!   occupancy thread handed over, inflated and flooded once per map version, A* per hit; see
+//!   [`crate::occupancy::nav`]). A request naming a node (`QueryRequest::node_id`) is answered
+//!   with that node alone and needs no text encoder, so the worker runs with the encoder off
+//!   too; text requests then get [`QueryStatus::EncoderOff`] from the receiver at once.
 //! - The worker holds the only [`TextEncoder`] of the service (ONNX Runtime with the profile's
 //!   `text_encoder.intra_op_threads`), so at most one query is scored at a time and the fusion
 //!   thread never waits on a query. It takes the newest graph the publisher has sent
@@ -30,13 +35,17 @@ use op3dsg_ipc_types::services::{
     query_service_name,
 };
 use op3dsg_ipc_types::{
-    QUERY_MAX_K, QUERY_SCHEMA_VERSION, QueryHit, QueryRequest, QueryResponse, QueryStatus, write_fixed_str,
+    ApproachStatus, QUERY_MAX_K, QUERY_SCHEMA_VERSION, QueryHit, QueryRequest, QueryResponse, QueryStatus,
+    write_fixed_str,
 };
 use tracing::{info, warn};
 
 use super::{Hit, QueryConfig, QueryIndex, ScoringOptions};
+use crate::config::UpAxis;
 use crate::graph::SceneGraph;
 use crate::ipc::{IpcError, IpcService, create_node, service_err, service_name};
+use crate::occupancy::nav::{MapView, NavigationConfig, Planner, Target};
+use crate::occupancy::service::{LatestOccupancy, MapCopy};
 use crate::onnx::OnnxConfig;
 use crate::onnx::text_encoder::{TextEncoder, TextEncoderConfig};
 
@@ -158,8 +167,8 @@ fn check_request(request: &QueryRequest) -> Result<(), String> {
     if request.k == 0 {
         return Err(format!("k: must be within [1, {QUERY_MAX_K}], got 0"));
     }
-    if request.text_str().trim().is_empty() {
-        return Err("text: empty (or not UTF-8)".to_owned());
+    if request.asked_node().is_none() && request.text_str().trim().is_empty() {
+        return Err("text: empty (or not UTF-8), and node_id names no node".to_owned());
     }
     Ok(())
 }
@@ -167,7 +176,8 @@ fn check_request(request: &QueryRequest) -> Result<(), String> {
 /// The receiver thread's loop.
 pub fn receive_loop(
     receiver: QueryReceiver,
-    jobs: Option<Sender<Request>>,
+    jobs: Sender<Request>,
+    encoder_on: bool,
     config: &QueryConfig,
     counters: &QueryCounters,
     latest: &LatestGraph,
@@ -195,13 +205,13 @@ pub fn receive_loop(
                 reply(&request, &failure(QueryStatus::BadRequest, &message, capacity, counters));
                 continue;
             }
-            let Some(jobs) = jobs.as_ref() else {
+            if !encoder_on && request.payload().asked_node().is_none() {
                 counters.failed.fetch_add(1, Ordering::Relaxed);
                 let message = "the daemon runs without the text encoder: set text_encoder.enabled = true \
                                (and run scripts/setup-models.sh) to serve queries";
                 reply(&request, &failure(QueryStatus::EncoderOff, message, capacity, counters));
                 continue;
-            };
+            }
             match jobs.try_send(request) {
                 Ok(()) => {}
                 Err(TrySendError::Full(request)) => {
@@ -226,10 +236,81 @@ pub fn receive_loop(
     }
 }
 
-/// The worker thread's loop: loads the encoder, then answers jobs until the receiver has ended
-/// (it drops the job sender) or the stop flag is set.
+/// What the worker needs for approach poses.
+#[derive(Debug, Clone)]
+pub struct NavigationSetup {
+    /// The occupancy thread's map (`None` with `occupancy.enabled = false`).
+    pub occupancy: Option<Arc<LatestOccupancy>>,
+    /// `[navigation]`.
+    pub config: NavigationConfig,
+    /// `world.up_axis`.
+    pub up_axis: UpAxis,
+}
+
+/// Approach poses for the hits of a reply: the newest map the occupancy thread handed over,
+/// inflated and flooded once per map version ([`Planner::prepare`]).
+#[derive(Debug)]
+pub struct Navigator {
+    setup: NavigationSetup,
+    map: Option<MapCopy>,
+    prepared_version: Option<u64>,
+    planner: Planner,
+}
+
+impl Navigator {
+    /// A navigator over `setup`.
+    pub fn new(setup: NavigationSetup) -> Self {
+        let planner = Planner::new(&setup.config);
+        Self { setup, map: None, prepared_version: None, planner }
+    }
+
+    /// Fills the approach fields of `response`'s hits from `graph` (the graph the hits came from).
+    pub fn fill(&mut self, graph: &SceneGraph, response: &mut QueryResponse) {
+        let hit_count = (response.hit_count as usize).min(QUERY_MAX_K);
+        let Some(latest) = self.setup.occupancy.as_ref() else {
+            return; // Hits keep `ApproachStatus::Off`.
+        };
+        if !latest.copy_if_newer(&mut self.map) {
+            for hit in &mut response.hits[..hit_count] {
+                hit.approach_status = ApproachStatus::NoMap as u8;
+            }
+            return;
+        }
+        let Some(map) = self.map.as_ref() else { return };
+        if self.prepared_version != Some(map.version) {
+            let robot = map.robot.unwrap_or_default();
+            self.planner.prepare(&MapView { geometry: map.geometry, cells: &map.cells }, robot);
+            if map.robot.is_none() {
+                self.planner = Planner::new(&self.setup.config);
+            }
+            self.prepared_version = Some(map.version);
+        }
+        for hit in &mut response.hits[..hit_count] {
+            let Some(node) = graph.nodes.iter().find(|n| n.id == hit.node_id) else {
+                hit.approach_status = ApproachStatus::NoFreeCell as u8;
+                continue;
+            };
+            let target = Target::of_node(graph, node, self.setup.up_axis);
+            match self.planner.approach(&target) {
+                Ok(approach) => {
+                    hit.approach_status = ApproachStatus::Ok as u8;
+                    hit.approach_x_m = approach.xy_m[0];
+                    hit.approach_y_m = approach.xy_m[1];
+                    hit.approach_yaw_rad = approach.yaw_rad;
+                    hit.approach_standoff_m = approach.standoff_m;
+                    hit.approach_path_m = approach.path_m;
+                }
+                Err(status) => hit.approach_status = status as u8,
+            }
+        }
+    }
+}
+
+/// The worker thread's loop: loads the encoder (when `setup` is given), then answers jobs until
+/// the receiver has ended (it drops the job sender) or the stop flag is set.
 pub fn worker_loop(
-    setup: &EncoderSetup,
+    setup: Option<&EncoderSetup>,
+    navigation: NavigationSetup,
     jobs: &Receiver<Request>,
     config: &QueryConfig,
     counters: &QueryCounters,
@@ -238,16 +319,19 @@ pub fn worker_loop(
 ) {
     let capacity = config.queue_capacity;
     let options = ScoringOptions { functional: config.functional };
-    let mut encoder = match crate::onnx::OnnxRuntime::init(&setup.onnx)
-        .and_then(|runtime| TextEncoder::new(&runtime, &setup.text_encoder))
-    {
-        Ok(encoder) => Some(encoder),
-        Err(e) => {
-            warn!(error = %e, "query worker: text encoder failed to load; queries get an error reply");
-            None
+    let mut encoder = setup.and_then(|setup| {
+        match crate::onnx::OnnxRuntime::init(&setup.onnx)
+            .and_then(|runtime| TextEncoder::new(&runtime, &setup.text_encoder))
+        {
+            Ok(encoder) => Some(encoder),
+            Err(e) => {
+                warn!(error = %e, "query worker: text encoder failed to load; text queries get an error reply");
+                None
+            }
         }
-    };
+    });
     let load_error = "the text encoder failed to load in the query worker (see the daemon log)";
+    let mut navigator = Navigator::new(navigation);
     let mut index: Option<(QueryIndex, u64)> = None;
     let mut hits = Vec::with_capacity(QUERY_MAX_K);
     loop {
@@ -265,18 +349,71 @@ pub fn worker_loop(
             reply(&request, &failure(QueryStatus::ShuttingDown, "the daemon is stopping", capacity, counters));
             continue;
         }
-        let Some(encoder) = encoder.as_mut() else {
-            counters.failed.fetch_add(1, Ordering::Relaxed);
-            reply(&request, &failure(QueryStatus::EncoderFailed, load_error, capacity, counters));
-            continue;
+        let payload = request.payload();
+        let (response, graph) = if let Some(node_id) = payload.asked_node() {
+            answer_node(node_id, latest, capacity, counters)
+        } else {
+            let Some(encoder) = encoder.as_mut() else {
+                counters.failed.fetch_add(1, Ordering::Relaxed);
+                reply(&request, &failure(QueryStatus::EncoderFailed, load_error, capacity, counters));
+                continue;
+            };
+            answer(payload, encoder, &mut index, &mut hits, latest, options, capacity, counters)
         };
-        let response = answer(request.payload(), encoder, &mut index, &mut hits, latest, options, capacity, counters);
+        let mut response = response;
+        if let Some(graph) = graph {
+            navigator.fill(&graph, &mut response);
+        }
         reply(&request, &response);
     }
     // Whatever is still queued learns why it gets no hits.
     while let Ok(request) = jobs.try_recv() {
         reply(&request, &failure(QueryStatus::ShuttingDown, "the daemon is stopping", capacity, counters));
     }
+}
+
+/// The reply to a request for one node by id, and the graph it came from.
+fn answer_node(
+    node_id: u32,
+    latest: &LatestGraph,
+    capacity: usize,
+    counters: &QueryCounters,
+) -> (QueryResponse, Option<Arc<SceneGraph>>) {
+    let fail = |status, message: &str| {
+        counters.failed.fetch_add(1, Ordering::Relaxed);
+        (failure(status, message, capacity, counters), None)
+    };
+    let Some((graph, instance_id)) = latest.get() else {
+        return fail(QueryStatus::NoGraph, "no graph published yet; retry once the daemon has mapped");
+    };
+    let Some(node) = graph.nodes.iter().find(|n| n.id == node_id) else {
+        return fail(
+            QueryStatus::BadRequest,
+            &format!("node_id: no node {node_id} in graph version {} ({} nodes)", graph.version, graph.nodes.len()),
+        );
+    };
+    let hit = Hit {
+        node_id: node.id,
+        parent_id: node.parent_id.unwrap_or(op3dsg_ipc_types::NO_NODE),
+        kind: node.kind,
+        matched: op3dsg_ipc_types::QueryMatch::Label,
+        score: 1.0,
+        label: node.label.clone(),
+        matched_text: node.label.clone(),
+    };
+    let served = counters.served.fetch_add(1, Ordering::Relaxed) + 1;
+    let mut response = QueryResponse {
+        graph_version: graph.version,
+        instance_id,
+        hit_count: 1,
+        queue_capacity: capacity as u32,
+        served_count: served,
+        refused_count: counters.refused.load(Ordering::Relaxed),
+        scored_node_count: 1,
+        ..QueryResponse::default()
+    };
+    response.hits[0] = to_wire(&hit);
+    (response, Some(graph))
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -289,10 +426,10 @@ fn answer(
     options: ScoringOptions,
     capacity: usize,
     counters: &QueryCounters,
-) -> QueryResponse {
+) -> (QueryResponse, Option<Arc<SceneGraph>>) {
     let fail = |status, message: &str| {
         counters.failed.fetch_add(1, Ordering::Relaxed);
-        failure(status, message, capacity, counters)
+        (failure(status, message, capacity, counters), None)
     };
     let Some((graph, instance_id)) = latest.get() else {
         return fail(QueryStatus::NoGraph, "no graph published yet; retry once the daemon has mapped");
@@ -331,7 +468,7 @@ fn answer(
     for (slot, hit) in response.hits.iter_mut().zip(hits.iter()) {
         *slot = to_wire(hit);
     }
-    response
+    (response, Some(graph))
 }
 
 /// A hit as its wire record.

@@ -15,6 +15,7 @@
 //! | [`eval`] | `eval` |
 //! | [`bench`] | `bench perf`, `bench soak`, `bench llm`, `bench quality`, `bench ipc-peer` |
 //! | [`query`] | `query`, `bench query` |
+//! | [`goal`] | `goal`, `bench nav` |
 //! | [`map`] | `map info`, `map save`, `map reset` |
 //! | [`record`] | `record info`, `bench record` |
 
@@ -22,6 +23,7 @@ mod bench;
 mod dump;
 mod eval;
 mod fusion_eval;
+mod goal;
 mod gt;
 mod health;
 mod map;
@@ -42,7 +44,8 @@ use op3dsg_synthetic::RoomKind;
 /// Client of the op3dsg scene-graph daemon (op3dsgd).
 ///
 /// op3dsgd serves a live, part-aware 3D scene graph over iceoryx2 shared memory under a service
-/// prefix (services <prefix>/graph, <prefix>/graph_updated, <prefix>/health, <prefix>/pose).
+/// prefix (services <prefix>/graph, <prefix>/graph_updated, <prefix>/health, <prefix>/pose,
+/// <prefix>/query, <prefix>/occupancy).
 /// This tool watches it, dumps it, shows its health, and writes synthetic ground truth.
 #[derive(Debug, Parser)]
 #[command(name = "op3dsg", version, propagate_version = true)]
@@ -108,6 +111,28 @@ enum Command {
         #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=16))]
         k: u32,
         /// Print JSON (schema op3dsg.query/1) instead of a table.
+        #[arg(long)]
+        json: bool,
+        /// Give up after this many seconds (waiting for the daemon included).
+        #[arg(long, default_value_t = 5.0)]
+        timeout_s: f64,
+    },
+    /// Where to stand to reach a node: an approach pose on the daemon's occupancy map (a free
+    /// cell at the profile's standoff from the node, facing it; for a part, on the side it
+    /// faces) reachable from the robot's latest pose by A*, from the service <prefix>/query.
+    ///
+    /// TARGET is a node id (digits; needs no text encoder) or a need in words, answered by the
+    /// query's top hit (needs text_encoder.enabled = true). Prints x, y (metres, world floor
+    /// plane), yaw (radians, facing the node), the standoff and the A* path length.
+    ///
+    /// Exit code 1 with the reason when there is no pose ("no free cell within the standoff
+    /// band", "unreachable from the robot's pose", no map yet), the node does not exist, or the
+    /// daemon does not answer.
+    Goal {
+        /// A node id of the current graph, or a need in words ("somewhere to wash my hands").
+        target: String,
+        /// Print JSON (schema op3dsg.goal/1) instead of a line; printed also when there is no
+        /// pose (status and reason), before exit code 1.
         #[arg(long)]
         json: bool,
         /// Give up after this many seconds (waiting for the daemon included).
@@ -351,6 +376,32 @@ enum BenchCommand {
         #[arg(long, value_name = "FILE")]
         json: Option<PathBuf>,
     },
+    /// The navigation check: each synthetic room (kitchen, bathroom, bedroom, living room) is
+    /// mapped by the batch pipeline with the occupancy map, and every object and part node gets
+    /// the daemon's approach pose, checked against the room's true geometry (free for the
+    /// robot's disc, within the standoff band, facing the node, on a part's side): the share
+    /// reachable and correct, objects and parts apart, each failure by reason, and the occupancy
+    /// integration cost per keyframe (p50/p99) and map memory. Measure cost with a release build.
+    Nav {
+        /// Scene seed of every room.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Frames per room (30 per second of camera path).
+        #[arg(long, default_value_t = 600, value_parser = clap::value_parser!(u64).range(1..))]
+        frames: u64,
+        /// Oracle noise preset (clean | realistic).
+        #[arg(long, default_value = "realistic")]
+        preset: String,
+        /// Profile to start from (default: the built-in base).
+        #[arg(long)]
+        profile: Option<PathBuf>,
+        /// Profile overrides, section.key=value.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        overrides: Vec<String>,
+        /// Write the report (with every node's outcome) as JSON to this file.
+        #[arg(long, value_name = "FILE")]
+        json: Option<PathBuf>,
+    },
     /// The subscriber process of `bench perf`'s IPC measurement (started by it).
     #[command(hide = true)]
     IpcPeer {
@@ -574,6 +625,13 @@ fn run(cli: Cli) -> Result<()> {
                 vec![format!("source.synthetic.frame_count={frames}"), format!("detector.oracle.preset={preset}")];
             sets.extend(overrides);
             query::bench(profile.as_deref(), &sets, seed, json.as_deref())
+        }
+        Command::Goal { target, json, timeout_s } => goal::goal(&prefix, &target, json, seconds(timeout_s)?),
+        Command::Bench { command: BenchCommand::Nav { seed, frames, preset, profile, overrides, json } } => {
+            let mut sets =
+                vec![format!("source.synthetic.frame_count={frames}"), format!("detector.oracle.preset={preset}")];
+            sets.extend(overrides);
+            goal::bench(profile.as_deref(), &sets, seed, json.as_deref())
         }
         Command::Gt { room, seed, out, frames, profile, overrides } => {
             let run = frames.map(|frames| gt::RunSeen { frames, profile, overrides });

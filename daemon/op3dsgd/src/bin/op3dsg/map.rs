@@ -131,6 +131,17 @@ pub(super) fn save(dir: &Path, timeout: Duration) -> Result<()> {
 /// with an empty map. Refused while a daemon runs with the directory.
 pub(super) fn reset(dir: &Path) -> Result<()> {
     snapshot::ensure_unlocked(dir).map_err(|e| anyhow::anyhow!("{e}"))?;
+    // The occupancy map saved beside it goes too (op3dsg_runtime::occupancy::persist).
+    let occupancy = dir.join(op3dsg_runtime::occupancy::persist::OCCUPANCY_FILE);
+    if occupancy.exists() {
+        let aside = snapshot::move_aside(&occupancy, "reset")
+            .with_context(|| format!("moving {} aside", occupancy.display()))?;
+        println!(
+            "moved {} to {}; the next start begins with an empty occupancy map",
+            occupancy.display(),
+            aside.display()
+        );
+    }
     let path = dir.join(SNAPSHOT_FILE);
     if !path.exists() {
         println!("{}: no map snapshot; the next start begins with an empty map", path.display());

@@ -19,6 +19,19 @@ struct HitJson<'a> {
     score: f32,
     matched: &'static str,
     matched_text: &'a str,
+    /// `ok` or why there is no approach pose (`no_free_cell`, `unreachable`, `no_map`, ...).
+    approach_status: &'static str,
+    /// Where to stand, with `ok`.
+    approach: Option<ApproachJson>,
+}
+
+#[derive(Serialize)]
+struct ApproachJson {
+    x_m: f32,
+    y_m: f32,
+    yaw_rad: f32,
+    standoff_m: f32,
+    path_m: f32,
 }
 
 #[derive(Serialize)]
@@ -62,6 +75,14 @@ pub(super) fn query(prefix: &str, text: &str, k: u32, json: bool, timeout: Durat
             score: h.score,
             matched: h.query_match().map_or("unknown", |m| m.as_str()),
             matched_text: h.matched_text_str(),
+            approach_status: h.approach().map_or("unknown", |a| a.as_str()),
+            approach: (h.approach() == Some(op3dsg_ipc_types::ApproachStatus::Ok)).then_some(ApproachJson {
+                x_m: h.approach_x_m,
+                y_m: h.approach_y_m,
+                yaw_rad: h.approach_yaw_rad,
+                standoff_m: h.approach_standoff_m,
+                path_m: h.approach_path_m,
+            }),
         })
         .collect();
     let mut out = String::new();
@@ -85,16 +106,25 @@ pub(super) fn query(prefix: &str, text: &str, k: u32, json: bool, timeout: Durat
             "graph version {} ({} nodes scored; encode {} us, score {} us)",
             response.graph_version, response.scored_node_count, response.encode_us, response.score_us
         );
-        let _ = writeln!(out, "{:>4}  {:>6}  {:<6}  {:<24}  {:>6}  why", "rank", "id", "kind", "label", "score");
+        let _ = writeln!(
+            out,
+            "{:>4}  {:>6}  {:<6}  {:<24}  {:>6}  {:<26}  why",
+            "rank", "id", "kind", "label", "score", "approach (x, y m, yaw °)"
+        );
         for (rank, h) in hits.iter().enumerate() {
+            let approach = match &h.approach {
+                Some(a) => format!("{:.2}, {:.2}, {:.0}", a.x_m, a.y_m, a.yaw_rad.to_degrees()),
+                None => h.approach_status.to_owned(),
+            };
             let _ = writeln!(
                 out,
-                "{:>4}  {:>6}  {:<6}  {:<24}  {:>6.3}  {}: {}",
+                "{:>4}  {:>6}  {:<6}  {:<24}  {:>6.3}  {:<26}  {}: {}",
                 rank + 1,
                 h.node_id,
                 h.kind,
                 h.label,
                 h.score,
+                approach,
                 h.matched,
                 h.matched_text
             );
