@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# Writes the stand-in models of the detector families into .models/standins/ (gitignored) with
+# scripts/reference/model_standins.py, run by the project venv (PyPI onnx). Needs
+# ./scripts/setup-models.sh (CLIP's BPE files) and ./scripts/setup-python.sh first; test.sh
+# runs all three. Idempotent: a stamp of the script's hash skips a second run.
+# Usage: ./scripts/setup-standins.sh [--force]
+#   VENV_DIR     another venv than .venv/
+#   MODELS_DIR   another folder than .models/
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+VENV_DIR="${VENV_DIR:-.venv}"
+MODELS_DIR="${MODELS_DIR:-.models}"
+OUT="$MODELS_DIR/standins"
+SCRIPT=scripts/reference/model_standins.py
+stamp="$OUT/.script.sha256"
+want="$(cat "$SCRIPT" "$MODELS_DIR/clip/tokenizer.json" 2>/dev/null | sha256sum | cut -d' ' -f1)"
+if [[ "${1:-}" != "--force" && -f "$stamp" && "$(cat "$stamp")" == "$want" && -f "$OUT/expected.json" ]]; then
+  echo "setup-standins.sh: $OUT/ is current"
+  exit 0
+fi
+if [[ ! -x "$VENV_DIR/bin/python" ]]; then
+  echo "setup-standins.sh: no $VENV_DIR/bin/python; run ./scripts/setup-python.sh first" >&2
+  exit 2
+fi
+"$VENV_DIR/bin/python" "$SCRIPT" --out "$OUT"
+echo "$want" >"$stamp"
