@@ -53,6 +53,8 @@ pub const PATH_KEYS: &[&str] = &[
     "source.realsense.bag",
     "detector.yolox.model_path",
     "detector.open_vocab.model_path",
+    "detector.open_vocab.clip.model_path",
+    "detector.open_vocab.clip.tokenizer_path",
     "reasoner.knowledge_dir",
     "reasoner.llm.api_key_file",
     "snapshot.dir",
