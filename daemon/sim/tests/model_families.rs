@@ -22,7 +22,7 @@ use op3dsg_runtime::onnx::{OnnxConfig, OnnxRuntime};
 use op3dsg_runtime::perception::candidates::CandidateMode;
 use op3dsg_runtime::perception::image_input::ImageInput;
 use op3dsg_runtime::perception::open_vocab::{Family, OpenVocabConfig, OpenVocabDetector, PromptConfig};
-use op3dsg_runtime::perception::{Detection, Detector};
+use op3dsg_runtime::perception::{CalibrationKind, Detection, Detector, ScoreCalibration};
 
 fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().expect("repository root")
@@ -167,6 +167,15 @@ fn owl_regions_follow_the_prompts_tokens_in_any_order() {
         let got: Vec<_> = detect(&owl_config(&objects)).iter().map(summary).collect();
         assert_eq!(got, want, "prompts {objects:?}");
     }
+    // A logistic calibration (+1 in logit space) maps every score before the threshold: the
+    // stove's to sigmoid(3), the cabinet's to sigmoid(2). The tv region (now 0.5, above the
+    // threshold) lies in the letterbox padding (input rows 720..816 of an image 720 high), so it
+    // is no detection.
+    let mut calibrated = owl_config(&["cabinet", "stove", "tv"]);
+    calibrated.calibration = ScoreCalibration { kind: CalibrationKind::Logistic, a: 1.0, b: 1.0 };
+    let got: Vec<_> =
+        detect(&calibrated).iter().map(|d| (d.label.clone(), (d.score * 1000.0).round() as i64)).collect();
+    assert_eq!(got, [("stove".to_owned(), 953), ("cabinet".to_owned(), 881)]);
     // Knowledge-guided part prompts ("cabinet handle" starts with cabinet's token too): the
     // object prompt comes first and keeps the region.
     let mut guided = owl_config(&["cabinet", "stove"]);

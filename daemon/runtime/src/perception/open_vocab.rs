@@ -84,7 +84,9 @@ use serde::{Deserialize, Serialize};
 use super::depth_mask::{DepthMaskConfig, DepthSegmenter, PixelBox};
 use super::image_input::{ImageInput, Placement, prepare};
 use super::yolox::iou;
-use super::{Detection, Detector, DetectorError, Mask, greedy_suppress, normalise, validate_detection_limits};
+use super::{
+    Detection, Detector, DetectorError, Mask, ScoreCalibration, greedy_suppress, normalise, validate_detection_limits,
+};
 use std::sync::Arc;
 
 use super::candidates::{CandidateMode, PartCandidates, Prompt, PromptList};
@@ -320,7 +322,10 @@ pub struct OpenVocabConfig {
     pub outputs: OutputNames,
     /// The vocabulary.
     pub prompts: PromptConfig,
-    /// Keep regions scoring above this. (0, 1).
+    /// Score calibration onto fusion's scale (`[detector.open_vocab.calibration]`), applied
+    /// before `score_threshold`.
+    pub calibration: ScoreCalibration,
+    /// Keep regions scoring above this (after calibration). (0, 1).
     pub score_threshold: f32,
     /// Per-prompt NMS IoU. (0, 1].
     pub nms_iou_threshold: f32,
@@ -350,6 +355,7 @@ impl Default for OpenVocabConfig {
             text: TextInput::default(),
             outputs: OutputNames::default(),
             prompts: PromptConfig::default(),
+            calibration: ScoreCalibration::default(),
             score_threshold: 0.3,
             nms_iou_threshold: 0.5,
             max_detections: 100,
@@ -369,6 +375,7 @@ impl OpenVocabConfig {
             return Err(format!("{path}.model_path: must not be empty"));
         }
         contract::validate_sha256(&format!("{path}.sha256"), self.sha256.as_deref())?;
+        self.calibration.validate(&format!("{path}.calibration"))?;
         self.input.validate(&format!("{path}.input"))?;
         if self.family != Family::Generic {
             let family = self.family.as_str();
@@ -743,7 +750,7 @@ impl Detector for OpenVocabDetector {
         let Placement { sx, sy } = placement;
         let mut regions: Vec<Region> = Vec::new();
         for (row, (b, &(score, prompt))) in boxes.chunks_exact(4).zip(&best).enumerate() {
-            let score = names.score_activation.apply(score);
+            let score = self.config.calibration.apply(names.score_activation.apply(score));
             if score.is_nan() || score <= self.config.score_threshold {
                 continue;
             }

@@ -78,6 +78,9 @@ pub fn coco_classes() -> Vec<&'static str> {
 pub struct YoloxConfig {
     /// The ONNX model. Relative paths in a profile file are relative to that file.
     pub model_path: PathBuf,
+    /// Optional sha256 of `model_path`, checked at start.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sha256: Option<String>,
     /// Square network input side, pixels (416 for YOLOX-nano).
     pub input_size: u32,
     /// Keep candidates with objectness x class score above this. (0, 1).
@@ -108,6 +111,7 @@ impl Default for YoloxConfig {
     fn default() -> Self {
         Self {
             model_path: PathBuf::from("yolox_nano.onnx"),
+            sha256: None,
             input_size: 416,
             score_threshold: 0.3,
             nms_iou_threshold: 0.45,
@@ -128,6 +132,7 @@ impl YoloxConfig {
         if self.model_path.as_os_str().is_empty() {
             return Err(format!("{path}.model_path: must not be empty"));
         }
+        crate::onnx::contract::validate_sha256(&format!("{path}.sha256"), self.sha256.as_deref())?;
         if self.input_size == 0 || !self.input_size.is_multiple_of(32) || self.input_size > 4096 {
             return Err(format!(
                 "{path}.input_size: must be a multiple of 32 within [32, 4096], got {}",
@@ -287,6 +292,7 @@ impl YoloxModel {
                 other => other,
             },
         )?;
+        crate::onnx::contract::verify_sha256(&model_path, config.sha256.as_deref(), "detector.yolox.sha256")?;
         let provider = config.execution_provider.unwrap_or(runtime.execution_provider());
         let (session, provider) = open_session(
             runtime,
