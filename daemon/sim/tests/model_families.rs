@@ -197,6 +197,7 @@ fn a_file_with_another_familys_tensors_is_refused_listing_what_it_has() {
     let mut wrong = yolo_world_config();
     wrong.model_path = standin("owl.onnx");
     let err = open(&wrong);
+    println!("{err}");
     assert!(err.contains("owl.onnx") && err.contains("yolo_world family"), "{err}");
     assert!(err.contains(r#"no input "images" (detector.open_vocab.input.name"#), "{err}");
     assert!(err.contains(r#"no input "text_features" (detector.open_vocab.family = "yolo_world""#), "{err}");
