@@ -35,6 +35,19 @@ clip_text.onnx    the CLIP text encoder (e.g. the textual half of open_clip ViT-
                     in  input_ids      int64   [N, 77]
                     out text_embeds    float32 [N, 512]          not normalised
                   text_embeds[n] = sum over tokens t != 0 of TABLE[t mod 512] (TABLE seeded below).
+sam_encoder.onnx  a SAM-family image encoder (SAM / MobileSAM / EfficientSAM-style exports):
+                    in  images            float32 [1, 3, 1024, 1024]  RGB, SAM mean/std (0..255), longest side 1024, padded bottom/right
+                    out image_embeddings  float32 [1, 256, 64, 64]
+sam_decoder.onnx  the SAM prompt decoder as segment-anything's scripts/export_onnx_model.py
+                  writes it (--return-single-mask):
+                    in  image_embeddings float32 [1, 256, 64, 64], point_coords float32 [1, K, 2]
+                        (input pixels), point_labels float32 [1, K] (box corners 2, 3; padding -1),
+                        mask_input float32 [1, 1, 256, 256], has_mask_input float32 [1],
+                        orig_im_size float32 [2] (H, W)
+                    out masks float32 [1, 1, H, W] (logits at the image size), iou_predictions
+                        float32 [1, 1], low_res_masks float32 [1, 1, 256, 256]
+                  The mask is the top half of the prompt box (logit 5 inside, -5 outside), so a
+                  decoder mask differs from the box and from a depth mask.
 expected.json     the answers: CLIP tokens of a few prompts from open_clip's own tokenizer
                   (.models/clip/open_clip_tokenizer.py), the stand-in CLIP embedding of each
                   prompt computed here with numpy, and the regions' constants.
@@ -218,6 +231,98 @@ def clip_text(out, tokenizer):
     return {"tokens": tokens, "clip_text_normalised": embeddings}
 
 
+def sam(out):
+    nodes = [
+        helper.make_node("AveragePool", ["images"], ["pooled"], kernel_shape=[16, 16], strides=[16, 16]),  # [1, 3, 64, 64]
+        helper.make_node("ReduceMean", ["pooled"], ["grey"], axes=[1], keepdims=1),  # [1, 1, 64, 64]
+        helper.make_node("Expand", ["grey", "embedding_shape"], ["image_embeddings"]),
+    ]
+    save(
+        model(
+            nodes,
+            "sam_encoder_standin",
+            [helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, 1024, 1024])],
+            [helper.make_tensor_value_info("image_embeddings", TensorProto.FLOAT, [1, 256, 64, 64])],
+            [numpy_helper.from_array(np.array([1, 256, 64, 64], np.int64), "embedding_shape")],
+        ),
+        out / "sam_encoder.onnx",
+    )
+    scalars = {"zero": 0.0, "one": 1.0, "half": 0.5, "two": 2.0, "side": 1024.0, "inside": 5.0, "outside": -5.0}
+    inits = [numpy_helper.from_array(np.array(v, np.float32), k) for k, v in scalars.items()]
+    inits += [numpy_helper.from_array(np.array(i, np.int64), f"i{i}") for i in range(2)]
+    inits += [numpy_helper.from_array(np.array([[0.9]], np.float32), "iou"), numpy_helper.from_array(np.zeros((1, 1, 256, 256), np.float32), "low_res")]
+    inits += [numpy_helper.from_array(np.array([1, 1, -1, 1], np.int64), "col"), numpy_helper.from_array(np.array([1, 1, 1, -1], np.int64), "row")]
+    n = helper.make_node
+    nodes = [
+        # Image size and the resize factor s = 1024 / max(H, W).
+        n("Gather", ["orig_im_size", "i0"], ["H"], axis=0),
+        n("Gather", ["orig_im_size", "i1"], ["W"], axis=0),
+        n("Max", ["H", "W"], ["long"]),
+        n("Div", ["side", "long"], ["s"]),
+        # The box corners (labels 2 and 3 are the first two points here), in image pixels.
+        n("Squeeze", ["point_coords", "i0_1d"], ["points"]),  # [K, 2]
+        n("Gather", ["points", "i0"], ["p0"], axis=0),
+        n("Gather", ["points", "i1"], ["p1"], axis=0),
+        n("Div", ["p0", "s"], ["q0"]),
+        n("Div", ["p1", "s"], ["q1"]),
+        n("Gather", ["q0", "i0"], ["x0"], axis=0),
+        n("Gather", ["q0", "i1"], ["y0"], axis=0),
+        n("Gather", ["q1", "i0"], ["x1"], axis=0),
+        n("Gather", ["q1", "i1"], ["y1"], axis=0),
+        n("Add", ["y0", "y1"], ["ysum"]),
+        n("Div", ["ysum", "two"], ["ymid"]),
+        # Pixel centres.
+        n("Range", ["zero", "H", "one"], ["ry"]),
+        n("Range", ["zero", "W", "one"], ["rx"]),
+        n("Add", ["ry", "half"], ["cy"]),
+        n("Add", ["rx", "half"], ["cx"]),
+        n("Reshape", ["cy", "col"], ["cy4"]),  # [1, 1, H, 1]
+        n("Reshape", ["cx", "row"], ["cx4"]),  # [1, 1, 1, W]
+        n("GreaterOrEqual", ["cy4", "y0"], ["a"]),
+        n("Less", ["cy4", "ymid"], ["b"]),
+        n("GreaterOrEqual", ["cx4", "x0"], ["c"]),
+        n("Less", ["cx4", "x1"], ["d"]),
+        n("And", ["a", "b"], ["ab"]),
+        n("And", ["c", "d"], ["cd"]),
+        n("And", ["ab", "cd"], ["in_box"]),  # [1, 1, H, W]
+        n("Where", ["in_box", "inside", "outside"], ["raw_masks"]),
+        # Every input takes part (so the runtime keeps them all).
+        n("ReduceMean", ["image_embeddings"], ["e_mean"], keepdims=0),
+        n("ReduceMean", ["mask_input"], ["m_mean"], keepdims=0),
+        n("ReduceSum", ["point_labels"], ["l_sum"], keepdims=0),
+        n("ReduceSum", ["has_mask_input"], ["h_sum"], keepdims=0),
+        n("Add", ["e_mean", "m_mean"], ["t1"]),
+        n("Add", ["t1", "l_sum"], ["t2"]),
+        n("Add", ["t2", "h_sum"], ["t3"]),
+        n("Mul", ["t3", "zero"], ["t0"]),
+        n("Add", ["raw_masks", "t0"], ["masks"]),
+        n("Identity", ["iou"], ["iou_predictions"]),
+        n("Identity", ["low_res"], ["low_res_masks"]),
+    ]
+    inits.append(numpy_helper.from_array(np.array([0], np.int64), "i0_1d"))
+    save(
+        model(
+            nodes,
+            "sam_decoder_standin",
+            [
+                helper.make_tensor_value_info("image_embeddings", TensorProto.FLOAT, [1, 256, 64, 64]),
+                helper.make_tensor_value_info("point_coords", TensorProto.FLOAT, [1, "K", 2]),
+                helper.make_tensor_value_info("point_labels", TensorProto.FLOAT, [1, "K"]),
+                helper.make_tensor_value_info("mask_input", TensorProto.FLOAT, [1, 1, 256, 256]),
+                helper.make_tensor_value_info("has_mask_input", TensorProto.FLOAT, [1]),
+                helper.make_tensor_value_info("orig_im_size", TensorProto.FLOAT, [2]),
+            ],
+            [
+                helper.make_tensor_value_info("masks", TensorProto.FLOAT, [1, 1, "H", "W"]),
+                helper.make_tensor_value_info("iou_predictions", TensorProto.FLOAT, [1, 1]),
+                helper.make_tensor_value_info("low_res_masks", TensorProto.FLOAT, [1, 1, 256, 256]),
+            ],
+            inits,
+        ),
+        out / "sam_decoder.onnx",
+    )
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=ROOT / ".models/standins")
@@ -225,6 +330,7 @@ def main():
     args.out.mkdir(parents=True, exist_ok=True)
     tokenizer = reference_tokenizer()
     expected = {"yolo_world": yolo_world(args.out), "owl": owl(args.out, tokenizer), **clip_text(args.out, tokenizer)}
+    sam(args.out)
     (args.out / "expected.json").write_text(json.dumps(expected, indent=1))
     print(f"wrote {args.out / 'expected.json'}")
 

@@ -21,6 +21,7 @@ use op3dsg_runtime::onnx::text_encoder::TextEncoderConfig;
 use op3dsg_runtime::onnx::{OnnxConfig, OnnxRuntime};
 use op3dsg_runtime::perception::candidates::CandidateMode;
 use op3dsg_runtime::perception::image_input::ImageInput;
+use op3dsg_runtime::perception::mask_decoder::MaskDecoderConfig;
 use op3dsg_runtime::perception::open_vocab::{Family, OpenVocabConfig, OpenVocabDetector, PromptConfig};
 use op3dsg_runtime::perception::{CalibrationKind, Detection, Detector, ScoreCalibration};
 
@@ -273,4 +274,40 @@ fn the_family_profiles_load_their_stand_ins_with_only_the_model_paths_changed() 
         assert_eq!(labels, want, "{profile}");
         assert!(detector.prompts().iter().any(|p| p.text == "cabinet handle"), "{profile}: knowledge-guided parts");
     }
+}
+
+#[test]
+fn a_sam_decoder_gives_the_masks_of_the_boxes() {
+    let mut config = yolo_world_config();
+    config.mask_decoder = Some(MaskDecoderConfig {
+        encoder_path: standin("sam_encoder.onnx"),
+        decoder_path: standin("sam_decoder.onnx"),
+        ..MaskDecoderConfig::default()
+    });
+    let out = detect(&config);
+    // Same detections as with depth masks; the stand-in decoder's mask is the top half of each
+    // prompt box, given to it in the encoder's 1024 x 1024 letterbox (r = 3.2) and answered at
+    // the image size: so the boxes went there and back.
+    let got: Vec<_> = out.iter().map(summary).collect();
+    assert_eq!(got[0], ("stove".to_owned(), NodeKind::Object, 900, [40, 30, 120, 150]));
+    let m = &out[0].mask;
+    assert_eq!(m.area(), 80 * 60);
+    assert!(m.contains(40, 30) && m.contains(119, 89) && !m.contains(60, 90) && !m.contains(60, 149));
+    let m = &out[1].mask; // cabinet, box [150, 50, 250, 130]
+    assert_eq!(m.area(), 100 * 40);
+
+    // The decoder file swapped for the encoder: refused naming the layout and listing the file.
+    let mut wrong = yolo_world_config();
+    wrong.mask_decoder = Some(MaskDecoderConfig {
+        encoder_path: standin("sam_encoder.onnx"),
+        decoder_path: standin("sam_encoder.onnx"),
+        ..MaskDecoderConfig::default()
+    });
+    let knowledge = Arc::new(KnowledgeBase::builtin().unwrap());
+    let err = OpenVocabDetector::new(&runtime(), &wrong, knowledge, &TextEncoderConfig::default())
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("SAM mask decoder layout") && err.contains(r#"no input "point_coords""#), "{err}");
+    assert!(err.contains(r#"the file has inputs "images" float32 [1, 3, 1024, 1024]"#), "{err}");
 }

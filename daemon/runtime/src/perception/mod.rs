@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 pub mod candidates;
 pub mod depth_mask;
 pub mod image_input;
+pub mod mask_decoder;
 pub mod open_vocab;
 pub(crate) mod worker;
 pub mod yolox;

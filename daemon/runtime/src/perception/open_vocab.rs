@@ -83,6 +83,7 @@ use serde::{Deserialize, Serialize};
 
 use super::depth_mask::{DepthMaskConfig, DepthSegmenter, PixelBox};
 use super::image_input::{ImageInput, Placement, prepare};
+use super::mask_decoder::{MaskDecoderConfig, SamMaskDecoder};
 use super::yolox::iou;
 use super::{
     Detection, Detector, DetectorError, Mask, ScoreCalibration, greedy_suppress, normalise, validate_detection_limits,
@@ -343,6 +344,10 @@ pub struct OpenVocabConfig {
     /// CLIP's tokenizer and text encoder (`text.encoder = "clip"`, `text.kind = "tokens"`, the
     /// `yolo_world` and `owl` families).
     pub clip: ClipTextConfig,
+    /// A SAM-family mask decoder: its masks replace those from depth for models without a mask
+    /// output ([`super::mask_decoder`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mask_decoder: Option<MaskDecoderConfig>,
 }
 
 impl Default for OpenVocabConfig {
@@ -364,6 +369,7 @@ impl Default for OpenVocabConfig {
             execution_provider: None,
             depth_mask: DepthMaskConfig::default(),
             clip: ClipTextConfig::default(),
+            mask_decoder: None,
         }
     }
 }
@@ -393,6 +399,9 @@ impl OpenVocabConfig {
         let (text, _) = self.family.contract(self);
         if text.kind == TextInputKind::Tokens && !(3..=1024).contains(&text.context_length) {
             return Err(format!("{path}.text.context_length: must be within [3, 1024], got {}", text.context_length));
+        }
+        if let Some(decoder) = &self.mask_decoder {
+            decoder.validate(&format!("{path}.mask_decoder"))?;
         }
         if text.kind == TextInputKind::Tokens || text.encoder == TextEncoderKind::Clip {
             self.clip.validate(&format!("{path}.clip"))?;
@@ -462,6 +471,7 @@ pub struct OpenVocabDetector {
     tokens: Tokens,
     input: Vec<f32>,
     segmenter: DepthSegmenter,
+    sam: Option<SamMaskDecoder>,
 }
 
 impl std::fmt::Debug for OpenVocabDetector {
@@ -600,9 +610,14 @@ impl OpenVocabDetector {
                 tokens = tokenizer.encode(&texts, length)?;
             }
         }
+        let sam = match &config.mask_decoder {
+            Some(decoder) => Some(SamMaskDecoder::new(runtime, decoder, "detector.open_vocab.mask_decoder")?),
+            None => None,
+        };
         tracing::info!(
             model = %model_path.display(),
             family = config.family.as_str(),
+            mask_decoder = sam.is_some(),
             prompts = prompts.len(),
             parts = prompts.iter().filter(|p| p.kind == NodeKind::Part).count(),
             "open-vocabulary detector loaded"
@@ -619,6 +634,7 @@ impl OpenVocabDetector {
             tokens,
             input: Vec::new(),
             segmenter: DepthSegmenter::new(config.depth_mask.clone()),
+            sam,
         })
     }
 
@@ -794,6 +810,12 @@ impl Detector for OpenVocabDetector {
             }
             None => None,
         };
+        if masks.is_none()
+            && !kept.is_empty()
+            && let Some(sam) = self.sam.as_mut()
+        {
+            sam.set_image(frame).map_err(DetectorError::Backend)?;
+        }
         let has_depth = frame.depth.len() == intr.pixel_count();
         let depth_m = |i: usize| if has_depth { frame.depth_m(i) } else { 0.0 };
         for r in kept {
@@ -803,7 +825,12 @@ impl Detector for OpenVocabDetector {
                     let plane = &data[r.row * mh * mw..(r.row + 1) * mh * mw];
                     mask_from_probabilities(plane, *mw, *mh, pixel_box, placement, spec, self.config.mask_threshold)
                 }
-                None => self.segmenter.segment(&depth_m, intr.width, pixel_box),
+                None => match self.sam.as_mut() {
+                    Some(sam) => {
+                        sam.mask(r.bbox, pixel_box, intr.width, intr.height).map_err(DetectorError::Backend)?
+                    }
+                    None => self.segmenter.segment(&depth_m, intr.width, pixel_box),
+                },
             };
             let Some(mask) = mask else { continue };
             let semantic_feature = embeddings.as_ref().and_then(|(d, data)| {
