@@ -1,6 +1,7 @@
-//! A SAM-family mask decoder for box detectors (`[detector.open_vocab.mask_decoder]`): the image
-//! encoder runs once per frame, the prompt decoder once per detection box, and its mask replaces
-//! the one segmented from depth.
+//! A SAM-family mask decoder for box detectors (`[detector.open_vocab.mask_decoder]`,
+//! `[detector.yolox.mask_decoder]`): the image encoder runs once per frame that has a box, the
+//! prompt decoder once per detection box, and its mask replaces the one segmented from depth
+//! ([`BoxMasks`] picks one or the other for both detectors).
 //!
 //! # Contract (SAM and MobileSAM exports)
 //!
@@ -30,9 +31,9 @@ use ort::session::{Session, SessionInputValue};
 use ort::value::TensorRef;
 use serde::{Deserialize, Serialize};
 
-use super::Mask;
-use super::depth_mask::PixelBox;
+use super::depth_mask::{DepthMaskConfig, DepthSegmenter, PixelBox};
 use super::image_input::{ImageInput, Placement, prepare};
+use super::{DetectorError, Mask};
 use crate::onnx::clip_text::user_model;
 use crate::onnx::contract::{self, Dim, FLOAT, TensorSpec};
 use crate::onnx::{OnnxError, OnnxRuntime, SessionSpec, open_session, resolve_path};
@@ -282,5 +283,59 @@ impl SamMaskDecoder {
         }
         let mask = Mask { x0: pixel_box.x0, y0: pixel_box.y0, width: bw, height: bh, data };
         Ok((mask.area() > 0).then_some(mask))
+    }
+}
+
+/// The masks of a box detector: SAM's when a mask decoder is set, else segmented from depth.
+#[derive(Debug)]
+pub struct BoxMasks {
+    segmenter: DepthSegmenter,
+    sam: Option<SamMaskDecoder>,
+    /// The SAM encoder ran on the current frame.
+    encoded: bool,
+}
+
+impl BoxMasks {
+    /// Depth masks with `depth`, or SAM's with `decoder` (section `key`).
+    pub fn new(
+        runtime: &OnnxRuntime,
+        depth: &DepthMaskConfig,
+        decoder: Option<&MaskDecoderConfig>,
+        key: &str,
+    ) -> Result<Self, OnnxError> {
+        let sam = match decoder {
+            Some(config) => Some(SamMaskDecoder::new(runtime, config, key)?),
+            None => None,
+        };
+        Ok(Self { segmenter: DepthSegmenter::new(depth.clone()), sam, encoded: false })
+    }
+
+    /// Whether masks come from a SAM decoder.
+    pub fn has_decoder(&self) -> bool {
+        self.sam.is_some()
+    }
+
+    /// Call before the first box of each frame.
+    pub fn begin_frame(&mut self) {
+        self.encoded = false;
+    }
+
+    /// The mask of the detection box `bbox` (image pixels; `pixel_box` its pixels) in `frame`.
+    pub fn mask(&mut self, frame: &Frame, bbox: [f32; 4], pixel_box: PixelBox) -> Result<Option<Mask>, DetectorError> {
+        let intr = frame.intrinsics;
+        match self.sam.as_mut() {
+            Some(sam) => {
+                if !self.encoded {
+                    sam.set_image(frame).map_err(DetectorError::Backend)?;
+                    self.encoded = true;
+                }
+                sam.mask(bbox, pixel_box, intr.width, intr.height).map_err(DetectorError::Backend)
+            }
+            None => {
+                let has_depth = frame.depth.len() == intr.pixel_count();
+                let depth_m = |i: usize| if has_depth { frame.depth_m(i) } else { 0.0 };
+                Ok(self.segmenter.segment(&depth_m, intr.width, pixel_box))
+            }
+        }
     }
 }

@@ -81,9 +81,9 @@ use ort::session::SessionInputValue;
 use ort::value::TensorRef;
 use serde::{Deserialize, Serialize};
 
-use super::depth_mask::{DepthMaskConfig, DepthSegmenter, PixelBox};
+use super::depth_mask::{DepthMaskConfig, PixelBox};
 use super::image_input::{ImageInput, Placement, prepare};
-use super::mask_decoder::{MaskDecoderConfig, SamMaskDecoder};
+use super::mask_decoder::{BoxMasks, MaskDecoderConfig};
 use super::yolox::iou;
 use super::{
     Detection, Detector, DetectorError, Mask, ScoreCalibration, greedy_suppress, normalise, validate_detection_limits,
@@ -470,8 +470,7 @@ pub struct OpenVocabDetector {
     /// `[P, L]` (empty unless `text.kind = "tokens"`).
     tokens: Tokens,
     input: Vec<f32>,
-    segmenter: DepthSegmenter,
-    sam: Option<SamMaskDecoder>,
+    box_masks: BoxMasks,
 }
 
 impl std::fmt::Debug for OpenVocabDetector {
@@ -610,14 +609,16 @@ impl OpenVocabDetector {
                 tokens = tokenizer.encode(&texts, length)?;
             }
         }
-        let sam = match &config.mask_decoder {
-            Some(decoder) => Some(SamMaskDecoder::new(runtime, decoder, "detector.open_vocab.mask_decoder")?),
-            None => None,
-        };
+        let box_masks = BoxMasks::new(
+            runtime,
+            &config.depth_mask,
+            config.mask_decoder.as_ref(),
+            "detector.open_vocab.mask_decoder",
+        )?;
         tracing::info!(
             model = %model_path.display(),
             family = config.family.as_str(),
-            mask_decoder = sam.is_some(),
+            mask_decoder = box_masks.has_decoder(),
             prompts = prompts.len(),
             parts = prompts.iter().filter(|p| p.kind == NodeKind::Part).count(),
             "open-vocabulary detector loaded"
@@ -633,8 +634,7 @@ impl OpenVocabDetector {
             text_dim,
             tokens,
             input: Vec::new(),
-            segmenter: DepthSegmenter::new(config.depth_mask.clone()),
-            sam,
+            box_masks,
         })
     }
 
@@ -810,14 +810,7 @@ impl Detector for OpenVocabDetector {
             }
             None => None,
         };
-        if masks.is_none()
-            && !kept.is_empty()
-            && let Some(sam) = self.sam.as_mut()
-        {
-            sam.set_image(frame).map_err(DetectorError::Backend)?;
-        }
-        let has_depth = frame.depth.len() == intr.pixel_count();
-        let depth_m = |i: usize| if has_depth { frame.depth_m(i) } else { 0.0 };
+        self.box_masks.begin_frame();
         for r in kept {
             let Some(pixel_box) = PixelBox::from_float(r.bbox, intr.width, intr.height) else { continue };
             let mask = match &masks {
@@ -825,12 +818,7 @@ impl Detector for OpenVocabDetector {
                     let plane = &data[r.row * mh * mw..(r.row + 1) * mh * mw];
                     mask_from_probabilities(plane, *mw, *mh, pixel_box, placement, spec, self.config.mask_threshold)
                 }
-                None => match self.sam.as_mut() {
-                    Some(sam) => {
-                        sam.mask(r.bbox, pixel_box, intr.width, intr.height).map_err(DetectorError::Backend)?
-                    }
-                    None => self.segmenter.segment(&depth_m, intr.width, pixel_box),
-                },
+                None => self.box_masks.mask(frame, r.bbox, pixel_box)?,
             };
             let Some(mask) = mask else { continue };
             let semantic_feature = embeddings.as_ref().and_then(|(d, data)| {

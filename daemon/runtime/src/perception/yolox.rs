@@ -47,8 +47,9 @@ use ort::session::Session;
 use ort::value::TensorRef;
 use serde::{Deserialize, Serialize};
 
-use super::depth_mask::{DepthMaskConfig, DepthSegmenter, PixelBox};
+use super::depth_mask::{DepthMaskConfig, PixelBox};
 use super::image_input::{ColourOrder, ImageInput, Resize, prepare};
+use super::mask_decoder::{BoxMasks, MaskDecoderConfig};
 use super::{Detection, Detector, DetectorError, greedy_suppress, validate_detection_limits};
 use crate::onnx::{ExecutionProvider, OnnxError, OnnxRuntime, SessionSpec, open_session, resolve_path};
 
@@ -105,6 +106,10 @@ pub struct YoloxConfig {
     pub tile_overlap: f32,
     /// `[detector.yolox.depth_mask]`.
     pub depth_mask: DepthMaskConfig,
+    /// `[detector.yolox.mask_decoder]`: a SAM-family mask decoder whose masks replace those from
+    /// depth ([`super::mask_decoder`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mask_decoder: Option<MaskDecoderConfig>,
 }
 
 impl Default for YoloxConfig {
@@ -122,6 +127,7 @@ impl Default for YoloxConfig {
             tiles: [1, 1],
             tile_overlap: 0.2,
             depth_mask: DepthMaskConfig::default(),
+            mask_decoder: None,
         }
     }
 }
@@ -160,6 +166,9 @@ impl YoloxConfig {
             if label.trim().is_empty() {
                 return Err(format!("{path}.class_map.{class}: the label must not be empty"));
             }
+        }
+        if let Some(decoder) = &self.mask_decoder {
+            decoder.validate(&format!("{path}.mask_decoder"))?;
         }
         self.depth_mask.validate(&format!("{path}.depth_mask"))
     }
@@ -401,7 +410,7 @@ pub struct YoloxDetector {
     config: YoloxConfig,
     /// Our label per COCO class index (None: dropped).
     labels: Vec<Option<String>>,
-    segmenter: DepthSegmenter,
+    box_masks: BoxMasks,
     /// One tile's pixels (sliced inference).
     tile_rgb: Vec<u8>,
 }
@@ -415,7 +424,12 @@ impl YoloxDetector {
             model,
             config: config.clone(),
             labels,
-            segmenter: DepthSegmenter::new(config.depth_mask.clone()),
+            box_masks: BoxMasks::new(
+                runtime,
+                &config.depth_mask,
+                config.mask_decoder.as_ref(),
+                "detector.yolox.mask_decoder",
+            )?,
             tile_rgb: Vec::new(),
         })
     }
@@ -535,12 +549,11 @@ impl Detector for YoloxDetector {
         let boxes = self
             .detect_sliced(&frame.rgb, intr.width, intr.height)
             .map_err(|e| DetectorError::Backend(e.to_string()))?;
-        let has_depth = frame.depth.len() == intr.pixel_count();
-        let depth_m = |i: usize| if has_depth { frame.depth_m(i) } else { 0.0 };
+        self.box_masks.begin_frame();
         for b in boxes {
             let Some(label) = self.labels.get(b.class).and_then(Option::as_ref) else { continue };
             let Some(pixel_box) = PixelBox::from_float(b.bbox, intr.width, intr.height) else { continue };
-            let Some(mask) = self.segmenter.segment(&depth_m, intr.width, pixel_box) else { continue };
+            let Some(mask) = self.box_masks.mask(frame, b.bbox, pixel_box)? else { continue };
             out.push(Detection {
                 label: label.clone(),
                 kind: NodeKind::Object,
