@@ -176,6 +176,20 @@ fn a_sam_mask_decoder_replaces_the_depth_masks() {
     let mut out = Vec::new();
     op3dsg_runtime::perception::Detector::detect(&mut detector, &frame, &mut out).unwrap();
     assert!(!out.is_empty());
+    // A calibration maps the published scores (the threshold stays on the raw ones).
+    let calibration = op3dsg_runtime::perception::ScoreCalibration {
+        kind: op3dsg_runtime::perception::CalibrationKind::Affine,
+        a: 0.5,
+        b: 0.5,
+    };
+    let calibrated = YoloxConfig { calibration, ..config.clone() };
+    let mut detector = op3dsg_runtime::perception::yolox::YoloxDetector::new(&runtime, &calibrated).expect("loads");
+    let mut lifted = Vec::new();
+    op3dsg_runtime::perception::Detector::detect(&mut detector, &frame, &mut lifted).unwrap();
+    assert_eq!(lifted.len(), out.len());
+    for (raw, cal) in out.iter().zip(&lifted) {
+        assert!((cal.score - (0.5 * raw.score + 0.5)).abs() < 1e-6, "{} {}", raw.score, cal.score);
+    }
     for d in &out {
         let m = &d.mask;
         // The stand-in cuts at the float box; the pixel box rounds outwards: a pixel of slack.

@@ -47,6 +47,7 @@ use ort::session::Session;
 use ort::value::TensorRef;
 use serde::{Deserialize, Serialize};
 
+use super::ScoreCalibration;
 use super::depth_mask::{DepthMaskConfig, PixelBox};
 use super::image_input::{ColourOrder, ImageInput, Resize, prepare};
 use super::mask_decoder::{BoxMasks, MaskDecoderConfig};
@@ -84,8 +85,11 @@ pub struct YoloxConfig {
     pub sha256: Option<String>,
     /// Square network input side, pixels (416 for YOLOX-nano).
     pub input_size: u32,
-    /// Keep candidates with objectness x class score above this. (0, 1).
+    /// Keep candidates with objectness x class score above this (the raw score). (0, 1).
     pub score_threshold: f32,
+    /// Maps the kept detections' scores onto fusion's scale (`[detector.yolox.calibration]`,
+    /// [`super::ScoreCalibration`]); the threshold above applies to the raw score.
+    pub calibration: ScoreCalibration,
     /// Per-class NMS: drop a box whose IoU with a higher-scored box of its class exceeds this.
     pub nms_iou_threshold: f32,
     /// At most this many detections per frame.
@@ -119,6 +123,7 @@ impl Default for YoloxConfig {
             sha256: None,
             input_size: 416,
             score_threshold: 0.3,
+            calibration: ScoreCalibration::default(),
             nms_iou_threshold: 0.45,
             max_detections: 100,
             intra_op_threads: 1,
@@ -170,6 +175,7 @@ impl YoloxConfig {
         if let Some(decoder) = &self.mask_decoder {
             decoder.validate(&format!("{path}.mask_decoder"))?;
         }
+        self.calibration.validate(&format!("{path}.calibration"))?;
         self.depth_mask.validate(&format!("{path}.depth_mask"))
     }
 }
@@ -557,7 +563,7 @@ impl Detector for YoloxDetector {
             out.push(Detection {
                 label: label.clone(),
                 kind: NodeKind::Object,
-                score: b.score,
+                score: self.config.calibration.apply(b.score),
                 mask,
                 semantic_feature: None,
             });
