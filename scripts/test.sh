@@ -18,6 +18,11 @@ echo "== models =="
 echo "== python venv =="
 ./scripts/setup-python.sh
 
+# Stand-in ONNX models of the detector families (.models/standins/, from the venv's onnx): the
+# family adapter tests run through ONNX Runtime on them.
+echo "== model stand-ins =="
+./scripts/setup-standins.sh
+
 # Foxglove's published JSON schemas (npm @foxglove/schemas into .deps/foxglove-schemas/): the
 # recorder tests validate every foxglove.* message of a recording against them.
 echo "== foxglove schemas =="

@@ -146,3 +146,58 @@ fn an_unavailable_execution_provider_falls_back_to_the_cpu() {
         assert_eq!(boxes.len(), BOXES.len(), "{provider:?}: {boxes:?}");
     }
 }
+
+#[test]
+fn a_sam_mask_decoder_replaces_the_depth_masks() {
+    if !available() {
+        return;
+    }
+    let standins = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../.models/standins");
+    let decoder = op3dsg_runtime::perception::mask_decoder::MaskDecoderConfig {
+        encoder_path: standins.join("sam_encoder.onnx"),
+        decoder_path: standins.join("sam_decoder.onnx"),
+        ..Default::default()
+    };
+    assert!(decoder.decoder_path.is_file(), "run ./scripts/setup-standins.sh");
+    let runtime = OnnxRuntime::init(&OnnxConfig::default()).expect("ONNX Runtime (run ./scripts/setup-models.sh)");
+    let mut class_map = std::collections::BTreeMap::new();
+    for class in coco_classes() {
+        class_map.insert((*class).to_owned(), (*class).to_owned());
+    }
+    let config =
+        YoloxConfig { model_path: model_path(), class_map, mask_decoder: Some(decoder), ..YoloxConfig::default() };
+    let mut detector = op3dsg_runtime::perception::yolox::YoloxDetector::new(&runtime, &config).expect("loads");
+    let intrinsics =
+        op3dsg_drivers::frame::Intrinsics { width: 640, height: 480, fx: 481.2, fy: 480.0, cx: 319.5, cy: 239.5 };
+    let mut frame = op3dsg_drivers::frame::Frame::new(intrinsics);
+    frame.rgb = rgb(FRAME);
+    // No depth at all: depth masks would give nothing; the stand-in decoder answers the top
+    // half of each box it is prompted with.
+    let mut out = Vec::new();
+    op3dsg_runtime::perception::Detector::detect(&mut detector, &frame, &mut out).unwrap();
+    assert!(!out.is_empty());
+    // A calibration maps the published scores (the threshold stays on the raw ones).
+    let calibration = op3dsg_runtime::perception::ScoreCalibration {
+        kind: op3dsg_runtime::perception::CalibrationKind::Affine,
+        a: 0.5,
+        b: 0.5,
+    };
+    let calibrated = YoloxConfig { calibration, ..config.clone() };
+    let mut detector = op3dsg_runtime::perception::yolox::YoloxDetector::new(&runtime, &calibrated).expect("loads");
+    let mut lifted = Vec::new();
+    op3dsg_runtime::perception::Detector::detect(&mut detector, &frame, &mut lifted).unwrap();
+    assert_eq!(lifted.len(), out.len());
+    for (raw, cal) in out.iter().zip(&lifted) {
+        assert!((cal.score - (0.5 * raw.score + 0.5)).abs() < 1e-6, "{} {}", raw.score, cal.score);
+    }
+    for d in &out {
+        let m = &d.mask;
+        // The stand-in cuts at the float box; the pixel box rounds outwards: a pixel of slack.
+        let half = f64::from(m.width * m.height) / 2.0;
+        let area = m.area() as f64;
+        let slack = f64::from(m.width + m.height) * 1.5;
+        assert!((area - half).abs() <= slack, "{}: area {area}, half the box {half}", d.label);
+        let cx = m.x0 + m.width / 2;
+        assert!(m.contains(cx, m.y0 + 1) && !m.contains(cx, m.y0 + m.height - 1), "{}", d.label);
+    }
+}

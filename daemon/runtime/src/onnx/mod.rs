@@ -23,6 +23,8 @@
 //!
 //! Models on top of it:
 //! - [`text_encoder`]: label → 384-d sentence embedding (all-MiniLM-L6-v2), batched and cached.
+//! - [`clip_text`]: CLIP's BPE tokens and a user's CLIP text encoder (detector prompts).
+//! - [`contract`]: a model file's sha256 and tensors against its profile section.
 //!
 //! ```no_run
 //! use op3dsg_runtime::onnx::{OnnxConfig, OnnxRuntime};
@@ -35,6 +37,8 @@
 //! # Ok::<(), op3dsg_runtime::onnx::OnnxError>(())
 //! ```
 
+pub mod clip_text;
+pub mod contract;
 pub mod text_encoder;
 
 use std::path::{Path, PathBuf};

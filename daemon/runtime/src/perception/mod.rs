@@ -3,10 +3,12 @@
 
 use op3dsg_drivers::frame::Frame;
 use op3dsg_ipc_types::NodeKind;
+use serde::{Deserialize, Serialize};
 
 pub mod candidates;
 pub mod depth_mask;
 pub mod image_input;
+pub mod mask_decoder;
 pub mod open_vocab;
 pub(crate) mod worker;
 pub mod yolox;
@@ -106,6 +108,77 @@ pub fn validate_detection_limits(
     Ok(())
 }
 
+/// How a detector's score is mapped onto the scale fusion's thresholds were set on (the
+/// oracle's: `fusion.min_mean_score`, `score_threshold`), per detector, so a profile need not
+/// retune fusion for each model (`[detector.<kind>.calibration]`):
+///
+/// - `none`: the score as the model gives it;
+/// - `affine`: `clamp(a s + b, 0, 1)`;
+/// - `logistic`: Platt scaling in logit space, `sigmoid(a logit(s) + b)` (`a = 1, b = 0` is the
+///   identity; a model with logit outputs has `score_activation = "sigmoid"` before it).
+///
+/// `a` and `b` are fitted on the user's data: the detections `op3dsg eval` matches to ground
+/// truth (label 1) and the rest (label 0), fitted by logistic regression of the label on
+/// `logit(s)`. The calibrated score is the one thresholded and published.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ScoreCalibration {
+    /// `none`, `affine` or `logistic`.
+    pub kind: CalibrationKind,
+    /// Slope.
+    pub a: f32,
+    /// Offset.
+    pub b: f32,
+}
+
+/// [`ScoreCalibration::kind`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CalibrationKind {
+    /// Unchanged.
+    #[default]
+    None,
+    /// `clamp(a s + b, 0, 1)`.
+    Affine,
+    /// `sigmoid(a logit(s) + b)`.
+    Logistic,
+}
+
+impl Default for ScoreCalibration {
+    fn default() -> Self {
+        Self { kind: CalibrationKind::None, a: 1.0, b: 0.0 }
+    }
+}
+
+impl ScoreCalibration {
+    /// The calibrated score of `s` (in [0, 1]; NaN stays NaN).
+    pub fn apply(&self, s: f32) -> f32 {
+        match self.kind {
+            CalibrationKind::None => s,
+            CalibrationKind::Affine => (self.a * s + self.b).clamp(0.0, 1.0),
+            CalibrationKind::Logistic => {
+                let s = s.clamp(1e-7, 1.0 - 1e-7);
+                let logit = (s / (1.0 - s)).ln();
+                1.0 / (1.0 + (-(self.a * logit + self.b)).exp())
+            }
+        }
+    }
+
+    /// Range checks; errors are `path.field: message`.
+    pub fn validate(&self, path: &str) -> Result<(), String> {
+        if !(self.a.is_finite() && self.b.is_finite()) {
+            return Err(format!("{path}: a and b must be finite, got a = {}, b = {}", self.a, self.b));
+        }
+        if self.kind != CalibrationKind::None && self.a <= 0.0 {
+            return Err(format!(
+                "{path}.a: must be positive (a calibration keeps the order of scores), got {}",
+                self.a
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// Dot product of two semantic features (the cosine when both are L2-normalised).
 #[inline]
 pub fn dot(a: &[f32], b: &[f32]) -> f32 {
@@ -143,4 +216,30 @@ pub trait Detector: Send {
 
     /// Name for logs and health (`oracle`, `yolox`).
     fn name(&self) -> &str;
+}
+
+#[cfg(test)]
+mod calibration_tests {
+    use super::*;
+
+    #[test]
+    fn calibrations_map_scores_monotonically_into_the_unit_interval() {
+        assert_eq!(ScoreCalibration::default().apply(0.42), 0.42);
+        let affine = ScoreCalibration { kind: CalibrationKind::Affine, a: 2.0, b: 0.1 };
+        assert!((affine.apply(0.2) - 0.5).abs() < 1e-6);
+        assert_eq!(affine.apply(0.9), 1.0);
+        let identity = ScoreCalibration { kind: CalibrationKind::Logistic, a: 1.0, b: 0.0 };
+        assert!((identity.apply(0.3) - 0.3).abs() < 1e-5);
+        // A detector whose scores run low (0.2 for a true object) lifted to the oracle's 0.6.
+        let lift =
+            ScoreCalibration { kind: CalibrationKind::Logistic, a: 1.0, b: (0.6f32 / 0.4).ln() - (0.2f32 / 0.8).ln() };
+        assert!((lift.apply(0.2) - 0.6).abs() < 1e-5);
+        assert!(lift.apply(0.1) < lift.apply(0.2) && lift.apply(0.9) < 1.0);
+        let bad = ScoreCalibration { kind: CalibrationKind::Logistic, a: -1.0, b: 0.0 };
+        assert!(
+            bad.validate("detector.open_vocab.calibration")
+                .unwrap_err()
+                .starts_with("detector.open_vocab.calibration.a")
+        );
+    }
 }

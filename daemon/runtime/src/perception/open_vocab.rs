@@ -1,22 +1,55 @@
 //! Open-vocabulary detectors through ONNX Runtime: a user's exported object/part detector that
-//! takes its vocabulary as text embeddings at run time plugs in by profile alone
+//! takes its vocabulary as text embeddings or tokens at run time plugs in by profile alone
 //! (`[detector] kind = "open_vocab"`, `[detector.open_vocab]`).
 //!
-//! # Model contract
+//! # Families
+//!
+//! `family` picks the export layout; every family goes through the same decoding below, the
+//! named ones with `text` and `outputs` fixed (setting either is refused), and the file is
+//! checked against the layout at start ([`crate::onnx::contract`]: a tensor that is missing or
+//! has another dtype or shape is refused naming the profile key and listing the file's tensors).
+//! `sha256` (optional) is checked first. `P` is the number of prompts, `A` of candidate regions.
+//!
+//! - `generic` (default): `text` and `outputs` as the profile states them (next section).
+//! - `yolo_world`: YOLO-World with a text-feature input (YOLO-World's `easydeploy` DeployModel
+//!   with post-processing and without NMS, as `wkentaro/yolo-world-onnx`'s `export_onnx.py`
+//!   writes it). In: `input.name` (default `images`) float32 `[1, 3, H, W]` (640 x 640, RGB,
+//!   0..1, letterbox, pad 114), `text_features` float32 `[1, P, D]`: the prompts through the CLIP
+//!   text encoder of `[detector.open_vocab.clip]`, L2-normalised (`D` = `clip.dim`, 512). Out:
+//!   `scores` float32 `[1, A, P]` (post-sigmoid), `boxes` float32 `[1, A, 4]` (`x0 y0 x1 y1` in
+//!   input pixels). YOLO-World's own scripts centre the letterbox; op3dsg places it top-left
+//!   (the convolutional detector is translation-equivariant; boxes are mapped back either way).
+//! - `owl`: OWL-ViT / OWLv2 as Hugging Face optimum exports them (`optimum-cli export onnx
+//!   --model google/owlv2-base-patch16-ensemble --task zero-shot-object-detection owlv2/`). In:
+//!   `input_ids` int64 `[P, L]` and `attention_mask` int64 `[P, L]` (CLIP's BPE,
+//!   [`crate::onnx::clip_text::ClipTokenizer`], zero-padded to the export's `L`, 16, or
+//!   `text.context_length`), `input.name` (`pixel_values`) float32 `[1, 3, H, W]` (OWLv2: 960,
+//!   CLIP mean/std, padded bottom/right with grey: `resize = "letterbox"`, `pad_value = 127.5`;
+//!   OWL-ViT: 768, `resize = "stretch"`). Out: `logits` float32 `[1, A, P]` (a sigmoid gives
+//!   the score), `pred_boxes` float32 `[1, A, 4]` (`cx cy w h` normalised to the input).
+//!
+//! `scripts/reference/model_standins.py` writes a stand-in of each with these tensors and known
+//! answers; `daemon/sim/tests/model_families.rs` runs the families on them.
+//!
+//! # Model contract (`generic`)
 //!
 //! Inputs:
 //! - the image, `[1, 3, H, W]` float32, as `[detector.open_vocab.input]` states it (name, size,
 //!   colour order, letterbox or stretch, scale, mean, std, pad; see [`super::image_input`]);
 //! - with `text.kind = "embeddings"`: the prompts' embeddings `[P, D]` float32 (tensor
-//!   `text.name`), one L2-normalised row per prompt from the profile's `[text_encoder]`; with
-//!   `text.kind = "none"` the vocabulary is baked into the model and the prompt list names its
-//!   classes in the model's order.
+//!   `text.name`; `[1, P, D]` with `text.batch_axis`), one L2-normalised row per prompt from
+//!   `[text_encoder]` (`text.encoder = "minilm"`, D = 384) or the CLIP text encoder of
+//!   `[detector.open_vocab.clip]` (`"clip"`); with `text.kind = "tokens"`: CLIP tokens
+//!   `[P, L]` int64 (`text.name`) and, when `text.attention_mask` names one, the mask `[P, L]`
+//!   int64; with `text.kind = "none"` the vocabulary is baked into the model and the prompt list
+//!   names its classes in the model's order.
 //!
 //! Outputs (names in `[detector.open_vocab.outputs]`), `N` candidate regions:
 //! - `boxes` `[N, 4]` (a leading batch axis of 1 is accepted everywhere): `xyxy` or `cxcywh`
 //!   (`box_format`), in network input pixels or normalised to [0, 1] (`boxes_normalised`);
 //! - `scores`: either `[N]` together with `prompt_index` `[N]` (int64 or int32: which prompt),
-//!   or, with `prompt_index` unset, `[N, P]` (a score per prompt; the best one is taken);
+//!   or, with `prompt_index` unset, `[N, P]` (a score per prompt; the best one is taken, ties
+//!   to the earlier prompt); `score_activation = "sigmoid"` for logits;
 //! - optional `masks` `[N, h, w]`: per-region mask probabilities over the whole network input
 //!   (any resolution), thresholded at `mask_threshold`; without them the mask is segmented from
 //!   depth inside the box ([`super::depth_mask`]), as for box-only detectors;
@@ -37,51 +70,171 @@
 //! `"all"` the tags alone. Then `parts`, as given. Duplicates are dropped, order kept.
 //!
 //! `scripts/reference/open_vocab_fixture.py` writes a tiny model with this contract and known
-//! answers; `daemon/tests/open_vocab.rs` runs the adapter on it.
+//! answers; `daemon/sim/tests/open_vocab.rs` runs the adapter on it.
 
 use std::path::PathBuf;
 
 use op3dsg_drivers::frame::Frame;
 use op3dsg_ipc_types::NodeKind;
 use ort::session::Session;
+use ort::session::SessionInputValue;
 use ort::value::TensorRef;
 use serde::{Deserialize, Serialize};
 
-use super::depth_mask::{DepthMaskConfig, DepthSegmenter, PixelBox};
+use super::depth_mask::{DepthMaskConfig, PixelBox};
 use super::image_input::{ImageInput, Placement, prepare};
+use super::mask_decoder::{BoxMasks, MaskDecoderConfig};
 use super::yolox::iou;
-use super::{Detection, Detector, DetectorError, Mask, greedy_suppress, normalise, validate_detection_limits};
+use super::{
+    Detection, Detector, DetectorError, Mask, ScoreCalibration, greedy_suppress, normalise, validate_detection_limits,
+};
 use std::sync::Arc;
 
 use super::candidates::{CandidateMode, PartCandidates, Prompt, PromptList};
 use crate::knowledge::KnowledgeBase;
+use crate::onnx::clip_text::{ClipTextConfig, ClipTextEncoder, ClipTokenizer, Tokens, user_model};
+use crate::onnx::contract::{self, Dim, FLOAT, INDEX, INT64, TensorSpec};
 use crate::onnx::text_encoder::{EMBEDDING_DIM, TextEncoder, TextEncoderConfig};
 use crate::onnx::{ExecutionProvider, OnnxError, OnnxRuntime, SessionSpec, open_session, resolve_path};
+
+/// Which export layout the model has (`detector.open_vocab.family`): `generic` is described
+/// field by field by `text` and `outputs`; the others fix both to the layout of a published
+/// export (module docs, "Families").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Family {
+    /// `text` and `outputs` as the profile states them.
+    #[default]
+    Generic,
+    /// YOLO-World with a text-feature input (CLIP text features in, scores and boxes out).
+    YoloWorld,
+    /// OWL-ViT / OWLv2 (CLIP tokens in, logits and normalised centre boxes out).
+    Owl,
+}
+
+impl Family {
+    /// The profile spelling.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Generic => "generic",
+            Self::YoloWorld => "yolo_world",
+            Self::Owl => "owl",
+        }
+    }
+
+    /// The text input and outputs of this family (`config`'s own for `generic`).
+    pub fn contract(self, config: &OpenVocabConfig) -> (TextInput, OutputNames) {
+        match self {
+            Self::Generic => (config.text.clone(), config.outputs.clone()),
+            Self::YoloWorld => (
+                TextInput {
+                    kind: TextInputKind::Embeddings,
+                    name: "text_features".to_owned(),
+                    encoder: TextEncoderKind::Clip,
+                    batch_axis: true,
+                    ..TextInput::default()
+                },
+                OutputNames {
+                    boxes: "boxes".to_owned(),
+                    scores: "scores".to_owned(),
+                    prompt_index: None,
+                    ..OutputNames::default()
+                },
+            ),
+            Self::Owl => (
+                TextInput {
+                    kind: TextInputKind::Tokens,
+                    name: "input_ids".to_owned(),
+                    attention_mask: Some("attention_mask".to_owned()),
+                    ..TextInput::default()
+                },
+                OutputNames {
+                    boxes: "pred_boxes".to_owned(),
+                    box_format: BoxFormat::Cxcywh,
+                    boxes_normalised: true,
+                    scores: "logits".to_owned(),
+                    prompt_index: None,
+                    score_activation: ScoreActivation::Sigmoid,
+                    ..OutputNames::default()
+                },
+            ),
+        }
+    }
+}
 
 /// How the model receives its vocabulary.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum TextInputKind {
-    /// `[P, D]` prompt embeddings from `[text_encoder]`.
+    /// `[P, D]` prompt embeddings from `encoder`.
     #[default]
     Embeddings,
+    /// `[P, L]` int64 CLIP tokens (and an attention mask), tokenised here with CLIP's BPE.
+    Tokens,
     /// Baked into the model; the prompt list names its classes in order.
     None,
+}
+
+/// Which text encoder makes the prompt embeddings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TextEncoderKind {
+    /// `[text_encoder]` (all-MiniLM-L6-v2, 384-d).
+    #[default]
+    Minilm,
+    /// The CLIP text encoder of `[detector.open_vocab.clip]`.
+    Clip,
 }
 
 /// `[detector.open_vocab.text]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct TextInput {
-    /// Embeddings or none.
+    /// Embeddings, tokens or none.
     pub kind: TextInputKind,
-    /// Tensor name of the embeddings.
+    /// Tensor name of the embeddings or token ids.
     pub name: String,
+    /// Embeddings: `minilm` or `clip`.
+    pub encoder: TextEncoderKind,
+    /// Embeddings: fed as `[1, P, D]` (with a batch axis) instead of `[P, D]`.
+    pub batch_axis: bool,
+    /// Tokens: the attention-mask input, if the model has one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub attention_mask: Option<String>,
+    /// Tokens: row length when the model's input does not fix it (OWL: 16).
+    pub context_length: usize,
 }
 
 impl Default for TextInput {
     fn default() -> Self {
-        Self { kind: TextInputKind::Embeddings, name: "text_embeddings".to_owned() }
+        Self {
+            kind: TextInputKind::Embeddings,
+            name: "text_embeddings".to_owned(),
+            encoder: TextEncoderKind::Minilm,
+            batch_axis: false,
+            attention_mask: None,
+            context_length: 16,
+        }
+    }
+}
+
+/// What turns a raw score into one in [0, 1].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ScoreActivation {
+    /// The model's scores are probabilities already.
+    #[default]
+    None,
+    /// Logits: `1 / (1 + e^-x)`.
+    Sigmoid,
+}
+
+impl ScoreActivation {
+    fn apply(self, x: f32) -> f32 {
+        match self {
+            Self::None => x,
+            Self::Sigmoid => 1.0 / (1.0 + (-x).exp()),
+        }
     }
 }
 
@@ -114,6 +267,8 @@ pub struct OutputNames {
     pub masks: Option<String>,
     /// Optional `[N, D]` region embeddings.
     pub region_embeddings: Option<String>,
+    /// `none` (scores are probabilities) or `sigmoid` (logits).
+    pub score_activation: ScoreActivation,
 }
 
 impl Default for OutputNames {
@@ -126,6 +281,7 @@ impl Default for OutputNames {
             prompt_index: Some("prompt_index".to_owned()),
             masks: None,
             region_embeddings: None,
+            score_activation: ScoreActivation::None,
         }
     }
 }
@@ -152,8 +308,13 @@ impl Default for PromptConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct OpenVocabConfig {
+    /// Export layout: `generic`, `yolo_world` or `owl` (module docs, "Families").
+    pub family: Family,
     /// The ONNX model. Relative paths in a profile file are relative to that file.
     pub model_path: PathBuf,
+    /// Optional sha256 of `model_path`, checked at start.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sha256: Option<String>,
     /// Image input contract.
     pub input: ImageInput,
     /// Text input contract.
@@ -162,7 +323,10 @@ pub struct OpenVocabConfig {
     pub outputs: OutputNames,
     /// The vocabulary.
     pub prompts: PromptConfig,
-    /// Keep regions scoring above this. (0, 1).
+    /// Score calibration onto fusion's scale (`[detector.open_vocab.calibration]`), applied
+    /// before `score_threshold`.
+    pub calibration: ScoreCalibration,
+    /// Keep regions scoring above this (after calibration). (0, 1).
     pub score_threshold: f32,
     /// Per-prompt NMS IoU. (0, 1].
     pub nms_iou_threshold: f32,
@@ -177,16 +341,26 @@ pub struct OpenVocabConfig {
     pub execution_provider: Option<ExecutionProvider>,
     /// Masks from depth for models without a mask output.
     pub depth_mask: DepthMaskConfig,
+    /// CLIP's tokenizer and text encoder (`text.encoder = "clip"`, `text.kind = "tokens"`, the
+    /// `yolo_world` and `owl` families).
+    pub clip: ClipTextConfig,
+    /// A SAM-family mask decoder: its masks replace those from depth for models without a mask
+    /// output ([`super::mask_decoder`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mask_decoder: Option<MaskDecoderConfig>,
 }
 
 impl Default for OpenVocabConfig {
     fn default() -> Self {
         Self {
+            family: Family::Generic,
             model_path: PathBuf::from("open_vocab.onnx"),
+            sha256: None,
             input: ImageInput::default(),
             text: TextInput::default(),
             outputs: OutputNames::default(),
             prompts: PromptConfig::default(),
+            calibration: ScoreCalibration::default(),
             score_threshold: 0.3,
             nms_iou_threshold: 0.5,
             max_detections: 100,
@@ -194,6 +368,8 @@ impl Default for OpenVocabConfig {
             intra_op_threads: 1,
             execution_provider: None,
             depth_mask: DepthMaskConfig::default(),
+            clip: ClipTextConfig::default(),
+            mask_decoder: None,
         }
     }
 }
@@ -204,7 +380,32 @@ impl OpenVocabConfig {
         if self.model_path.as_os_str().is_empty() {
             return Err(format!("{path}.model_path: must not be empty"));
         }
+        contract::validate_sha256(&format!("{path}.sha256"), self.sha256.as_deref())?;
+        self.calibration.validate(&format!("{path}.calibration"))?;
         self.input.validate(&format!("{path}.input"))?;
+        if self.family != Family::Generic {
+            let family = self.family.as_str();
+            if self.text != TextInput::default() {
+                return Err(format!(
+                    "{path}.text: only with family = \"generic\"; family = \"{family}\" fixes the text input (see the README, \"Bringing your own models\")"
+                ));
+            }
+            if self.outputs != OutputNames::default() {
+                return Err(format!(
+                    "{path}.outputs: only with family = \"generic\"; family = \"{family}\" fixes the outputs (see the README, \"Bringing your own models\")"
+                ));
+            }
+        }
+        let (text, _) = self.family.contract(self);
+        if text.kind == TextInputKind::Tokens && !(3..=1024).contains(&text.context_length) {
+            return Err(format!("{path}.text.context_length: must be within [3, 1024], got {}", text.context_length));
+        }
+        if let Some(decoder) = &self.mask_decoder {
+            decoder.validate(&format!("{path}.mask_decoder"))?;
+        }
+        if text.kind == TextInputKind::Tokens || text.encoder == TextEncoderKind::Clip {
+            self.clip.validate(&format!("{path}.clip"))?;
+        }
         validate_detection_limits(
             path,
             self.score_threshold,
@@ -253,31 +454,99 @@ struct Region {
     row: usize,
 }
 
-/// The open-vocabulary detector of one worker: its own session, the prompts' embeddings and a
-/// depth segmenter.
+/// The open-vocabulary detector of one worker: its own session, the prompts' embeddings or
+/// tokens and a depth segmenter.
 pub struct OpenVocabDetector {
     session: Session,
     config: OpenVocabConfig,
+    /// The family's (or the profile's, for `generic`) text input and outputs.
+    text: TextInput,
+    outputs: OutputNames,
     model_path: PathBuf,
     prompts: Vec<Prompt>,
-    /// `[P, D]` row-major (empty with `text.kind = "none"`).
+    /// `[P, D]` row-major (empty unless `text.kind = "embeddings"`).
     text_embeddings: Vec<f32>,
+    text_dim: usize,
+    /// `[P, L]` (empty unless `text.kind = "tokens"`).
+    tokens: Tokens,
     input: Vec<f32>,
-    segmenter: DepthSegmenter,
+    box_masks: BoxMasks,
 }
 
 impl std::fmt::Debug for OpenVocabDetector {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("OpenVocabDetector")
+            .field("family", &self.config.family)
             .field("model_path", &self.model_path)
             .field("prompts", &self.prompts.len())
             .finish_non_exhaustive()
     }
 }
 
+/// The tensors `config`'s model must have: `(inputs, outputs, what)`, `what` naming the
+/// contract for messages.
+fn contract_tensors(
+    config: &OpenVocabConfig,
+    text: &TextInput,
+    outputs: &OutputNames,
+    text_dim: usize,
+) -> (Vec<TensorSpec>, Vec<TensorSpec>, String) {
+    const KEY: &str = "detector.open_vocab";
+    let family = config.family;
+    // Family layouts are named by the family key, generic ones by the key of each name.
+    let key = |field: &str| match family {
+        Family::Generic => format!("{KEY}.{field}"),
+        _ => format!("{KEY}.family = \"{}\"", family.as_str()),
+    };
+    let image =
+        Some(vec![Dim::Is(1), Dim::Is(3), Dim::Is(config.input.height.into()), Dim::Is(config.input.width.into())]);
+    let mut inputs = vec![TensorSpec::new(&config.input.name, &format!("{KEY}.input.name"), FLOAT, image)];
+    match text.kind {
+        TextInputKind::None => {}
+        TextInputKind::Embeddings => {
+            let mut dims = vec![Dim::Any("P"), Dim::Is(text_dim as i64)];
+            if text.batch_axis {
+                dims.insert(0, Dim::Is(1));
+            }
+            inputs.push(TensorSpec::new(&text.name, &key("text.name"), FLOAT, Some(dims)));
+        }
+        TextInputKind::Tokens => {
+            let tokens = || Some(vec![Dim::Any("P"), Dim::Any("L")]);
+            inputs.push(TensorSpec::new(&text.name, &key("text.name"), INT64, tokens()));
+            if let Some(mask) = &text.attention_mask {
+                inputs.push(TensorSpec::new(mask, &key("text.attention_mask"), INT64, tokens()));
+            }
+        }
+    }
+    let (boxes, scores) = match family {
+        // Generic outputs may carry a batch axis or not; their shapes are checked when run.
+        Family::Generic => (None, None),
+        _ => (Some(vec![Dim::Is(1), Dim::Any("A"), Dim::Is(4)]), Some(vec![Dim::Is(1), Dim::Any("A"), Dim::Any("P")])),
+    };
+    let mut outs = vec![
+        TensorSpec::new(&outputs.boxes, &key("outputs.boxes"), FLOAT, boxes),
+        TensorSpec::new(&outputs.scores, &key("outputs.scores"), FLOAT, scores),
+    ];
+    for (field, name, dtypes) in [
+        ("outputs.prompt_index", &outputs.prompt_index, INDEX),
+        ("outputs.masks", &outputs.masks, FLOAT),
+        ("outputs.region_embeddings", &outputs.region_embeddings, FLOAT),
+    ] {
+        if let Some(name) = name {
+            outs.push(TensorSpec::new(name, &key(field), dtypes, None));
+        }
+    }
+    let what = match family {
+        Family::Generic => format!("the profile's contract ({KEY})"),
+        _ => format!("the {} family's export layout ({KEY}.family)", family.as_str()),
+    };
+    (inputs, outs, what)
+}
+
 impl OpenVocabDetector {
-    /// Loads the model, checks its inputs and outputs against the profile's contract and
-    /// encodes the prompts (with `text_encoder` when the model takes embeddings).
+    /// Loads the model, checks its sha256 (when set) and its inputs and outputs against the
+    /// family's or the profile's contract, and encodes the prompts (with `text_encoder` or the
+    /// CLIP encoder when the model takes embeddings, CLIP's tokenizer when it takes tokens).
     pub fn new(
         runtime: &OnnxRuntime,
         config: &OpenVocabConfig,
@@ -285,8 +554,11 @@ impl OpenVocabDetector {
         text_encoder: &TextEncoderConfig,
     ) -> Result<Self, OnnxError> {
         config.validate("detector.open_vocab").map_err(OnnxError::InvalidConfig)?;
+        let (text, outputs) = config.family.contract(config);
         let model_path =
-            resolve_path(&config.model_path, "open-vocabulary detector (ONNX)", "detector.open_vocab.model_path")?;
+            resolve_path(&config.model_path, "open-vocabulary detector (ONNX)", "detector.open_vocab.model_path")
+                .map_err(user_model)?;
+        contract::verify_sha256(&model_path, config.sha256.as_deref(), "detector.open_vocab.sha256")?;
         let (session, _) = open_session(
             runtime,
             SessionSpec {
@@ -296,37 +568,20 @@ impl OpenVocabDetector {
                 intra_threads: config.intra_op_threads,
             },
         )?;
-        let bad = |message: String| OnnxError::BadModel { path: model_path.clone(), message };
-        let inputs: Vec<&str> = session.inputs().iter().map(|i| i.name()).collect();
-        let outputs: Vec<&str> = session.outputs().iter().map(|o| o.name()).collect();
-        let mut wanted_inputs = vec![("detector.open_vocab.input.name", config.input.name.as_str())];
-        if config.text.kind == TextInputKind::Embeddings {
-            wanted_inputs.push(("detector.open_vocab.text.name", config.text.name.as_str()));
-        }
-        for (key, name) in wanted_inputs {
-            if !inputs.contains(&name) {
-                return Err(bad(format!("no input {name:?} ({key}); the model's inputs are {inputs:?}")));
-            }
-        }
-        let o = &config.outputs;
-        let wanted_outputs = [
-            Some(("boxes", o.boxes.as_str())),
-            Some(("scores", o.scores.as_str())),
-            o.prompt_index.as_deref().map(|n| ("prompt_index", n)),
-            o.masks.as_deref().map(|n| ("masks", n)),
-            o.region_embeddings.as_deref().map(|n| ("region_embeddings", n)),
-        ];
-        for (key, name) in wanted_outputs.into_iter().flatten() {
-            if !outputs.contains(&name) {
-                return Err(bad(format!(
-                    "no output {name:?} (detector.open_vocab.outputs.{key}); the model's outputs are {outputs:?}"
-                )));
-            }
-        }
+        let text_dim = match text.encoder {
+            TextEncoderKind::Minilm => EMBEDDING_DIM,
+            TextEncoderKind::Clip => config.clip.dim,
+        };
+        let (inputs, outs, what) = contract_tensors(config, &text, &outputs, text_dim);
+        contract::check(&session, &model_path, &what, &inputs, &outs)?;
+
         let prompts = prompt_list(&config.prompts, knowledge);
-        let text_embeddings = match config.text.kind {
-            TextInputKind::None => Vec::new(),
-            TextInputKind::Embeddings => {
+        let texts: Vec<&str> = prompts.iter().map(|p| p.text.as_str()).collect();
+        let mut text_embeddings = Vec::new();
+        let mut tokens = Tokens::default();
+        match (text.kind, text.encoder) {
+            (TextInputKind::None, _) => {}
+            (TextInputKind::Embeddings, TextEncoderKind::Minilm) => {
                 if !text_encoder.enabled {
                     return Err(OnnxError::InvalidConfig(
                         "text_encoder.enabled: must be true: detector.open_vocab.text.kind = \"embeddings\" encodes the prompts with it"
@@ -334,12 +589,36 @@ impl OpenVocabDetector {
                     ));
                 }
                 let mut encoder = TextEncoder::new(runtime, text_encoder)?;
-                let texts: Vec<&str> = prompts.iter().map(|p| p.text.as_str()).collect();
-                encoder.encode_batch(&texts)?.iter().flatten().copied().collect()
+                text_embeddings = encoder.encode_batch(&texts)?.iter().flatten().copied().collect();
             }
-        };
+            (TextInputKind::Embeddings, TextEncoderKind::Clip) => {
+                let mut encoder = ClipTextEncoder::new(runtime, &config.clip, "detector.open_vocab.clip")?;
+                text_embeddings = encoder.encode(&texts)?;
+            }
+            (TextInputKind::Tokens, _) => {
+                let tokenizer =
+                    ClipTokenizer::new(&config.clip.tokenizer_path, "detector.open_vocab.clip.tokenizer_path")?;
+                // The export's own row length when it fixes one, else the profile's.
+                let fixed = session
+                    .inputs()
+                    .iter()
+                    .find(|i| i.name() == text.name)
+                    .and_then(|i| i.dtype().tensor_shape().and_then(|s| s.get(1).copied()))
+                    .filter(|d| *d > 0);
+                let length = fixed.map_or(text.context_length, |d| d as usize);
+                tokens = tokenizer.encode(&texts, length)?;
+            }
+        }
+        let box_masks = BoxMasks::new(
+            runtime,
+            &config.depth_mask,
+            config.mask_decoder.as_ref(),
+            "detector.open_vocab.mask_decoder",
+        )?;
         tracing::info!(
             model = %model_path.display(),
+            family = config.family.as_str(),
+            mask_decoder = box_masks.has_decoder(),
             prompts = prompts.len(),
             parts = prompts.iter().filter(|p| p.kind == NodeKind::Part).count(),
             "open-vocabulary detector loaded"
@@ -347,11 +626,15 @@ impl OpenVocabDetector {
         Ok(Self {
             session,
             config: config.clone(),
+            text,
+            outputs,
             model_path,
             prompts,
             text_embeddings,
+            text_dim,
+            tokens,
             input: Vec::new(),
-            segmenter: DepthSegmenter::new(config.depth_mask.clone()),
+            box_masks,
         })
     }
 
@@ -390,17 +673,31 @@ impl Detector for OpenVocabDetector {
             TensorRef::from_array_view(([1usize, 3, spec.height as usize, spec.width as usize], self.input.as_slice()))
                 .map_err(|e| self.backend("image tensor", e))?;
         let p = self.prompts.len();
-        let outputs = if self.config.text.kind == TextInputKind::Embeddings {
-            let text = TensorRef::from_array_view(([p, EMBEDDING_DIM], self.text_embeddings.as_slice()))
-                .map_err(|e| self.backend("text tensor", e))?;
-            self.session.run(ort::inputs![spec.name.as_str() => image, self.config.text.name.as_str() => text])
-        } else {
-            self.session.run(ort::inputs![spec.name.as_str() => image])
+        let mut inputs = vec![(spec.name.as_str(), SessionInputValue::from(image))];
+        match self.text.kind {
+            TextInputKind::None => {}
+            TextInputKind::Embeddings => {
+                let shape = if self.text.batch_axis { vec![1, p, self.text_dim] } else { vec![p, self.text_dim] };
+                let text = TensorRef::from_array_view((shape, self.text_embeddings.as_slice()))
+                    .map_err(|e| self.backend("text tensor", e))?;
+                inputs.push((self.text.name.as_str(), text.into()));
+            }
+            TextInputKind::Tokens => {
+                let shape = [p, self.tokens.context_length];
+                let ids = TensorRef::from_array_view((shape, self.tokens.ids.as_slice()))
+                    .map_err(|e| self.backend("token tensor", e))?;
+                inputs.push((self.text.name.as_str(), ids.into()));
+                if let Some(name) = &self.text.attention_mask {
+                    let mask = TensorRef::from_array_view((shape, self.tokens.mask.as_slice()))
+                        .map_err(|e| self.backend("attention-mask tensor", e))?;
+                    inputs.push((name.as_str(), mask.into()));
+                }
+            }
         }
-        .map_err(|e| {
+        let outputs = self.session.run(inputs).map_err(|e| {
             DetectorError::Backend(format!("running the open-vocabulary detector ({}): {e}", self.model_path.display()))
         })?;
-        let names = &self.config.outputs;
+        let names = &self.outputs;
         let float = |name: &str| {
             outputs
                 .get(name)
@@ -457,7 +754,8 @@ impl Detector for OpenVocabDetector {
                         .iter()
                         .copied()
                         .enumerate()
-                        .max_by(|a, b| a.1.total_cmp(&b.1))
+                        // Ties go to the earlier prompt (objects come before their parts).
+                        .max_by(|a, b| a.1.total_cmp(&b.1).then(b.0.cmp(&a.0)))
                         .unwrap_or((0, f32::NEG_INFINITY));
                     best.push((score, prompt));
                 }
@@ -468,6 +766,7 @@ impl Detector for OpenVocabDetector {
         let Placement { sx, sy } = placement;
         let mut regions: Vec<Region> = Vec::new();
         for (row, (b, &(score, prompt))) in boxes.chunks_exact(4).zip(&best).enumerate() {
+            let score = self.config.calibration.apply(names.score_activation.apply(score));
             if score.is_nan() || score <= self.config.score_threshold {
                 continue;
             }
@@ -511,8 +810,7 @@ impl Detector for OpenVocabDetector {
             }
             None => None,
         };
-        let has_depth = frame.depth.len() == intr.pixel_count();
-        let depth_m = |i: usize| if has_depth { frame.depth_m(i) } else { 0.0 };
+        self.box_masks.begin_frame();
         for r in kept {
             let Some(pixel_box) = PixelBox::from_float(r.bbox, intr.width, intr.height) else { continue };
             let mask = match &masks {
@@ -520,7 +818,7 @@ impl Detector for OpenVocabDetector {
                     let plane = &data[r.row * mh * mw..(r.row + 1) * mh * mw];
                     mask_from_probabilities(plane, *mw, *mh, pixel_box, placement, spec, self.config.mask_threshold)
                 }
-                None => self.segmenter.segment(&depth_m, intr.width, pixel_box),
+                None => self.box_masks.mask(frame, r.bbox, pixel_box)?,
             };
             let Some(mask) = mask else { continue };
             let semantic_feature = embeddings.as_ref().and_then(|(d, data)| {

@@ -47,8 +47,10 @@ use ort::session::Session;
 use ort::value::TensorRef;
 use serde::{Deserialize, Serialize};
 
-use super::depth_mask::{DepthMaskConfig, DepthSegmenter, PixelBox};
+use super::ScoreCalibration;
+use super::depth_mask::{DepthMaskConfig, PixelBox};
 use super::image_input::{ColourOrder, ImageInput, Resize, prepare};
+use super::mask_decoder::{BoxMasks, MaskDecoderConfig};
 use super::{Detection, Detector, DetectorError, greedy_suppress, validate_detection_limits};
 use crate::onnx::{ExecutionProvider, OnnxError, OnnxRuntime, SessionSpec, open_session, resolve_path};
 
@@ -78,10 +80,16 @@ pub fn coco_classes() -> Vec<&'static str> {
 pub struct YoloxConfig {
     /// The ONNX model. Relative paths in a profile file are relative to that file.
     pub model_path: PathBuf,
+    /// Optional sha256 of `model_path`, checked at start.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sha256: Option<String>,
     /// Square network input side, pixels (416 for YOLOX-nano).
     pub input_size: u32,
-    /// Keep candidates with objectness x class score above this. (0, 1).
+    /// Keep candidates with objectness x class score above this (the raw score). (0, 1).
     pub score_threshold: f32,
+    /// Maps the kept detections' scores onto fusion's scale (`[detector.yolox.calibration]`,
+    /// [`super::ScoreCalibration`]); the threshold above applies to the raw score.
+    pub calibration: ScoreCalibration,
     /// Per-class NMS: drop a box whose IoU with a higher-scored box of its class exceeds this.
     pub nms_iou_threshold: f32,
     /// At most this many detections per frame.
@@ -102,14 +110,20 @@ pub struct YoloxConfig {
     pub tile_overlap: f32,
     /// `[detector.yolox.depth_mask]`.
     pub depth_mask: DepthMaskConfig,
+    /// `[detector.yolox.mask_decoder]`: a SAM-family mask decoder whose masks replace those from
+    /// depth ([`super::mask_decoder`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mask_decoder: Option<MaskDecoderConfig>,
 }
 
 impl Default for YoloxConfig {
     fn default() -> Self {
         Self {
             model_path: PathBuf::from("yolox_nano.onnx"),
+            sha256: None,
             input_size: 416,
             score_threshold: 0.3,
+            calibration: ScoreCalibration::default(),
             nms_iou_threshold: 0.45,
             max_detections: 100,
             intra_op_threads: 1,
@@ -118,6 +132,7 @@ impl Default for YoloxConfig {
             tiles: [1, 1],
             tile_overlap: 0.2,
             depth_mask: DepthMaskConfig::default(),
+            mask_decoder: None,
         }
     }
 }
@@ -128,6 +143,7 @@ impl YoloxConfig {
         if self.model_path.as_os_str().is_empty() {
             return Err(format!("{path}.model_path: must not be empty"));
         }
+        crate::onnx::contract::validate_sha256(&format!("{path}.sha256"), self.sha256.as_deref())?;
         if self.input_size == 0 || !self.input_size.is_multiple_of(32) || self.input_size > 4096 {
             return Err(format!(
                 "{path}.input_size: must be a multiple of 32 within [32, 4096], got {}",
@@ -156,6 +172,10 @@ impl YoloxConfig {
                 return Err(format!("{path}.class_map.{class}: the label must not be empty"));
             }
         }
+        if let Some(decoder) = &self.mask_decoder {
+            decoder.validate(&format!("{path}.mask_decoder"))?;
+        }
+        self.calibration.validate(&format!("{path}.calibration"))?;
         self.depth_mask.validate(&format!("{path}.depth_mask"))
     }
 }
@@ -287,6 +307,7 @@ impl YoloxModel {
                 other => other,
             },
         )?;
+        crate::onnx::contract::verify_sha256(&model_path, config.sha256.as_deref(), "detector.yolox.sha256")?;
         let provider = config.execution_provider.unwrap_or(runtime.execution_provider());
         let (session, provider) = open_session(
             runtime,
@@ -395,7 +416,7 @@ pub struct YoloxDetector {
     config: YoloxConfig,
     /// Our label per COCO class index (None: dropped).
     labels: Vec<Option<String>>,
-    segmenter: DepthSegmenter,
+    box_masks: BoxMasks,
     /// One tile's pixels (sliced inference).
     tile_rgb: Vec<u8>,
 }
@@ -409,7 +430,12 @@ impl YoloxDetector {
             model,
             config: config.clone(),
             labels,
-            segmenter: DepthSegmenter::new(config.depth_mask.clone()),
+            box_masks: BoxMasks::new(
+                runtime,
+                &config.depth_mask,
+                config.mask_decoder.as_ref(),
+                "detector.yolox.mask_decoder",
+            )?,
             tile_rgb: Vec::new(),
         })
     }
@@ -529,16 +555,15 @@ impl Detector for YoloxDetector {
         let boxes = self
             .detect_sliced(&frame.rgb, intr.width, intr.height)
             .map_err(|e| DetectorError::Backend(e.to_string()))?;
-        let has_depth = frame.depth.len() == intr.pixel_count();
-        let depth_m = |i: usize| if has_depth { frame.depth_m(i) } else { 0.0 };
+        self.box_masks.begin_frame();
         for b in boxes {
             let Some(label) = self.labels.get(b.class).and_then(Option::as_ref) else { continue };
             let Some(pixel_box) = PixelBox::from_float(b.bbox, intr.width, intr.height) else { continue };
-            let Some(mask) = self.segmenter.segment(&depth_m, intr.width, pixel_box) else { continue };
+            let Some(mask) = self.box_masks.mask(frame, b.bbox, pixel_box)? else { continue };
             out.push(Detection {
                 label: label.clone(),
                 kind: NodeKind::Object,
-                score: b.score,
+                score: self.config.calibration.apply(b.score),
                 mask,
                 semantic_feature: None,
             });

@@ -1,0 +1,313 @@
+//! The open-vocabulary detector's model families through ONNX Runtime on their stand-ins
+//! (`.models/standins/`, written by `./scripts/setup-standins.sh` from
+//! `scripts/reference/model_standins.py`: the tensor names, shapes and dtypes of the real
+//! exports, answers known): CLIP tokens as open_clip's own tokenizer gives them, the CLIP text
+//! encoder, YOLO-World (CLIP features in, scores and boxes out) and OWL (tokens in, logits and
+//! normalised centre boxes out) decoded to labels and image-pixel boxes through the letterbox; a
+//! file whose tensors are not the family's, or whose sha256 differs, refused at start naming the
+//! key; and the profiles in `profiles/` loading the stand-ins with only the model paths changed.
+//!
+//! Needs `./scripts/setup-models.sh` and `./scripts/setup-standins.sh` (`scripts/test.sh` runs
+//! both); fails naming them when the files are missing.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use op3dsg_drivers::frame::{Frame, Intrinsics};
+use op3dsg_ipc_types::NodeKind;
+use op3dsg_runtime::knowledge::KnowledgeBase;
+use op3dsg_runtime::onnx::clip_text::{ClipTextConfig, ClipTextEncoder, ClipTokenizer, DEFAULT_TOKENIZER_PATH};
+use op3dsg_runtime::onnx::text_encoder::TextEncoderConfig;
+use op3dsg_runtime::onnx::{OnnxConfig, OnnxRuntime};
+use op3dsg_runtime::perception::candidates::CandidateMode;
+use op3dsg_runtime::perception::image_input::ImageInput;
+use op3dsg_runtime::perception::mask_decoder::MaskDecoderConfig;
+use op3dsg_runtime::perception::open_vocab::{Family, OpenVocabConfig, OpenVocabDetector, PromptConfig};
+use op3dsg_runtime::perception::{CalibrationKind, Detection, Detector, ScoreCalibration};
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().expect("repository root")
+}
+
+fn standin(name: &str) -> PathBuf {
+    let path = repo().join(".models/standins").join(name);
+    assert!(path.is_file(), "{} missing: run ./scripts/setup-models.sh && ./scripts/setup-standins.sh", path.display());
+    path
+}
+
+fn expected() -> serde_json::Value {
+    let text = std::fs::read_to_string(standin("expected.json")).expect("expected.json");
+    serde_json::from_str(&text).expect("expected.json is JSON")
+}
+
+fn runtime() -> OnnxRuntime {
+    OnnxRuntime::init(&OnnxConfig::default()).expect("ONNX Runtime (run ./scripts/setup-models.sh)")
+}
+
+fn clip_config() -> ClipTextConfig {
+    ClipTextConfig { model_path: standin("clip_text.onnx"), ..ClipTextConfig::default() }
+}
+
+fn prompts(objects: &[&str]) -> PromptConfig {
+    PromptConfig {
+        objects: objects.iter().map(|s| (*s).to_owned()).collect(),
+        part_prompts: CandidateMode::All,
+        ..PromptConfig::default()
+    }
+}
+
+fn yolo_world_config() -> OpenVocabConfig {
+    OpenVocabConfig {
+        family: Family::YoloWorld,
+        model_path: standin("yolo_world.onnx"),
+        prompts: prompts(&["cabinet", "stove"]),
+        clip: clip_config(),
+        ..OpenVocabConfig::default()
+    }
+}
+
+fn owl_config(objects: &[&str]) -> OpenVocabConfig {
+    OpenVocabConfig {
+        family: Family::Owl,
+        model_path: standin("owl.onnx"),
+        input: ImageInput {
+            name: "pixel_values".into(),
+            width: 960,
+            height: 960,
+            mean: [0.481_454_66, 0.457_827_5, 0.408_210_73],
+            std: [0.268_629_54, 0.261_302_6, 0.275_777_1],
+            pad_value: 127.5,
+            ..ImageInput::default()
+        },
+        prompts: prompts(objects),
+        ..OpenVocabConfig::default()
+    }
+}
+
+/// A 320 x 240 frame with flat depth (1.5 m), so depth masks fill their boxes.
+fn frame() -> Frame {
+    let intrinsics = Intrinsics { width: 320, height: 240, fx: 250.0, fy: 250.0, cx: 160.0, cy: 120.0 };
+    let mut frame = Frame::new(intrinsics);
+    frame.rgb.iter_mut().enumerate().for_each(|(i, v)| *v = (i % 251) as u8);
+    frame.depth.iter_mut().for_each(|d| *d = 1500);
+    frame
+}
+
+fn detect(config: &OpenVocabConfig) -> Vec<Detection> {
+    let knowledge = Arc::new(KnowledgeBase::builtin().expect("built-in knowledge base"));
+    let mut detector = OpenVocabDetector::new(&runtime(), config, knowledge, &TextEncoderConfig::default())
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut out = Vec::new();
+    detector.detect(&frame(), &mut out).expect("detects");
+    out
+}
+
+fn summary(d: &Detection) -> (String, NodeKind, i64, [u32; 4]) {
+    let m = &d.mask;
+    (d.label.clone(), d.kind, (d.score * 1000.0).round() as i64, [m.x0, m.y0, m.x0 + m.width, m.y0 + m.height])
+}
+
+#[test]
+fn clip_tokens_are_open_clips() {
+    let tokenizer =
+        ClipTokenizer::new(&repo().join(DEFAULT_TOKENIZER_PATH), "t").expect("run ./scripts/setup-models.sh");
+    let expected = expected();
+    let tokens = expected["tokens"].as_object().unwrap();
+    assert!(tokens.len() >= 8);
+    for (prompt, ids) in tokens {
+        let want: Vec<u32> = ids.as_array().unwrap().iter().map(|v| v.as_u64().unwrap() as u32).collect();
+        assert_eq!(tokenizer.ids(prompt).unwrap(), want, "{prompt:?}");
+    }
+    // Padded with zeros, cut with <|endoftext|> last, masked over the real tokens.
+    let batch = tokenizer.encode(&["stove", "a photo of a red chair!"], 5).unwrap();
+    assert_eq!(batch.ids, [49406, 21423, 49407, 0, 0, 49406, 320, 1125, 539, 49407]);
+    assert_eq!(batch.mask, [1, 1, 1, 0, 0, 1, 1, 1, 1, 1]);
+}
+
+#[test]
+fn clip_text_features_are_the_encoders_normalised() {
+    let mut encoder = ClipTextEncoder::new(&runtime(), &clip_config(), "detector.open_vocab.clip").unwrap();
+    let expected = expected();
+    let want = expected["clip_text_normalised"].as_object().unwrap();
+    let texts: Vec<&str> = want.keys().map(String::as_str).collect();
+    let got = encoder.encode(&texts).unwrap();
+    assert_eq!(got.len(), texts.len() * 512);
+    for (row, text) in texts.iter().enumerate() {
+        let w: Vec<f32> = want[*text].as_array().unwrap().iter().map(|v| v.as_f64().unwrap() as f32).collect();
+        let cosine: f32 = got[row * 512..(row + 1) * 512].iter().zip(&w).map(|(a, b)| a * b).sum();
+        assert!(cosine > 0.9999, "{text:?}: cosine {cosine}");
+    }
+}
+
+#[test]
+fn yolo_world_regions_become_labelled_boxes_in_image_pixels() {
+    let out = detect(&yolo_world_config());
+    // Regions answer prompts 1, 0, 1, 0 ("stove", "cabinet") at 0.9, 0.7, 0.2, 0.65; 0.2 is under
+    // the threshold and region 3 overlaps region 1 (IoU 0.83): NMS. Letterbox r = 2 (640 / 320).
+    let got: Vec<_> = out.iter().map(summary).collect();
+    assert_eq!(
+        got,
+        [
+            ("stove".to_owned(), NodeKind::Object, 900, [40, 30, 120, 150]),
+            ("cabinet".to_owned(), NodeKind::Object, 700, [150, 50, 250, 130]),
+        ]
+    );
+    // Masks from depth (the export has none): the flat depth fills each box.
+    assert_eq!(out[0].mask.area(), 80 * 120);
+}
+
+#[test]
+fn owl_regions_follow_the_prompts_tokens_in_any_order() {
+    // Region a answers the prompt whose first CLIP token is that of "stove", "cabinet", "tv"
+    // (logits 2, 1, -1 → sigmoid 0.881, 0.731, 0.269 < 0.3). Letterbox r = 3 (960 / 320).
+    let want = [
+        ("stove".to_owned(), NodeKind::Object, 881, [64, 48, 96, 80]),
+        ("cabinet".to_owned(), NodeKind::Object, 731, [128, 80, 192, 112]),
+    ];
+    for objects in [["cabinet", "stove", "tv"], ["tv", "stove", "cabinet"]] {
+        let got: Vec<_> = detect(&owl_config(&objects)).iter().map(summary).collect();
+        assert_eq!(got, want, "prompts {objects:?}");
+    }
+    // A logistic calibration (+1 in logit space) maps every score before the threshold: the
+    // stove's to sigmoid(3), the cabinet's to sigmoid(2). The tv region (now 0.5, above the
+    // threshold) lies in the letterbox padding (input rows 720..816 of an image 720 high), so it
+    // is no detection.
+    let mut calibrated = owl_config(&["cabinet", "stove", "tv"]);
+    calibrated.calibration = ScoreCalibration { kind: CalibrationKind::Logistic, a: 1.0, b: 1.0 };
+    let got: Vec<_> =
+        detect(&calibrated).iter().map(|d| (d.label.clone(), (d.score * 1000.0).round() as i64)).collect();
+    assert_eq!(got, [("stove".to_owned(), 953), ("cabinet".to_owned(), 881)]);
+    // Knowledge-guided part prompts ("cabinet handle" starts with cabinet's token too): the
+    // object prompt comes first and keeps the region.
+    let mut guided = owl_config(&["cabinet", "stove"]);
+    guided.prompts.part_prompts = CandidateMode::Knowledge;
+    let labels: Vec<String> = detect(&guided).into_iter().map(|d| d.label).collect();
+    assert!(labels.contains(&"stove".to_owned()), "{labels:?}");
+}
+
+#[test]
+fn a_file_with_another_familys_tensors_is_refused_listing_what_it_has() {
+    let knowledge = Arc::new(KnowledgeBase::builtin().unwrap());
+    let open = |config: &OpenVocabConfig| {
+        OpenVocabDetector::new(&runtime(), config, knowledge.clone(), &TextEncoderConfig::default())
+            .map(|_| ())
+            .unwrap_err()
+            .to_string()
+    };
+    // The OWL export named as YOLO-World.
+    let mut wrong = yolo_world_config();
+    wrong.model_path = standin("owl.onnx");
+    let err = open(&wrong);
+    println!("{err}");
+    assert!(err.contains("owl.onnx") && err.contains("yolo_world family"), "{err}");
+    assert!(err.contains(r#"no input "images" (detector.open_vocab.input.name"#), "{err}");
+    assert!(err.contains(r#"no input "text_features" (detector.open_vocab.family = "yolo_world""#), "{err}");
+    assert!(
+        err.contains(r#""input_ids" int64 [P, 16]"#) && err.contains(r#""pixel_values" float32 [1, 3, 960, 960]"#),
+        "lists the file's tensors: {err}"
+    );
+    assert!(err.contains(r#""logits" float32 [1, 3, P]"#), "{err}");
+
+    // The right family at the wrong input size: the shape is named.
+    let mut wrong = owl_config(&["stove"]);
+    wrong.input.width = 768;
+    wrong.input.height = 768;
+    let err = open(&wrong);
+    assert!(
+        err.contains(r#"input "pixel_values" (detector.open_vocab.input.name) has shape [1, 3, 960, 960], expected "pixel_values" float32 [1, 3, 768, 768]"#),
+        "{err}"
+    );
+
+    // A CLIP encoder of another width.
+    let mut wrong = yolo_world_config();
+    wrong.clip.dim = 768;
+    let err = open(&wrong);
+    assert!(err.contains("detector.open_vocab.family = \"yolo_world\"") && err.contains("[1, P, 768]"), "{err}");
+
+    // sha256 of the detector and of the CLIP encoder.
+    let mut wrong = yolo_world_config();
+    wrong.sha256 = Some("0".repeat(64));
+    let err = open(&wrong);
+    assert!(err.contains("detector.open_vocab.sha256") && err.contains(&"0".repeat(64)), "{err}");
+    let mut wrong = yolo_world_config();
+    wrong.clip.sha256 = Some("f".repeat(64));
+    let err = open(&wrong);
+    assert!(err.contains("detector.open_vocab.clip.sha256"), "{err}");
+
+    // A model that is not there: no setup script can fetch it.
+    let mut wrong = yolo_world_config();
+    wrong.model_path = "/no/such/yolo_world.onnx".into();
+    let err = open(&wrong);
+    assert!(err.contains("detector.open_vocab.model_path") && err.contains("Bringing your own models"), "{err}");
+
+    // A family fixes text and outputs.
+    let mut wrong = yolo_world_config();
+    wrong.outputs.scores = "logits".into();
+    assert!(open(&wrong).starts_with("detector.open_vocab.outputs: only with family = \"generic\""));
+}
+
+#[test]
+fn the_family_profiles_load_their_stand_ins_with_only_the_model_paths_changed() {
+    for (profile, sets) in [
+        (
+            "replay-icl-yolo-world.toml",
+            vec![
+                format!("detector.open_vocab.model_path={}", standin("yolo_world.onnx").display()),
+                format!("detector.open_vocab.clip.model_path={}", standin("clip_text.onnx").display()),
+            ],
+        ),
+        ("replay-icl-owl.toml", vec![format!("detector.open_vocab.model_path={}", standin("owl.onnx").display())]),
+    ] {
+        let loaded = op3dsg_sim::load_profile(Some(&repo().join("profiles").join(profile)), &sets)
+            .unwrap_or_else(|e| panic!("{profile}: {e}"));
+        let config = &loaded.profile.detector.open_vocab;
+        let knowledge = Arc::new(KnowledgeBase::builtin().unwrap());
+        let mut detector = OpenVocabDetector::new(&runtime(), config, knowledge, &loaded.profile.text_encoder)
+            .unwrap_or_else(|e| panic!("{profile}: {e}"));
+        let mut out = Vec::new();
+        detector.detect(&frame(), &mut out).unwrap();
+        let labels: Vec<&str> = out.iter().map(|d| d.label.as_str()).collect();
+        let texts: Vec<&str> = detector.prompts().iter().map(|p| p.text.as_str()).collect();
+        // YOLO-World's stand-in answers prompts 1 and 0; OWL's the prompts starting with
+        // "stove", "cabinet" (and "tv", under the threshold): of the profile's, only cabinet.
+        let want = if profile.contains("yolo") { vec![texts[1], texts[0]] } else { vec!["cabinet"] };
+        assert_eq!(labels, want, "{profile}");
+        assert!(detector.prompts().iter().any(|p| p.text == "cabinet handle"), "{profile}: knowledge-guided parts");
+    }
+}
+
+#[test]
+fn a_sam_decoder_gives_the_masks_of_the_boxes() {
+    let mut config = yolo_world_config();
+    config.mask_decoder = Some(MaskDecoderConfig {
+        encoder_path: standin("sam_encoder.onnx"),
+        decoder_path: standin("sam_decoder.onnx"),
+        ..MaskDecoderConfig::default()
+    });
+    let out = detect(&config);
+    // Same detections as with depth masks; the stand-in decoder's mask is the top half of each
+    // prompt box, given to it in the encoder's 1024 x 1024 letterbox (r = 3.2) and answered at
+    // the image size: so the boxes went there and back.
+    let got: Vec<_> = out.iter().map(summary).collect();
+    assert_eq!(got[0], ("stove".to_owned(), NodeKind::Object, 900, [40, 30, 120, 150]));
+    let m = &out[0].mask;
+    assert_eq!(m.area(), 80 * 60);
+    assert!(m.contains(40, 30) && m.contains(119, 89) && !m.contains(60, 90) && !m.contains(60, 149));
+    let m = &out[1].mask; // cabinet, box [150, 50, 250, 130]
+    assert_eq!(m.area(), 100 * 40);
+
+    // The decoder file swapped for the encoder: refused naming the layout and listing the file.
+    let mut wrong = yolo_world_config();
+    wrong.mask_decoder = Some(MaskDecoderConfig {
+        encoder_path: standin("sam_encoder.onnx"),
+        decoder_path: standin("sam_encoder.onnx"),
+        ..MaskDecoderConfig::default()
+    });
+    let knowledge = Arc::new(KnowledgeBase::builtin().unwrap());
+    let err = OpenVocabDetector::new(&runtime(), &wrong, knowledge, &TextEncoderConfig::default())
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("SAM mask decoder layout") && err.contains(r#"no input "point_coords""#), "{err}");
+    assert!(err.contains(r#"the file has inputs "images" float32 [1, 3, 1024, 1024]"#), "{err}");
+}
