@@ -5,8 +5,6 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 
-use super::write_output;
-
 /// Loads ONNX Runtime and the text encoder the profile points at.
 pub(crate) fn load_text_encoder(
     profile_path: Option<&Path>,
@@ -64,11 +62,5 @@ pub(super) fn evaluate(
         );
     }
     text.push_str(&text_report(&report));
-    write_output(None, &text)?;
-    if let Some(path) = json {
-        let mut out = serde_json::to_string_pretty(&report).context("serialising the report")?;
-        out.push('\n');
-        write_output(Some(path), &out)?;
-    }
-    Ok(())
+    super::write_report(&text, json, &report)
 }

@@ -6,10 +6,10 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use op3dsg_ipc_types::{ApproachStatus, QueryClient, QueryStatus};
+use op3dsg_ipc_types::{ApproachStatus, QueryStatus};
 use serde::Serialize;
 
-use super::{node_name, write_output};
+use super::write_output;
 
 #[derive(Serialize)]
 struct GoalJson<'a> {
@@ -35,15 +35,7 @@ struct GoalJson<'a> {
 /// the node. Prints the approach pose (or JSON); exits 1 with the reason when there is none
 /// (no free cell within the standoff band, unreachable, no map) or the daemon cannot answer.
 pub(super) fn goal(prefix: &str, target: &str, json: bool, timeout: Duration) -> Result<()> {
-    let started = Instant::now();
-    let client = QueryClient::open_wait(prefix, &node_name(), timeout).map_err(|e| {
-        if e.is_not_serving() {
-            anyhow::anyhow!("{e}; start it (op3dsgd) or pass the prefix it serves (--prefix / OP3DSG_PREFIX)")
-        } else {
-            anyhow::Error::new(e)
-        }
-    })?;
-    let left = timeout.saturating_sub(started.elapsed()).max(Duration::from_millis(100));
+    let (client, left) = super::query::open_client(prefix, timeout)?;
     let target = target.trim();
     let node_id = target.parse::<u32>().ok();
     let response = match node_id {
@@ -133,11 +125,5 @@ pub(super) fn bench(profile_path: Option<&Path>, overrides: &[String], seed: u64
     let mut text =
         format!("navigation check on 4 synthetic rooms (seed {seed}), {:.1} s\n", started.elapsed().as_secs_f64());
     text.push_str(&nav_bench::text(&report));
-    write_output(None, &text)?;
-    if let Some(path) = json {
-        let mut out = serde_json::to_string_pretty(&report).context("serialising the report")?;
-        out.push('\n');
-        write_output(Some(path), &out)?;
-    }
-    Ok(())
+    super::write_report(&text, json, &report)
 }

@@ -357,21 +357,8 @@ enum BenchCommand {
     /// edges in the scoring, each miss, and the query latency p50/p99 at 50 and 2,000 nodes.
     /// Needs .models/ (scripts/setup-models.sh). Measure latency with a release build.
     Query {
-        /// Scene seed of every room.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// Frames per room (30 per second of camera path).
-        #[arg(long, default_value_t = 600, value_parser = clap::value_parser!(u64).range(1..))]
-        frames: u64,
-        /// Oracle noise preset (clean | realistic).
-        #[arg(long, default_value = "realistic")]
-        preset: String,
-        /// Profile to start from (default: the built-in base).
-        #[arg(long)]
-        profile: Option<PathBuf>,
-        /// Profile overrides, section.key=value.
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        overrides: Vec<String>,
+        #[command(flatten)]
+        rooms: RoomBench,
         /// Write the report (with every query's outcome) as JSON to this file.
         #[arg(long, value_name = "FILE")]
         json: Option<PathBuf>,
@@ -383,21 +370,8 @@ enum BenchCommand {
     /// reachable and correct, objects and parts apart, each failure by reason, and the occupancy
     /// integration cost per keyframe (p50/p99) and map memory. Measure cost with a release build.
     Nav {
-        /// Scene seed of every room.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// Frames per room (30 per second of camera path).
-        #[arg(long, default_value_t = 600, value_parser = clap::value_parser!(u64).range(1..))]
-        frames: u64,
-        /// Oracle noise preset (clean | realistic).
-        #[arg(long, default_value = "realistic")]
-        preset: String,
-        /// Profile to start from (default: the built-in base).
-        #[arg(long)]
-        profile: Option<PathBuf>,
-        /// Profile overrides, section.key=value.
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        overrides: Vec<String>,
+        #[command(flatten)]
+        rooms: RoomBench,
         /// Write the report (with every node's outcome) as JSON to this file.
         #[arg(long, value_name = "FILE")]
         json: Option<PathBuf>,
@@ -620,18 +594,12 @@ fn run(cli: Cli) -> Result<()> {
         }
         Command::Health { json, timeout_s } => health::health(&prefix, json, seconds(timeout_s)?),
         Command::Query { text, k, json, timeout_s } => query::query(&prefix, &text, k, json, seconds(timeout_s)?),
-        Command::Bench { command: BenchCommand::Query { seed, frames, preset, profile, overrides, json } } => {
-            let mut sets =
-                vec![format!("source.synthetic.frame_count={frames}"), format!("detector.oracle.preset={preset}")];
-            sets.extend(overrides);
-            query::bench(profile.as_deref(), &sets, seed, json.as_deref())
+        Command::Bench { command: BenchCommand::Query { rooms, json } } => {
+            query::bench(rooms.profile.as_deref(), &rooms.sets(), rooms.seed, json.as_deref())
         }
         Command::Goal { target, json, timeout_s } => goal::goal(&prefix, &target, json, seconds(timeout_s)?),
-        Command::Bench { command: BenchCommand::Nav { seed, frames, preset, profile, overrides, json } } => {
-            let mut sets =
-                vec![format!("source.synthetic.frame_count={frames}"), format!("detector.oracle.preset={preset}")];
-            sets.extend(overrides);
-            goal::bench(profile.as_deref(), &sets, seed, json.as_deref())
+        Command::Bench { command: BenchCommand::Nav { rooms, json } } => {
+            goal::bench(rooms.profile.as_deref(), &rooms.sets(), rooms.seed, json.as_deref())
         }
         Command::Gt { room, seed, out, frames, profile, overrides } => {
             let run = frames.map(|frames| gt::RunSeen { frames, profile, overrides });
@@ -703,6 +671,39 @@ fn seconds(value: f64) -> Result<Duration> {
 }
 
 /// The iceoryx2 node name of this process's clients.
+/// The synthetic rooms a room benchmark (`bench query`, `bench nav`) maps: seed, frames, oracle
+/// preset and profile.
+#[derive(clap::Args, Debug)]
+struct RoomBench {
+    /// Scene seed of every room.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Frames per room (30 per second of camera path).
+    #[arg(long, default_value_t = 600, value_parser = clap::value_parser!(u64).range(1..))]
+    frames: u64,
+    /// Oracle noise preset (clean | realistic).
+    #[arg(long, default_value = "realistic")]
+    preset: String,
+    /// Profile to start from (default: the built-in base).
+    #[arg(long)]
+    profile: Option<PathBuf>,
+    /// Profile overrides, section.key=value.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    overrides: Vec<String>,
+}
+
+impl RoomBench {
+    /// The frames and preset as profile overrides, then the user's.
+    fn sets(&self) -> Vec<String> {
+        let mut sets = vec![
+            format!("source.synthetic.frame_count={}", self.frames),
+            format!("detector.oracle.preset={}", self.preset),
+        ];
+        sets.extend(self.overrides.iter().cloned());
+        sets
+    }
+}
+
 fn node_name() -> String {
     format!("op3dsg-cli-{}", std::process::id())
 }
@@ -723,6 +724,17 @@ fn poll_until<T>(timeout: Duration, mut read: impl FnMut() -> Result<Option<T>, 
 }
 
 /// Writes `text` to `out`, or to standard output.
+/// Prints a report's text and, with `json`, writes the report as pretty JSON to that file.
+fn write_report(text: &str, json: Option<&Path>, report: &impl serde::Serialize) -> Result<()> {
+    write_output(None, text)?;
+    if let Some(path) = json {
+        let mut out = serde_json::to_string_pretty(report).context("serialising the report")?;
+        out.push('\n');
+        write_output(Some(path), &out)?;
+    }
+    Ok(())
+}
+
 fn write_output(out: Option<&Path>, text: &str) -> Result<()> {
     match out {
         Some(path) => std::fs::write(path, text).with_context(|| format!("writing {}", path.display())),

@@ -46,9 +46,9 @@ struct ReplyJson<'a> {
     hits: Vec<HitJson<'a>>,
 }
 
-/// `op3dsg query TEXT`: prints the top-k nodes (a table, or JSON); exits with an error naming
-/// the cause when the daemon is not running, has no text encoder, refuses (busy) or times out.
-pub(super) fn query(prefix: &str, text: &str, k: u32, json: bool, timeout: Duration) -> Result<()> {
+/// Opens the daemon's query service within `timeout`; returns the client and the time left of
+/// `timeout` for the request (at least 100 ms). Not serving: the error says how to fix it.
+pub(super) fn open_client(prefix: &str, timeout: Duration) -> Result<(QueryClient, Duration)> {
     let started = Instant::now();
     let client = QueryClient::open_wait(prefix, &node_name(), timeout).map_err(|e| {
         if e.is_not_serving() {
@@ -57,7 +57,13 @@ pub(super) fn query(prefix: &str, text: &str, k: u32, json: bool, timeout: Durat
             anyhow::Error::new(e)
         }
     })?;
-    let left = timeout.saturating_sub(started.elapsed()).max(Duration::from_millis(100));
+    Ok((client, timeout.saturating_sub(started.elapsed()).max(Duration::from_millis(100))))
+}
+
+/// `op3dsg query TEXT`: prints the top-k nodes (a table, or JSON); exits with an error naming
+/// the cause when the daemon is not running, has no text encoder, refuses (busy) or times out.
+pub(super) fn query(prefix: &str, text: &str, k: u32, json: bool, timeout: Duration) -> Result<()> {
+    let (client, left) = open_client(prefix, timeout)?;
     let response = client.query(text, k, left)?;
     match response.query_status() {
         Some(QueryStatus::Ok) => {}
@@ -151,11 +157,5 @@ pub(super) fn bench(profile_path: Option<&Path>, overrides: &[String], seed: u64
         started.elapsed().as_secs_f64()
     );
     text.push_str(&query_bench::text(&report));
-    write_output(None, &text)?;
-    if let Some(path) = json {
-        let mut out = serde_json::to_string_pretty(&report).context("serialising the report")?;
-        out.push('\n');
-        write_output(Some(path), &out)?;
-    }
-    Ok(())
+    super::write_report(&text, json, &report)
 }
