@@ -302,10 +302,10 @@ impl Pipeline {
                 info!("map snapshots off (snapshot.dir unset outside systemd, or snapshot.enabled = false)");
                 None
             }
-            Some(dir) if profile.fusion.method == crate::fusion::FusionMethod::Conceptgraphs => {
-                // Its map has no saved form: neither restore (which would move a saved OP3DSG
-                // map aside) nor write.
-                warn!(dir = %dir.display(), "map snapshots off: fusion.method = \"conceptgraphs\" cannot save or restore its map (a snapshot there is left as it is)");
+            Some(dir) if fusion.export_state().is_none() => {
+                // A map without a saved form (fusion.method = "conceptgraphs"): neither restore
+                // (which would move a saved map of the other fusion aside) nor write.
+                warn!(dir = %dir.display(), method = ?profile.fusion.method, "map snapshots off: this fusion cannot save or restore its map (a snapshot there is left as it is)");
                 None
             }
             Some(dir) => {
