@@ -152,13 +152,10 @@ pub fn markdown(curves: &Curves) -> String {
 /// Width and height of the curves' PNG, pixels.
 pub const PLOT_SIZE: (u32, u32) = (1200, 520);
 
-fn plot_err(what: &str, e: impl std::fmt::Debug) -> anyhow::Error {
-    anyhow!("drawing the curves ({what}): {e:?}")
-}
-
 /// Draws the curves side by side (R@3 per column against the level) into a PNG at `path`. Text
 /// uses DejaVu Sans embedded in the binary (the `dejavu` crate), so no font need be installed.
 pub fn plot_png(curves: &Curves, path: &Path) -> anyhow::Result<()> {
+    use crate::perf::fusion_curve::{draw_legend, draw_line_with_points, plot_err};
     use plotters::prelude::*;
     crate::perf::fusion_curve::register_font()?;
     if curves.curves.iter().all(|c| c.points.is_empty()) {
@@ -191,23 +188,9 @@ pub fn plot_png(curves: &Curves, path: &Path) -> anyhow::Result<()> {
             for (column, (name, colour)) in COLUMNS.iter().zip(colours).enumerate() {
                 let line: Vec<(f64, f64)> =
                     curve.points.iter().filter_map(|p| p.r3[column].map(|v| (p.level * 100.0, v))).collect();
-                chart
-                    .draw_series(LineSeries::new(line.clone(), colour.stroke_width(2)))
-                    .map_err(|e| plot_err(name, e))?
-                    .label(*name)
-                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], colour.stroke_width(2)));
-                chart
-                    .draw_series(line.into_iter().map(|(x, y)| Circle::new((x, y), 4, colour.filled())))
-                    .map_err(|e| plot_err(name, e))?;
+                draw_line_with_points(&mut chart, line, colour, (*name).to_owned())?;
             }
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::LowerLeft)
-                .background_style(WHITE.mix(0.9))
-                .border_style(BLACK)
-                .label_font(("sans-serif", 15))
-                .draw()
-                .map_err(|e| plot_err("legend", e))?;
+            draw_legend(&mut chart, SeriesLabelPosition::LowerLeft, 15)?;
         }
         root.present().map_err(|e| plot_err("present", e))?;
     }

@@ -113,8 +113,53 @@ pub const PLOT_SIZE: (u32, u32) = (1000, 600);
 /// Which figure of a point a plotted series shows.
 type Quantity = fn(&FusionPoint) -> f64;
 
-fn plot_err(what: &str, e: impl std::fmt::Debug) -> anyhow::Error {
+pub(crate) fn plot_err(what: &str, e: impl std::fmt::Debug) -> anyhow::Error {
     anyhow!("drawing the plot ({what}): {e:?}")
+}
+
+/// One labelled series of the project's plots: a line of width 2 through `line` with a dot on
+/// every point, in `colour`, named `label` in the legend.
+pub(crate) fn draw_line_with_points<'a, DB, CT>(
+    chart: &mut plotters::chart::ChartContext<'a, DB, CT>,
+    line: Vec<(f64, f64)>,
+    colour: plotters::style::RGBColor,
+    label: String,
+) -> anyhow::Result<()>
+where
+    DB: plotters::prelude::DrawingBackend + 'a,
+    CT: plotters::coord::CoordTranslate<From = (f64, f64)>,
+{
+    use plotters::prelude::*;
+    chart
+        .draw_series(LineSeries::new(line.clone(), colour.stroke_width(2)))
+        .map_err(|e| plot_err(&label, e))?
+        .label(label.clone())
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], colour.stroke_width(2)));
+    chart
+        .draw_series(line.into_iter().map(|(x, y)| Circle::new((x, y), 4, colour.filled())))
+        .map_err(|e| plot_err(&label, e))?;
+    Ok(())
+}
+
+/// The legend of the project's plots: framed, on a white background, at `position`.
+pub(crate) fn draw_legend<'a, DB, CT>(
+    chart: &mut plotters::chart::ChartContext<'a, DB, CT>,
+    position: plotters::chart::SeriesLabelPosition,
+    font_size: u32,
+) -> anyhow::Result<()>
+where
+    DB: plotters::prelude::DrawingBackend + 'a,
+    CT: plotters::coord::CoordTranslate,
+{
+    use plotters::prelude::*;
+    chart
+        .configure_series_labels()
+        .position(position)
+        .background_style(WHITE.mix(0.9))
+        .border_style(BLACK)
+        .label_font(("sans-serif", font_size))
+        .draw()
+        .map_err(|e| plot_err("legend", e))
 }
 
 /// Registers DejaVu Sans (embedded by the `dejavu` crate) as plotters' `sans-serif`, once.
@@ -169,23 +214,9 @@ pub fn plot_png(curve: &FusionCurve, path: &Path) -> anyhow::Result<()> {
             [("p50", BLUE, |p| p.step.p50_ms), ("p99", RED, |p| p.step.p99_ms)];
         for (name, colour, value) in series {
             let line: Vec<(f64, f64)> = curve.points.iter().map(|p| (nodes(p), value(p))).collect();
-            chart
-                .draw_series(LineSeries::new(line.clone(), colour.stroke_width(2)))
-                .map_err(|e| plot_err(name, e))?
-                .label(format!("{name} of {} steps", curve.steps))
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], colour.stroke_width(2)));
-            chart
-                .draw_series(line.into_iter().map(|(x, y)| Circle::new((x, y), 4, colour.filled())))
-                .map_err(|e| plot_err(name, e))?;
+            draw_line_with_points(&mut chart, line, colour, format!("{name} of {} steps", curve.steps))?;
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
-            .background_style(WHITE.mix(0.9))
-            .border_style(BLACK)
-            .label_font(("sans-serif", 16))
-            .draw()
-            .map_err(|e| plot_err("legend", e))?;
+        draw_legend(&mut chart, SeriesLabelPosition::LowerRight, 16)?;
         root.present().map_err(|e| plot_err("present", e))?;
     }
     save_png(buffer, (width, height), path, "plot")
