@@ -332,6 +332,15 @@ struct Placement {
     origin: isize,
     step_x: isize,
     step_y: isize,
+    /// Whether colour x runs along the output's rows (no rotation or 180°), else colour y.
+    along_x: bool,
+    /// The step along the output's rows of that axis (1 or -1) ...
+    along_step: isize,
+    /// ... and of the other axis.
+    across_step: isize,
+    /// Where a block's line of [`LANES`] values starts, from its first cell: 0 forwards, back
+    /// `LANES - 1` values backwards.
+    lane_offset: isize,
 }
 
 impl Placement {
@@ -346,7 +355,10 @@ impl Placement {
             // (x, y) -> (y, w-1-x), output width h.
             Rotation::Cw270 => ((w - 1) * h, -h, 1),
         };
-        Self { origin, step_x, step_y }
+        let along_x = step_x.abs() == 1;
+        let (along_step, across_step) = if along_x { (step_x, step_y) } else { (step_y, step_x) };
+        let lane_offset = if along_step > 0 { 0 } else { -(LANES as isize - 1) };
+        Self { origin, step_x, step_y, along_x, along_step, across_step, lane_offset }
     }
 }
 
@@ -594,8 +606,21 @@ impl DepthToColour {
                     let (dx_max, dy_max) = ((xb - xa) as isize, (yb - ya) as isize);
                     if MODE == BLOCKS && dx_max < KERNEL as isize && dy_max < KERNEL as isize {
                         // The usual case, without branches on the rectangle's size: a fixed
-                        // KERNEL x KERNEL block whose cells past the rectangle's edge repeat
-                        // the edge cell (writing the same depth twice changes nothing).
+                        // KERNEL x KERNEL block. Along the output's rows it is one 4-value
+                        // write per line, its cells past the rectangle masked off; across them
+                        // the lines past the rectangle's edge repeat the edge line (writing the
+                        // same depth twice changes nothing).
+                        let (along, across) = if place.along_x { (dx_max, dy_max) } else { (dy_max, dx_max) };
+                        let z = lanes(z1, along as usize, place.along_step);
+                        let low = base + place.lane_offset;
+                        let lines = [low, low + across.min(1) * place.across_step, low + across * place.across_step];
+                        if lines.iter().all(|&l| l >= 0 && l as usize + LANES <= out.len()) {
+                            for line in lines {
+                                nearest_lanes(out, line as usize, z);
+                            }
+                            continue;
+                        }
+                        // At the ends of the image, where four values would not fit: cell by cell.
                         for dy in 0..KERNEL as isize {
                             let row_at = base + dy.min(dy_max) * place.step_y;
                             for dx in 0..KERNEL as isize {
@@ -618,6 +643,37 @@ impl DepthToColour {
                 start += n;
             }
         }
+    }
+}
+
+/// Values per lane-wise write of [`nearest_lanes`]: one more than [`KERNEL`], so that a block's
+/// line is one 8-byte load and store.
+const LANES: usize = KERNEL + 1;
+
+/// The depths [`nearest_lanes`] writes along one of a block's lines: `z1` in the `along + 1`
+/// lanes the rectangle covers, `u16::MAX` (which leaves a cell unchanged: `min(out - 1, MAX) + 1` wraps back to `out`) in the others. With
+/// `step` 1 the line starts at the rectangle's first cell; with -1 it ends there, its lanes
+/// reversed.
+#[inline(always)]
+fn lanes(z1: u16, along: usize, step: isize) -> [u16; LANES] {
+    const FORWARD: [[u16; LANES]; KERNEL] = [[0, !0, !0, !0], [0, 0, !0, !0], [0, 0, 0, !0]];
+    const BACKWARD: [[u16; LANES]; KERNEL] = [[!0, !0, !0, 0], [!0, !0, 0, 0], [!0, 0, 0, 0]];
+    let mask = if step > 0 { FORWARD[along] } else { BACKWARD[along] };
+    mask.map(|m| z1 | m)
+}
+
+/// [`nearest`] on the `LANES` consecutive values from `low`, each with its own depth (a lane
+/// with `u16::MAX` keeps its value: `min(out - 1, MAX) + 1 = out`). Vectorised by the compiler.
+///
+/// The caller checks `low + LANES <= out.len()`.
+#[inline(always)]
+#[allow(unsafe_code)] // One unchecked slice on the hot path, checked by the caller.
+fn nearest_lanes(out: &mut [u16], low: usize, z1: [u16; LANES]) {
+    debug_assert!(low + LANES <= out.len(), "aligned depth values {low}.. outside {} values", out.len());
+    // SAFETY: `low + LANES <= out.len()`, checked by the caller (and here in debug builds).
+    let cells = unsafe { out.get_unchecked_mut(low..low + LANES) };
+    for (cell, z) in cells.iter_mut().zip(z1) {
+        *cell = cell.wrapping_sub(1).min(z).wrapping_add(1);
     }
 }
 
