@@ -48,6 +48,14 @@ sam_decoder.onnx  the SAM prompt decoder as segment-anything's scripts/export_on
                         float32 [1, 1], low_res_masks float32 [1, 1, 256, 256]
                   The mask is the top half of the prompt box (logit 5 inside, -5 outside), so a
                   decoder mask differs from the box and from a depth mask.
+clip_image.onnx   a CLIP image encoder, the region encoder's model (Hugging Face
+                  CLIPVisionModelWithProjection or open_clip encode_image through
+                  torch.onnx.export):
+                    in  pixel_values   float32 [B, 3, 224, 224]  RGB, CLIP mean/std on 0..1
+                    out image_embeds   float32 [B, 512]          not normalised
+                  image_embeds[b, j] = the mean of input plane j mod 3 over the image: a crop of
+                  one colour (r, g, b) embeds as (r', g', b', r', g', b', ...), its normalised
+                  values repeated, so the crop, the resize and the normalisation are checked.
 expected.json     the answers: CLIP tokens of a few prompts from open_clip's own tokenizer
                   (.models/clip/open_clip_tokenizer.py), the stand-in CLIP embedding of each
                   prompt computed here with numpy, and the regions' constants.
@@ -323,6 +331,25 @@ def sam(out):
     )
 
 
+def clip_image(out):
+    project = np.zeros((3, CLIP_DIM), np.float32)
+    project[np.arange(CLIP_DIM) % 3, np.arange(CLIP_DIM)] = 1.0
+    nodes = [
+        helper.make_node("ReduceMean", ["pixel_values"], ["channel_means"], axes=[2, 3], keepdims=0),  # [B, 3]
+        helper.make_node("MatMul", ["channel_means", "project"], ["image_embeds"]),  # [B, 512]
+    ]
+    save(
+        model(
+            nodes,
+            "clip_image_standin",
+            [helper.make_tensor_value_info("pixel_values", TensorProto.FLOAT, ["B", 3, 224, 224])],
+            [helper.make_tensor_value_info("image_embeds", TensorProto.FLOAT, ["B", CLIP_DIM])],
+            [numpy_helper.from_array(project, "project")],
+        ),
+        out / "clip_image.onnx",
+    )
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=ROOT / ".models/standins")
@@ -331,6 +358,7 @@ def main():
     tokenizer = reference_tokenizer()
     expected = {"yolo_world": yolo_world(args.out), "owl": owl(args.out, tokenizer), **clip_text(args.out, tokenizer)}
     sam(args.out)
+    clip_image(args.out)
     (args.out / "expected.json").write_text(json.dumps(expected, indent=1))
     print(f"wrote {args.out / 'expected.json'}")
 

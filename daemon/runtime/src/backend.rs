@@ -29,6 +29,7 @@ use crate::config::{OPEN_VOCAB_DETECTOR, Profile, REPLAY_SOURCE, YOLOX_DETECTOR}
 use crate::knowledge::KnowledgeBase;
 use crate::onnx::{OnnxError, OnnxRuntime};
 use crate::perception::open_vocab::OpenVocabDetector;
+use crate::perception::region_encoder::{RegionEncoder, RegionEncoderConfig, WithRegionEncoder};
 use crate::perception::yolox::YoloxDetector;
 use crate::perception::{Detection, Detector, DetectorError};
 use crate::pipeline::StartError;
@@ -180,6 +181,10 @@ impl Backends {
     pub fn open(&self, profile: &Profile) -> Result<(OpenedSource, DetectorFactory), StartError> {
         let opened = self.source(&profile.source.kind)?.open(profile)?;
         let factory = self.detector(&profile.detector.kind)?.prepare(profile, &opened)?;
+        let factory = match &profile.detector.region_encoder {
+            Some(config) => with_region_encoder(profile, factory, config)?,
+            None => factory,
+        };
         Ok((opened, factory))
     }
 }
@@ -329,6 +334,34 @@ fn preloaded_factory(
             preloaded.lock().unwrap_or_else(PoisonError::into_inner).get_mut(worker as usize).and_then(Option::take);
         match taken.map_or_else(|| load(), Ok) {
             Ok(detector) => detector,
+            Err(e) => Box::new(FailedDetector(e.to_string())),
+        }
+    }))
+}
+
+/// `factory`'s detectors with `[detector.region_encoder]` giving their detections' semantic
+/// features: one encoder session per worker, loaded now so that a missing or wrong model stops
+/// start-up naming the key.
+fn with_region_encoder(
+    profile: &Profile,
+    factory: DetectorFactory,
+    config: &RegionEncoderConfig,
+) -> Result<DetectorFactory, StartError> {
+    const KEY: &str = "detector.region_encoder";
+    let runtime = OnnxRuntime::init(&profile.onnx)?;
+    let config = config.clone();
+    let load = move || RegionEncoder::new(&runtime, &config, KEY);
+    let mut preloaded = Vec::with_capacity(profile.detector.workers.max(1));
+    for _ in 0..profile.detector.workers.max(1) {
+        preloaded.push(Some(load()?));
+    }
+    let preloaded = Mutex::new(preloaded);
+    Ok(Arc::new(move |worker| {
+        let inner = factory(worker);
+        let taken =
+            preloaded.lock().unwrap_or_else(PoisonError::into_inner).get_mut(worker as usize).and_then(Option::take);
+        match taken.map_or_else(&load, Ok) {
+            Ok(encoder) => Box::new(WithRegionEncoder::new(inner, encoder)) as Box<dyn Detector>,
             Err(e) => Box::new(FailedDetector(e.to_string())),
         }
     }))

@@ -311,3 +311,143 @@ fn a_sam_decoder_gives_the_masks_of_the_boxes() {
     assert!(err.contains("SAM mask decoder layout") && err.contains(r#"no input "point_coords""#), "{err}");
     assert!(err.contains(r#"the file has inputs "images" float32 [1, 3, 1024, 1024]"#), "{err}");
 }
+
+/// Stands in for any detector: the detections given, without features.
+struct Given(Vec<Detection>);
+
+impl Detector for Given {
+    fn detect(
+        &mut self,
+        _frame: &Frame,
+        out: &mut Vec<Detection>,
+    ) -> Result<(), op3dsg_runtime::perception::DetectorError> {
+        out.clear();
+        out.extend(self.0.iter().cloned());
+        Ok(())
+    }
+
+    fn name(&self) -> &str {
+        "given"
+    }
+}
+
+fn square(label: &str, x0: u32, y0: u32, size: u32) -> Detection {
+    Detection {
+        label: label.into(),
+        kind: NodeKind::Object,
+        score: 0.9,
+        mask: op3dsg_runtime::perception::Mask {
+            x0,
+            y0,
+            width: size,
+            height: size,
+            data: vec![1; (size * size) as usize],
+        },
+        semantic_feature: None,
+    }
+}
+
+/// The stand-in's embedding of a crop of one colour, worked out here from CLIP's published
+/// mean and standard deviation: each plane's normalised value, repeated over the 512 entries
+/// (`scripts/reference/model_standins.py`, `clip_image`), L2-normalised.
+fn clip_embedding_of(rgb: [u8; 3]) -> Vec<f32> {
+    let mean = [0.481_454_66f32, 0.457_827_5, 0.408_210_73];
+    let std = [0.268_629_54f32, 0.261_302_6, 0.275_777_1];
+    let plane: Vec<f32> = (0..3).map(|c| (f32::from(rgb[c]) / 255.0 - mean[c]) / std[c]).collect();
+    let mut e: Vec<f32> = (0..512).map(|j| plane[j % 3]).collect();
+    let norm = e.iter().map(|v| v * v).sum::<f32>().sqrt();
+    e.iter_mut().for_each(|v| *v /= norm);
+    e
+}
+
+fn close(a: &[f32], b: &[f32]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-4)
+}
+
+#[test]
+fn a_region_encoder_gives_each_crop_its_clip_embedding_and_fusion_keeps_it() {
+    use op3dsg_runtime::fusion::Fusion as _;
+    use op3dsg_runtime::fusion::multiview::MultiViewFusion;
+    use op3dsg_runtime::perception::image_input::Resize;
+    use op3dsg_runtime::perception::region_encoder::{
+        CropBackground, RegionEncoder, RegionEncoderConfig, WithRegionEncoder,
+    };
+
+    // Two cabinets on a grey wall 1.5 m away: one red, one blue, each detected exactly.
+    let (red, blue) = ([200u8, 30, 40], [20u8, 60, 220]);
+    let mut frame = frame();
+    frame.rgb.fill(128);
+    for (x0, colour) in [(40u32, red), (200, blue)] {
+        for y in 60..100u32 {
+            for x in x0..x0 + 40 {
+                let i = ((y * 320 + x) * 3) as usize;
+                frame.rgb[i..i + 3].copy_from_slice(&colour);
+            }
+        }
+    }
+    let given = Given(vec![square("cabinet", 40, 60, 40), square("cabinet", 200, 60, 40)]);
+    let config = RegionEncoderConfig {
+        path: standin("clip_image.onnx"),
+        input: ImageInput { resize: Resize::Stretch, ..RegionEncoderConfig::default().input },
+        padding_px: 0,
+        ..RegionEncoderConfig::default()
+    };
+    let encoder = RegionEncoder::new(&runtime(), &config, "detector.region_encoder").unwrap_or_else(|e| panic!("{e}"));
+    let mut detector = WithRegionEncoder::new(Box::new(given), encoder);
+    let mut out = Vec::new();
+    detector.detect(&frame, &mut out).expect("detects");
+    assert_eq!(detector.name(), "given");
+    let features: Vec<&[f32]> = out.iter().map(|d| d.semantic_feature.as_deref().expect("a feature")).collect();
+    assert!(close(features[0], &clip_embedding_of(red)), "red crop: {:?}", &features[0][..3]);
+    assert!(close(features[1], &clip_embedding_of(blue)), "blue crop: {:?}", &features[1][..3]);
+
+    // The features reach fusion: each node's running mean is its crop's embedding.
+    let mut fusion = MultiViewFusion::new(op3dsg_sim::load_profile(None, &[]).unwrap().profile.fusion);
+    for _ in 0..3 {
+        fusion.integrate(&frame, &op3dsg_drivers::pose::Isometry::IDENTITY, &out);
+    }
+    let state = fusion.export_state().expect("the map's state");
+    assert_eq!(state.nodes.len(), 2, "two cabinets, apart");
+    let mut nodes: Vec<_> = state.nodes.iter().collect();
+    nodes.sort_by(|a, b| a.points[0][0].total_cmp(&b.points[0][0]));
+    assert!(close(&nodes[0].semantic, &clip_embedding_of(red)), "left node: {:?}", &nodes[0].semantic[..3]);
+    assert!(close(&nodes[1].semantic, &clip_embedding_of(blue)), "right node");
+
+    // With a grey background and padding the crop holds the wall around the mask too, painted
+    // grey: the embedding is then between the colour's and the grey's, no longer the colour's.
+    let grey_config = RegionEncoderConfig { padding_px: 20, background: CropBackground::Grey, ..config.clone() };
+    let mut encoder = RegionEncoder::new(&runtime(), &grey_config, "detector.region_encoder").unwrap();
+    let padded = encoder.encode(&frame, &out[0].mask).unwrap().expect("a feature");
+    assert!(!close(&padded, &clip_embedding_of(red)));
+    // Crops under min_crop_px give no feature: the detection keeps its detector's.
+    let tiny = RegionEncoderConfig { padding_px: 0, min_crop_px: 41, ..config.clone() };
+    let mut encoder = RegionEncoder::new(&runtime(), &tiny, "detector.region_encoder").unwrap();
+    assert_eq!(encoder.encode(&frame, &out[0].mask).unwrap(), None);
+
+    // Another model in its place is refused at start, naming the key and listing the file.
+    let wrong = RegionEncoderConfig { path: standin("sam_encoder.onnx"), ..config };
+    let err = RegionEncoder::new(&runtime(), &wrong, "detector.region_encoder").map(|_| ()).unwrap_err().to_string();
+    assert!(err.contains("CLIP image encoder layout (detector.region_encoder)"), "{err}");
+    assert!(
+        err.contains(r#"no input "pixel_values""#) && err.contains(r#""images" float32 [1, 3, 1024, 1024]"#),
+        "{err}"
+    );
+}
+
+#[test]
+fn the_region_encoder_profile_loads_its_stand_in_with_only_the_model_path_changed() {
+    use op3dsg_runtime::perception::region_encoder::RegionEncoder;
+    let set = format!("detector.region_encoder.path={}", standin("clip_image.onnx").display());
+    let loaded = op3dsg_sim::load_profile(Some(&repo().join("profiles/replay-icl-clip-regions.toml")), &[set])
+        .unwrap_or_else(|e| panic!("{e}"));
+    let config = loaded.profile.detector.region_encoder.as_ref().expect("[detector.region_encoder]");
+    let mut encoder =
+        RegionEncoder::new(&runtime(), config, "detector.region_encoder").unwrap_or_else(|e| panic!("{e}"));
+    let mut frame = frame();
+    frame.rgb.fill(90);
+    let mask = square("chair", 100, 80, 30).mask;
+    let feature = encoder.encode(&frame, &mask).unwrap().expect("a feature");
+    // The crop and its letterbox padding are both grey-ish; the profile's letterbox pads with
+    // CLIP's mean grey, which normalises to about 0, so the direction is the crop's.
+    assert!(close(&feature, &clip_embedding_of([90, 90, 90])), "{:?}", &feature[..3]);
+}

@@ -115,8 +115,9 @@ fn load_layers(
     Ok(LoadedProfile { profile, effective, layers: layers.into_iter().map(|(n, _)| n).collect() })
 }
 
-/// Sub-tables of `[source]` and `[detector]` that are the runtime's own typed sections.
-const RUNTIME_SECTIONS: [(&str, &[&str]); 2] = [("source", &["replay"]), ("detector", &["yolox", "open_vocab"])];
+/// Sub-tables of `[source]` and `[detector]` that are the runtime's own typed sections (`region_encoder` goes with every detector kind).
+const RUNTIME_SECTIONS: [(&str, &[&str]); 2] =
+    [("source", &["replay"]), ("detector", &["yolox", "open_vocab", "region_encoder"])];
 
 /// `detector.kind = "onnx"` is the older name of `"yolox"`.
 fn normalise_kinds(merged: &mut toml::Table) {

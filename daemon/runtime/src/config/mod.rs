@@ -35,6 +35,7 @@ use crate::ipc::IpcConfig;
 use crate::onnx::OnnxConfig;
 use crate::onnx::text_encoder::TextEncoderConfig;
 use crate::perception::open_vocab::OpenVocabConfig;
+use crate::perception::region_encoder::RegionEncoderConfig;
 use crate::perception::yolox::YoloxConfig;
 use crate::queue::QueueConfig;
 
@@ -59,6 +60,7 @@ pub const PATH_KEYS: &[&str] = &[
     "detector.open_vocab.mask_decoder.decoder_path",
     "detector.yolox.mask_decoder.encoder_path",
     "detector.yolox.mask_decoder.decoder_path",
+    "detector.region_encoder.path",
     "reasoner.knowledge_dir",
     "reasoner.llm.api_key_file",
     "snapshot.dir",
@@ -279,6 +281,11 @@ pub struct DetectorConfig {
     /// `kind = "open_vocab"`).
     #[serde(default)]
     pub open_vocab: OpenVocabConfig,
+    /// `[detector.region_encoder]`: a CLIP image encoder whose embedding of each detection's
+    /// crop becomes its semantic feature, for any detector kind (contract in
+    /// `perception/region_encoder.rs`). Unset: the detector's own features, if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub region_encoder: Option<RegionEncoderConfig>,
 }
 
 /// `[queues]`.
@@ -419,6 +426,9 @@ impl Profile {
         }
         if self.detector.kind == OPEN_VOCAB_DETECTOR {
             self.detector.open_vocab.validate("detector.open_vocab").map_err(split_message)?;
+        }
+        if let Some(encoder) = &self.detector.region_encoder {
+            encoder.validate("detector.region_encoder").map_err(split_message)?;
         }
         self.fusion.validate("fusion").map_err(split_message)?;
         self.queues.frames.validate("queues.frames").map_err(split_message)?;

@@ -10,6 +10,7 @@ pub mod depth_mask;
 pub mod image_input;
 pub mod mask_decoder;
 pub mod open_vocab;
+pub mod region_encoder;
 pub(crate) mod worker;
 pub mod yolox;
 
