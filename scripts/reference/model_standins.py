@@ -56,6 +56,13 @@ clip_image.onnx   a CLIP image encoder, the region encoder's model (Hugging Face
                   image_embeds[b, j] = the mean of input plane j mod 3 over the image: a crop of
                   one colour (r, g, b) embeds as (r', g', b', r', g', b', ...), its normalised
                   values repeated, so the crop, the resize and the normalisation are checked.
+tagger.onnx       an image tagger (RAM / RAM++ traced with torch.onnx.export, before its sigmoid),
+tagger_tags.txt   with its tag list (one per line, in output order):
+                    in  images         float32 [1, 3, 384, 384]  RGB, ImageNet mean/std on 0..1
+                    out logits         float32 [1, 5]
+                  Tags TAGGER_TAGS. From the mean normalised planes R', G', B' of the image:
+                  cabinet 6 (R' - B'), stove 6 (B' - R'), tv -5, lamp +5, room +6. So a red image
+                  is tagged cabinet, lamp, room; a blue one stove, lamp, room; tv never.
 expected.json     the answers: CLIP tokens of a few prompts from open_clip's own tokenizer
                   (.models/clip/open_clip_tokenizer.py), the stand-in CLIP embedding of each
                   prompt computed here with numpy, and the regions' constants.
@@ -74,6 +81,7 @@ from onnx import TensorProto, helper, numpy_helper
 ROOT = Path(__file__).resolve().parents[2]
 PROMPTS = ["stove", "cabinet", "tv", "cabinet handle", "light switch", "TV  Stand", "a photo of a red chair!", "don't"]
 OWL_WORDS = ["stove", "cabinet", "tv"]
+TAGGER_TAGS = ["cabinet", "stove", "tv", "lamp", "room"]
 CLIP_DIM = 512
 CONTEXT = 77
 OWL_CONTEXT = 16
@@ -350,6 +358,29 @@ def clip_image(out):
     )
 
 
+def tagger(out):
+    weights = np.zeros((3, len(TAGGER_TAGS)), np.float32)
+    weights[0, 0], weights[2, 0] = 6.0, -6.0  # cabinet: red over blue
+    weights[0, 1], weights[2, 1] = -6.0, 6.0  # stove: blue over red
+    bias = np.array([0.0, 0.0, -5.0, 5.0, 6.0], np.float32)
+    nodes = [
+        helper.make_node("ReduceMean", ["images"], ["channel_means"], axes=[2, 3], keepdims=0),  # [1, 3]
+        helper.make_node("MatMul", ["channel_means", "weights"], ["scaled"]),
+        helper.make_node("Add", ["scaled", "bias"], ["logits"]),
+    ]
+    save(
+        model(
+            nodes,
+            "tagger_standin",
+            [helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, 384, 384])],
+            [helper.make_tensor_value_info("logits", TensorProto.FLOAT, [1, len(TAGGER_TAGS)])],
+            [numpy_helper.from_array(weights, "weights"), numpy_helper.from_array(bias, "bias")],
+        ),
+        out / "tagger.onnx",
+    )
+    (out / "tagger_tags.txt").write_text("".join(f"{t}\n" for t in TAGGER_TAGS))
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=ROOT / ".models/standins")
@@ -359,6 +390,7 @@ def main():
     expected = {"yolo_world": yolo_world(args.out), "owl": owl(args.out, tokenizer), **clip_text(args.out, tokenizer)}
     sam(args.out)
     clip_image(args.out)
+    tagger(args.out)
     (args.out / "expected.json").write_text(json.dumps(expected, indent=1))
     print(f"wrote {args.out / 'expected.json'}")
 

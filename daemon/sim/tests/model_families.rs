@@ -451,3 +451,101 @@ fn the_region_encoder_profile_loads_its_stand_in_with_only_the_model_path_change
     // CLIP's mean grey, which normalises to about 0, so the direction is the crop's.
     assert!(close(&feature, &clip_embedding_of([90, 90, 90])), "{:?}", &feature[..3]);
 }
+
+fn tagger_config() -> op3dsg_runtime::perception::tagger::TaggerConfig {
+    op3dsg_runtime::perception::tagger::TaggerConfig {
+        path: standin("tagger.onnx"),
+        tags_path: standin("tagger_tags.txt"),
+        ..Default::default()
+    }
+}
+
+fn painted(rgb: [u8; 3]) -> Frame {
+    let mut frame = frame();
+    frame.rgb.chunks_exact_mut(3).for_each(|px| px.copy_from_slice(&rgb));
+    frame
+}
+
+#[test]
+fn an_image_tagger_seeds_each_keyframes_object_tags_and_their_part_prompts() {
+    use op3dsg_runtime::perception::tagger::{ImageTagger, TaggerConfig};
+    const KEY: &str = "detector.open_vocab.tagger";
+    let (red, blue) = (painted([200, 30, 40]), painted([20, 60, 220]));
+    let names = |tags: Vec<(String, f32)>| tags.into_iter().map(|(t, _)| t).collect::<Vec<_>>();
+
+    // The tagger alone: the stand-in's logits from the image's mean colour (model_standins.py),
+    // sigmoid, RAM's threshold 0.68, highest first.
+    let mut tagger = ImageTagger::new(&runtime(), &tagger_config(), KEY).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(names(tagger.tag(&red).unwrap()), ["cabinet", "room", "lamp"]);
+    assert_eq!(names(tagger.tag(&blue).unwrap()), ["stove", "room", "lamp"]);
+    let config = TaggerConfig { ignore: vec!["Room".into()], max_tags: 1, ..tagger_config() };
+    let mut tagger = ImageTagger::new(&runtime(), &config, KEY).unwrap();
+    assert_eq!(names(tagger.tag(&red).unwrap()), ["cabinet"]);
+
+    // In the detector: no fixed object list; each keyframe's tags give its prompts, the
+    // knowledge base their parts. YOLO-World's stand-in answers prompts 1 and 0.
+    let mut config = yolo_world_config();
+    config.prompts.objects.clear();
+    config.prompts.part_prompts = CandidateMode::Knowledge;
+    config.tagger = Some(TaggerConfig { ignore: vec!["room".into()], ..tagger_config() });
+    let knowledge = Arc::new(KnowledgeBase::builtin().unwrap());
+    let mut detector = OpenVocabDetector::new(&runtime(), &config, knowledge, &TextEncoderConfig::default())
+        .unwrap_or_else(|e| panic!("{e}"));
+    for (frame, object, part, other) in [
+        (&red, "cabinet", "cabinet handle", "stove"),
+        (&blue, "stove", "stove knob", "cabinet"),
+        (&red, "cabinet", "cabinet handle", "stove"),
+    ] {
+        let mut out = Vec::new();
+        detector.detect(frame, &mut out).expect("detects");
+        let texts: Vec<String> = detector.prompts().iter().map(|p| p.text.clone()).collect();
+        assert_eq!(texts[..2], [object.to_owned(), "lamp".to_owned()], "{texts:?}");
+        assert!(texts.iter().any(|t| t == part), "{object}: knowledge-guided parts in {texts:?}");
+        assert!(!texts.iter().any(|t| t.starts_with(other)), "{object}: no {other} prompts in {texts:?}");
+        let labels: Vec<&str> = out.iter().map(|d| d.label.as_str()).collect();
+        assert_eq!(labels, ["lamp", object]);
+    }
+
+    // A tag list that does not fit the model, and a model with its vocabulary built in, are
+    // refused at start naming the key.
+    let dir = std::env::temp_dir().join(format!("op3dsg-tagger-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let short = dir.join("tags.txt");
+    std::fs::write(&short, "cabinet\nstove\n").unwrap();
+    let err = ImageTagger::new(&runtime(), &TaggerConfig { tags_path: short, ..tagger_config() }, KEY)
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("detector.open_vocab.tagger.tags_path") && err.contains("lists 2 tags") && err.contains("has 5"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&dir).ok();
+    let mut baked = OpenVocabConfig { tagger: Some(tagger_config()), ..OpenVocabConfig::default() };
+    baked.text.kind = op3dsg_runtime::perception::open_vocab::TextInputKind::None;
+    baked.prompts.objects = vec!["cabinet".into()];
+    let err = baked.validate("detector.open_vocab").unwrap_err();
+    assert!(err.starts_with("detector.open_vocab.tagger: needs a model that takes its vocabulary"), "{err}");
+}
+
+#[test]
+fn the_tagged_profile_loads_its_stand_ins_with_only_the_model_paths_changed() {
+    let sets = vec![
+        format!("detector.open_vocab.model_path={}", standin("yolo_world.onnx").display()),
+        format!("detector.open_vocab.clip.model_path={}", standin("clip_text.onnx").display()),
+        format!("detector.open_vocab.tagger.path={}", standin("tagger.onnx").display()),
+        format!("detector.open_vocab.tagger.tags_path={}", standin("tagger_tags.txt").display()),
+    ];
+    let profile = repo().join("profiles/replay-icl-yolo-world-tagged.toml");
+    let loaded = op3dsg_sim::load_profile(Some(&profile), &sets).unwrap_or_else(|e| panic!("{e}"));
+    let knowledge = Arc::new(KnowledgeBase::builtin().unwrap());
+    let config = &loaded.profile.detector.open_vocab;
+    let mut detector = OpenVocabDetector::new(&runtime(), config, knowledge, &loaded.profile.text_encoder)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut out = Vec::new();
+    detector.detect(&painted([20, 60, 220]), &mut out).unwrap();
+    // "room" is ignored by the profile: stove and lamp are the tags.
+    let labels: Vec<&str> = out.iter().map(|d| d.label.as_str()).collect();
+    assert_eq!(labels, ["lamp", "stove"]);
+    assert!(detector.prompts().iter().any(|p| p.text == "stove knob"));
+}

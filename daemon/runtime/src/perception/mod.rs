@@ -11,6 +11,7 @@ pub mod image_input;
 pub mod mask_decoder;
 pub mod open_vocab;
 pub mod region_encoder;
+pub mod tagger;
 pub(crate) mod worker;
 pub mod yolox;
 

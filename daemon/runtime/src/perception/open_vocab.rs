@@ -69,6 +69,11 @@
 //! switch, power outlet, remote control); `"generic"` a fixed generic part vocabulary instead;
 //! `"all"` the tags alone. Then `parts`, as given. Duplicates are dropped, order kept.
 //!
+//! With `[detector.open_vocab.tagger]` ([`super::tagger`], e.g. RAM) the object tags are chosen
+//! per keyframe: `objects` (always looked for, may be empty) followed by the tagger's tags for
+//! that keyframe, and the prompt list is rebuilt when they change, new prompts encoded once and
+//! kept (up to 4096 texts). A keyframe with no tag and no listed object is not run.
+//!
 //! `scripts/reference/open_vocab_fixture.py` writes a tiny model with this contract and known
 //! answers; `daemon/sim/tests/open_vocab.rs` runs the adapter on it.
 
@@ -84,6 +89,7 @@ use serde::{Deserialize, Serialize};
 use super::depth_mask::{DepthMaskConfig, PixelBox};
 use super::image_input::{ImageInput, Placement, prepare};
 use super::mask_decoder::{BoxMasks, MaskDecoderConfig};
+use super::tagger::{ImageTagger, TaggerConfig};
 use super::yolox::iou;
 use super::{
     Detection, Detector, DetectorError, Mask, ScoreCalibration, greedy_suppress, normalise, validate_detection_limits,
@@ -348,6 +354,10 @@ pub struct OpenVocabConfig {
     /// output ([`super::mask_decoder`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mask_decoder: Option<MaskDecoderConfig>,
+    /// An image tagger whose tags for each keyframe join `prompts.objects` as that keyframe's
+    /// object tags ([`super::tagger`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tagger: Option<TaggerConfig>,
 }
 
 impl Default for OpenVocabConfig {
@@ -370,6 +380,7 @@ impl Default for OpenVocabConfig {
             depth_mask: DepthMaskConfig::default(),
             clip: ClipTextConfig::default(),
             mask_decoder: None,
+            tagger: None,
         }
     }
 }
@@ -416,8 +427,15 @@ impl OpenVocabConfig {
         if !(self.mask_threshold > 0.0 && self.mask_threshold < 1.0) {
             return Err(format!("{path}.mask_threshold: must be within (0, 1), got {}", self.mask_threshold));
         }
-        if self.prompts.objects.is_empty() && self.prompts.parts.is_empty() {
-            return Err(format!("{path}.prompts: list at least one object tag or part prompt"));
+        if let Some(tagger) = &self.tagger {
+            tagger.validate(&format!("{path}.tagger"))?;
+            if text.kind == TextInputKind::None {
+                return Err(format!(
+                    "{path}.tagger: needs a model that takes its vocabulary (text.kind \"embeddings\" or \"tokens\"); this one has it built in"
+                ));
+            }
+        } else if self.prompts.objects.is_empty() && self.prompts.parts.is_empty() {
+            return Err(format!("{path}.prompts: list at least one object tag or part prompt (or set a tagger)"));
         }
         if let Some(p) = self.prompts.objects.iter().chain(&self.prompts.parts).find(|p| p.trim().is_empty()) {
             return Err(format!("{path}.prompts: empty prompt {p:?}"));
@@ -471,6 +489,67 @@ pub struct OpenVocabDetector {
     tokens: Tokens,
     input: Vec<f32>,
     box_masks: BoxMasks,
+    /// The object tags the prompts were built from.
+    frame_objects: Vec<String>,
+    knowledge: Arc<KnowledgeBase>,
+    /// With `[detector.open_vocab.tagger]`: the tagger, and what encodes the prompts it seeds.
+    tagger: Option<ImageTagger>,
+    encoder: Option<PromptEncoder>,
+    cache: PromptCache,
+}
+
+/// Turns prompts into the model's text input (embeddings or tokens).
+enum PromptEncoder {
+    /// The vocabulary is built into the model.
+    None,
+    /// MiniLM sentence embeddings (`[text_encoder]`).
+    Minilm(TextEncoder),
+    /// CLIP text features (`[detector.open_vocab.clip]`).
+    Clip(ClipTextEncoder),
+    /// CLIP tokens, rows of `length`.
+    Tokens { tokenizer: ClipTokenizer, length: usize },
+}
+
+/// Prompt embeddings already computed, by text; emptied when it reaches [`PromptCache::MAX`].
+#[derive(Default)]
+struct PromptCache(std::collections::HashMap<String, Vec<f32>>);
+
+impl PromptCache {
+    /// Entries kept at most (512-float rows: 8 MiB).
+    const MAX: usize = 4096;
+}
+
+impl PromptEncoder {
+    /// The text input of `prompts`: `[P, dim]` embeddings (new texts encoded, known ones from
+    /// `cache`) or tokens.
+    fn encode(
+        &mut self,
+        prompts: &[Prompt],
+        cache: &mut PromptCache,
+        dim: usize,
+    ) -> Result<(Vec<f32>, Tokens), OnnxError> {
+        let texts: Vec<&str> = prompts.iter().map(|p| p.text.as_str()).collect();
+        if texts.is_empty() {
+            return Ok((Vec::new(), Tokens::default()));
+        }
+        let mut missing: Vec<&str> = texts.iter().copied().filter(|t| !cache.0.contains_key(*t)).collect();
+        if cache.0.len() + missing.len() > PromptCache::MAX {
+            cache.0.clear();
+            missing = texts.clone();
+        }
+        let rows: Vec<Vec<f32>> = match self {
+            Self::None => return Ok((Vec::new(), Tokens::default())),
+            Self::Tokens { tokenizer, length } => return Ok((Vec::new(), tokenizer.encode(&texts, *length)?)),
+            _ if missing.is_empty() => Vec::new(),
+            Self::Minilm(encoder) => encoder.encode_batch(&missing)?.iter().map(|row| row.to_vec()).collect(),
+            Self::Clip(encoder) => encoder.encode(&missing)?.chunks(dim.max(1)).map(<[f32]>::to_vec).collect(),
+        };
+        for (text, row) in missing.iter().zip(rows) {
+            cache.0.insert((*text).to_owned(), row);
+        }
+        let embeddings = texts.iter().flat_map(|t| cache.0[*t].iter().copied()).collect();
+        Ok((embeddings, Tokens::default()))
+    }
 }
 
 impl std::fmt::Debug for OpenVocabDetector {
@@ -575,12 +654,8 @@ impl OpenVocabDetector {
         let (inputs, outs, what) = contract_tensors(config, &text, &outputs, text_dim);
         contract::check(&session, &model_path, &what, &inputs, &outs)?;
 
-        let prompts = prompt_list(&config.prompts, knowledge);
-        let texts: Vec<&str> = prompts.iter().map(|p| p.text.as_str()).collect();
-        let mut text_embeddings = Vec::new();
-        let mut tokens = Tokens::default();
-        match (text.kind, text.encoder) {
-            (TextInputKind::None, _) => {}
+        let mut encoder = match (text.kind, text.encoder) {
+            (TextInputKind::None, _) => PromptEncoder::None,
             (TextInputKind::Embeddings, TextEncoderKind::Minilm) => {
                 if !text_encoder.enabled {
                     return Err(OnnxError::InvalidConfig(
@@ -588,12 +663,10 @@ impl OpenVocabDetector {
                             .to_owned(),
                     ));
                 }
-                let mut encoder = TextEncoder::new(runtime, text_encoder)?;
-                text_embeddings = encoder.encode_batch(&texts)?.iter().flatten().copied().collect();
+                PromptEncoder::Minilm(TextEncoder::new(runtime, text_encoder)?)
             }
             (TextInputKind::Embeddings, TextEncoderKind::Clip) => {
-                let mut encoder = ClipTextEncoder::new(runtime, &config.clip, "detector.open_vocab.clip")?;
-                text_embeddings = encoder.encode(&texts)?;
+                PromptEncoder::Clip(ClipTextEncoder::new(runtime, &config.clip, "detector.open_vocab.clip")?)
             }
             (TextInputKind::Tokens, _) => {
                 let tokenizer =
@@ -606,9 +679,18 @@ impl OpenVocabDetector {
                     .and_then(|i| i.dtype().tensor_shape().and_then(|s| s.get(1).copied()))
                     .filter(|d| *d > 0);
                 let length = fixed.map_or(text.context_length, |d| d as usize);
-                tokens = tokenizer.encode(&texts, length)?;
+                PromptEncoder::Tokens { tokenizer, length }
             }
-        }
+        };
+        let prompts = prompt_list(&config.prompts, knowledge.clone());
+        let mut cache = PromptCache::default();
+        let (text_embeddings, tokens) = encoder.encode(&prompts, &mut cache, text_dim)?;
+        let tagger = match &config.tagger {
+            Some(tagger) => Some(ImageTagger::new(runtime, tagger, "detector.open_vocab.tagger")?),
+            None => None,
+        };
+        // The encoder stays only where a tagger changes the prompts from keyframe to keyframe.
+        let encoder = tagger.is_some().then_some(encoder);
         let box_masks = BoxMasks::new(
             runtime,
             &config.depth_mask,
@@ -621,6 +703,7 @@ impl OpenVocabDetector {
             mask_decoder = box_masks.has_decoder(),
             prompts = prompts.len(),
             parts = prompts.iter().filter(|p| p.kind == NodeKind::Part).count(),
+            tagger = tagger.is_some(),
             "open-vocabulary detector loaded"
         );
         Ok(Self {
@@ -635,7 +718,37 @@ impl OpenVocabDetector {
             tokens,
             input: Vec::new(),
             box_masks,
+            frame_objects: config.prompts.objects.clone(),
+            knowledge,
+            tagger,
+            encoder,
+            cache,
         })
+    }
+
+    /// With a tagger: this keyframe's object tags (the profile's, then the tagger's) and, when
+    /// they differ from the last keyframe's, the prompts built from them and their text input.
+    fn follow_tags(&mut self, frame: &Frame) -> Result<(), DetectorError> {
+        let (Some(tagger), Some(encoder)) = (self.tagger.as_mut(), self.encoder.as_mut()) else { return Ok(()) };
+        let tags = tagger.tag(frame).map_err(DetectorError::Backend)?;
+        let mut objects = self.config.prompts.objects.clone();
+        for (tag, _) in tags {
+            if !objects.contains(&tag) {
+                objects.push(tag);
+            }
+        }
+        if objects == self.frame_objects {
+            return Ok(());
+        }
+        let config = PromptConfig { objects, ..self.config.prompts.clone() };
+        self.prompts = prompt_list(&config, self.knowledge.clone());
+        let encoded = encoder.encode(&self.prompts, &mut self.cache, self.text_dim);
+        let (embeddings, tokens) = encoded.map_err(|e| self.backend("encoding the tagged prompts", e))?;
+        self.text_embeddings = embeddings;
+        self.tokens = tokens;
+        tracing::debug!(frame = frame.seq, tags = ?config.objects, prompts = self.prompts.len(), "prompts from the image tagger");
+        self.frame_objects = config.objects;
+        Ok(())
     }
 
     /// The vocabulary, in prompt-index order.
@@ -666,6 +779,12 @@ impl Detector for OpenVocabDetector {
         let intr = frame.intrinsics;
         if frame.rgb.len() != intr.pixel_count() * 3 {
             return Err(DetectorError::Frame { seq: frame.seq, reason: "no RGB image of the frame's size".to_owned() });
+        }
+        if self.tagger.is_some() {
+            self.follow_tags(frame)?;
+            if self.prompts.is_empty() {
+                return Ok(()); // nothing tagged, nothing listed: nothing to look for
+            }
         }
         let spec = &self.config.input;
         let placement = prepare(&frame.rgb, intr.width, intr.height, spec, &mut self.input);
