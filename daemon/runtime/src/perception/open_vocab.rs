@@ -1037,7 +1037,7 @@ mod tests {
         let config = OpenVocabConfig::default();
         assert_eq!(
             config.validate("detector.open_vocab").unwrap_err(),
-            "detector.open_vocab.prompts: list at least one object tag or part prompt"
+            "detector.open_vocab.prompts: list at least one object tag or part prompt (or set a tagger)"
         );
         let config = OpenVocabConfig {
             prompts: PromptConfig { objects: vec!["tv".into()], ..PromptConfig::default() },
