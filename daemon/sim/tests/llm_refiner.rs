@@ -5,9 +5,10 @@
 //! appears in logs, prompts or published data. The last tests run the real `op3dsgd` as a child
 //! process against the same server (build it first: `cargo build -p op3dsgd`): affordances
 //! published with their origin; answers in a fence, in prose, with extra fields or numbers as
-//! strings giving the plain answers' items; implausible items rejected, counted by rule in health
-//! and absent from every published graph; with a flaky agent, no accepted item unpublished while
-//! its nodes are unchanged.
+//! strings giving the plain answers' items; hallucinated ids and implausible items rejected,
+//! counted by rule in health and absent from every published graph; with a flaky agent, no
+//! accepted item unpublished while its nodes are unchanged; non-chat 200s opening the breaker,
+//! named `not_chat` in health.
 
 // The server and helpers below are test code outside `#[test]` functions: a failed unwrap is a
 // failed test.
@@ -1378,4 +1379,58 @@ fn with_a_flaky_agent_the_daemon_publishes_every_accepted_edge_while_its_nodes_e
         "an LLM-only local relation was published: {:?}",
         edges.keys().collect::<Vec<_>>()
     );
+}
+
+#[test]
+fn non_chat_200s_open_the_daemons_breaker_named_in_health_while_the_graph_goes_on() {
+    // An nginx welcome page with status 200 for every request (a proxy in front of no model).
+    let server = TestServer::start(Mode::Html);
+    let daemon = start_daemon(
+        "llm-not-chat",
+        &server,
+        &["reasoner.llm.max_retries=0", "reasoner.llm.breaker_failures=3", "reasoner.llm.breaker_cooldown_s=60"],
+    );
+    let mut health = daemon.health_subscriber("llm-not-chat-health");
+    let open = op3dsg_tests::health_where(&mut health, "the breaker open", WATCHDOG, |h| h.refiner.breaker_open == 1);
+    let r = &open.refiner;
+    assert_eq!(op3dsg_ipc_types::REFINER_ERRORS[usize::from(r.last_error)], "not_chat", "{r:?}");
+    assert!(r.failures >= 3, "each page is a failed call: {r:?}");
+    assert_eq!((r.accepted, r.rejections), (0, [0; 8]), "a page is no answer to reject: {r:?}");
+    // Fusion goes on without the refiner.
+    op3dsg_tests::health_where(&mut health, "newer graphs with the breaker open", WATCHDOG, |h| {
+        h.graph_version > open.graph_version + 5 && h.refiner.breaker_open == 1
+    });
+    let text = op3dsg_cli(&daemon.prefix, &["health"]);
+    assert!(text.contains("(breaker open)") && text.contains("last not_chat)"), "{text}");
+}
+
+#[test]
+fn the_daemon_publishes_nothing_from_answers_with_hallucinated_ids_and_counts_them() {
+    // Every id in every answer is one the prompt never had (the prompt's ids + 100000).
+    let server = TestServer::start(Mode::UnknownIds);
+    let daemon = start_daemon("llm-unknown-ids", &server, &[]);
+    let mut health = daemon.health_subscriber("llm-unknown-ids-health");
+    let mut graphs = daemon.graph_subscriber("llm-unknown-ids-graph");
+    let unknown = op3dsg_ipc_types::REFINER_REJECTIONS.iter().position(|r| *r == "unknown_node").unwrap();
+    let counted = op3dsg_tests::health_where(&mut health, "rejections as unknown_node", WATCHDOG, |h| {
+        h.refiner.rejections[unknown] >= 5 && h.refiner.refreshes >= 2
+    });
+    assert_eq!(counted.refiner.accepted, 0, "{:?}", counted.refiner);
+    let others: u64 =
+        counted.refiner.rejections.iter().enumerate().filter(|(i, _)| *i != unknown).map(|(_, n)| n).sum();
+    assert_eq!(others, 0, "only unknown ids are wrong in these answers: {:?}", counted.refiner);
+    // Graphs published from then on carry nothing from the LLM, and the knowledge base's
+    // affordances as soon as fusion has parts.
+    let (mut last, mut checked, mut knowledge) = (counted.graph_version, 0, false);
+    op3dsg_tests::wait_for("five newer graphs, one with a knowledge-base affordance", WATCHDOG, || {
+        let graph = graphs.latest().ok().flatten().filter(|g| g.version() > last)?;
+        last = graph.version();
+        checked += 1;
+        let from_the_llm = llm_items_by_label(graph);
+        assert!(from_the_llm.is_empty(), "v{last}: {from_the_llm:#?}");
+        knowledge |= graph.nodes().any(|n| n.affordance_origins().any(|(_, o)| o == EdgeOrigin::Knowledge));
+        (checked >= 5 && knowledge).then_some(())
+    });
+    let text = op3dsg_cli(&daemon.prefix, &["health"]);
+    assert!(!text.contains("unknown_node 0 ") && text.contains("unknown_node "), "{text}");
 }
