@@ -1,5 +1,5 @@
 //! A minimal planner: waits for op3dsgd, then prints each new graph version with its counts and
-//! every part with its parent object and affordances.
+//! every part with its parent object and affordances, each with its origin (`hook_pull:knowledge+llm`).
 //!
 //! `cargo run -p op3dsg-ipc-types --example planner -- [PREFIX | --prefix P] [--versions N]`
 //! The prefix is the first argument or `--prefix`, else `$OP3DSG_PREFIX`, else `op3dsg`; with `--versions N` (or
@@ -34,7 +34,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         println!("version {} objects {objects} parts {parts} edges {}", graph.version(), graph.edge_count());
         for part in graph.parts() {
             let parent = part.parent().map_or("(none)", |p| p.label());
-            let affordances: Vec<&str> = part.affordances().collect();
+            // Each affordance with where it came from: knowledge, llm or knowledge+llm.
+            let affordances: Vec<String> =
+                part.affordance_origins().map(|(name, origin)| format!("{name}:{}", origin.as_str())).collect();
             println!(
                 "  part {} {:?} of {parent:?} at {:?} m affords {affordances:?}",
                 part.id(),

@@ -167,6 +167,10 @@ pub use text::{fixed_str, write_fixed_str};
 /// 7: every affordance carries an origin like an edge: [`Node`]'s reserved bytes 10..12 became
 /// `affordance_knowledge_bits` and `reserved2` (106..108) `affordance_llm_bits`; sizes and every
 /// other offset are unchanged (`reserved` is the one byte at 9).
+///
+/// 8: [`Health`]'s reserved bytes after `source_connected` became `graph_subscribers` (u16) and
+/// `dead_nodes_cleaned` (u32), with one reserved byte before them; its size and every other
+/// offset are unchanged, and so is the graph's layout.
 pub const SCHEMA_VERSION: u32 = 8;
 
 /// Bytes in a frame id (`PoseStamped::frame_id`), a stage or a queue name.

@@ -4,8 +4,11 @@
 //! during the stall the pipeline keeps producing frames and graph versions; the API key never
 //! appears in logs, prompts or published data. The last tests run the real `op3dsgd` as a child
 //! process against the same server (build it first: `cargo build -p op3dsgd`): affordances
-//! published with their origin, implausible items rejected, counted by rule in health and absent
-//! from every published graph.
+//! published with their origin; answers in a fence, in prose, with extra fields or numbers as
+//! strings giving the plain answers' items; hallucinated ids and implausible items rejected,
+//! counted by rule in health and absent from every published graph; with a flaky agent, no
+//! accepted item unpublished while its nodes are unchanged; non-chat 200s opening the breaker,
+//! named `not_chat` in health.
 
 // The server and helpers below are test code outside `#[test]` functions: a failed unwrap is a
 // failed test.
@@ -1229,4 +1232,205 @@ fn the_daemon_rejects_implausible_items_counts_them_by_rule_and_publishes_none()
         let n = report["refiner"]["rejections"][reason].as_u64().unwrap();
         assert!(n >= count(&counted, reason), "{reason}: {n} in {}", report["refiner"]);
     }
+    // And so does its text form, each reason with its count on the rejections line.
+    let text = op3dsg_cli(&daemon.prefix, &["health"]);
+    let line = text.lines().find(|l| l.starts_with("llm rejections")).unwrap_or_else(|| panic!("{text}"));
+    let shown: Vec<(&str, u64)> = line["llm rejections".len()..]
+        .split("  ")
+        .filter_map(|kv| kv.trim().split_once(' '))
+        .map(|(k, v)| (k, v.parse().unwrap()))
+        .collect();
+    assert_eq!(shown.len(), op3dsg_ipc_types::REFINER_REJECTIONS.len(), "{line}");
+    for (reason, n) in shown {
+        let least = count(&counted, reason);
+        // Stale items (nodes fusion pruned since) may be counted on a live run; nothing else is.
+        let right = match reason {
+            _ if plausibility.contains(&reason) => n >= least && n > 0,
+            "stale" => n >= least,
+            _ => n == 0,
+        };
+        assert!(right, "{reason} {n}: {line}");
+    }
+}
+
+/// The LLM's items in a published graph, by label so that runs can be compared whatever ids
+/// fusion gave: `"cabinet handle -[pull to open or close]-> cabinet (knowledge+llm)"` for an
+/// edge, `"cabinet handle: pinch_pull (llm)"` for an affordance.
+fn llm_items_by_label(graph: &op3dsg_ipc_types::Graph) -> std::collections::BTreeSet<String> {
+    let label = |id: u32| graph.node(id).map_or("?", |n| n.label());
+    let edges = graph.edges().filter(|e| e.kind() == EdgeKind::Functional && from_llm(Some(e.origin()))).map(|e| {
+        let (source, target) = (label(e.source_id()), label(e.target_id()));
+        format!("{source} -[{}]-> {target} ({})", e.phrase(), e.origin().as_str())
+    });
+    let affordances = graph.nodes().flat_map(|n| {
+        n.affordance_origins()
+            .filter(|(_, origin)| from_llm(Some(*origin)))
+            .map(move |(name, origin)| format!("{}: {name} ({})", n.label(), origin.as_str()))
+    });
+    edges.chain(affordances).collect()
+}
+
+#[test]
+fn the_daemon_reads_fenced_prose_extra_field_and_string_number_answers_like_plain_ones() {
+    // Plain answers first: what the LLM adds to the kitchen once the set has held for five newer
+    // graphs (the robot's path keeps showing the same nodes).
+    let plain = {
+        let server = TestServer::start(Mode::Good);
+        let daemon = start_daemon("llm-plain", &server, &[]);
+        let mut graphs = daemon.graph_subscriber("llm-plain-graph");
+        let (mut last, mut held, mut items) = (0, 0, Default::default());
+        op3dsg_tests::wait_for("the LLM's items holding for five graphs", WATCHDOG, || {
+            let graph = graphs.latest().ok().flatten().filter(|g| g.version() > last)?;
+            last = graph.version();
+            let now = llm_items_by_label(graph);
+            held = if now == items { held + 1 } else { 0 };
+            items = now;
+            (held >= 5 && items.iter().any(|i| i.starts_with("cabinet handle: pinch_pull"))).then(|| items.clone())
+        })
+    };
+    assert!(plain.contains("cabinet handle: hook_pull (knowledge+llm)"), "{plain:#?}");
+    assert!(plain.iter().any(|i| i.starts_with("cabinet handle -[pull to open or close]->")), "{plain:#?}");
+
+    // Each dressed answer: every item of it accepted, none rejected, no failure, and a published
+    // graph with at least the plain answers' items (each answer is built from its own prompt).
+    for mode in [Mode::Fenced, Mode::Prose, Mode::ExtraFields, Mode::StringNumbers] {
+        let name = format!("llm-{mode:?}").to_lowercase();
+        let server = TestServer::start(mode);
+        let daemon = start_daemon(&name, &server, &[]);
+        let mut health = daemon.health_subscriber(&format!("{name}-health"));
+        let mut graphs = daemon.graph_subscriber(&format!("{name}-graph"));
+        let mut last = 0;
+        let graph_version = op3dsg_tests::wait_for(&format!("{mode:?}: the plain answers' items"), WATCHDOG, || {
+            let graph = graphs.latest().ok().flatten().filter(|g| g.version() > last)?;
+            last = graph.version();
+            llm_items_by_label(graph).is_superset(&plain).then_some(last)
+        });
+        let counted = op3dsg_tests::health_where(&mut health, "health of that graph", WATCHDOG, |h| {
+            h.graph_version >= graph_version && h.refiner.accepted > 0
+        });
+        let rejected: Vec<_> = op3dsg_ipc_types::REFINER_REJECTIONS
+            .iter()
+            .zip(counted.refiner.rejections)
+            .filter(|(_, n)| *n > 0)
+            .collect();
+        assert!(rejected.is_empty(), "{mode:?}: rejected {rejected:?}");
+        assert_eq!(counted.refiner.failures, 0, "{mode:?}: {:?}", counted.refiner);
+    }
+}
+
+#[test]
+fn with_a_flaky_agent_the_daemon_publishes_every_accepted_edge_while_its_nodes_exist() {
+    use std::collections::HashMap;
+    let server = TestServer::start(Mode::Flaky("local_relations"));
+    // No retries: every second call of the local agent is a failed call.
+    let daemon = start_daemon("llm-flaky", &server, &["reasoner.llm.max_retries=0"]);
+    let mut health = daemon.health_subscriber("llm-flaky-health");
+    let mut graphs = daemon.graph_subscriber("llm-flaky-graph");
+    // A node as an item was checked against: kind, parent, label (a new label is a new prompt,
+    // and the next answer may rightly differ).
+    type Seen = (NodeKind, Option<u32>, String);
+    let node_now = |graph: &op3dsg_ipc_types::Graph, id: u32| -> Option<Seen> {
+        graph.node(id).map(|n| (n.kind(), n.parent_id(), n.label().to_owned()))
+    };
+    // Each LLM edge (source, target, phrase) and affordance (node, name) first seen, with its
+    // nodes as they were then.
+    let mut edges: HashMap<(u32, u32, String), (Seen, Seen)> = HashMap::new();
+    let mut affordances: HashMap<(u32, &'static str), Seen> = HashMap::new();
+    let (mut last, mut graphs_checked, mut failures) = (0, 0, 0);
+    op3dsg_tests::wait_for("four failed calls of the local agent while graphs are published", WATCHDOG, || {
+        if let Some(h) = health.latest().ok().flatten() {
+            failures = h.refiner.failures;
+        }
+        let graph = graphs.latest().ok().flatten().filter(|g| g.version() > last)?;
+        last = graph.version();
+        graphs_checked += 1;
+        for ((source, target, phrase), (s, t)) in &edges {
+            if node_now(graph, *source).as_ref() == Some(s) && node_now(graph, *target).as_ref() == Some(t) {
+                let kept = graph
+                    .edges_from(*source)
+                    .any(|e| e.target_id() == *target && e.phrase() == phrase && from_llm(Some(e.origin())));
+                assert!(kept, "v{last}: {} -[{phrase}]-> {} from the LLM is gone, its nodes unchanged", s.2, t.2);
+            }
+        }
+        for ((id, name), n) in &affordances {
+            if node_now(graph, *id).as_ref() == Some(n) {
+                let origin = graph.node(*id).and_then(|node| node.affordance_origin(name));
+                assert!(from_llm(origin), "v{last}: {} {id}: {name} from the LLM is now {origin:?}", n.2);
+            }
+        }
+        for e in graph.edges().filter(|e| e.kind() == EdgeKind::Functional && from_llm(Some(e.origin()))) {
+            let nodes = node_now(graph, e.source_id()).zip(node_now(graph, e.target_id()));
+            if let Some(nodes) = nodes {
+                edges.entry((e.source_id(), e.target_id(), e.phrase().to_owned())).or_insert(nodes);
+            }
+        }
+        for n in graph.nodes() {
+            for (name, _) in n.affordance_origins().filter(|(_, origin)| from_llm(Some(*origin))) {
+                affordances.entry((n.id(), name)).or_insert_with(|| node_now(graph, n.id()).unwrap());
+            }
+        }
+        (failures >= 4 && graphs_checked >= 10).then_some(())
+    });
+    // The failures were the local agent's, and its items were among those kept.
+    let requests = server.requests();
+    assert!(requests.iter().filter(|r| r.agent == "local_relations").count() >= 8, "{}", requests.len());
+    assert!(
+        edges.keys().any(|(_, _, phrase)| phrase == "push or press to open"),
+        "an LLM-only local relation was published: {:?}",
+        edges.keys().collect::<Vec<_>>()
+    );
+}
+
+#[test]
+fn non_chat_200s_open_the_daemons_breaker_named_in_health_while_the_graph_goes_on() {
+    // An nginx welcome page with status 200 for every request (a proxy in front of no model).
+    let server = TestServer::start(Mode::Html);
+    let daemon = start_daemon(
+        "llm-not-chat",
+        &server,
+        &["reasoner.llm.max_retries=0", "reasoner.llm.breaker_failures=3", "reasoner.llm.breaker_cooldown_s=60"],
+    );
+    let mut health = daemon.health_subscriber("llm-not-chat-health");
+    let open = op3dsg_tests::health_where(&mut health, "the breaker open", WATCHDOG, |h| h.refiner.breaker_open == 1);
+    let r = &open.refiner;
+    assert_eq!(op3dsg_ipc_types::REFINER_ERRORS[usize::from(r.last_error)], "not_chat", "{r:?}");
+    assert!(r.failures >= 3, "each page is a failed call: {r:?}");
+    assert_eq!((r.accepted, r.rejections), (0, [0; 8]), "a page is no answer to reject: {r:?}");
+    // Fusion goes on without the refiner.
+    op3dsg_tests::health_where(&mut health, "newer graphs with the breaker open", WATCHDOG, |h| {
+        h.graph_version > open.graph_version + 5 && h.refiner.breaker_open == 1
+    });
+    let text = op3dsg_cli(&daemon.prefix, &["health"]);
+    assert!(text.contains("(breaker open)") && text.contains("last not_chat)"), "{text}");
+}
+
+#[test]
+fn the_daemon_publishes_nothing_from_answers_with_hallucinated_ids_and_counts_them() {
+    // Every id in every answer is one the prompt never had (the prompt's ids + 100000).
+    let server = TestServer::start(Mode::UnknownIds);
+    let daemon = start_daemon("llm-unknown-ids", &server, &[]);
+    let mut health = daemon.health_subscriber("llm-unknown-ids-health");
+    let mut graphs = daemon.graph_subscriber("llm-unknown-ids-graph");
+    let unknown = op3dsg_ipc_types::REFINER_REJECTIONS.iter().position(|r| *r == "unknown_node").unwrap();
+    let counted = op3dsg_tests::health_where(&mut health, "rejections as unknown_node", WATCHDOG, |h| {
+        h.refiner.rejections[unknown] >= 5 && h.refiner.refreshes >= 2
+    });
+    assert_eq!(counted.refiner.accepted, 0, "{:?}", counted.refiner);
+    let others: u64 =
+        counted.refiner.rejections.iter().enumerate().filter(|(i, _)| *i != unknown).map(|(_, n)| n).sum();
+    assert_eq!(others, 0, "only unknown ids are wrong in these answers: {:?}", counted.refiner);
+    // Graphs published from then on carry nothing from the LLM, and the knowledge base's
+    // affordances as soon as fusion has parts.
+    let (mut last, mut checked, mut knowledge) = (counted.graph_version, 0, false);
+    op3dsg_tests::wait_for("five newer graphs, one with a knowledge-base affordance", WATCHDOG, || {
+        let graph = graphs.latest().ok().flatten().filter(|g| g.version() > last)?;
+        last = graph.version();
+        checked += 1;
+        let from_the_llm = llm_items_by_label(graph);
+        assert!(from_the_llm.is_empty(), "v{last}: {from_the_llm:#?}");
+        knowledge |= graph.nodes().any(|n| n.affordance_origins().any(|(_, o)| o == EdgeOrigin::Knowledge));
+        (checked >= 5 && knowledge).then_some(())
+    });
+    let text = op3dsg_cli(&daemon.prefix, &["health"]);
+    assert!(!text.contains("unknown_node 0 ") && text.contains("unknown_node "), "{text}");
 }

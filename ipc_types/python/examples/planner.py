@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """A minimal planner: waits for op3dsgd, then prints each new graph version with its counts and
-every part with its parent object and affordances (the Python twin of
+every part with its parent object and affordances, each with its origin (the Python twin of
 ``ipc_types/examples/planner.rs``).
 
     .venv/bin/python ipc_types/python/examples/planner.py [--prefix P] [--versions N]
@@ -37,7 +37,8 @@ def main() -> None:
         for i in graph.parts():
             parent = graph.index_of(int(nodes["parent_id"][i]))
             parent_label = graph.label(parent) if parent is not None else "(none)"
-            affordances = list(op3dsg.affordance_names(int(nodes["affordance_bits"][i])))
+            # Each affordance with where it came from: knowledge, llm or knowledge+llm.
+            affordances = [f"{name}:{origin}" for name, origin in graph.affordance_origins(i).items()]
             centre = [round(float(v), 2) for v in nodes["centre_m"][i]]
             print(f"  part {nodes['id'][i]} {graph.label(i)!r} of {parent_label!r} at {centre} m affords {affordances}")
 

@@ -57,7 +57,8 @@ fn fmt3(v: [f32; 3]) -> String {
     format!("{:.2},{:.2},{:.2}", v[0], v[1], v[2])
 }
 
-/// The table form: a summary line, one line per node (in id order), then one per edge.
+/// The table form: a summary line, one line per node (in id order), then one per edge. Each
+/// affordance is written with its origin as an edge's is (`hook_pull:knowledge+llm`).
 fn graph_table(graph: &Graph) -> String {
     let mut s = String::new();
     let _ = writeln!(
@@ -77,7 +78,8 @@ fn graph_table(graph: &Graph) -> String {
     );
     for n in graph.nodes() {
         let parent = n.parent_id().map_or_else(|| "-".to_owned(), |p| p.to_string());
-        let affordances: Vec<&str> = n.affordances().collect();
+        let affordances: Vec<String> =
+            n.affordance_origins().map(|(name, origin)| format!("{name}:{}", origin.as_str())).collect();
         let _ = writeln!(
             s,
             "{:>6}  {:<6}  {:<24}  {:>6}  {:<20}  {:<16}  {:>5}  {}",
@@ -266,5 +268,37 @@ mod tests {
         assert_eq!(stove["parts"][0]["affordance_origins"], json!({"rotate": "knowledge+llm"}));
         assert_eq!(lines[3]["unattached_part"]["affordance_origins"], json!({"hook_pull": "geometry"}));
         assert!(stove.get("affordance_origins").is_none(), "no affordances, no origins: {stove}");
+    }
+
+    #[test]
+    fn the_table_writes_each_affordance_with_its_origin() {
+        let mut buffer = GraphBuffer::new();
+        buffer.header = GraphHeader {
+            schema_version: SCHEMA_VERSION,
+            graph_version: 3,
+            node_capacity: 16,
+            edge_capacity: 16,
+            ..GraphHeader::default()
+        };
+        let handle = node(2, 1, "cabinet handle", &["hook_pull", "pinch_pull", "tip_push"]);
+        // hook_pull from both, pinch_pull from the LLM alone, tip_push from the knowledge base alone.
+        let [hook, pinch, push] = ["hook_pull", "pinch_pull", "tip_push"].map(|a| affordance_bits([a]).unwrap());
+        buffer.nodes = vec![
+            node(1, NO_NODE, "cabinet", &[]),
+            Node { affordance_knowledge_bits: hook | push, affordance_llm_bits: hook | pinch, ..handle },
+            node(9, NO_NODE, "door", &["hook_turn"]),
+        ];
+        let graph = Graph::from_message(&buffer.encode()).unwrap();
+        let table = graph_table(&graph);
+        // The node row of `id`: its last column (the affordances, or the observation count).
+        let row = |id: &str| {
+            let line = table.lines().find(|l| l.split_whitespace().next() == Some(id)).unwrap();
+            line.split_whitespace().last().unwrap()
+        };
+        let mut handle_row: Vec<&str> = row("2").split(',').collect();
+        handle_row.sort_unstable();
+        assert_eq!(handle_row, ["hook_pull:knowledge+llm", "pinch_pull:llm", "tip_push:knowledge"], "{table}");
+        assert_eq!(row("9"), "hook_turn:geometry", "no origin bits: {table}");
+        assert_eq!(row("1"), "0", "no affordances, an empty column after the count: {table}");
     }
 }
