@@ -5,6 +5,7 @@
 //!
 //! | module | what |
 //! |---|---|
+//! | [`annotate`] | `op3dsg annotate`: ground truth for a recorded sequence from hand-drawn 2D boxes, lifted with its depth and poses |
 //! | [`backends`] | the `synthetic` source and the `oracle` detector, registered with the runtime like any other backend; their profile sections |
 //! | [`oracle`] | the oracle detector: the synthetic renderer's instance ids (from the ground-truth side channel) with configurable noise |
 //! | [`batch`] | the deterministic single-thread runner: source → keyframe gate → the runtime's keyframe path, with ground-truth counts |
@@ -18,6 +19,7 @@
 //! println!("{} keyframes, {} nodes", run.keyframes, run.graph.nodes.len());
 //! ```
 
+pub mod annotate;
 pub mod backends;
 pub mod batch;
 pub mod eval;

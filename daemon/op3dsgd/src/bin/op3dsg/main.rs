@@ -11,6 +11,7 @@
 //! | [`dump`] | `dump` |
 //! | [`health`] | `health` |
 //! | [`gt`] | `gt` |
+//! | [`annotate`] | `annotate` |
 //! | [`fusion_eval`] | `fusion-eval` |
 //! | [`eval`] | `eval` |
 //! | [`bench`] | `bench perf`, `bench soak`, `bench llm`, `bench quality`, `bench ipc-peer` |
@@ -19,6 +20,7 @@
 //! | [`map`] | `map info`, `map save`, `map reset` |
 //! | [`record`] | `record info`, `bench record` |
 
+mod annotate;
 mod bench;
 mod dump;
 mod eval;
@@ -163,6 +165,28 @@ enum Command {
         /// Profile overrides of the run, section.key=value (`--frames`)
         #[arg(long = "set", value_name = "KEY=VALUE", requires = "frames")]
         overrides: Vec<String>,
+    },
+    /// Write the ground truth (JSON, schema op3dsg.graph/1, as `op3dsg gt` writes) of a recorded
+    /// RGB-D sequence from hand-drawn 2D boxes: an annotation file (TOML, schema
+    /// op3dsg.annotation/1) lists per object and part its label, kind, parent and pixel boxes on
+    /// frames of a recording in the TUM RGB-D layout. Each box's depth pixels within a depth band
+    /// around the box's median depth (`band_m`, default 0.25 m) are back-projected with the
+    /// frame's pose, fused over the frames, and bounded per world axis by the 2nd and 98th
+    /// percentile. Prints per node the frames, points and box size on standard error. The file
+    /// format and the lifting are documented in daemon/sim/src/annotate.rs.
+    Annotate {
+        /// The annotation file (TOML).
+        annotation: PathBuf,
+        /// The recording (TUM RGB-D layout; default: the file's `sequence`, relative to the file).
+        #[arg(long, value_name = "DIR")]
+        sequence: Option<PathBuf>,
+        /// Write the ground truth to this file instead of standard output.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Also write each annotated frame as a PNG into this folder, with the boxes outlined and
+        /// the pixels kept by the depth band tinted in the node's colour.
+        #[arg(long, value_name = "DIR")]
+        preview: Option<PathBuf>,
     },
     /// Run a synthetic room through source, keyframe gate, oracle detector and fusion on one
     /// thread (deterministic, no daemon needed) and score the fused graph against the room's
@@ -604,6 +628,9 @@ fn run(cli: Cli) -> Result<()> {
         Command::Gt { room, seed, out, frames, profile, overrides } => {
             let run = frames.map(|frames| gt::RunSeen { frames, profile, overrides });
             gt::write_ground_truth(room, seed, run.as_ref(), out.as_deref())
+        }
+        Command::Annotate { annotation, sequence, out, preview } => {
+            annotate::annotate(&annotation, sequence.as_deref(), out.as_deref(), preview.as_deref())
         }
         Command::FusionEval { room, seed, frames, preset, profile, overrides, details, check, json } => {
             let mut sets = vec![

@@ -219,6 +219,8 @@ pub struct NodeResult {
     pub best_rank: Option<usize>,
     /// The predicted label that gave `best_rank`.
     pub best_predicted_label: Option<String>,
+    /// The 3D box IoU of the predicted node that gave `best_rank` with this node.
+    pub best_iou: Option<f32>,
 }
 
 /// Why a ground-truth edge is not retrieved at some K.

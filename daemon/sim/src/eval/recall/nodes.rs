@@ -136,6 +136,7 @@ pub(super) fn score_nodes(scoring: &Scoring<'_>, report: &mut RecallReport) {
             label: g.label.clone(),
             best_rank: best_overlap.map(|o| o.rank),
             best_predicted_label: best_overlap.map(|o| pred.nodes[o.pred].label.clone()),
+            best_iou: best_overlap.map(|o| o.iou),
         });
     }
     f.predicted_unmatched = pred_used.iter().filter(|u| !**u).count();

@@ -9,7 +9,9 @@ fn cell(recall: &Recall, k: usize) -> String {
     recall.percent(k).map_or_else(|| "-".to_owned(), |p| format!("{p:.1}"))
 }
 
-/// A text report of one evaluation: the figures with their counts, then the misses at K = 3.
+/// A text report of one evaluation: the figures with their counts, the misses at K = 3, then
+/// every scored ground-truth node with the best-ranked overlapping prediction of its kind and
+/// their box IoU.
 pub fn text_report(report: &RecallReport) -> String {
     let f = &report.figures;
     let mut s = String::new();
@@ -61,6 +63,30 @@ pub fn text_report(report: &RecallReport) -> String {
         for e in missed {
             let why = e.miss[K3].map_or("", EdgeMiss::as_str);
             let _ = writeln!(s, "  {} {} --[{}]--> {}: {why}", e.kind, e.source, e.relation, e.target);
+        }
+    }
+    if !report.nodes.is_empty() {
+        let _ =
+            writeln!(s, "\nground-truth nodes: the best-ranked overlapping prediction of the kind, its rank, box IoU");
+        for n in &report.nodes {
+            match (&n.best_predicted_label, n.best_rank, n.best_iou) {
+                (Some(label), Some(rank), Some(iou)) => {
+                    let _ = writeln!(s, "  {} {} '{}': '{label}', rank {rank}, IoU {iou:.2}", n.kind, n.id, n.label);
+                }
+                _ => {
+                    let _ = writeln!(s, "  {} {} '{}': none", n.kind, n.id, n.label);
+                }
+            }
+        }
+        let retrieved: Vec<f32> = report
+            .nodes
+            .iter()
+            .filter(|n| n.best_rank.is_some_and(|r| r <= KS[K3]))
+            .filter_map(|n| n.best_iou)
+            .collect();
+        if !retrieved.is_empty() {
+            let mean = retrieved.iter().sum::<f32>() / retrieved.len() as f32;
+            let _ = writeln!(s, "mean box IoU of the {} nodes retrieved at R@3: {mean:.2}", retrieved.len());
         }
     }
     s

@@ -243,6 +243,10 @@ fn known_recall_on_a_hand_built_prediction() {
     assert_eq!(f.predicted_unmatched, 3);
     let handle = report.nodes.iter().find(|n| n.id == 4).unwrap();
     assert_eq!((handle.best_rank, handle.best_predicted_label.as_deref()), (Some(3), Some("pull")));
+    // "pull" has the handle's own box.
+    assert_eq!(handle.best_iou, Some(1.0));
+    assert!(report.nodes.iter().all(|n| n.best_iou.is_some() == n.best_rank.is_some()), "{:?}", report.nodes);
+    assert!(report.nodes.iter().any(|n| n.best_iou.is_none()));
 }
 
 #[test]
