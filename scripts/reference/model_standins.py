@@ -48,6 +48,17 @@ sam_decoder.onnx  the SAM prompt decoder as segment-anything's scripts/export_on
                         float32 [1, 1], low_res_masks float32 [1, 1, 256, 256]
                   The mask is the top half of the prompt box (logit 5 inside, -5 outside), so a
                   decoder mask differs from the box and from a depth mask.
+efficient_sam_encoder.onnx, efficient_sam_decoder.onnx
+                  EfficientSAM as its export_to_onnx.py writes it:
+                    encoder in  batched_images  float32 [1, 3, H, W]  RGB 0..1 (normalised inside)
+                            out image_embeddings float32 [1, 256, 64, 64]
+                    decoder in  image_embeddings, batched_point_coords float32 [1, 1, K, 2]
+                                (image pixels), batched_point_labels float32 [1, 1, K],
+                                orig_im_size int64 [2] (H, W)
+                            out output_masks float32 [1, 1, 3, H, W], iou_predictions float32 [1, 1, 3]
+                  Candidate 0 is the whole box, 1 its left half, 2 its top half (logit 5 inside,
+                  -5 outside); predicted IoUs 0.5, 0.9, 0.7, so the left half is the answer, and
+                  only when the corners went in unscaled.
 clip_image.onnx   a CLIP image encoder, the region encoder's model (Hugging Face
                   CLIPVisionModelWithProjection or open_clip encode_image through
                   torch.onnx.export):
@@ -339,6 +350,96 @@ def sam(out):
     )
 
 
+def efficient_sam(out):
+    nodes = [
+        helper.make_node("ReduceMean", ["batched_images"], ["grey"], axes=[1, 2, 3], keepdims=1),  # [1, 1, 1, 1]
+        helper.make_node("Expand", ["grey", "embedding_shape"], ["image_embeddings"]),
+    ]
+    save(
+        model(
+            nodes,
+            "efficient_sam_encoder_standin",
+            [helper.make_tensor_value_info("batched_images", TensorProto.FLOAT, [1, 3, "height", "width"])],
+            [helper.make_tensor_value_info("image_embeddings", TensorProto.FLOAT, [1, 256, 64, 64])],
+            [numpy_helper.from_array(np.array([1, 256, 64, 64], np.int64), "embedding_shape")],
+        ),
+        out / "efficient_sam_encoder.onnx",
+    )
+    scalars = {"zero": 0.0, "one": 1.0, "half": 0.5, "two": 2.0, "inside": 5.0, "outside": -5.0}
+    inits = [numpy_helper.from_array(np.array(v, np.float32), k) for k, v in scalars.items()]
+    ints = {"ones2": [1, 1], "ones4": [1, 1, 1, 1], "axis0": [0], "from0": [0], "to2": [2], "four": [4], "squeeze_axes": [0, 1]}
+    inits += [numpy_helper.from_array(np.array(v, np.int64), k) for k, v in ints.items()]
+    inits += [numpy_helper.from_array(np.array([1, 1, 1, -1, 1], np.int64), "col5"), numpy_helper.from_array(np.array([1, 1, 1, 1, -1], np.int64), "row5")]
+    inits += [numpy_helper.from_array(np.array([[[0.5, 0.9, 0.7]]], np.float32), "candidate_iou")]
+    n = helper.make_node
+    nodes = [
+        # Splits rather than pairs of Gathers: ONNX Runtime's GatherSliceToSplitFusion fails on
+        # the pairs in this graph ("Attempt to replace the existing tensor").
+        n("Cast", ["orig_im_size"], ["size"], to=TensorProto.FLOAT),
+        n("Split", ["size", "ones2"], ["H1", "W1"], axis=0),
+        n("Squeeze", ["H1", "axis0"], ["H"]),
+        n("Squeeze", ["W1", "axis0"], ["W"]),
+        n("Squeeze", ["batched_point_coords", "squeeze_axes"], ["points"]),  # [K, 2], image pixels
+        n("Slice", ["points", "from0", "to2", "axis0"], ["corners"]),  # [2, 2]: the box corners
+        n("Reshape", ["corners", "four"], ["xyxy"]),  # [4]
+        n("Split", ["xyxy", "ones4"], ["x0_1", "y0_1", "x1_1", "y1_1"], axis=0),
+        n("Squeeze", ["x0_1", "axis0"], ["x0"]),
+        n("Squeeze", ["y0_1", "axis0"], ["y0"]),
+        n("Squeeze", ["x1_1", "axis0"], ["x1"]),
+        n("Squeeze", ["y1_1", "axis0"], ["y1"]),
+        n("Add", ["x0", "x1"], ["xsum"]),
+        n("Div", ["xsum", "two"], ["xmid"]),
+        n("Add", ["y0", "y1"], ["ysum"]),
+        n("Div", ["ysum", "two"], ["ymid"]),
+        n("Range", ["zero", "H", "one"], ["ry"]),
+        n("Range", ["zero", "W", "one"], ["rx"]),
+        n("Add", ["ry", "half"], ["cy"]),
+        n("Add", ["rx", "half"], ["cx"]),
+        n("Reshape", ["cy", "col5"], ["cy4"]),  # [1, 1, 1, H, 1]
+        n("Reshape", ["cx", "row5"], ["cx4"]),  # [1, 1, 1, 1, W]
+        n("GreaterOrEqual", ["cy4", "y0"], ["top_ok"]),
+        n("Less", ["cy4", "y1"], ["bottom_ok"]),
+        n("Less", ["cy4", "ymid"], ["upper"]),
+        n("GreaterOrEqual", ["cx4", "x0"], ["left_ok"]),
+        n("Less", ["cx4", "x1"], ["right_ok"]),
+        n("Less", ["cx4", "xmid"], ["lefter"]),
+        n("And", ["top_ok", "bottom_ok"], ["rows_in"]),
+        n("And", ["left_ok", "right_ok"], ["cols_in"]),
+        n("And", ["rows_in", "cols_in"], ["in_box"]),  # [1, 1, H, W]
+        n("And", ["in_box", "lefter"], ["in_left"]),
+        n("And", ["in_box", "upper"], ["in_top"]),
+        n("Where", ["in_box", "inside", "outside"], ["m0"]),  # [1, 1, 1, H, W]
+        n("Where", ["in_left", "inside", "outside"], ["m1"]),
+        n("Where", ["in_top", "inside", "outside"], ["m2"]),
+        n("Concat", ["m0", "m1", "m2"], ["raw"], axis=2),  # [1, 1, 3, H, W]
+        # Every input takes part (so the runtime keeps them all).
+        n("ReduceMean", ["image_embeddings"], ["e_mean"], keepdims=0),
+        n("ReduceSum", ["batched_point_labels"], ["l_sum"], keepdims=0),
+        n("Add", ["e_mean", "l_sum"], ["t1"]),
+        n("Mul", ["t1", "zero"], ["t0"]),
+        n("Add", ["raw", "t0"], ["output_masks"]),
+        n("Identity", ["candidate_iou"], ["iou_predictions"]),
+    ]
+    save(
+        model(
+            nodes,
+            "efficient_sam_decoder_standin",
+            [
+                helper.make_tensor_value_info("image_embeddings", TensorProto.FLOAT, [1, 256, 64, 64]),
+                helper.make_tensor_value_info("batched_point_coords", TensorProto.FLOAT, [1, 1, "K", 2]),
+                helper.make_tensor_value_info("batched_point_labels", TensorProto.FLOAT, [1, 1, "K"]),
+                helper.make_tensor_value_info("orig_im_size", TensorProto.INT64, [2]),
+            ],
+            [
+                helper.make_tensor_value_info("output_masks", TensorProto.FLOAT, [1, 1, 3, "H", "W"]),
+                helper.make_tensor_value_info("iou_predictions", TensorProto.FLOAT, [1, 1, 3]),
+            ],
+            inits,
+        ),
+        out / "efficient_sam_decoder.onnx",
+    )
+
+
 def clip_image(out):
     project = np.zeros((3, CLIP_DIM), np.float32)
     project[np.arange(CLIP_DIM) % 3, np.arange(CLIP_DIM)] = 1.0
@@ -389,6 +490,7 @@ def main():
     tokenizer = reference_tokenizer()
     expected = {"yolo_world": yolo_world(args.out), "owl": owl(args.out, tokenizer), **clip_text(args.out, tokenizer)}
     sam(args.out)
+    efficient_sam(args.out)
     clip_image(args.out)
     tagger(args.out)
     (args.out / "expected.json").write_text(json.dumps(expected, indent=1))

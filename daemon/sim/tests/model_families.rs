@@ -549,3 +549,51 @@ fn the_tagged_profile_loads_its_stand_ins_with_only_the_model_paths_changed() {
     assert_eq!(labels, ["lamp", "stove"]);
     assert!(detector.prompts().iter().any(|p| p.text == "stove knob"));
 }
+
+#[test]
+fn an_efficient_sam_decoder_gives_the_best_candidate_mask_of_each_box() {
+    use op3dsg_runtime::perception::image_input::Resize;
+    use op3dsg_runtime::perception::mask_decoder::MaskDecoderLayout;
+    let efficient = || MaskDecoderConfig {
+        layout: MaskDecoderLayout::EfficientSam,
+        encoder_path: standin("efficient_sam_encoder.onnx"),
+        decoder_path: standin("efficient_sam_decoder.onnx"),
+        input: ImageInput {
+            name: "batched_images".into(),
+            width: 1024,
+            height: 1024,
+            resize: Resize::Stretch,
+            scale: 1.0 / 255.0,
+            mean: [0.0; 3],
+            std: [1.0; 3],
+            ..ImageInput::default()
+        },
+        ..MaskDecoderConfig::default()
+    };
+    let mut config = yolo_world_config();
+    config.mask_decoder = Some(efficient());
+    let out = detect(&config);
+    // The stand-in's candidates are the box, its left half and its top half, with predicted IoUs
+    // 0.5, 0.9, 0.7: the left half is taken, and it is the left half of the box in image pixels
+    // only if the corners went in unscaled.
+    let got: Vec<_> = out.iter().map(summary).collect();
+    assert_eq!(got[0], ("stove".to_owned(), NodeKind::Object, 900, [40, 30, 120, 150]));
+    let m = &out[0].mask;
+    assert_eq!(m.area(), 40 * 120);
+    assert!(m.contains(40, 30) && m.contains(79, 149) && !m.contains(80, 30));
+    assert_eq!(out[1].mask.area(), 50 * 80); // cabinet, box [150, 50, 250, 130]
+
+    // SAM's decoder with the EfficientSAM layout set: refused naming the layout key.
+    let mut wrong = yolo_world_config();
+    wrong.mask_decoder = Some(MaskDecoderConfig { decoder_path: standin("sam_decoder.onnx"), ..efficient() });
+    let knowledge = Arc::new(KnowledgeBase::builtin().unwrap());
+    let err = OpenVocabDetector::new(&runtime(), &wrong, knowledge, &TextEncoderConfig::default())
+        .map(|_| ())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("EfficientSAM mask decoder layout") && err.contains(r#"no input "batched_point_coords""#),
+        "{err}"
+    );
+    assert!(err.contains(r#"layout = "efficient_sam""#), "{err}");
+}

@@ -21,8 +21,20 @@
 //! - out `masks` float32 `[1, 1, H, W]`: logits at the image size; a pixel is inside when its
 //!   logit is above `mask_threshold` (0). The mask is cut to the detection box.
 //!
-//! EfficientSAM's exports name and shape their prompts differently (`batched_point_coords`
-//! `[1, 1, K, 2]`, `output_masks`); they are not covered yet.
+//! # Contract (EfficientSAM exports), `layout = "efficient_sam"`
+//!
+//! As EfficientSAM's `export_to_onnx.py` (from labelme's) writes them:
+//! - encoder: in `input.name` (`batched_images`) float32 `[1, 3, H, W]`, RGB on 0..1 values
+//!   without normalisation (the model resizes to 1024 x 1024 and normalises inside; give
+//!   `input = { name = "batched_images", width = 1024, height = 1024, resize = "stretch",
+//!   scale = 0.00392157, mean = [0, 0, 0], std = [1, 1, 1] }`); out `embeddings`
+//!   (`image_embeddings`) float32 `[1, 256, 64, 64]`;
+//! - decoder: in `image_embeddings`, `batched_point_coords` float32 `[1, 1, K, 2]` (image
+//!   pixels: the model scales them by `orig_im_size` itself), `batched_point_labels` float32
+//!   `[1, 1, K]` (box corners `2, 3`), `orig_im_size` int64 `[2]` (image height, width); out
+//!   `output_masks` float32 `[1, 1, M, H, W]` (M candidate masks, logits at the image size) and
+//!   `iou_predictions` float32 `[1, 1, M]`: the candidate with the highest predicted IoU is
+//!   taken, then thresholded and cut to the box as above.
 
 use std::path::PathBuf;
 
@@ -35,13 +47,27 @@ use super::depth_mask::{DepthMaskConfig, DepthSegmenter, PixelBox};
 use super::image_input::{ImageInput, Placement, prepare};
 use super::{DetectorError, Mask};
 use crate::onnx::clip_text::user_model;
-use crate::onnx::contract::{self, Dim, FLOAT, TensorSpec};
+use crate::onnx::contract::{self, Dim, FLOAT, INT64, TensorSpec};
 use crate::onnx::{OnnxError, OnnxRuntime, SessionSpec, open_session, resolve_path};
+
+/// Which export layout the encoder and decoder have.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MaskDecoderLayout {
+    /// segment-anything's (SAM, MobileSAM): single-mask decoder, prompts in the encoder's input
+    /// pixels.
+    #[default]
+    Sam,
+    /// EfficientSAM's: candidate masks with IoU predictions, prompts in image pixels.
+    EfficientSam,
+}
 
 /// `[detector.open_vocab.mask_decoder]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct MaskDecoderConfig {
+    /// The export layout (module docs).
+    pub layout: MaskDecoderLayout,
     /// The image encoder (ONNX). Relative paths in a profile file are relative to that file.
     pub encoder_path: PathBuf,
     /// Optional sha256 of `encoder_path`.
@@ -65,6 +91,7 @@ pub struct MaskDecoderConfig {
 impl Default for MaskDecoderConfig {
     fn default() -> Self {
         Self {
+            layout: MaskDecoderLayout::Sam,
             encoder_path: PathBuf::from("sam_encoder.onnx"),
             encoder_sha256: None,
             decoder_path: PathBuf::from("sam_decoder.onnx"),
@@ -109,6 +136,9 @@ impl MaskDecoderConfig {
 
 const DECODER_INPUTS: [&str; 5] = ["point_coords", "point_labels", "mask_input", "has_mask_input", "orig_im_size"];
 const MASKS: &str = "masks";
+/// EfficientSAM's decoder inputs (after the embeddings) and outputs.
+const EFFICIENT_INPUTS: [&str; 3] = ["batched_point_coords", "batched_point_labels", "orig_im_size"];
+const EFFICIENT_OUTPUTS: [&str; 2] = ["output_masks", "iou_predictions"];
 
 /// The encoder and decoder sessions of one worker, and the current frame's embeddings.
 pub struct SamMaskDecoder {
@@ -161,24 +191,67 @@ impl SamMaskDecoder {
             &[TensorSpec::new(&config.input.name, &format!("{key}.input.name"), FLOAT, image)],
             &[TensorSpec::new(&config.embeddings, &format!("{key}.embeddings"), FLOAT, embedding())],
         )?;
-        let layout = format!("{key} (segment-anything's export_onnx_model.py)");
         let dims = |d: &[Dim]| Some(d.to_vec());
-        let decoder_inputs = [
-            TensorSpec::new(&config.embeddings, &format!("{key}.embeddings"), FLOAT, embedding()),
-            TensorSpec::new(DECODER_INPUTS[0], &layout, FLOAT, dims(&[Dim::Is(1), Dim::Any("K"), Dim::Is(2)])),
-            TensorSpec::new(DECODER_INPUTS[1], &layout, FLOAT, dims(&[Dim::Is(1), Dim::Any("K")])),
-            TensorSpec::new(
-                DECODER_INPUTS[2],
-                &layout,
-                FLOAT,
-                dims(&[Dim::Is(1), Dim::Is(1), Dim::Any("m"), Dim::Any("m")]),
-            ),
-            TensorSpec::new(DECODER_INPUTS[3], &layout, FLOAT, dims(&[Dim::Is(1)])),
-            TensorSpec::new(DECODER_INPUTS[4], &layout, FLOAT, dims(&[Dim::Is(2)])),
-        ];
-        let decoder_outputs =
-            [TensorSpec::new(MASKS, &layout, FLOAT, dims(&[Dim::Is(1), Dim::Is(1), Dim::Any("H"), Dim::Any("W")]))];
-        contract::check(&decoder, &decoder_path, "the SAM mask decoder layout", &decoder_inputs, &decoder_outputs)?;
+        let (decoder_inputs, decoder_outputs, what) = match config.layout {
+            MaskDecoderLayout::Sam => {
+                let layout = format!("{key} (segment-anything's export_onnx_model.py)");
+                let inputs = vec![
+                    TensorSpec::new(&config.embeddings, &format!("{key}.embeddings"), FLOAT, embedding()),
+                    TensorSpec::new(DECODER_INPUTS[0], &layout, FLOAT, dims(&[Dim::Is(1), Dim::Any("K"), Dim::Is(2)])),
+                    TensorSpec::new(DECODER_INPUTS[1], &layout, FLOAT, dims(&[Dim::Is(1), Dim::Any("K")])),
+                    TensorSpec::new(
+                        DECODER_INPUTS[2],
+                        &layout,
+                        FLOAT,
+                        dims(&[Dim::Is(1), Dim::Is(1), Dim::Any("m"), Dim::Any("m")]),
+                    ),
+                    TensorSpec::new(DECODER_INPUTS[3], &layout, FLOAT, dims(&[Dim::Is(1)])),
+                    TensorSpec::new(DECODER_INPUTS[4], &layout, FLOAT, dims(&[Dim::Is(2)])),
+                ];
+                let outputs = vec![TensorSpec::new(
+                    MASKS,
+                    &layout,
+                    FLOAT,
+                    dims(&[Dim::Is(1), Dim::Is(1), Dim::Any("H"), Dim::Any("W")]),
+                )];
+                (inputs, outputs, "the SAM mask decoder layout")
+            }
+            MaskDecoderLayout::EfficientSam => {
+                let layout = format!("{key}.layout = \"efficient_sam\" (EfficientSAM's export_to_onnx.py)");
+                let inputs = vec![
+                    TensorSpec::new(&config.embeddings, &format!("{key}.embeddings"), FLOAT, embedding()),
+                    TensorSpec::new(
+                        EFFICIENT_INPUTS[0],
+                        &layout,
+                        FLOAT,
+                        dims(&[Dim::Is(1), Dim::Is(1), Dim::Any("K"), Dim::Is(2)]),
+                    ),
+                    TensorSpec::new(
+                        EFFICIENT_INPUTS[1],
+                        &layout,
+                        FLOAT,
+                        dims(&[Dim::Is(1), Dim::Is(1), Dim::Any("K")]),
+                    ),
+                    TensorSpec::new(EFFICIENT_INPUTS[2], &layout, INT64, dims(&[Dim::Is(2)])),
+                ];
+                let outputs = vec![
+                    TensorSpec::new(
+                        EFFICIENT_OUTPUTS[0],
+                        &layout,
+                        FLOAT,
+                        dims(&[Dim::Is(1), Dim::Is(1), Dim::Any("M"), Dim::Any("H"), Dim::Any("W")]),
+                    ),
+                    TensorSpec::new(
+                        EFFICIENT_OUTPUTS[1],
+                        &layout,
+                        FLOAT,
+                        dims(&[Dim::Is(1), Dim::Is(1), Dim::Any("M")]),
+                    ),
+                ];
+                (inputs, outputs, "the EfficientSAM mask decoder layout")
+            }
+        };
+        contract::check(&decoder, &decoder_path, what, &decoder_inputs, &decoder_outputs)?;
         // The mask prompt's side from the file (256 for SAM), zeros.
         let side = decoder
             .inputs()
@@ -236,6 +309,9 @@ impl SamMaskDecoder {
         width: u32,
         height: u32,
     ) -> Result<Option<Mask>, String> {
+        if self.config.layout == MaskDecoderLayout::EfficientSam {
+            return self.efficient_sam_mask(bbox, pixel_box, width, height);
+        }
         let Placement { sx, sy } = self.placement;
         let coords = [bbox[0] * sx, bbox[1] * sy, bbox[2] * sx, bbox[3] * sy, 0.0, 0.0];
         let labels = [2.0f32, 3.0, -1.0];
@@ -271,19 +347,79 @@ impl SamMaskDecoder {
         if shape[..] != [1, 1, i64::from(height), i64::from(width)] {
             return Err(format!("SAM decoder ({path}): masks has shape {shape:?}, expected [1, 1, {height}, {width}]"));
         }
-        let (bw, bh) = (pixel_box.x1 - pixel_box.x0, pixel_box.y1 - pixel_box.y0);
-        let mut data = vec![0u8; (bw * bh) as usize];
-        for y in 0..bh {
-            let row = ((pixel_box.y0 + y) * width + pixel_box.x0) as usize;
-            for x in 0..bw {
-                if logits[row + x as usize] > self.config.mask_threshold {
-                    data[(y * bw + x) as usize] = 1;
-                }
+        Ok(cut(logits, self.config.mask_threshold, pixel_box, width))
+    }
+
+    /// [`SamMaskDecoder::mask`] for EfficientSAM's layout: the box corners in image pixels, the
+    /// candidate mask with the highest predicted IoU.
+    fn efficient_sam_mask(
+        &mut self,
+        bbox: [f32; 4],
+        pixel_box: PixelBox,
+        width: u32,
+        height: u32,
+    ) -> Result<Option<Mask>, String> {
+        let coords = [bbox[0], bbox[1], bbox[2], bbox[3]];
+        let labels = [2.0f32, 3.0];
+        let size = [i64::from(height), i64::from(width)];
+        let tensor = |e| self.error("prompt tensor", e);
+        let inputs: Vec<(&str, SessionInputValue)> = vec![
+            (
+                self.config.embeddings.as_str(),
+                TensorRef::from_array_view((self.embedding_shape.clone(), self.embeddings.as_slice()))
+                    .map_err(tensor)?
+                    .into(),
+            ),
+            (EFFICIENT_INPUTS[0], TensorRef::from_array_view(([1usize, 1, 2, 2], &coords[..])).map_err(tensor)?.into()),
+            (EFFICIENT_INPUTS[1], TensorRef::from_array_view(([1usize, 1, 2], &labels[..])).map_err(tensor)?.into()),
+            (EFFICIENT_INPUTS[2], TensorRef::from_array_view(([2usize], &size[..])).map_err(tensor)?.into()),
+        ];
+        let path = self.decoder_path.display().to_string();
+        let outputs = self.decoder.run(inputs).map_err(|e| format!("EfficientSAM decoder ({path}): {e}"))?;
+        let output = |name: &str| {
+            outputs
+                .get(name)
+                .ok_or_else(|| format!("EfficientSAM decoder ({path}): no output {name}"))?
+                .try_extract_tensor::<f32>()
+                .map_err(|e| format!("EfficientSAM decoder ({path}): {name}: {e}"))
+        };
+        let (shape, logits) = output(EFFICIENT_OUTPUTS[0])?;
+        let (iou_shape, ious) = output(EFFICIENT_OUTPUTS[1])?;
+        let plane = (width * height) as usize;
+        let m = match shape[..] {
+            [1, 1, m, h, w] if h == i64::from(height) && w == i64::from(width) && m > 0 => m as usize,
+            _ => {
+                return Err(format!(
+                    "EfficientSAM decoder ({path}): output_masks has shape {shape:?}, expected [1, 1, M, {height}, {width}]"
+                ));
+            }
+        };
+        if ious.len() != m || logits.len() != m * plane {
+            return Err(format!(
+                "EfficientSAM decoder ({path}): iou_predictions has shape {iou_shape:?}, expected [1, 1, {m}]"
+            ));
+        }
+        // The best candidate; ties to the first.
+        let best = (0..m).fold(0, |best, i| if ious[i] > ious[best] { i } else { best });
+        Ok(cut(&logits[best * plane..(best + 1) * plane], self.config.mask_threshold, pixel_box, width))
+    }
+}
+
+/// The pixels of `pixel_box` whose logit in the image-sized plane `logits` is above `threshold`;
+/// `None` when there are none.
+fn cut(logits: &[f32], threshold: f32, pixel_box: PixelBox, width: u32) -> Option<Mask> {
+    let (bw, bh) = (pixel_box.x1 - pixel_box.x0, pixel_box.y1 - pixel_box.y0);
+    let mut data = vec![0u8; (bw * bh) as usize];
+    for y in 0..bh {
+        let row = ((pixel_box.y0 + y) * width + pixel_box.x0) as usize;
+        for x in 0..bw {
+            if logits[row + x as usize] > threshold {
+                data[(y * bw + x) as usize] = 1;
             }
         }
-        let mask = Mask { x0: pixel_box.x0, y0: pixel_box.y0, width: bw, height: bh, data };
-        Ok((mask.area() > 0).then_some(mask))
     }
+    let mask = Mask { x0: pixel_box.x0, y0: pixel_box.y0, width: bw, height: bh, data };
+    (mask.area() > 0).then_some(mask)
 }
 
 /// The masks of a box detector: SAM's when a mask decoder is set, else segmented from depth.
