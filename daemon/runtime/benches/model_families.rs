@@ -6,6 +6,8 @@
 //! from depth) for 20 prompts, with 1 and 2 ONNX Runtime intra-op threads. The prompts' CLIP
 //! features are computed once at start (the CLIP text stand-in), as on the robot.
 //!
+//! Then the region encoder on a real-size CLIP ViT-B/32 stand-in (below).
+//!
 //! `cargo bench -p op3dsg-runtime --bench model_families` (needs `./scripts/setup-models.sh` and
 //! `./scripts/setup-standins.sh`; prints what to run and does nothing without them).
 
@@ -100,6 +102,42 @@ fn bench(c: &mut Criterion) {
         let mut out = Vec::new();
         group.bench_function(format!("detect_20_prompts_{threads}_threads"), |b| {
             b.iter(|| detector.detect(&frame, &mut out).expect("detects"))
+        });
+    }
+    group.finish();
+    region_encoder(c, &runtime, &frame);
+}
+
+/// The region encoder on a real-size CLIP ViT-B/32 stand-in (`clip_vit_b32_like.onnx`, written
+/// on demand by `scripts/reference/clip_vit_b32_like.py`: 87.8 M parameters, 4.4 GMACs): one
+/// detection's crop (a 120 x 160 mask box with 20 pixels of padding), letterboxed to 224 x 224,
+/// one `session.run`, normalised. Fusion pays this once per detection.
+fn region_encoder(c: &mut Criterion, runtime: &OnnxRuntime, frame: &Frame) {
+    use op3dsg_runtime::perception::Mask;
+    use op3dsg_runtime::perception::region_encoder::{RegionEncoder, RegionEncoderConfig};
+    let model = standins().join("clip_vit_b32_like.onnx");
+    if !model.is_file() {
+        println!(
+            "{} missing: run .venv/bin/python scripts/reference/clip_vit_b32_like.py (350 MB) for the region encoder's cost",
+            model.display()
+        );
+        return;
+    }
+    let mask = Mask { x0: 200, y0: 150, width: 160, height: 120, data: vec![1; 160 * 120] };
+    let mut group = c.benchmark_group("clip_vit_b32_like");
+    group.sample_size(10).measurement_time(Duration::from_secs(10)).warm_up_time(Duration::from_secs(3));
+    for threads in [1usize, 2] {
+        let config =
+            RegionEncoderConfig { path: model.clone(), intra_op_threads: threads, ..RegionEncoderConfig::default() };
+        let mut encoder = match RegionEncoder::new(runtime, &config, "detector.region_encoder") {
+            Ok(e) => e,
+            Err(e) => {
+                println!("{e}");
+                return;
+            }
+        };
+        group.bench_function(format!("encode_one_crop_{threads}_threads"), |b| {
+            b.iter(|| encoder.encode(frame, &mask).expect("encodes").expect("a feature"))
         });
     }
     group.finish();
