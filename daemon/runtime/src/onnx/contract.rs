@@ -195,6 +195,27 @@ pub fn validate_sha256(path: &str, value: Option<&str>) -> Result<(), String> {
     }
 }
 
+/// A user's model file: `configured` resolved (profile key `path_key`), its optional sha256
+/// checked (`sha_key`), and a session opened on the runtime's execution provider with
+/// `threads` intra-op threads. Returns the session and the resolved path.
+pub fn open_user_model(
+    runtime: &super::OnnxRuntime,
+    configured: &Path,
+    sha256: Option<&str>,
+    what: &'static str,
+    keys: (&str, &str),
+    threads: usize,
+) -> Result<(Session, std::path::PathBuf), OnnxError> {
+    let (path_key, sha_key) = keys;
+    let path = super::resolve_path(configured, what, path_key).map_err(super::clip_text::user_model)?;
+    verify_sha256(&path, sha256, sha_key)?;
+    let (session, _) = super::open_session(
+        runtime,
+        super::SessionSpec { what, model_path: &path, provider: runtime.execution_provider(), intra_threads: threads },
+    )?;
+    Ok((session, path))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -44,11 +44,10 @@ use ort::value::TensorRef;
 use serde::{Deserialize, Serialize};
 
 use super::depth_mask::{DepthMaskConfig, DepthSegmenter, PixelBox};
-use super::image_input::{ImageInput, Placement, prepare};
+use super::image_input::{ImageInput, Placement, prepare, run_on_image};
 use super::{DetectorError, Mask};
-use crate::onnx::clip_text::user_model;
 use crate::onnx::contract::{self, Dim, FLOAT, INT64, TensorSpec};
-use crate::onnx::{OnnxError, OnnxRuntime, SessionSpec, open_session, resolve_path};
+use crate::onnx::{OnnxError, OnnxRuntime};
 
 /// Which export layout the encoder and decoder have.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -146,6 +145,7 @@ pub struct SamMaskDecoder {
     decoder: Session,
     config: MaskDecoderConfig,
     decoder_path: PathBuf,
+    encoder_path: PathBuf,
     input: Vec<f32>,
     placement: Placement,
     embeddings: Vec<f32>,
@@ -164,18 +164,8 @@ impl SamMaskDecoder {
     pub fn new(runtime: &OnnxRuntime, config: &MaskDecoderConfig, key: &str) -> Result<Self, OnnxError> {
         config.validate(key).map_err(OnnxError::InvalidConfig)?;
         let open = |path: &PathBuf, sha: &Option<String>, field: &str, what: &'static str| {
-            let resolved = resolve_path(path, what, &format!("{key}.{field}_path")).map_err(user_model)?;
-            contract::verify_sha256(&resolved, sha.as_deref(), &format!("{key}.{field}_sha256"))?;
-            let (session, _) = open_session(
-                runtime,
-                SessionSpec {
-                    what,
-                    model_path: &resolved,
-                    provider: runtime.execution_provider(),
-                    intra_threads: config.intra_op_threads,
-                },
-            )?;
-            Ok::<_, OnnxError>((session, resolved))
+            let keys = (format!("{key}.{field}_path"), format!("{key}.{field}_sha256"));
+            contract::open_user_model(runtime, path, sha.as_deref(), what, (&keys.0, &keys.1), config.intra_op_threads)
         };
         let (encoder, encoder_path) =
             open(&config.encoder_path, &config.encoder_sha256, "encoder", "SAM image encoder")?;
@@ -265,6 +255,7 @@ impl SamMaskDecoder {
             decoder,
             config: config.clone(),
             decoder_path,
+            encoder_path,
             input: Vec::new(),
             placement: Placement { sx: 1.0, sy: 1.0 },
             embeddings: Vec::new(),
@@ -282,21 +273,16 @@ impl SamMaskDecoder {
         let intr = frame.intrinsics;
         let spec = &self.config.input;
         self.placement = prepare(&frame.rgb, intr.width, intr.height, spec, &mut self.input);
-        let image =
-            TensorRef::from_array_view(([1usize, 3, spec.height as usize, spec.width as usize], self.input.as_slice()))
-                .map_err(|e| self.error("image tensor", e))?;
-        let path = self.decoder_path.display().to_string();
-        let error = |context: &str, e: &dyn std::fmt::Display| format!("SAM {context} (with {path}): {e}");
-        let outputs =
-            self.encoder.run(ort::inputs![spec.name.as_str() => image]).map_err(|e| error("image encoder", &e))?;
-        let (shape, data) = outputs
-            .get(self.config.embeddings.as_str())
-            .ok_or_else(|| error("image encoder", &"no embeddings output"))?
-            .try_extract_tensor::<f32>()
-            .map_err(|e| error("image encoder output", &e))?;
+        let (shape, data) = run_on_image(
+            &mut self.encoder,
+            spec,
+            &self.input,
+            &self.config.embeddings,
+            "SAM image encoder",
+            &self.encoder_path,
+        )?;
         self.embedding_shape = shape.iter().map(|d| (*d).max(0) as usize).collect();
-        self.embeddings.clear();
-        self.embeddings.extend_from_slice(data);
+        self.embeddings = data;
         Ok(())
     }
 
@@ -320,12 +306,7 @@ impl SamMaskDecoder {
         let side = (self.mask_input.len() as f64).sqrt() as usize;
         let tensor = |e| self.error("prompt tensor", e);
         let inputs: Vec<(&str, SessionInputValue)> = vec![
-            (
-                self.config.embeddings.as_str(),
-                TensorRef::from_array_view((self.embedding_shape.clone(), self.embeddings.as_slice()))
-                    .map_err(tensor)?
-                    .into(),
-            ),
+            (self.config.embeddings.as_str(), embeddings_input(&self.embedding_shape, &self.embeddings)?),
             (DECODER_INPUTS[0], TensorRef::from_array_view(([1usize, 3, 2], &coords[..])).map_err(tensor)?.into()),
             (DECODER_INPUTS[1], TensorRef::from_array_view(([1usize, 3], &labels[..])).map_err(tensor)?.into()),
             (
@@ -364,12 +345,7 @@ impl SamMaskDecoder {
         let size = [i64::from(height), i64::from(width)];
         let tensor = |e| self.error("prompt tensor", e);
         let inputs: Vec<(&str, SessionInputValue)> = vec![
-            (
-                self.config.embeddings.as_str(),
-                TensorRef::from_array_view((self.embedding_shape.clone(), self.embeddings.as_slice()))
-                    .map_err(tensor)?
-                    .into(),
-            ),
+            (self.config.embeddings.as_str(), embeddings_input(&self.embedding_shape, &self.embeddings)?),
             (EFFICIENT_INPUTS[0], TensorRef::from_array_view(([1usize, 1, 2, 2], &coords[..])).map_err(tensor)?.into()),
             (EFFICIENT_INPUTS[1], TensorRef::from_array_view(([1usize, 1, 2], &labels[..])).map_err(tensor)?.into()),
             (EFFICIENT_INPUTS[2], TensorRef::from_array_view(([2usize], &size[..])).map_err(tensor)?.into()),
@@ -403,6 +379,13 @@ impl SamMaskDecoder {
         let best = (0..m).fold(0, |best, i| if ious[i] > ious[best] { i } else { best });
         Ok(cut(&logits[best * plane..(best + 1) * plane], self.config.mask_threshold, pixel_box, width))
     }
+}
+
+/// The encoder's embeddings (`shape`, `data`) as the decoder's input.
+fn embeddings_input<'a>(shape: &[usize], data: &'a [f32]) -> Result<SessionInputValue<'a>, String> {
+    TensorRef::from_array_view((shape.to_vec(), data))
+        .map(Into::into)
+        .map_err(|e| format!("SAM embeddings tensor: {e}"))
 }
 
 /// The pixels of `pixel_box` whose logit in the image-sized plane `logits` is above `threshold`;

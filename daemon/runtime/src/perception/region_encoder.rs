@@ -39,14 +39,12 @@ use std::path::PathBuf;
 
 use op3dsg_drivers::frame::Frame;
 use ort::session::Session;
-use ort::value::TensorRef;
 use serde::{Deserialize, Serialize};
 
-use super::image_input::{ImageInput, Resize, prepare};
+use super::image_input::{ImageInput, Resize, prepare, run_on_image};
 use super::{Detection, Detector, DetectorError, Mask, normalise};
-use crate::onnx::clip_text::user_model;
 use crate::onnx::contract::{self, Dim, FLOAT, TensorSpec};
-use crate::onnx::{OnnxError, OnnxRuntime, SessionSpec, open_session, resolve_path};
+use crate::onnx::{OnnxError, OnnxRuntime};
 
 /// CLIP's per-channel mean on 0..1 values.
 pub const CLIP_MEAN: [f32; 3] = [0.481_454_66, 0.457_827_5, 0.408_210_73];
@@ -191,16 +189,13 @@ impl RegionEncoder {
     /// Loads `config`'s model (section `key`), checking its sha256 and tensors.
     pub fn new(runtime: &OnnxRuntime, config: &RegionEncoderConfig, key: &str) -> Result<Self, OnnxError> {
         config.validate(key).map_err(OnnxError::InvalidConfig)?;
-        let path = resolve_path(&config.path, "CLIP image encoder", &format!("{key}.path")).map_err(user_model)?;
-        contract::verify_sha256(&path, config.sha256.as_deref(), &format!("{key}.sha256"))?;
-        let (session, _) = open_session(
+        let (session, path) = contract::open_user_model(
             runtime,
-            SessionSpec {
-                what: "CLIP image encoder",
-                model_path: &path,
-                provider: runtime.execution_provider(),
-                intra_threads: config.intra_op_threads,
-            },
+            &config.path,
+            config.sha256.as_deref(),
+            "CLIP image encoder",
+            (&format!("{key}.path"), &format!("{key}.sha256")),
+            config.intra_op_threads,
         )?;
         let image = Some(vec![
             Dim::Any("B"),
@@ -254,19 +249,10 @@ impl RegionEncoder {
         }
         let spec = &self.config.input;
         prepare(&self.crop, cw, ch, spec, &mut self.input);
-        let path = self.path.display().to_string();
-        let tensor =
-            TensorRef::from_array_view(([1usize, 3, spec.height as usize, spec.width as usize], self.input.as_slice()))
-                .map_err(|e| format!("CLIP image encoder ({path}): input tensor: {e}"))?;
-        let outputs = self
-            .session
-            .run(ort::inputs![spec.name.as_str() => tensor])
-            .map_err(|e| format!("CLIP image encoder ({path}): {e}"))?;
-        let (shape, data) = outputs
-            .get(self.config.output.as_str())
-            .ok_or_else(|| format!("CLIP image encoder ({path}): no output \"{}\"", self.config.output))?
-            .try_extract_tensor::<f32>()
-            .map_err(|e| format!("CLIP image encoder ({path}): output \"{}\": {e}", self.config.output))?;
+        let output = self.config.output.as_str();
+        let (shape, data) =
+            run_on_image(&mut self.session, spec, &self.input, output, "CLIP image encoder", &self.path)?;
+        let path = self.path.display();
         let one_row = match shape[..] {
             [d] | [1, d] => d > 0,
             _ => false,

@@ -27,13 +27,12 @@ use std::path::{Path, PathBuf};
 
 use op3dsg_drivers::frame::Frame;
 use ort::session::Session;
-use ort::value::TensorRef;
 use serde::{Deserialize, Serialize};
 
-use super::image_input::{ImageInput, Resize, prepare};
+use super::image_input::{ImageInput, Resize, prepare, run_on_image};
 use crate::onnx::clip_text::user_model;
 use crate::onnx::contract::{self, Dim, FLOAT, TensorSpec};
-use crate::onnx::{OnnxError, OnnxRuntime, SessionSpec, open_session, resolve_path};
+use crate::onnx::{OnnxError, OnnxRuntime, resolve_path};
 
 /// How the tagger's output becomes probabilities.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -159,16 +158,13 @@ impl ImageTagger {
     /// tensors, and that the files have one line per output.
     pub fn new(runtime: &OnnxRuntime, config: &TaggerConfig, key: &str) -> Result<Self, OnnxError> {
         config.validate(key).map_err(OnnxError::InvalidConfig)?;
-        let path = resolve_path(&config.path, "image tagger", &format!("{key}.path")).map_err(user_model)?;
-        contract::verify_sha256(&path, config.sha256.as_deref(), &format!("{key}.sha256"))?;
-        let (session, _) = open_session(
+        let (session, path) = contract::open_user_model(
             runtime,
-            SessionSpec {
-                what: "image tagger",
-                model_path: &path,
-                provider: runtime.execution_provider(),
-                intra_threads: config.intra_op_threads,
-            },
+            &config.path,
+            config.sha256.as_deref(),
+            "image tagger",
+            (&format!("{key}.path"), &format!("{key}.sha256")),
+            config.intra_op_threads,
         )?;
         let image =
             Some(vec![Dim::Is(1), Dim::Is(3), Dim::Is(config.input.height.into()), Dim::Is(config.input.width.into())]);
@@ -247,19 +243,9 @@ impl ImageTagger {
         let intr = frame.intrinsics;
         let spec = &self.config.input;
         prepare(&frame.rgb, intr.width, intr.height, spec, &mut self.input);
-        let path = self.path.display().to_string();
-        let image =
-            TensorRef::from_array_view(([1usize, 3, spec.height as usize, spec.width as usize], self.input.as_slice()))
-                .map_err(|e| format!("image tagger ({path}): input tensor: {e}"))?;
-        let outputs = self
-            .session
-            .run(ort::inputs![spec.name.as_str() => image])
-            .map_err(|e| format!("image tagger ({path}): {e}"))?;
-        let (shape, values) = outputs
-            .get(self.config.output.as_str())
-            .ok_or_else(|| format!("image tagger ({path}): no output \"{}\"", self.config.output))?
-            .try_extract_tensor::<f32>()
-            .map_err(|e| format!("image tagger ({path}): output \"{}\": {e}", self.config.output))?;
+        let output = self.config.output.as_str();
+        let (shape, values) = run_on_image(&mut self.session, spec, &self.input, output, "image tagger", &self.path)?;
+        let path = self.path.display();
         if values.len() != self.tags.len() || shape.len() > 2 {
             return Err(format!(
                 "image tagger ({path}): output \"{}\" has shape {shape:?}, the tag list {} tags",
