@@ -258,6 +258,33 @@ def clip_text(out, tokenizer):
     return {"tokens": tokens, "clip_text_normalised": embeddings}
 
 
+def pixel_centres(col, row):
+    """Nodes giving the pixel centres cy4 (shape `col`) and cx4 (shape `row`) of an H x W image."""
+    n = helper.make_node
+    return [
+        n("Range", ["zero", "H", "one"], ["ry"]),
+        n("Range", ["zero", "W", "one"], ["rx"]),
+        n("Add", ["ry", "half"], ["cy"]),
+        n("Add", ["rx", "half"], ["cx"]),
+        n("Reshape", ["cy", col], ["cy4"]),
+        n("Reshape", ["cx", row], ["cx4"]),
+    ]
+
+
+def in_rect(out, x0, x1, y0, y1):
+    """Nodes giving `out`: whether each pixel centre lies in [x0, x1) x [y0, y1)."""
+    n = helper.make_node
+    return [
+        n("GreaterOrEqual", ["cy4", y0], [f"{out}_top"]),
+        n("Less", ["cy4", y1], [f"{out}_bottom"]),
+        n("GreaterOrEqual", ["cx4", x0], [f"{out}_left"]),
+        n("Less", ["cx4", x1], [f"{out}_right"]),
+        n("And", [f"{out}_top", f"{out}_bottom"], [f"{out}_rows"]),
+        n("And", [f"{out}_left", f"{out}_right"], [f"{out}_cols"]),
+        n("And", [f"{out}_rows", f"{out}_cols"], [out]),
+    ]
+
+
 def sam(out):
     nodes = [
         helper.make_node("AveragePool", ["images"], ["pooled"], kernel_shape=[16, 16], strides=[16, 16]),  # [1, 3, 64, 64]
@@ -298,20 +325,8 @@ def sam(out):
         n("Gather", ["q1", "i1"], ["y1"], axis=0),
         n("Add", ["y0", "y1"], ["ysum"]),
         n("Div", ["ysum", "two"], ["ymid"]),
-        # Pixel centres.
-        n("Range", ["zero", "H", "one"], ["ry"]),
-        n("Range", ["zero", "W", "one"], ["rx"]),
-        n("Add", ["ry", "half"], ["cy"]),
-        n("Add", ["rx", "half"], ["cx"]),
-        n("Reshape", ["cy", "col"], ["cy4"]),  # [1, 1, H, 1]
-        n("Reshape", ["cx", "row"], ["cx4"]),  # [1, 1, 1, W]
-        n("GreaterOrEqual", ["cy4", "y0"], ["a"]),
-        n("Less", ["cy4", "ymid"], ["b"]),
-        n("GreaterOrEqual", ["cx4", "x0"], ["c"]),
-        n("Less", ["cx4", "x1"], ["d"]),
-        n("And", ["a", "b"], ["ab"]),
-        n("And", ["c", "d"], ["cd"]),
-        n("And", ["ab", "cd"], ["in_box"]),  # [1, 1, H, W]
+        *pixel_centres("col", "row"),  # [1, 1, H, 1], [1, 1, 1, W]
+        *in_rect("in_box", "x0", "x1", "y0", "ymid"),  # [1, 1, H, W]: the box's top half
         n("Where", ["in_box", "inside", "outside"], ["raw_masks"]),
         # Every input takes part (so the runtime keeps them all).
         n("ReduceMean", ["image_embeddings"], ["e_mean"], keepdims=0),
@@ -391,23 +406,10 @@ def efficient_sam(out):
         n("Div", ["xsum", "two"], ["xmid"]),
         n("Add", ["y0", "y1"], ["ysum"]),
         n("Div", ["ysum", "two"], ["ymid"]),
-        n("Range", ["zero", "H", "one"], ["ry"]),
-        n("Range", ["zero", "W", "one"], ["rx"]),
-        n("Add", ["ry", "half"], ["cy"]),
-        n("Add", ["rx", "half"], ["cx"]),
-        n("Reshape", ["cy", "col5"], ["cy4"]),  # [1, 1, 1, H, 1]
-        n("Reshape", ["cx", "row5"], ["cx4"]),  # [1, 1, 1, 1, W]
-        n("GreaterOrEqual", ["cy4", "y0"], ["top_ok"]),
-        n("Less", ["cy4", "y1"], ["bottom_ok"]),
-        n("Less", ["cy4", "ymid"], ["upper"]),
-        n("GreaterOrEqual", ["cx4", "x0"], ["left_ok"]),
-        n("Less", ["cx4", "x1"], ["right_ok"]),
-        n("Less", ["cx4", "xmid"], ["lefter"]),
-        n("And", ["top_ok", "bottom_ok"], ["rows_in"]),
-        n("And", ["left_ok", "right_ok"], ["cols_in"]),
-        n("And", ["rows_in", "cols_in"], ["in_box"]),  # [1, 1, H, W]
-        n("And", ["in_box", "lefter"], ["in_left"]),
-        n("And", ["in_box", "upper"], ["in_top"]),
+        *pixel_centres("col5", "row5"),  # [1, 1, 1, H, 1], [1, 1, 1, 1, W]
+        *in_rect("in_box", "x0", "x1", "y0", "y1"),  # [1, 1, 1, H, W]
+        *in_rect("in_left", "x0", "xmid", "y0", "y1"),
+        *in_rect("in_top", "x0", "x1", "y0", "ymid"),
         n("Where", ["in_box", "inside", "outside"], ["m0"]),  # [1, 1, 1, H, W]
         n("Where", ["in_left", "inside", "outside"], ["m1"]),
         n("Where", ["in_top", "inside", "outside"], ["m2"]),
