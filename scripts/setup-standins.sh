@@ -17,7 +17,7 @@ SCRIPT=scripts/reference/model_standins.py
 # The real-size YOLO-World-S stand-in of the CPU-cost benchmark (45 MB, a few seconds).
 SIZED=scripts/reference/yolo_world_s_like.py
 stamp="$OUT/.script.sha256"
-want="$(cat "$SCRIPT" "$SIZED" "$MODELS_DIR/clip/tokenizer.json" 2>/dev/null | sha256sum | cut -d' ' -f1)"
+want="$(cat "$SCRIPT" "$SIZED" scripts/reference/stand_in_graph.py "$MODELS_DIR/clip/tokenizer.json" 2>/dev/null | sha256sum | cut -d' ' -f1)"
 if [[ "${1:-}" != "--force" && -f "$stamp" && "$(cat "$stamp")" == "$want" && -f "$OUT/expected.json" ]]; then
   echo "setup-standins.sh: $OUT/ is current"
   exit 0

@@ -18,26 +18,15 @@ from pathlib import Path
 
 import numpy as np
 import onnx
-from onnx import TensorProto, helper, numpy_helper
+from onnx import TensorProto, helper
+from stand_in_graph import Graph
 
 ROOT = Path(__file__).resolve().parents[2]
 WIDTH, LAYERS, HEADS, MLP, PATCH, SIDE, EMBED = 768, 12, 12, 3072, 32, 224, 512
 TOKENS = (SIDE // PATCH) ** 2 + 1
-rng = np.random.default_rng(32)
-nodes, inits = [], []
-counter = [0]
-macs = [0]
-
-
-def name(prefix):
-    counter[0] += 1
-    return f"{prefix}_{counter[0]}"
-
-
-def const(array, prefix="c"):
-    n = name(prefix)
-    inits.append(numpy_helper.from_array(np.asarray(array), n))
-    return n
+GRAPH = Graph(seed=32)
+rng, nodes, inits, macs = GRAPH.rng, GRAPH.nodes, GRAPH.inits, GRAPH.macs
+name, const = GRAPH.name, GRAPH.const
 
 
 def op(kind, inputs, **attrs):

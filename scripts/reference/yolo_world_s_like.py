@@ -18,24 +18,13 @@ from pathlib import Path
 
 import numpy as np
 import onnx
-from onnx import TensorProto, helper, numpy_helper
+from onnx import TensorProto, helper
+from stand_in_graph import Graph
 
 ROOT = Path(__file__).resolve().parents[2]
-rng = np.random.default_rng(7)
-nodes, inits = [], []
-counter = [0]
-macs = [0]
-
-
-def name(prefix):
-    counter[0] += 1
-    return f"{prefix}_{counter[0]}"
-
-
-def const(array, prefix="c"):
-    n = name(prefix)
-    inits.append(numpy_helper.from_array(array, n))
-    return n
+GRAPH = Graph(seed=7)
+rng, nodes, inits, macs = GRAPH.rng, GRAPH.nodes, GRAPH.inits, GRAPH.macs
+name, const = GRAPH.name, GRAPH.const
 
 
 def conv(x, c1, c2, hw, k=1, s=1, act=True):
