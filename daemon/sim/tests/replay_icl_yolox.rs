@@ -35,16 +35,23 @@ fn shared() -> PathBuf {
     op3dsg_shared_data::shared_data_dir()
 }
 
-#[test]
-fn icl_living_room_with_yolox_has_one_chair_where_the_depth_puts_it() {
+/// `profiles/replay-icl.toml` and its batch run; `None` (outside CI only: in CI the
+/// shared-data helper fails the test) when the shared data is absent.
+fn icl_batch_run() -> Option<(op3dsg_runtime::config::Profile, batch::BatchRun)> {
     if op3dsg_shared_data::shared_data("rgbd/icl_livingroom1/rgb.txt").is_none()
         || op3dsg_shared_data::shared_data("models/yolox_nano/yolox_nano.onnx").is_none()
     {
         println!("skipped: the shared data ({}) is absent", shared().display());
-        return;
+        return None;
     }
     let profile = op3dsg_sim::load_profile(Some(&profile_path()), &[]).expect("profile").profile;
     let run = batch::run(&profile, &batch::VisibilityThresholds::default()).expect("batch run");
+    Some((profile, run))
+}
+
+#[test]
+fn icl_living_room_with_yolox_has_one_chair_where_the_depth_puts_it() {
+    let Some((profile, run)) = icl_batch_run() else { return };
     println!(
         "{} frames, {} keyframes, {} detections, {} detector errors, {:.1} keyframes/s (detect {:.2} s)",
         run.frames,
@@ -170,14 +177,7 @@ fn icl_yolox_run_against_the_hand_annotation_finds_the_coco_objects_only() {
     use op3dsg_drivers::graph_json::GraphJson;
     use op3dsg_runtime::onnx::text_encoder::{TextEncoder, TextEncoderConfig};
     use op3dsg_sim::eval::recall::{K3, RecallEvaluator, Vocabulary, text_report};
-    if op3dsg_shared_data::shared_data("rgbd/icl_livingroom1/rgb.txt").is_none()
-        || op3dsg_shared_data::shared_data("models/yolox_nano/yolox_nano.onnx").is_none()
-    {
-        println!("skipped: the shared data ({}) is absent", shared().display());
-        return;
-    }
-    let profile = op3dsg_sim::load_profile(Some(&profile_path()), &[]).expect("profile").profile;
-    let run = batch::run(&profile, &batch::VisibilityThresholds::default()).expect("batch run");
+    let Some((profile, run)) = icl_batch_run() else { return };
     let pred = run.graph.to_json("batch run of profiles/replay-icl.toml");
     let gt_path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/icl_livingroom1/gt.json");
     let gt = GraphJson::read(&gt_path).expect("the committed ground truth");
