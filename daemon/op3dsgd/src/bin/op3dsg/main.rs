@@ -196,22 +196,8 @@ enum Command {
         /// Room type (benchmark rooms, or the test scene colour_panel).
         #[arg(long, value_parser = parse_room)]
         room: RoomKind,
-        /// Scene seed.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// Frames to run (30 per second of camera path).
-        #[arg(long, default_value_t = 600, value_parser = clap::value_parser!(u64).range(1..))]
-        frames: u64,
-        /// Oracle noise preset (clean | realistic).
-        #[arg(long, default_value = "realistic")]
-        preset: String,
-        /// Profile to start from (default: the built-in base).
-        #[arg(long)]
-        profile: Option<PathBuf>,
-        /// Profile overrides, section.key=value (after the options above), e.g.
-        /// --set fusion.min_overlap=0.3.
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        overrides: Vec<String>,
+        #[command(flatten)]
+        scene: RoomBench,
         /// Also list every miss, wrong merge and false positive.
         #[arg(long)]
         details: bool,
@@ -632,15 +618,13 @@ fn run(cli: Cli) -> Result<()> {
         Command::Annotate { annotation, sequence, out, preview } => {
             annotate::annotate(&annotation, sequence.as_deref(), out.as_deref(), preview.as_deref())
         }
-        Command::FusionEval { room, seed, frames, preset, profile, overrides, details, check, json } => {
+        Command::FusionEval { room, scene, details, check, json } => {
             let mut sets = vec![
                 format!("source.synthetic.room={}", room.as_str()),
-                format!("source.synthetic.seed={seed}"),
-                format!("source.synthetic.frame_count={frames}"),
-                format!("detector.oracle.preset={preset}"),
+                format!("source.synthetic.seed={}", scene.seed),
             ];
-            sets.extend(overrides);
-            fusion_eval::fusion_eval(profile.as_deref(), &sets, details, check, json.as_deref())
+            sets.extend(scene.sets());
+            fusion_eval::fusion_eval(scene.profile.as_deref(), &sets, details, check, json.as_deref())
         }
         Command::Bench { command: BenchCommand::Perf(args) } => bench::perf(*args),
         Command::Bench { command: BenchCommand::Soak(args) } => bench::soak(*args),
@@ -697,12 +681,11 @@ fn seconds(value: f64) -> Result<Duration> {
     Duration::try_from_secs_f64(value).with_context(|| format!("--timeout-s {value}: not a valid duration"))
 }
 
-/// The iceoryx2 node name of this process's clients.
-/// The synthetic rooms a room benchmark (`bench query`, `bench nav`) maps: seed, frames, oracle
-/// preset and profile.
+/// The synthetic rooms a room benchmark (`bench query`, `bench nav`) or `fusion-eval` maps:
+/// seed, frames, oracle preset and profile.
 #[derive(clap::Args, Debug)]
 struct RoomBench {
-    /// Scene seed of every room.
+    /// Scene seed (of every room).
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Frames per room (30 per second of camera path).
@@ -731,6 +714,7 @@ impl RoomBench {
     }
 }
 
+/// The iceoryx2 node name of this process's clients.
 fn node_name() -> String {
     format!("op3dsg-cli-{}", std::process::id())
 }
@@ -750,7 +734,6 @@ fn poll_until<T>(timeout: Duration, mut read: impl FnMut() -> Result<Option<T>, 
     }
 }
 
-/// Writes `text` to `out`, or to standard output.
 /// Prints a report's text and, with `json`, writes the report as pretty JSON to that file.
 fn write_report(text: &str, json: Option<&Path>, report: &impl serde::Serialize) -> Result<()> {
     write_output(None, text)?;
@@ -762,6 +745,7 @@ fn write_report(text: &str, json: Option<&Path>, report: &impl serde::Serialize)
     Ok(())
 }
 
+/// Writes `text` to `out`, or to standard output.
 fn write_output(out: Option<&Path>, text: &str) -> Result<()> {
     match out {
         Some(path) => std::fs::write(path, text).with_context(|| format!("writing {}", path.display())),
