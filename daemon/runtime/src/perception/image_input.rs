@@ -174,27 +174,30 @@ pub fn prepare(rgb: &[u8], width: u32, height: u32, spec: &ImageInput, out: &mut
 }
 
 /// Runs `session` on an image prepared by [`prepare`] (`input`, tensor `spec.name` of shape
-/// `[1, 3, spec.height, spec.width]`) and returns the shape and values of its float output
-/// `output`; errors name `what` and the model's `path`.
+/// `[1, 3, spec.height, spec.width]`), puts the values of its float output `output` into
+/// `values` (reused from frame to frame) and returns that output's shape; errors name `what`
+/// and the model's `path`.
 pub fn run_on_image(
     session: &mut ort::session::Session,
     spec: &ImageInput,
     input: &[f32],
-    output: &str,
+    (output, values): (&str, &mut Vec<f32>),
     what: &str,
     path: &std::path::Path,
-) -> Result<(Vec<i64>, Vec<f32>), String> {
+) -> Result<Vec<i64>, String> {
     let path = path.display();
     let image = ort::value::TensorRef::from_array_view(([1usize, 3, spec.height as usize, spec.width as usize], input))
         .map_err(|e| format!("{what} ({path}): input tensor: {e}"))?;
     let outputs =
         session.run(ort::inputs![spec.name.as_str() => image]).map_err(|e| format!("{what} ({path}): {e}"))?;
-    let (shape, values) = outputs
+    let (shape, data) = outputs
         .get(output)
         .ok_or_else(|| format!("{what} ({path}): no output \"{output}\""))?
         .try_extract_tensor::<f32>()
         .map_err(|e| format!("{what} ({path}): output \"{output}\": {e}"))?;
-    Ok((shape.to_vec(), values.to_vec()))
+    values.clear();
+    values.extend_from_slice(data);
+    Ok(shape.to_vec())
 }
 
 #[cfg(test)]

@@ -273,16 +273,15 @@ impl SamMaskDecoder {
         let intr = frame.intrinsics;
         let spec = &self.config.input;
         self.placement = prepare(&frame.rgb, intr.width, intr.height, spec, &mut self.input);
-        let (shape, data) = run_on_image(
+        let shape = run_on_image(
             &mut self.encoder,
             spec,
             &self.input,
-            &self.config.embeddings,
+            (&self.config.embeddings, &mut self.embeddings),
             "SAM image encoder",
             &self.encoder_path,
         )?;
         self.embedding_shape = shape.iter().map(|d| (*d).max(0) as usize).collect();
-        self.embeddings = data;
         Ok(())
     }
 

@@ -250,8 +250,15 @@ impl RegionEncoder {
         let spec = &self.config.input;
         prepare(&self.crop, cw, ch, spec, &mut self.input);
         let output = self.config.output.as_str();
-        let (shape, data) =
-            run_on_image(&mut self.session, spec, &self.input, output, "CLIP image encoder", &self.path)?;
+        let mut embedding = Vec::new();
+        let shape = run_on_image(
+            &mut self.session,
+            spec,
+            &self.input,
+            (output, &mut embedding),
+            "CLIP image encoder",
+            &self.path,
+        )?;
         let path = self.path.display();
         let one_row = match shape[..] {
             [d] | [1, d] => d > 0,
@@ -263,10 +270,9 @@ impl RegionEncoder {
                 self.config.output
             ));
         }
-        if data.iter().any(|v| !v.is_finite()) {
+        if embedding.iter().any(|v| !v.is_finite()) {
             return Err(format!("CLIP image encoder ({path}): output \"{}\" is not finite", self.config.output));
         }
-        let mut embedding = data.to_vec();
         if embedding.iter().all(|v| *v == 0.0) {
             return Ok(None);
         }

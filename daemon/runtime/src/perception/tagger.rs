@@ -138,6 +138,8 @@ pub struct ImageTagger {
     /// Whether each tag is in `ignore`.
     ignored: Vec<bool>,
     input: Vec<f32>,
+    /// The last output, reused.
+    values: Vec<f32>,
 }
 
 impl std::fmt::Debug for ImageTagger {
@@ -229,7 +231,16 @@ impl ImageTagger {
         };
         let ignore: Vec<String> = config.ignore.iter().map(|t| crate::knowledge::normalise(t)).collect();
         let ignored = tags.iter().map(|t| ignore.contains(t)).collect();
-        Ok(Self { session, config: config.clone(), path, tags, thresholds, ignored, input: Vec::new() })
+        Ok(Self {
+            session,
+            config: config.clone(),
+            path,
+            tags,
+            thresholds,
+            ignored,
+            input: Vec::new(),
+            values: Vec::new(),
+        })
     }
 
     /// The tag names, in output order.
@@ -244,7 +255,9 @@ impl ImageTagger {
         let spec = &self.config.input;
         prepare(&frame.rgb, intr.width, intr.height, spec, &mut self.input);
         let output = self.config.output.as_str();
-        let (shape, values) = run_on_image(&mut self.session, spec, &self.input, output, "image tagger", &self.path)?;
+        let shape =
+            run_on_image(&mut self.session, spec, &self.input, (output, &mut self.values), "image tagger", &self.path)?;
+        let values = &self.values;
         let path = self.path.display();
         if values.len() != self.tags.len() || shape.len() > 2 {
             return Err(format!(
