@@ -314,56 +314,50 @@ pub fn knowledge_base(profile: &Profile) -> Result<Arc<KnowledgeBase>, StartErro
         .map_err(|e| StartError::Incompatible { field: "reasoner.knowledge_dir", reason: e.to_string() })
 }
 
-type Load = dyn Fn() -> Result<Box<dyn Detector>, OnnxError> + Send + Sync;
+/// Loads one `T` (a model session) per detection worker now, so a missing runtime or model
+/// stops start-up with the error that says what to run. The returned function hands worker `i`
+/// its preloaded one; a worker index beyond `workers` (none in the pipeline) loads a fresh one.
+fn preload<T: Send + 'static>(
+    workers: usize,
+    load: impl Fn() -> Result<T, OnnxError> + Send + Sync + 'static,
+) -> Result<impl Fn(u32) -> Result<T, OnnxError> + Send + Sync + 'static, StartError> {
+    let mut preloaded = Vec::with_capacity(workers.max(1));
+    for _ in 0..workers.max(1) {
+        preloaded.push(Some(load()?));
+    }
+    let preloaded = Mutex::new(preloaded);
+    Ok(move |worker: u32| {
+        let taken =
+            preloaded.lock().unwrap_or_else(PoisonError::into_inner).get_mut(worker as usize).and_then(Option::take);
+        taken.map_or_else(&load, Ok)
+    })
+}
 
-/// Loads one model session per detection worker now, so a missing runtime or model stops
-/// start-up with the error that says what to run. The factory hands worker `i` its preloaded
-/// session; a worker index beyond `workers` (none in the pipeline) loads a fresh one.
+/// The detector factory of [`preload`]ed detectors; one that fails to load later fails its
+/// detections with the load error.
 fn preloaded_factory(
     workers: usize,
     load: impl Fn() -> Result<Box<dyn Detector>, OnnxError> + Send + Sync + 'static,
 ) -> Result<DetectorFactory, StartError> {
-    let load: Arc<Load> = Arc::new(load);
-    let mut preloaded = Vec::with_capacity(workers);
-    for _ in 0..workers.max(1) {
-        preloaded.push(Some(load()?));
-    }
-    let preloaded = Arc::new(Mutex::new(preloaded));
-    Ok(Arc::new(move |worker| {
-        let taken =
-            preloaded.lock().unwrap_or_else(PoisonError::into_inner).get_mut(worker as usize).and_then(Option::take);
-        match taken.map_or_else(|| load(), Ok) {
-            Ok(detector) => detector,
-            Err(e) => Box::new(FailedDetector(e.to_string())),
-        }
-    }))
+    let take = preload(workers, load)?;
+    Ok(Arc::new(move |worker| take(worker).unwrap_or_else(|e| Box::new(FailedDetector(e.to_string())))))
 }
 
 /// `factory`'s detectors with `[detector.region_encoder]` giving their detections' semantic
-/// features: one encoder session per worker, loaded now so that a missing or wrong model stops
-/// start-up naming the key.
+/// features: one encoder session per worker, [`preload`]ed so that a missing or wrong model
+/// stops start-up naming the key.
 fn with_region_encoder(
     profile: &Profile,
     factory: DetectorFactory,
     config: &RegionEncoderConfig,
 ) -> Result<DetectorFactory, StartError> {
-    const KEY: &str = "detector.region_encoder";
     let runtime = OnnxRuntime::init(&profile.onnx)?;
     let config = config.clone();
-    let load = move || RegionEncoder::new(&runtime, &config, KEY);
-    let mut preloaded = Vec::with_capacity(profile.detector.workers.max(1));
-    for _ in 0..profile.detector.workers.max(1) {
-        preloaded.push(Some(load()?));
-    }
-    let preloaded = Mutex::new(preloaded);
-    Ok(Arc::new(move |worker| {
-        let inner = factory(worker);
-        let taken =
-            preloaded.lock().unwrap_or_else(PoisonError::into_inner).get_mut(worker as usize).and_then(Option::take);
-        match taken.map_or_else(&load, Ok) {
-            Ok(encoder) => Box::new(WithRegionEncoder::new(inner, encoder)) as Box<dyn Detector>,
-            Err(e) => Box::new(FailedDetector(e.to_string())),
-        }
+    let take =
+        preload(profile.detector.workers, move || RegionEncoder::new(&runtime, &config, "detector.region_encoder"))?;
+    Ok(Arc::new(move |worker| match take(worker) {
+        Ok(encoder) => Box::new(WithRegionEncoder::new(factory(worker), encoder)) as Box<dyn Detector>,
+        Err(e) => Box::new(FailedDetector(e.to_string())),
     }))
 }
 
