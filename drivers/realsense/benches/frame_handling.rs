@@ -6,9 +6,10 @@
 //!   taskset -c 1 cargo bench -p op3dsg-realsense --features librealsense --bench frame_handling   # 1 - 4
 //! ```
 //!
-//! 1. `rotate+copy`: what the source does with the driver's buffers, on synthetic buffers of
-//!    the D435i's layout (848x480 RGB8 and Z16 aligned depth, rows padded to a 64-byte stride):
-//!    colour and depth copied into a pooled frame's buffers, for each rotation.
+//! 1. `copy colour` / `copy depth`: what the source does with the driver's buffers, on
+//!    synthetic buffers of the D435i's layout (848x480 RGB8 and Z16 aligned depth, rows padded
+//!    to a 64-byte stride): colour and depth copied into a pooled frame's buffers, for each
+//!    rotation; for the quarter turns also the portable colour loop (CPUs without SSSE3).
 //! 2. `op3dsg align`: [`DepthToColour::align`] alone (depth to colour from the calibration,
 //!    rotated 90° on the way into the frame's depth) on a synthetic room (slanted wall, a box in
 //!    front, scattered holes) with D435i-like calibration, 848x480 depth to 848x480 and to
@@ -36,7 +37,9 @@ use std::time::{Duration, Instant};
 
 use op3dsg_drivers::frame::{Frame, Intrinsics};
 use op3dsg_realsense::align::{DepthToColour, Extrinsics, Lens};
-use op3dsg_realsense::rotate::{ColourOrder, Rotation, SourceLayout, copy_colour, copy_depth};
+use op3dsg_realsense::rotate::{
+    ColourOrder, CopyError, Rotation, SourceLayout, copy_colour, copy_colour_portable, copy_depth,
+};
 
 const W: usize = 848;
 const H: usize = 480;
@@ -93,19 +96,31 @@ fn rotate_and_copy() {
     let rgb: Vec<u8> = (0..stride_rgb * H).map(|i| (i * 31 % 251) as u8).collect();
     let z16: Vec<u8> = (0..stride_z * H).map(|i| (i * 17 % 253) as u8).collect();
     let k = Intrinsics { width: W as u32, height: H as u32, fx: 421.0, fy: 421.0, cx: 424.0, cy: 240.0 };
+    let colour_layout = SourceLayout { width: W, height: H, stride_bytes: stride_rgb };
+    type CopyColour = fn(&[u8], SourceLayout, ColourOrder, Rotation, &mut [u8]) -> Result<(), CopyError>;
     for rotation in [Rotation::None, Rotation::Cw90, Rotation::Cw180, Rotation::Cw270] {
         let mut frame = Frame::new(rotation.intrinsics(&k));
+        let mut copies: Vec<(&str, CopyColour)> = vec![("copy colour", copy_colour)];
+        if rotation.swaps_axes() {
+            // What CPUs without SSSE3 run (the quarter turns only differ there).
+            copies.push(("copy colour, portable loop", copy_colour_portable));
+        }
+        for (name, copy) in copies {
+            let mut samples = Vec::with_capacity(2000);
+            for i in 0..2200 {
+                let started = Timer::start();
+                copy(black_box(&rgb), colour_layout, ColourOrder::Rgb8, rotation, &mut frame.rgb)
+                    .expect("colour layout");
+                black_box(&frame);
+                if i >= 200 {
+                    samples.push(started.stop());
+                }
+            }
+            report(&format!("{name} {W}x{H} rgb8, rotate {}", rotation.degrees()), &samples);
+        }
         let mut samples = Vec::with_capacity(2000);
         for i in 0..2200 {
             let started = Timer::start();
-            copy_colour(
-                black_box(&rgb),
-                SourceLayout { width: W, height: H, stride_bytes: stride_rgb },
-                ColourOrder::Rgb8,
-                rotation,
-                &mut frame.rgb,
-            )
-            .expect("colour layout");
             copy_depth(
                 black_box(&z16),
                 SourceLayout { width: W, height: H, stride_bytes: stride_z },
@@ -118,7 +133,7 @@ fn rotate_and_copy() {
                 samples.push(started.stop());
             }
         }
-        report(&format!("rotate+copy {W}x{H} rgb8+z16, rotate {}", rotation.degrees()), &samples);
+        report(&format!("copy depth {W}x{H} z16, rotate {}", rotation.degrees()), &samples);
     }
 }
 

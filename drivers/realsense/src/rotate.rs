@@ -224,6 +224,30 @@ pub fn copy_colour(
     rotation: Rotation,
     dst: &mut [u8],
 ) -> Result<(), CopyError> {
+    copy_colour_with(src, layout, order, rotation, dst, blocks::Blocks::new(order, rotation))
+}
+
+/// [`copy_colour`] without the SIMD blocks of the quarter turns: what CPUs without SSSE3 run,
+/// for the benchmark's comparison and the tests.
+#[doc(hidden)]
+pub fn copy_colour_portable(
+    src: &[u8],
+    layout: SourceLayout,
+    order: ColourOrder,
+    rotation: Rotation,
+    dst: &mut [u8],
+) -> Result<(), CopyError> {
+    copy_colour_with(src, layout, order, rotation, dst, None)
+}
+
+fn copy_colour_with(
+    src: &[u8],
+    layout: SourceLayout,
+    order: ColourOrder,
+    rotation: Rotation,
+    dst: &mut [u8],
+    blocks: Option<blocks::Blocks>,
+) -> Result<(), CopyError> {
     let bpp = order.bytes_per_pixel();
     check("colour", src, layout, bpp, dst.len(), 3)?;
     let SourceLayout { width, height, stride_bytes } = layout;
@@ -237,9 +261,12 @@ pub fn copy_colour(
     }
     let rgb = |px: &[u8]| if swap { [px[2], px[1], px[0]] } else { [px[0], px[1], px[2]] };
     if rotation.swaps_axes() {
+        let fast = |rows: &[&[u8]; TILE_ROWS], v0: usize, dst: &mut [u8]| {
+            blocks.map_or(0, |b| b.turn_tile(rows, bpp, width, height, v0, dst))
+        };
         match bpp {
-            3 => turn_in_tiles::<u8, 3, 3>(src, layout, rotation, dst, |px| rgb(px)),
-            _ => turn_in_tiles::<u8, 4, 3>(src, layout, rotation, dst, |px| rgb(px)),
+            3 => turn_in_tiles::<u8, 3, 3>(src, layout, rotation, dst, fast, |px| rgb(px)),
+            _ => turn_in_tiles::<u8, 4, 3>(src, layout, rotation, dst, fast, |px| rgb(px)),
         }
         return Ok(());
     }
@@ -266,12 +293,16 @@ const TILE_ROWS: usize = 16;
 /// of the tile written as one run of consecutive destination pixels. Row-by-row order would
 /// write every pixel to a new destination row (a new cache line per pixel). `convert` turns one
 /// source pixel (`BPP` bytes) into its `OUT` destination values.
+///
+/// `fast` turns a whole tile's first columns first (colour through [`blocks`]) and returns how
+/// many it did; the loop here does the rest.
 #[inline(always)]
 fn turn_in_tiles<T: Copy, const BPP: usize, const OUT: usize>(
     src: &[u8],
     layout: SourceLayout,
     rotation: Rotation,
     dst: &mut [T],
+    mut fast: impl FnMut(&[&[u8]; TILE_ROWS], usize, &mut [T]) -> usize,
     convert: impl Fn(&[u8]) -> [T; OUT],
 ) {
     let SourceLayout { width, height, stride_bytes } = layout;
@@ -282,7 +313,8 @@ fn turn_in_tiles<T: Copy, const BPP: usize, const OUT: usize>(
             let v = v0 + r;
             if v < v1 { &src[v * stride_bytes..v * stride_bytes + width * BPP] } else { &[] }
         });
-        for u in 0..width {
+        let done = if n == TILE_ROWS { fast(&rows, v0, dst) } else { 0 };
+        for u in done..width {
             // The destination row this source column becomes, and where the tile's run starts.
             let (row, first) = match rotation {
                 // (u, v) -> (h-1-v, u): row u, columns h-v1 ..= h-1-v0, v0 last.
@@ -301,13 +333,174 @@ fn turn_in_tiles<T: Copy, const BPP: usize, const OUT: usize>(
     }
 }
 
+/// The quarter turns of colour in 4x4-pixel blocks with SSSE3 byte shuffles (x86_64 CPUs have
+/// had them since 2006, the Stretch 3's NUC among them): four source rows of four pixels are
+/// loaded, widened to one 32-bit lane per pixel (the channel order converted by the same
+/// shuffle), transposed, and each column narrowed back to 12 bytes; a tile column's four
+/// blocks, 16 consecutive destination pixels, go out as three 16-byte stores. The scalar tile
+/// loop handles what is left (the last columns, a partial tile of rows, other CPUs).
+///
+/// `frame_handling` benchmark (848x480 RGB8, warm buffers, one core of the CI-kind VM): rotate
+/// 90 0.245 ms against 0.608 ms for the tile loop alone.
+mod blocks {
+    use super::{ColourOrder, Rotation, TILE_ROWS};
+
+    /// The shuffles for one channel order and turn, on a CPU that has SSSE3.
+    #[derive(Debug, Clone, Copy)]
+    pub(super) struct Blocks {
+        /// Source bytes of pixel `j` into lane `j` (R, G, B, 0).
+        widen: [u8; 16],
+        /// The four lanes of a column into 12 bytes in destination order (the 90° turn writes
+        /// the tile's rows bottom up).
+        narrow: [u8; 16],
+        cw90: bool,
+    }
+
+    impl Blocks {
+        /// `None` unless the turn is 90° or 270° on a CPU with SSSE3.
+        pub(super) fn new(order: ColourOrder, rotation: Rotation) -> Option<Self> {
+            if !rotation.swaps_axes() || !supported() {
+                return None;
+            }
+            let bpp = order.bytes_per_pixel();
+            let channel = |c: usize| if order.swaps_red_blue() { 2 - c } else { c };
+            let mut widen = [0x80u8; 16];
+            for j in 0..4 {
+                for c in 0..3 {
+                    widen[4 * j + c] = (bpp * j + channel(c)) as u8;
+                }
+            }
+            let cw90 = rotation == Rotation::Cw90;
+            let mut narrow = [0x80u8; 16];
+            for k in 0..4 {
+                let lane = if cw90 { 3 - k } else { k };
+                for c in 0..3 {
+                    narrow[3 * k + c] = (4 * lane + c) as u8;
+                }
+            }
+            Some(Self { widen, narrow, cw90 })
+        }
+
+        /// Turns columns `0..done` of one whole tile (source rows `v0..v0 + TILE_ROWS` of a
+        /// `width x height` image, `bpp` bytes per pixel) into `dst` (RGB8, `height` wide);
+        /// returns `done`, a multiple of 4 whose last block's 16-byte loads stay in the rows.
+        pub(super) fn turn_tile(
+            &self,
+            rows: &[&[u8]; TILE_ROWS],
+            bpp: usize,
+            width: usize,
+            height: usize,
+            v0: usize,
+            dst: &mut [u8],
+        ) -> usize {
+            let done = if width * bpp < 16 { 0 } else { ((width * bpp - 16) / (4 * bpp) + 1) * 4 };
+            assert!(rows.iter().all(|r| r.len() >= width * bpp) && dst.len() >= width * height * 3);
+            assert!(v0 + TILE_ROWS <= height && done <= width);
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `supported()` held when `self` was made; the kernel indexes the slices
+            // with checks.
+            #[allow(unsafe_code)]
+            unsafe {
+                x86::turn_tile(self, rows, bpp, done, width, height, v0, dst);
+            }
+            done
+        }
+    }
+
+    fn supported() -> bool {
+        #[cfg(target_arch = "x86_64")]
+        {
+            std::arch::is_x86_feature_detected!("ssse3")
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            false
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[allow(unsafe_code)]
+    mod x86 {
+        use std::arch::x86_64::{
+            _mm_loadu_si128, _mm_or_si128, _mm_setzero_si128, _mm_shuffle_epi8, _mm_slli_si128, _mm_srli_si128,
+            _mm_storeu_si128, _mm_unpackhi_epi32, _mm_unpackhi_epi64, _mm_unpacklo_epi32, _mm_unpacklo_epi64,
+        };
+
+        use super::{Blocks, TILE_ROWS};
+
+        /// See [`Blocks::turn_tile`].
+        ///
+        /// # Safety
+        ///
+        /// The CPU has SSSE3.
+        #[target_feature(enable = "ssse3")]
+        #[allow(clippy::too_many_arguments)]
+        pub(super) unsafe fn turn_tile(
+            blocks: &Blocks,
+            rows: &[&[u8]; TILE_ROWS],
+            bpp: usize,
+            done: usize,
+            width: usize,
+            height: usize,
+            v0: usize,
+            dst: &mut [u8],
+        ) {
+            // SAFETY (every block below): loads and stores go through slices indexed with checks.
+            let widen = unsafe { _mm_loadu_si128(blocks.widen.as_ptr().cast()) };
+            let narrow = unsafe { _mm_loadu_si128(blocks.narrow.as_ptr().cast()) };
+            for u0 in (0..done).step_by(4) {
+                let at = u0 * bpp;
+                // pieces[j][k]: source column u0 + j of the tile's rows 4k .. 4k + 4, narrowed to
+                // 12 bytes in destination order (the top 4 bytes zero).
+                let mut pieces = [[_mm_setzero_si128(); 4]; 4];
+                for k in 0..TILE_ROWS / 4 {
+                    let load = |r: usize| {
+                        let bytes: &[u8; 16] = rows[4 * k + r][at..at + 16].try_into().expect("16 bytes");
+                        _mm_shuffle_epi8(unsafe { _mm_loadu_si128(bytes.as_ptr().cast()) }, widen)
+                    };
+                    let (r0, r1, r2, r3) = (load(0), load(1), load(2), load(3));
+                    let (t0, t1) = (_mm_unpacklo_epi32(r0, r1), _mm_unpacklo_epi32(r2, r3));
+                    let (t2, t3) = (_mm_unpackhi_epi32(r0, r1), _mm_unpackhi_epi32(r2, r3));
+                    pieces[0][k] = _mm_shuffle_epi8(_mm_unpacklo_epi64(t0, t1), narrow);
+                    pieces[1][k] = _mm_shuffle_epi8(_mm_unpackhi_epi64(t0, t1), narrow);
+                    pieces[2][k] = _mm_shuffle_epi8(_mm_unpacklo_epi64(t2, t3), narrow);
+                    pieces[3][k] = _mm_shuffle_epi8(_mm_unpackhi_epi64(t2, t3), narrow);
+                }
+                for (j, p) in pieces.into_iter().enumerate() {
+                    let u = u0 + j;
+                    // (u, v) -> (h-1-v, u) for 90°, (v, w-1-u) for 270°: one run of the
+                    // tile's 16 pixels, from its lowest destination column; the 90° turn puts
+                    // the tile's rows there bottom up.
+                    let (row, first, [a, b, c, d]) = if blocks.cw90 {
+                        (u, height - TILE_ROWS - v0, [p[3], p[2], p[1], p[0]])
+                    } else {
+                        (width - 1 - u, v0, p)
+                    };
+                    let start = (row * height + first) * 3;
+                    let out = &mut dst[start..start + 48];
+                    // Four 12-byte pieces as three 16-byte stores.
+                    let x = [
+                        _mm_or_si128(a, _mm_slli_si128::<12>(b)),
+                        _mm_or_si128(_mm_srli_si128::<4>(b), _mm_slli_si128::<8>(c)),
+                        _mm_or_si128(_mm_srli_si128::<8>(c), _mm_slli_si128::<4>(d)),
+                    ];
+                    for (chunk, x) in out.chunks_exact_mut(16).zip(x) {
+                        // SAFETY: `chunk` holds 16 bytes.
+                        unsafe { _mm_storeu_si128(chunk.as_mut_ptr().cast(), x) };
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// Copies a Z16 depth buffer (little-endian `u16` per pixel, any stride and alignment) into
 /// `dst` (row-major depth of the rotated image).
 pub fn copy_depth(src: &[u8], layout: SourceLayout, rotation: Rotation, dst: &mut [u16]) -> Result<(), CopyError> {
     check("depth", src, layout, 2, dst.len(), 1)?;
     let SourceLayout { width, height, stride_bytes } = layout;
     if rotation.swaps_axes() {
-        turn_in_tiles::<u16, 2, 1>(src, layout, rotation, dst, |px| [u16::from_le_bytes([px[0], px[1]])]);
+        turn_in_tiles::<u16, 2, 1>(src, layout, rotation, dst, |_, _, _| 0, |px| [u16::from_le_bytes([px[0], px[1]])]);
         return Ok(());
     }
     for v in 0..height {
@@ -431,6 +624,38 @@ mod tests {
                     let i = vr as usize * out_w + ur as usize;
                     assert_eq!(&out_rgb[i * 3..i * 3 + 3], &[u as u8, v as u8, (u * 7 + v) as u8], "{r:?} ({u},{v})");
                     assert_eq!(out_depth[i], (1000 + u * 10 + v) as u16, "{r:?} ({u},{v})");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn quarter_turns_put_every_pixel_of_every_channel_order_where_map_pixel_says() {
+        // Whole tiles and a partial one; widths leaving 0 to 3 columns past the 4x4 blocks, and
+        // one too narrow for any block.
+        for (w, h) in [(37usize, 2 * TILE_ROWS + 3), (40, TILE_ROWS), (42, TILE_ROWS), (5, TILE_ROWS)] {
+            for order in [ColourOrder::Rgb8, ColourOrder::Bgr8, ColourOrder::Rgba8, ColourOrder::Bgra8] {
+                let bpp = order.bytes_per_pixel();
+                let stride = w * bpp + 5;
+                let src: Vec<u8> = (0..stride * h).map(|i| (i * 131 % 251) as u8).collect();
+                for r in [Rotation::Cw90, Rotation::Cw270] {
+                    let mut out = vec![0u8; w * h * 3];
+                    let layout = SourceLayout { width: w, height: h, stride_bytes: stride };
+                    copy_colour(&src, layout, order, r, &mut out).unwrap();
+                    let mut portable = vec![0u8; w * h * 3];
+                    copy_colour_portable(&src, layout, order, r, &mut portable).unwrap();
+                    assert!(out == portable, "{w}x{h} {order:?} {r:?}: SIMD blocks and portable loop differ");
+                    for v in 0..h {
+                        for u in 0..w {
+                            let i = v * stride + u * bpp;
+                            let px = &src[i..i + 3];
+                            let want =
+                                if order.swaps_red_blue() { [px[2], px[1], px[0]] } else { [px[0], px[1], px[2]] };
+                            let (ur, vr) = r.map_pixel(u as u32, v as u32, w as u32, h as u32);
+                            let at = (vr as usize * h + ur as usize) * 3;
+                            assert_eq!(out[at..at + 3], want, "{w}x{h} {order:?} {r:?} ({u},{v})");
+                        }
+                    }
                 }
             }
         }
