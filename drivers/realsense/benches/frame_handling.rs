@@ -75,6 +75,19 @@ impl Timer {
     }
 }
 
+/// Times `frame` over `warm_up + frames` calls, keeping the last `frames`.
+fn time_frames(warm_up: usize, frames: usize, mut frame: impl FnMut()) -> Vec<(Duration, Duration)> {
+    let mut samples = Vec::with_capacity(frames);
+    for i in 0..warm_up + frames {
+        let started = Timer::start();
+        frame();
+        if i >= warm_up {
+            samples.push(started.stop());
+        }
+    }
+    samples
+}
+
 /// Prints one line; returns the CPU (p50, p99) in ms.
 fn report(name: &str, samples: &[(Duration, Duration)]) -> (f64, f64) {
     let (w50, w99, n) = percentiles(samples.iter().map(|s| s.0).collect());
@@ -106,33 +119,18 @@ fn rotate_and_copy() {
             copies.push(("copy colour, portable loop", copy_colour_portable));
         }
         for (name, copy) in copies {
-            let mut samples = Vec::with_capacity(2000);
-            for i in 0..2200 {
-                let started = Timer::start();
+            let samples = time_frames(200, 2000, || {
                 copy(black_box(&rgb), colour_layout, ColourOrder::Rgb8, rotation, &mut frame.rgb)
                     .expect("colour layout");
                 black_box(&frame);
-                if i >= 200 {
-                    samples.push(started.stop());
-                }
-            }
+            });
             report(&format!("{name} {W}x{H} rgb8, rotate {}", rotation.degrees()), &samples);
         }
-        let mut samples = Vec::with_capacity(2000);
-        for i in 0..2200 {
-            let started = Timer::start();
-            copy_depth(
-                black_box(&z16),
-                SourceLayout { width: W, height: H, stride_bytes: stride_z },
-                rotation,
-                &mut frame.depth,
-            )
-            .expect("depth layout");
+        let depth_layout = SourceLayout { width: W, height: H, stride_bytes: stride_z };
+        let samples = time_frames(200, 2000, || {
+            copy_depth(black_box(&z16), depth_layout, rotation, &mut frame.depth).expect("depth layout");
             black_box(&frame);
-            if i >= 200 {
-                samples.push(started.stop());
-            }
-        }
+        });
         report(&format!("copy depth {W}x{H} z16, rotate {}", rotation.degrees()), &samples);
     }
 }
@@ -178,17 +176,11 @@ fn align_kernel() {
         let (depth, colour, extrinsics) = d435i_like(cw, ch);
         let aligner = DepthToColour::new(depth, colour, extrinsics, 0.00025).expect("calibration");
         let mut out = vec![0u16; cw as usize * ch as usize];
-        let mut samples = Vec::with_capacity(600);
-        for i in 0..660 {
-            let started = Timer::start();
-            aligner
-                .align(black_box(&z16), SourceLayout { width: W, height: H, stride_bytes: stride }, rotation, &mut out)
-                .expect("layout");
+        let layout = SourceLayout { width: W, height: H, stride_bytes: stride };
+        let samples = time_frames(60, 600, || {
+            aligner.align(black_box(&z16), layout, rotation, &mut out).expect("layout");
             black_box(&out);
-            if i >= 60 {
-                samples.push(started.stop());
-            }
-        }
+        });
         report(&format!("op3dsg align {W}x{H} -> {cw}x{ch}, rotate {} (synthetic room)", rotation.degrees()), &samples);
     }
 }
