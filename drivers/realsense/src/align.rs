@@ -27,8 +27,10 @@
 //! same colour pixel). The per-frame loop is compiled twice, for baseline x86-64 and for AVX2
 //! (chosen once at run time from the CPU; no FMA, which would round differently from
 //! librealsense). Where the colour stream has at least 1.25 times the depth's pixels per degree
-//! (the D435i's 848x480 depth to 848x480 or 1280x720 colour) rectangles are written as fixed 3x3
-//! blocks, without a branch on each rectangle's size; below that, with a loop sized per pixel.
+//! (the D435i's 848x480 depth to 848x480 or 1280x720 colour) rectangles are written as fixed
+//! blocks, without a branch on each rectangle's size: turned 90° or 270° (the Stretch's mount) as
+//! 3 or 4 lines of 4 values along the output's rows, planned for 64 depth pixels at a time;
+//! otherwise 3x3 cell by cell. Below that ratio, with a loop sized per pixel.
 //!
 //! **Lens models**, as librealsense's align block (its SSE build, what the PyPI library and
 //! Intel's x86 packages run) applies them: depth rays through the inverse Brown-Conrady formula
@@ -254,8 +256,12 @@ const BLOCK_RATIO: f32 = 1.25;
 const PIXELS: u8 = 0;
 /// ... the rectangle between its corners, loop sized per pixel ...
 const RECTANGLES: u8 = 1;
-/// ... or that rectangle as a fixed block.
+/// ... or that rectangle as a fixed block ...
 const BLOCKS: u8 = 2;
+/// ... or, turned 90° or 270° (colour y along the output's rows), as up to 3 or 4 lines of
+/// [`LANES`] values, planned for a whole chunk at once ([`LinePlan`]).
+const LINES_3: u8 = 3;
+const LINES_4: u8 = 4;
 /// A corner that does not land in front of the colour camera.
 const NOWHERE: i32 = i32::MIN;
 /// Projections further out than this many pixels are nowhere (and stay exact in the rounding).
@@ -374,6 +380,9 @@ pub struct DepthToColour {
     /// Whether rectangles are written as fixed [`KERNEL`]-sided blocks (colour pixels per depth
     /// pixel at least [`BLOCK_RATIO`] in both directions) rather than loops sized per pixel.
     blocks: bool,
+    /// Whether rectangles are up to 4 colour pixels wide (at least 2 colour pixels per depth
+    /// pixel along x), else 3: turned, blocks are written as that many lines.
+    wide: bool,
     projection: Projection,
     distort: bool,
 }
@@ -405,6 +414,8 @@ impl DepthToColour {
         let blocks = rectangles
             && colour_per_deg[0] >= BLOCK_RATIO * depth_per_deg[0]
             && colour_per_deg[1] >= BLOCK_RATIO * depth_per_deg[1];
+        // Colour pixels per depth pixel along x, where the images meet: the focal lengths' ratio.
+        let wide = colour.fx >= 2.0 * depth.fx;
         let distort = colour.model == Distortion::ModifiedBrownConrady && colour.has_coefficients();
         Ok(Self {
             depth,
@@ -413,6 +424,7 @@ impl DepthToColour {
             rays: Rays::new(&depth, &depth_to_colour),
             rectangles,
             blocks,
+            wide,
             projection: Projection {
                 metres_per_unit,
                 t: depth_to_colour.translation_m,
@@ -511,15 +523,22 @@ impl DepthToColour {
         let mode = match (self.rectangles, self.blocks) {
             (false, _) => PIXELS,
             (true, false) => RECTANGLES,
-            (true, true) => BLOCKS,
+            // (A line needs LANES values of the output.)
+            (true, true) if place.along_x || out.len() < LANES => BLOCKS,
+            (true, true) if self.wide => LINES_4,
+            (true, true) => LINES_3,
         };
         match (self.distort, mode) {
             (false, PIXELS) => align_rows::<false, PIXELS>(self, depth, stride_bytes, place, out),
             (false, RECTANGLES) => align_rows::<false, RECTANGLES>(self, depth, stride_bytes, place, out),
-            (false, _) => align_rows::<false, BLOCKS>(self, depth, stride_bytes, place, out),
+            (false, BLOCKS) => align_rows::<false, BLOCKS>(self, depth, stride_bytes, place, out),
+            (false, LINES_3) => align_rows::<false, LINES_3>(self, depth, stride_bytes, place, out),
+            (false, _) => align_rows::<false, LINES_4>(self, depth, stride_bytes, place, out),
             (true, PIXELS) => align_rows::<true, PIXELS>(self, depth, stride_bytes, place, out),
             (true, RECTANGLES) => align_rows::<true, RECTANGLES>(self, depth, stride_bytes, place, out),
-            (true, _) => align_rows::<true, BLOCKS>(self, depth, stride_bytes, place, out),
+            (true, BLOCKS) => align_rows::<true, BLOCKS>(self, depth, stride_bytes, place, out),
+            (true, LINES_3) => align_rows::<true, LINES_3>(self, depth, stride_bytes, place, out),
+            (true, _) => align_rows::<true, LINES_4>(self, depth, stride_bytes, place, out),
         }
         Ok(())
     }
@@ -537,6 +556,7 @@ impl DepthToColour {
         let rays = &self.rays;
         let mut raw = [0u16; CHUNK];
         let (mut x0, mut y0, mut x1, mut y1) = ([0i32; CHUNK], [0i32; CHUNK], [0i32; CHUNK], [0i32; CHUNK]);
+        let (mut lines_3, mut lines_4) = (LinePlan::<3>::new(), LinePlan::<4>::new());
         for v in 0..dh {
             let row = &depth[v * stride_bytes..v * stride_bytes + dw * 2];
             let (top, bottom) = (rays.row_start(v), rays.row_start(v + 1));
@@ -582,6 +602,16 @@ impl DepthToColour {
                     start += n;
                     continue;
                 }
+                if MODE == LINES_3 || MODE == LINES_4 {
+                    let corners = Corners { raw, x0: &x0[..n], y0: &y0[..n], x1: &x1[..n], y1: &y1[..n] };
+                    if MODE == LINES_3 {
+                        lines_3.write(corners, place, cw, ch, out);
+                    } else {
+                        lines_4.write(corners, place, cw, ch, out);
+                    }
+                    start += n;
+                    continue;
+                }
                 for i in 0..n {
                     let z = raw[i];
                     if z == 0 {
@@ -602,57 +632,165 @@ impl DepthToColour {
                     if xa > xb || ya > yb {
                         continue;
                     }
-                    let base = place.origin + xa as isize * place.step_x + ya as isize * place.step_y;
-                    let (dx_max, dy_max) = ((xb - xa) as isize, (yb - ya) as isize);
-                    if MODE == BLOCKS && dx_max < KERNEL as isize && dy_max < KERNEL as isize {
-                        // The usual case, without branches on the rectangle's size: a fixed
-                        // KERNEL x KERNEL block, cells past the rectangle's edge repeating the
-                        // edge cell (writing the same depth twice changes nothing).
-                        //
-                        // Turned 90° or 270°, colour y runs along the output's rows: each of
-                        // the block's lines is one 4-value write, its cells past the rectangle
-                        // masked off. Neighbouring depth pixels then write the same lines (they
-                        // differ in colour x), so each load finds the previous store whole.
-                        // Unturned, neighbours' lines overlap shifted by a cell or two and the
-                        // 4-value loads wait on partly overlapping stores: there the cells are
-                        // written one by one. (`frame_handling` benchmark, one core, runs back
-                        // to back on an idle machine, 848x480 to 848x480: turned 90° 2.47 ms
-                        // cell by cell, 2.16 ms with lines; unturned 2.38 ms cell by cell,
-                        // 2.49 ms with lines.)
-                        if !place.along_x {
-                            let z = lanes(z1, dy_max as usize, place.along_step);
-                            let low = base + place.lane_offset;
-                            let lines =
-                                [low, low + dx_max.min(1) * place.across_step, low + dx_max * place.across_step];
-                            if lines.iter().all(|&l| l >= 0 && l as usize + LANES <= out.len()) {
-                                for line in lines {
-                                    nearest_lanes(out, line as usize, z);
-                                }
-                                continue;
-                            }
-                        }
-                        // Unturned, or at the ends of the image where four values would not
-                        // fit: cell by cell.
-                        for dy in 0..KERNEL as isize {
-                            let row_at = base + dy.min(dy_max) * place.step_y;
-                            for dx in 0..KERNEL as isize {
-                                let at = (row_at + dx.min(dx_max) * place.step_x) as usize;
-                                nearest(out, at, z1);
-                            }
-                        }
-                        continue;
-                    }
-                    let mut row_at = base;
-                    for _ in ya..=yb {
-                        let mut at = row_at;
-                        for _ in xa..=xb {
-                            nearest(out, at as usize, z1);
-                            at += place.step_x;
-                        }
-                        row_at += place.step_y;
-                    }
+                    write_rectangle::<MODE>(out, place, z1, [xa, ya, xb, yb]);
                 }
                 start += n;
+            }
+        }
+    }
+}
+
+/// Writes depth `z1 + 1` into the colour pixels `xa..=xb` x `ya..=yb` (inside the colour image)
+/// of the rotated `out`, the nearest winning. With `MODE == BLOCKS` a rectangle up to
+/// [`KERNEL`] a side is one fixed block, without branches on its size: cells past the
+/// rectangle's edge repeat the edge cell (writing the same depth twice changes nothing); any
+/// other, with a loop sized to it.
+///
+/// Unturned (colour x along the output's rows) the block is written cell by cell: 4-value lines
+/// of neighbouring depth pixels would overlap shifted by a cell or two, and each load would wait
+/// on partly overlapping stores (`frame_handling` benchmark, 848x480 to 848x480 unturned: 2.38 ms
+/// cell by cell, 2.49 ms with lines). Turned 90° or 270° whole chunks go through [`LinePlan`].
+#[inline(always)]
+fn write_rectangle<const MODE: u8>(out: &mut [u16], place: Placement, z1: u16, [xa, ya, xb, yb]: [i32; 4]) {
+    let base = place.origin + xa as isize * place.step_x + ya as isize * place.step_y;
+    let (dx_max, dy_max) = ((xb - xa) as isize, (yb - ya) as isize);
+    if MODE == BLOCKS && dx_max < KERNEL as isize && dy_max < KERNEL as isize {
+        for dy in 0..KERNEL as isize {
+            let row_at = base + dy.min(dy_max) * place.step_y;
+            for dx in 0..KERNEL as isize {
+                let at = (row_at + dx.min(dx_max) * place.step_x) as usize;
+                nearest(out, at, z1);
+            }
+        }
+        return;
+    }
+    let mut row_at = base;
+    for _ in ya..=yb {
+        let mut at = row_at;
+        for _ in xa..=xb {
+            nearest(out, at as usize, z1);
+            at += place.step_x;
+        }
+        row_at += place.step_y;
+    }
+}
+
+/// One chunk's depths and the colour pixels of their footprints' corners.
+#[derive(Clone, Copy)]
+struct Corners<'a> {
+    raw: &'a [u16],
+    x0: &'a [i32],
+    y0: &'a [i32],
+    x1: &'a [i32],
+    y1: &'a [i32],
+}
+
+/// The block writes of one chunk, turned 90° or 270°: per depth pixel the output index of each
+/// of its `L` lines (a line: [`LANES`] values of one output row, colour y running along it, at
+/// one colour x of the rectangle) and the depth in the lanes the rectangle covers.
+///
+/// Worked out for the whole chunk in passes without branches (vectorised), then written: each
+/// pixel's lines are `L` load-min-store of [`LANES`] values, with no test on the rectangle's
+/// size. A pixel with nothing to write (no depth, off the colour image) is passed over; one
+/// whose rectangle does not fit the lines (wider than `L`, taller than [`LANES`], or lines past
+/// the ends of the output) is written afterwards by [`write_rectangle`]. The nearest-wins
+/// minimum does not depend on the order of the writes, so the image is the same.
+///
+/// Neighbouring depth pixels of a row differ in colour x: the lines two of them share are the
+/// same output values, and each load finds the previous store whole (store-to-load
+/// forwarding); unturned they would overlap shifted by a value or two.
+struct LinePlan<const L: usize> {
+    /// Output index of each line's first value, per line then per pixel.
+    at: [[i32; CHUNK]; L],
+    /// The rectangle's width - 1 (0 ..= L - 1).
+    width: [i32; CHUNK],
+    /// The depth written (`z - 1`; `u16::MAX` writes nothing).
+    z1: [i32; CHUNK],
+    /// The rectangle's height - 1 (0..=3): which lanes it covers.
+    height: [i32; CHUNK],
+    /// Whether the pixel is left to [`write_rectangle`] (non-zero).
+    apart: [i32; CHUNK],
+}
+
+impl<const L: usize> LinePlan<L> {
+    fn new() -> Self {
+        Self { at: [[0; CHUNK]; L], width: [0; CHUNK], z1: [0; CHUNK], height: [0; CHUNK], apart: [0; CHUNK] }
+    }
+
+    /// Writes one chunk's rectangles into `out` (at least [`LANES`] values, as
+    /// [`DepthToColour::align`] checks before choosing lines).
+    #[inline(always)]
+    fn write(&mut self, c: Corners, place: Placement, cw: u32, ch: u32, out: &mut [u16]) {
+        let n = c.raw.len();
+        // (Lets the compiler drop the bounds checks on the chunk's arrays.)
+        assert!(n <= CHUNK, "chunk of {n} depth pixels");
+        let (cw, ch) = (cw as i32, ch as i32);
+        // Output indices fit i32: the colour image has at most 2^30 pixels (`Lens::check`).
+        let (origin, step_x, step_y) = (place.origin as i32, place.step_x as i32, place.step_y as i32);
+        let (across, lane_offset) = (place.across_step as i32, place.lane_offset as i32);
+        let last_low = (out.len() - LANES) as u32;
+        // Every slice n long, so that the loops have no bounds checks and are vectorised.
+        let (raws, x0, y0, x1, y1) = (c.raw, &c.x0[..n], &c.y0[..n], &c.x1[..n], &c.y1[..n]);
+        let (first, widths) = (&mut self.at[0][..n], &mut self.width[..n]);
+        let (z1s, heights, aparts) = (&mut self.z1[..n], &mut self.height[..n], &mut self.apart[..n]);
+        for i in 0..n {
+            let raw = raws[i];
+            let (xa, xb) = (x0[i], x1[i]);
+            let reach = (raw != 0) & (xa != NOWHERE) & (xb != NOWHERE);
+            // Pixels of the rectangle outside the colour image are skipped, as by librealsense;
+            // the part inside is written.
+            let (xa, xb) = (xa.max(0), xb.min(cw - 1));
+            let (ya, yb) = (y0[i].max(0), y1[i].min(ch - 1));
+            let (dx, dy) = (xb.wrapping_sub(xa), yb.wrapping_sub(ya));
+            let some = reach & (dx >= 0) & (dy >= 0);
+            let fits = ((dx as u32) < L as u32) & ((dy as u32) < LANES as u32);
+            let low = origin
+                .wrapping_add(xa.wrapping_mul(step_x))
+                .wrapping_add(ya.wrapping_mul(step_y))
+                .wrapping_add(lane_offset);
+            // The lines lie between the first and the last (`across` apart).
+            let last = low.wrapping_add(dx.wrapping_mul(across));
+            let inside = ((low as u32) <= last_low) & ((last as u32) <= last_low);
+            let lined = some & fits & inside;
+            z1s[i] = if lined { i32::from(raw) - 1 } else { i32::from(u16::MAX) };
+            heights[i] = dy & 3;
+            first[i] = if lined { low } else { 0 };
+            widths[i] = if lined { dx } else { 0 };
+            aparts[i] = i32::from(some & !lined);
+        }
+        // Line j at colour x `xa + min(j, width - 1)`: the last repeats where the rectangle is
+        // narrower than L (writing the same depth twice changes nothing).
+        let widths = &self.width[..n];
+        let (head, tail) = self.at.split_at_mut(1);
+        let first = &head[0][..n];
+        for (j, line) in (1..).zip(tail) {
+            let line = &mut line[..n];
+            for i in 0..n {
+                line[i] = first[i].wrapping_add(widths[i].min(j).wrapping_mul(across));
+            }
+        }
+        // Lanes covered (0) per rectangle height, with the line running forwards from the
+        // rectangle's first cell or backwards to it.
+        const FORWARD: [[u16; LANES]; LANES] = [[0, !0, !0, !0], [0, 0, !0, !0], [0, 0, 0, !0], [0; LANES]];
+        const BACKWARD: [[u16; LANES]; LANES] = [[!0, !0, !0, 0], [!0, !0, 0, 0], [!0, 0, 0, 0], [0; LANES]];
+        let masks = if place.along_step > 0 { &FORWARD } else { &BACKWARD };
+        for i in 0..n {
+            let z1 = self.z1[i] as u16;
+            if z1 == u16::MAX {
+                continue;
+            }
+            let z = masks[(self.height[i] & 3) as usize].map(|m| z1 | m);
+            for at in &self.at {
+                // 0 <= at[i] <= out.len() - LANES: checked above (or 0).
+                nearest_lanes(out, at[i] as usize, z);
+            }
+        }
+        for i in 0..n {
+            if self.apart[i] != 0 {
+                let clamp = |lo: i32, hi: i32, max: i32| (lo.max(0), hi.min(max - 1));
+                let (xa, xb) = clamp(c.x0[i], c.x1[i], cw);
+                let (ya, yb) = clamp(c.y0[i], c.y1[i], ch);
+                write_rectangle::<RECTANGLES>(out, place, c.raw[i] - 1, [xa, ya, xb, yb]);
             }
         }
     }
@@ -661,18 +799,6 @@ impl DepthToColour {
 /// Values per lane-wise write of [`nearest_lanes`]: one more than [`KERNEL`], so that a block's
 /// line is one 8-byte load and store.
 const LANES: usize = KERNEL + 1;
-
-/// The depths [`nearest_lanes`] writes along one of a block's lines: `z1` in the `along + 1`
-/// lanes the rectangle covers, `u16::MAX` (which leaves a cell unchanged: `min(out - 1, MAX) + 1` wraps back to `out`) in the others. With
-/// `step` 1 the line starts at the rectangle's first cell; with -1 it ends there, its lanes
-/// reversed.
-#[inline(always)]
-fn lanes(z1: u16, along: usize, step: isize) -> [u16; LANES] {
-    const FORWARD: [[u16; LANES]; KERNEL] = [[0, !0, !0, !0], [0, 0, !0, !0], [0, 0, 0, !0]];
-    const BACKWARD: [[u16; LANES]; KERNEL] = [[!0, !0, !0, 0], [!0, !0, 0, 0], [!0, 0, 0, 0]];
-    let mask = if step > 0 { FORWARD[along] } else { BACKWARD[along] };
-    mask.map(|m| z1 | m)
-}
 
 /// [`nearest`] on the `LANES` consecutive values from `low`, each with its own depth (a lane
 /// with `u16::MAX` keeps its value: `min(out - 1, MAX) + 1 = out`). Vectorised by the compiler.
@@ -944,6 +1070,53 @@ mod tests {
         let colour = Lens { model: Distortion::InverseBrownConrady, coeffs: [0.1, 0.0, 0.0, 0.0, 0.0], ..lens };
         let align = DepthToColour::new(lens, colour, Extrinsics::IDENTITY, MM).unwrap();
         assert_eq!(align.ignored_coefficients(), [("colour", Distortion::InverseBrownConrady)]);
+    }
+
+    #[test]
+    fn turned_lines_write_what_the_sized_loop_writes() {
+        // The D435i's 848x480 depth to 848x480 colour (1.43 colour pixels per depth pixel): 3
+        // lines; to 1280x720 (2.16): 4 lines; and 1280x720 held to 3 lines, so that every
+        // rectangle 4 wide is left to the sized loop. The depth's field of view is the wider:
+        // rectangles reach the colour image's corners, where lines would run past the ends of
+        // the output (left to the sized loop too). A near box over a slanted wall, holes, and a
+        // yawed, shifted colour camera (parallax, occlusion, shadows).
+        let depth_lens = Lens::pinhole(848, 480, 421.0, 421.0, 422.75, 239.75);
+        let colour = |w: u32, h: u32| {
+            let f = 910.0 * w as f32 / 1280.0;
+            Lens::pinhole(w, h, f, f, (w as f32 - 1.0) / 2.0 + 0.4, (h as f32 - 1.0) / 2.0 - 0.3)
+        };
+        let extrinsics = Extrinsics {
+            rotation: {
+                let (s, c) = 0.4f32.to_radians().sin_cos();
+                [c, 0.0, -s, 0.0, 1.0, 0.0, s, 0.0, c]
+            },
+            translation_m: [0.015, 0.0003, -0.0002],
+        };
+        let depth: Vec<u16> = (0..848 * 480)
+            .map(|i: usize| {
+                let (u, v) = (i % 848, i / 848);
+                if (7 * u + 3 * v) % 53 == 0 {
+                    0
+                } else if (300..510).contains(&u) && (140..340).contains(&v) {
+                    3600 + (i * 7919 % 97) as u16
+                } else {
+                    8000 + (u * 4) as u16 + (i * 104_729 % 31) as u16
+                }
+            })
+            .collect();
+        let narrow = DepthToColour::new(depth_lens, colour(848, 480), extrinsics, 0.00025).unwrap();
+        let wide = DepthToColour::new(depth_lens, colour(1280, 720), extrinsics, 0.00025).unwrap();
+        assert!(narrow.blocks && !narrow.wide && wide.blocks && wide.wide);
+        let held = DepthToColour { wide: false, ..wide.clone() };
+        for (name, lines) in [("848x480, 3 lines", narrow), ("1280x720, 4 lines", wide), ("1280x720, 3 lines", held)] {
+            let loops = DepthToColour { blocks: false, ..lines.clone() };
+            for rotation in [Rotation::Cw90, Rotation::Cw270] {
+                let want = run(&loops, &depth, rotation);
+                assert!(want.iter().filter(|&&z| z != 0).count() > want.len() * 9 / 10, "{name} {rotation:?}");
+                assert!(want[..4].iter().chain(&want[want.len() - 4..]).all(|&z| z != 0), "corners {name}");
+                assert_eq!(run(&lines, &depth, rotation), want, "{name} {rotation:?}");
+            }
+        }
     }
 
     #[test]
