@@ -733,8 +733,9 @@ impl<const L: usize> LinePlan<L> {
         let last_low = (out.len() - LANES) as u32;
         // Every slice n long, so that the loops have no bounds checks and are vectorised.
         let (raws, x0, y0, x1, y1) = (c.raw, &c.x0[..n], &c.y0[..n], &c.x1[..n], &c.y1[..n]);
-        // A chunk none of whose rectangles can reach into the colour image (depth rows above or
-        // below it, columns beside it: about half of the D435i's depth pixels) writes nothing.
+        // A chunk none of whose rectangles can reach into the colour image writes nothing: the
+        // D435i's depth sees wider and taller than its colour, so the depth rows above and below
+        // the colour image and the columns beside it are passed over after the projection.
         let reaches = (0..n).fold(false, |reaches, i| {
             reaches | ((raws[i] != 0) & (x1[i] >= 0) & (x0[i] < cw) & (y1[i] >= 0) & (y0[i] < ch))
         });
