@@ -39,7 +39,7 @@ use op3dsg_drivers::pose::Isometry;
 use op3dsg_drivers::source::{FrameSource, SourceError, SourceStatus, StampClock};
 use realsense_rust::config::Config;
 use realsense_rust::context::Context;
-use realsense_rust::frame::{ColorFrame, CompositeFrame, DepthFrame, FrameEx, GyroFrame};
+use realsense_rust::frame::{ColorFrame, CompositeFrame, DepthFrame, FrameCategory, FrameEx, GyroFrame};
 use realsense_rust::kind::{Rs2CameraInfo, Rs2Format, Rs2FrameMetadata, Rs2Option, Rs2StreamKind, Rs2TimestampDomain};
 use realsense_rust::pipeline::{ActivePipeline, InactivePipeline};
 use realsense_rust::processing_blocks::align::Align;
@@ -722,8 +722,9 @@ impl RealsenseSource {
 
     fn fill(&mut self, set: CompositeFrame, frame: &mut Frame) -> Result<SourceStatus, SourceError> {
         // (The source's name is made only for messages: no allocation per frame for it.)
-        let depth = set.frames_of_type::<DepthFrame>().into_iter().next();
-        let colour = set.frames_of_type::<ColorFrame>().into_iter().next();
+        let set = FrameSet::new(set);
+        let depth = set.first::<DepthFrame>();
+        let colour = set.first::<ColorFrame>();
         let (Some(depth), Some(colour)) = (depth, colour) else {
             return Err(device_err(format!("{}: frame set without depth and colour", self.name())));
         };
@@ -732,7 +733,7 @@ impl RealsenseSource {
         if !self.received_any {
             self.received_any = true;
             if (self.bag.is_some() || self.imu.is_some())
-                && let Some(first) = set.frames_of_type::<DepthFrame>().into_iter().next()
+                && let Some(first) = set.first::<DepthFrame>()
             {
                 match DeviceHandle::from_frame(first) {
                     Ok(device) => {
@@ -837,6 +838,62 @@ impl RealsenseSource {
         self.seq += 1;
         self.delivered_any = true;
         Ok(SourceStatus::Frame)
+    }
+}
+
+/// A frame set (depth and colour), its frames looked up without the `Vec` realsense-rust's
+/// `CompositeFrame::frames_of_type` allocates on each call: no allocation per frame.
+struct FrameSet(NonNull<sys::rs2_frame>);
+
+impl FrameSet {
+    fn new(set: CompositeFrame) -> Self {
+        // SAFETY: the wrapper hands over its reference to the set; `Drop` releases it.
+        Self(unsafe { set.get_owned_raw() })
+    }
+
+    /// The set's first frame of type `F`, as `frames_of_type::<F>().into_iter().next()`.
+    fn first<F: TryFrom<NonNull<sys::rs2_frame>> + FrameCategory>(&self) -> Option<F> {
+        // SAFETY: the set pointer lives as long as `self`; each extracted frame holds its own
+        // reference, handed to the `F` made from it or released here; every call checks `err`.
+        unsafe {
+            let mut err = std::ptr::null_mut::<sys::rs2_error>();
+            let count = sys::rs2_embedded_frames_count(self.0.as_ptr(), &mut err);
+            if !err.is_null() {
+                sys::rs2_free_error(err);
+                return None;
+            }
+            for i in 0..count {
+                let raw = sys::rs2_extract_frame(self.0.as_ptr(), i, &mut err);
+                if !err.is_null() {
+                    sys::rs2_free_error(err);
+                    err = std::ptr::null_mut();
+                    continue;
+                }
+                let Some(raw) = NonNull::new(raw) else { continue };
+                let extendable = sys::rs2_is_frame_extendable_to(raw.as_ptr(), F::extension() as _, &mut err);
+                if !err.is_null() {
+                    sys::rs2_free_error(err);
+                    err = std::ptr::null_mut();
+                } else if extendable != 0 {
+                    // On success the frame owns the reference (and releases it when dropped).
+                    if let Ok(f) = F::try_from(raw) {
+                        if F::kind() == Rs2StreamKind::Any || f.has_correct_kind() {
+                            return Some(f);
+                        }
+                        continue;
+                    }
+                }
+                sys::rs2_release_frame(raw.as_ptr());
+            }
+            None
+        }
+    }
+}
+
+impl Drop for FrameSet {
+    fn drop(&mut self) {
+        // SAFETY: the reference taken in `new`, released once.
+        unsafe { sys::rs2_release_frame(self.0.as_ptr()) }
     }
 }
 

@@ -20,6 +20,57 @@ use op3dsg_realsense::config::AlignMode;
 use op3dsg_realsense::imu::{ImuSample, MotionKind};
 use op3dsg_realsense::rotate::Rotation;
 
+/// Counts the allocations each thread makes (for the no-allocation-per-frame test); the system
+/// allocator does the work.
+#[allow(unsafe_code)] // A global allocator is an unsafe trait.
+mod counting {
+    use std::alloc::{GlobalAlloc, Layout, System};
+    use std::cell::Cell;
+
+    thread_local! {
+        static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
+    }
+
+    /// Allocations (and reallocations) made on this thread so far.
+    pub fn on_this_thread() -> u64 {
+        ALLOCATIONS.with(Cell::get)
+    }
+
+    fn count() {
+        // (`try_with`: a thread's last frees can come after its thread-locals are gone.)
+        let _ = ALLOCATIONS.try_with(|n| n.set(n.get() + 1));
+    }
+
+    pub struct Counting;
+
+    // SAFETY: every call goes to the system allocator unchanged; counting touches no memory of
+    // the caller's.
+    unsafe impl GlobalAlloc for Counting {
+        unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+            count();
+            // SAFETY: the caller's layout, passed on.
+            unsafe { System.alloc(layout) }
+        }
+        unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+            count();
+            // SAFETY: as above.
+            unsafe { System.alloc_zeroed(layout) }
+        }
+        unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+            count();
+            // SAFETY: a block of this allocator (the system's), as the caller guarantees.
+            unsafe { System.realloc(ptr, layout, new_size) }
+        }
+        unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+            // SAFETY: as above.
+            unsafe { System.dealloc(ptr, layout) }
+        }
+    }
+
+    #[global_allocator]
+    static GLOBAL: Counting = Counting;
+}
+
 const W: u32 = 80;
 const H: u32 = 60;
 const FRAMES: usize = 10;
@@ -218,6 +269,36 @@ fn playback_delivers_the_recorded_frames_exactly() {
     }
     // Stamps strictly increase.
     assert!(frames.windows(2).all(|w| w[0].stamp_ns < w[1].stamp_ns));
+}
+
+#[test]
+fn frames_come_from_the_driver_into_the_pooled_frame_without_allocating() {
+    let _one = one_at_a_time();
+    let rec = record(FRAMES);
+    for align in [AlignMode::Op3dsg, AlignMode::Librealsense] {
+        let mut source = RealsenseSource::open(&config_aligned_by(&rec, align, Rotation::Cw90), None).expect("open");
+        let mut frame = Frame::new(source.intrinsics());
+        let (mut delivered, mut counted, mut allocations) = (0, 0, 0);
+        loop {
+            let before = counting::on_this_thread();
+            let status = source.next_frame(&mut frame).expect("next_frame");
+            let made = counting::on_this_thread() - before;
+            match status {
+                // The first frame sets set up playback pacing (and warn once where they must).
+                SourceStatus::Frame if delivered >= 2 => {
+                    counted += 1;
+                    allocations += made;
+                }
+                SourceStatus::Frame => {}
+                // Passed-over sets and the end of the file are not frames.
+                SourceStatus::Pending => continue,
+                SourceStatus::EndOfStream => break,
+            }
+            delivered += 1;
+        }
+        assert!(counted >= FRAMES / 2, "{align:?}: only {counted} frames after the first two");
+        assert_eq!(allocations, 0, "{align:?}: {allocations} allocations in {counted} frames on the reading thread");
+    }
 }
 
 #[test]
