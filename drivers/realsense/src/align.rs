@@ -736,10 +736,13 @@ impl<const L: usize> LinePlan<L> {
         // A chunk none of whose rectangles can reach into the colour image writes nothing: the
         // D435i's depth sees wider and taller than its colour, so the depth rows above and below
         // the colour image and the columns beside it are passed over after the projection.
-        let reaches = (0..n).fold(false, |reaches, i| {
-            reaches | ((raws[i] != 0) & (x1[i] >= 0) & (x0[i] < cw) & (y1[i] >= 0) & (y0[i] < ch))
-        });
-        if !reaches {
+        // (Counted rather than `any`: a count is vectorised, the early exit of `any` is not.)
+        let reaching: i32 = (raws.iter().zip(x0).zip(x1).zip(y0).zip(y1))
+            .map(|((((&raw, &xa), &xb), &ya), &yb)| {
+                i32::from((raw != 0) & (xb >= 0) & (xa < cw) & (yb >= 0) & (ya < ch))
+            })
+            .sum();
+        if reaching == 0 {
             return;
         }
         let (first, widths) = (&mut self.at[0][..n], &mut self.width[..n]);
@@ -795,6 +798,10 @@ impl<const L: usize> LinePlan<L> {
                 // 0 <= at[i] <= out.len() - LANES: checked above (or 0).
                 nearest_lanes(out, at[i] as usize, z);
             }
+        }
+        // Most chunks leave nothing to the sized loop: one vectorised test instead of a scan.
+        if self.apart[..n].iter().fold(0, |any, &apart| any | apart) == 0 {
+            return;
         }
         for i in 0..n {
             if self.apart[i] != 0 {
