@@ -194,6 +194,19 @@ struct Rays {
     row: Vec<[f32; 3]>,
     /// Corners per table row: `width + 1` with a full table, 0 when separable.
     full_stride: usize,
+    /// Per depth row, then per chunk of [`CHUNK`] pixels: the range of the rays through the
+    /// corners of its pixels (both corners of each), for [`Projection::misses`].
+    boxes: Vec<RayBox>,
+    /// Chunks per depth row.
+    chunks: usize,
+}
+
+/// The smallest and the largest of each component (x, y, z) of a set of rays, as the
+/// projection sums them (`f32`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct RayBox {
+    lo: [f32; 3],
+    hi: [f32; 3],
 }
 
 impl Rays {
@@ -204,7 +217,15 @@ impl Rays {
         let y_n = |v: usize| (v as f32 - 0.5 - depth.ppy) / depth.fy;
         let c = depth.coeffs;
         let full = depth.model == Distortion::InverseBrownConrady && depth.has_coefficients();
-        let mut rays = Self { x: Vec::new(), y: Vec::new(), z: Vec::new(), row: Vec::new(), full_stride: 0 };
+        let mut rays = Self {
+            x: Vec::new(),
+            y: Vec::new(),
+            z: Vec::new(),
+            row: Vec::new(),
+            full_stride: 0,
+            boxes: Vec::new(),
+            chunks: w.div_ceil(CHUNK),
+        };
         let mut push = |r: [f64; 3]| {
             rays.x.push(r[0] as f32);
             rays.y.push(r[1] as f32);
@@ -229,6 +250,25 @@ impl Rays {
             }
             rays.row =
                 (0..=h).map(|v| extrinsics.apply_rotation([0.0, f64::from(y_n(v)), 1.0]).map(|c| c as f32)).collect();
+        }
+        // Pixel u of a chunk starting at `start` has its corners on columns u and u + 1, rows v
+        // and v + 1.
+        for v in 0..h {
+            for start in (0..w).step_by(CHUNK) {
+                let columns = start..=(start + CHUNK).min(w);
+                let mut b = RayBox { lo: [f32::INFINITY; 3], hi: [f32::NEG_INFINITY; 3] };
+                for r in [v, v + 1] {
+                    for at in columns.clone().map(|u| rays.row_start(r) + u) {
+                        let ray =
+                            [rays.x[at] + rays.row[r][0], rays.y[at] + rays.row[r][1], rays.z[at] + rays.row[r][2]];
+                        for (c, r) in ray.into_iter().enumerate() {
+                            b.lo[c] = b.lo[c].min(r);
+                            b.hi[c] = b.hi[c].max(r);
+                        }
+                    }
+                }
+                rays.boxes.push(b);
+            }
         }
         rays
     }
@@ -334,6 +374,53 @@ impl Projection {
     }
 }
 
+impl Projection {
+    /// Whether no corner on the rays of `b` at a depth from `near` to `far` metres (above 0)
+    /// lands on a `cw` x `ch` colour image, with a pixel to spare: every such corner is in front
+    /// of the camera and left, right, above or below the image by more than a pixel, or behind it
+    /// (projected nowhere). A rectilinear colour lens only (the test is on the pinhole
+    /// projection).
+    ///
+    /// A corner at `p = d * r + t` (`p_z > 0`) lands left of colour column `c` when
+    /// `(p_x / p_z) * fx + ppx + 0.5 < c`, that is when `g = fx * p_x + (ppx + 0.5 - c) * p_z < 0`.
+    /// `g` is linear in each of `r_x`, `r_z` and `d` with the others held, so over the box of
+    /// rays and the depth range it is largest at a corner of the box: the ray component of the
+    /// larger `g` (`r_x` high, `r_z` by the sign of its factor) at either end of the depth
+    /// range. The same holds for the other three sides. Computed in `f64`, with a slack for the
+    /// rounding of the projection's `f32`.
+    fn misses(&self, b: &RayBox, near: f32, far: f32, cw: u32, ch: u32) -> bool {
+        let t = self.t.map(f64::from);
+        let (lo, hi) = (b.lo.map(f64::from), b.hi.map(f64::from));
+        let depths = [f64::from(near), f64::from(far)];
+        // The largest of `f * p_a + k * p_z` over the box (`a`: 0 for x, 1 for y).
+        // The projection's f32 error on `g`, bounded well above: a few roundings of each term's
+        // magnitude. (It matters only for corners nearly at the colour camera's centre, where
+        // the spare pixel, scaled by `p_z`, vanishes.)
+        let size = lo.iter().chain(&hi).fold(0.0f64, |m, r| m.max(r.abs())) * f64::from(far)
+            + t.iter().fold(0.0f64, |m, t| m.max(t.abs()));
+        let slack = |f: f64, k: f64| 1e-5 * (f.abs() + k.abs()) * size;
+        let largest = |a: usize, f: f64, k: f64| {
+            let rz = if k > 0.0 { hi[2] } else { lo[2] };
+            let g = depths.map(|d| f * (d * hi[a] + t[a]) + k * (d * rz + t[2]));
+            g[0].max(g[1]) + slack(f, k)
+        };
+        let smallest = |a: usize, f: f64, k: f64| {
+            let rz = if k > 0.0 { lo[2] } else { hi[2] };
+            let g = depths.map(|d| f * (d * lo[a] + t[a]) + k * (d * rz + t[2]));
+            g[0].min(g[1]) - slack(f, k)
+        };
+        let (fx, fy) = (f64::from(self.fx), f64::from(self.fy));
+        let (cx, cy) = (f64::from(self.ppx) + 0.5, f64::from(self.ppy) + 0.5);
+        // Left of column -1.5 (rounded, -2 or less), right of cw + 0.5 (cw + 1 or more).
+        let (left, right) = (-1.5, f64::from(cw) + 0.5);
+        let (above, below) = (-1.5, f64::from(ch) + 0.5);
+        largest(0, fx, cx - left) < 0.0
+            || smallest(0, fx, cx - right) > 0.0
+            || largest(1, fy, cy - above) < 0.0
+            || smallest(1, fy, cy - below) > 0.0
+    }
+}
+
 /// Where colour pixel `(x, y)` goes in the rotated output: `origin + x * step_x + y * step_y`.
 #[derive(Debug, Clone, Copy)]
 struct Placement {
@@ -387,6 +474,9 @@ pub struct DepthToColour {
     wide: bool,
     projection: Projection,
     distort: bool,
+    /// Whether chunks of depth whose corners cannot land on the colour image are passed over
+    /// before the projection (always, but for the tests that compare with the full projection).
+    skips: bool,
 }
 
 impl DepthToColour {
@@ -437,6 +527,7 @@ impl DepthToColour {
                 coeffs: colour.coeffs,
             },
             distort,
+            skips: true,
         })
     }
 
@@ -568,6 +659,25 @@ impl DepthToColour {
                 let raw = &mut raw[..n];
                 for (r, px) in raw.iter_mut().zip(row[start * 2..(start + n) * 2].chunks_exact(2)) {
                     *r = u16::from_le_bytes([px[0], px[1]]);
+                }
+                // The chunk's nearest and farthest depth (0, no depth, as the farthest: it
+                // writes nothing). With none, or when no corner at those depths can land on the
+                // colour image, the chunk writes nothing and is passed over before the
+                // projection: the D435i's depth sees wider and taller than its colour, by about
+                // a third of its rows and a quarter of its columns.
+                let nearest_raw = raw.iter().fold(u16::MAX, |m, &z| m.min(z.wrapping_sub(1))).wrapping_add(1);
+                if nearest_raw == 0 {
+                    start += n;
+                    continue;
+                }
+                if !DISTORT && self.skips {
+                    let farthest_raw = raw.iter().fold(0, |m, &z| m.max(z));
+                    let mpu = self.projection.metres_per_unit;
+                    let (near, far) = (f32::from(nearest_raw) * mpu, f32::from(farthest_raw) * mpu);
+                    if self.projection.misses(&rays.boxes[v * rays.chunks + start / CHUNK], near, far, cw, ch) {
+                        start += n;
+                        continue;
+                    }
                 }
                 self.projection.corners::<DISTORT>(rays, top + start, rays.row[v], raw, &mut x0, &mut y0);
                 if MODE != PIXELS {
@@ -1172,5 +1282,158 @@ mod tests {
         assert!(same.maps_rectangles() && same.blocks);
         let near_one = DepthToColour::new(d435i, colour(463.0), translation(0.015), MM).unwrap();
         assert!(near_one.maps_rectangles() && !near_one.blocks);
+    }
+
+    /// A rotation by `yaw` about y then `pitch` about x (degrees).
+    fn turned(yaw: f32, pitch: f32, translation_m: [f32; 3]) -> Extrinsics {
+        let (sy, cy) = yaw.to_radians().sin_cos();
+        let (sp, cp) = pitch.to_radians().sin_cos();
+        let about_y = [[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]];
+        let about_x = [[1.0, 0.0, 0.0], [0.0, cp, -sp], [0.0, sp, cp]];
+        let mut rotation = [0.0; 9];
+        for i in 0..3 {
+            for j in 0..3 {
+                rotation[3 * i + j] = (0..3).map(|k| about_x[i][k] * about_y[k][j]).sum();
+            }
+        }
+        Extrinsics { rotation, translation_m }
+    }
+
+    /// Depth with holes, rows and whole chunks without any, a near box and a far slanted wall,
+    /// from a seeded generator (splitmix64).
+    fn scattered_depth(lens: &Lens, near: u16, far: u16, seed: u64) -> Vec<u16> {
+        let mut state = seed;
+        let mut next = move || {
+            state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = state;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            z ^ (z >> 31)
+        };
+        let (w, h) = (lens.width as usize, lens.height as usize);
+        (0..w * h)
+            .map(|i| {
+                let (u, v) = (i % w, i / w);
+                let spread = u64::from(far - near) + 1;
+                if v % 11 == 5 || (v % 7 == 2 && u < CHUNK) || next() % 10 == 0 {
+                    0
+                } else if (w / 3..w / 2).contains(&u) && (h / 4..h / 2).contains(&v) {
+                    near + (next() % (spread / 8 + 1)) as u16
+                } else {
+                    near + (spread * u as u64 / w as u64) as u16 / 2 + (next() % (spread / 2)) as u16
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn passing_over_chunks_that_miss_the_colour_image_changes_nothing() {
+        // Calibrations where much of the depth falls outside the colour image, and where little
+        // does: the D435i's (depth wider and taller than colour), a colour camera turned 25° and
+        // 10° and 30 cm away, one 1 m in front of the depth camera (points behind it), a wider
+        // colour camera, and a distorting depth lens (full ray tables). Each aligned with and
+        // without the pass-over, all four rotations: the same image.
+        let d435i = Lens::pinhole(848, 480, 421.0, 421.0, 422.75, 239.75);
+        let small = Lens::pinhole(160, 96, 80.0, 80.0, 79.5, 47.5);
+        let colour = |w: u32, h: u32, f: f32| {
+            Lens::pinhole(w, h, f, f, (w as f32 - 1.0) / 2.0 + 0.4, (h as f32 - 1.0) / 2.0 - 0.3)
+        };
+        let distorting =
+            Lens { model: Distortion::InverseBrownConrady, coeffs: [0.08, -0.02, 0.001, -0.002, 0.0], ..small };
+        let cases = [
+            ("D435i 1280x720", d435i, colour(1280, 720, 910.0), turned(0.4, 0.0, [0.015, 0.0003, -0.0002]), 300, 9000),
+            ("D435i 848x480", d435i, colour(848, 480, 603.0), turned(0.4, 0.0, [0.015, 0.0003, -0.0002]), 300, 9000),
+            ("turned, 30 cm", small, colour(200, 150, 220.0), turned(25.0, 10.0, [0.3, -0.1, 0.05]), 200, 2500),
+            ("colour 1 m ahead", small, colour(120, 90, 100.0), turned(0.0, 0.0, [0.0, 0.0, -1.0]), 400, 4000),
+            ("wider colour", small, colour(160, 96, 40.0), turned(-3.0, 2.0, [0.05, 0.0, 0.0]), 300, 6000),
+            ("distorting depth", distorting, colour(320, 240, 400.0), turned(15.0, -5.0, [-0.1, 0.02, 0.0]), 250, 3000),
+        ];
+        let mut passed_over = 0;
+        for (seed, (name, depth_lens, colour_lens, extrinsics, near, far)) in cases.into_iter().enumerate() {
+            let skipping = DepthToColour::new(depth_lens, colour_lens, extrinsics, MM).unwrap();
+            assert!(skipping.skips);
+            let depth = scattered_depth(&depth_lens, near, far, seed as u64);
+            let (w, h) = (depth_lens.width as usize, depth_lens.height as usize);
+            for v in 0..h {
+                for start in (0..w).step_by(CHUNK) {
+                    let raw = &depth[v * w + start..v * w + (start + CHUNK).min(w)];
+                    let (nearest, farthest) = (raw.iter().filter(|&&z| z != 0).min(), raw.iter().max());
+                    if let (Some(&nearest), Some(&farthest)) = (nearest, farthest) {
+                        let b = &skipping.rays.boxes[v * skipping.rays.chunks + start / CHUNK];
+                        let [cw, ch] = [colour_lens.width, colour_lens.height];
+                        let (near_m, far_m) = (f32::from(nearest) * MM, f32::from(farthest) * MM);
+                        passed_over += usize::from(skipping.projection.misses(b, near_m, far_m, cw, ch));
+                    }
+                }
+            }
+            let full = DepthToColour { skips: false, ..skipping.clone() };
+            for rotation in [Rotation::None, Rotation::Cw90, Rotation::Cw180, Rotation::Cw270] {
+                let want = run(&full, &depth, rotation);
+                assert!(want.iter().any(|&z| z != 0), "{name} {rotation:?}");
+                assert_eq!(run(&skipping, &depth, rotation), want, "{name} {rotation:?}");
+            }
+        }
+        // The D435i's rows above and below the colour image, and its chunks left and right.
+        assert!(passed_over > 480 * 7 / 4, "{passed_over} chunks passed over");
+    }
+
+    #[test]
+    fn a_chunk_said_to_miss_has_no_corner_on_the_colour_image() {
+        // Every chunk's corner rays at depths across its range (its ends included), projected
+        // as the align projects them: none of a chunk that misses lands on the image or the
+        // pixel around it. The depth lens sees far wider and taller than the colour one (5
+        // chunks a row across 158°); the colour camera, shifted, is turned in small steps so
+        // that chunk edges sweep across all four edges of its image and barely miss.
+        let depth_lens = Lens::pinhole(640, 48, 60.0, 60.0, 319.5, 23.5);
+        let colour_lens = Lens::pinhole(96, 64, 110.0, 110.0, 47.3, 31.8);
+        let (cw, ch) = (colour_lens.width, colour_lens.height);
+        let mut tried = [0usize; 2];
+        let mut sides = [false; 4];
+        for step in 0..48 {
+            let (yaw, pitch) = (-70.0 + 2.93 * step as f32, -9.0 + 0.41 * step as f32);
+            let extrinsics = turned(yaw, pitch, [0.04 - 0.002 * step as f32, 0.01, -0.03]);
+            let align = DepthToColour::new(depth_lens, colour_lens, extrinsics, MM).unwrap();
+            let (rays, p) = (&align.rays, &align.projection);
+            let (mut x, mut y) = ([0i32; CHUNK], [0i32; CHUNK]);
+            for v in 0..48 {
+                for start in (0..640).step_by(CHUNK) {
+                    for (near, far) in [(300u16, 320u16), (500, 4000), (1200, 1200), (120, 9000)] {
+                        let b = &rays.boxes[v * rays.chunks + start / CHUNK];
+                        let misses = p.misses(b, f32::from(near) * MM, f32::from(far) * MM, cw, ch);
+                        tried[usize::from(misses)] += 1;
+                        if !misses {
+                            continue;
+                        }
+                        let steps = 9u16.min(far - near + 1);
+                        for i in 0..steps {
+                            let z =
+                                near + ((u32::from(far - near) * u32::from(i)) / u32::from((steps - 1).max(1))) as u16;
+                            let raw = [z; CHUNK];
+                            for (r, at) in [(v, rays.row_start(v) + start), (v + 1, rays.row_start(v + 1) + start + 1)]
+                            {
+                                p.corners::<false>(rays, at, rays.row[r], &raw, &mut x, &mut y);
+                                for (&x, &y) in x.iter().zip(&y).filter(|&(&x, _)| x != NOWHERE) {
+                                    let on = (-1..=cw as i32).contains(&x) && (-1..=ch as i32).contains(&y);
+                                    assert!(!on, "turn {step} row {v} chunk {start} depth {z}: corner at ({x}, {y})");
+                                    // Within 4 pixels of a side of the image: a near miss there.
+                                    let (w, h) = (cw as i32, ch as i32);
+                                    let near_side = [
+                                        (-5..0).contains(&x),
+                                        (w + 1..=w + 5).contains(&x),
+                                        (-5..0).contains(&y),
+                                        (h + 1..=h + 5).contains(&y),
+                                    ];
+                                    for (seen, near_side) in sides.iter_mut().zip(near_side) {
+                                        *seen |= near_side;
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert!(tried[0] > 1000 && tried[1] > 1000, "hits and misses: {tried:?}");
+        assert_eq!(sides, [true; 4], "near misses left, right, above, below");
     }
 }
