@@ -392,13 +392,14 @@ impl Projection {
         let t = self.t.map(f64::from);
         let (lo, hi) = (b.lo.map(f64::from), b.hi.map(f64::from));
         let depths = [f64::from(near), f64::from(far)];
-        // The largest of `f * p_a + k * p_z` over the box (`a`: 0 for x, 1 for y).
         // The projection's f32 error on `g`, bounded well above: a few roundings of each term's
         // magnitude. (It matters only for corners nearly at the colour camera's centre, where
         // the spare pixel, scaled by `p_z`, vanishes.)
         let size = lo.iter().chain(&hi).fold(0.0f64, |m, r| m.max(r.abs())) * f64::from(far)
             + t.iter().fold(0.0f64, |m, t| m.max(t.abs()));
         let slack = |f: f64, k: f64| 1e-5 * (f.abs() + k.abs()) * size;
+        // The largest and the smallest of `f * p_a + k * p_z` over the box (`a`: 0 for x, 1 for
+        // y), the slack added or taken away.
         let largest = |a: usize, f: f64, k: f64| {
             let rz = if k > 0.0 { hi[2] } else { lo[2] };
             let g = depths.map(|d| f * (d * hi[a] + t[a]) + k * (d * rz + t[2]));
@@ -1300,16 +1301,11 @@ mod tests {
     }
 
     /// Depth with holes, rows and whole chunks without any, a near box and a far slanted wall,
-    /// from a seeded generator (splitmix64).
+    /// from a seeded generator.
     fn scattered_depth(lens: &Lens, near: u16, far: u16, seed: u64) -> Vec<u16> {
-        let mut state = seed;
-        let mut next = move || {
-            state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = state;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            z ^ (z >> 31)
-        };
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let mut next = move || rng.random::<u64>();
         let (w, h) = (lens.width as usize, lens.height as usize);
         (0..w * h)
             .map(|i| {
