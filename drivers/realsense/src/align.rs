@@ -203,7 +203,7 @@ struct Rays {
 
 /// The smallest and the largest of each component (x, y, z) of a set of rays, as the
 /// projection sums them (`f32`).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy)]
 struct RayBox {
     lo: [f32; 3],
     hi: [f32; 3],
@@ -276,6 +276,11 @@ impl Rays {
     /// Where row `v`'s corners start in the column tables.
     fn row_start(&self, v: usize) -> usize {
         v * self.full_stride
+    }
+
+    /// The range of the corner rays of depth row `v`'s chunk starting at column `start`.
+    fn chunk_box(&self, v: usize, start: usize) -> &RayBox {
+        &self.boxes[v * self.chunks + start / CHUNK]
     }
 }
 
@@ -675,7 +680,7 @@ impl DepthToColour {
                     let farthest_raw = raw.iter().fold(0, |m, &z| m.max(z));
                     let mpu = self.projection.metres_per_unit;
                     let (near, far) = (f32::from(nearest_raw) * mpu, f32::from(farthest_raw) * mpu);
-                    if self.projection.misses(&rays.boxes[v * rays.chunks + start / CHUNK], near, far, cw, ch) {
+                    if self.projection.misses(rays.chunk_box(v, start), near, far, cw, ch) {
                         start += n;
                         continue;
                     }
@@ -1355,7 +1360,7 @@ mod tests {
                     let raw = &depth[v * w + start..v * w + (start + CHUNK).min(w)];
                     let (nearest, farthest) = (raw.iter().filter(|&&z| z != 0).min(), raw.iter().max());
                     if let (Some(&nearest), Some(&farthest)) = (nearest, farthest) {
-                        let b = &skipping.rays.boxes[v * skipping.rays.chunks + start / CHUNK];
+                        let b = skipping.rays.chunk_box(v, start);
                         let [cw, ch] = [colour_lens.width, colour_lens.height];
                         let (near_m, far_m) = (f32::from(nearest) * MM, f32::from(farthest) * MM);
                         passed_over += usize::from(skipping.projection.misses(b, near_m, far_m, cw, ch));
@@ -1394,7 +1399,7 @@ mod tests {
             for v in 0..48 {
                 for start in (0..640).step_by(CHUNK) {
                     for (near, far) in [(300u16, 320u16), (500, 4000), (1200, 1200), (120, 9000)] {
-                        let b = &rays.boxes[v * rays.chunks + start / CHUNK];
+                        let b = rays.chunk_box(v, start);
                         let misses = p.misses(b, f32::from(near) * MM, f32::from(far) * MM, cw, ch);
                         tried[usize::from(misses)] += 1;
                         if !misses {
@@ -1411,7 +1416,7 @@ mod tests {
                                 for (&x, &y) in x.iter().zip(&y).filter(|&(&x, _)| x != NOWHERE) {
                                     let on = (-1..=cw as i32).contains(&x) && (-1..=ch as i32).contains(&y);
                                     assert!(!on, "turn {step} row {v} chunk {start} depth {z}: corner at ({x}, {y})");
-                                    // Within 4 pixels of a side of the image: a near miss there.
+                                    // Within 5 pixels outside a side of the image: a near miss there.
                                     let (w, h) = (cw as i32, ch as i32);
                                     let near_side = [
                                         (-5..0).contains(&x),
