@@ -23,7 +23,8 @@
 //! 4. With `--features librealsense`: `RealsenseSource::next_frame` with `align = "op3dsg"` and
 //!    with `align = "librealsense"` on those recordings, passes alternating between the two: the
 //!    pipeline's wait, the alignment, rotate 90° and the copies into the frame (librealsense reads
-//!    and decodes the file on its own thread, not counted here).
+//!    and decodes the file on its own thread, not counted here); for 848x480 colour also
+//!    unturned (rotate 0, a camera mounted upright).
 //!
 //! Each line gives the thread's CPU time per frame (what the frame costs the core) and the wall
 //! time (which on a shared machine also holds the time other processes had the core). On a
@@ -174,7 +175,7 @@ fn align_kernel() {
         (1280, 720, Rotation::Cw90),
     ] {
         let (depth, colour, extrinsics) = d435i_like(cw, ch);
-        let aligner = DepthToColour::new(depth, colour, extrinsics, 0.00025).expect("calibration");
+        let mut aligner = DepthToColour::new(depth, colour, extrinsics, 0.00025).expect("calibration");
         let mut out = vec![0u16; cw as usize * ch as usize];
         let layout = SourceLayout { width: W, height: H, stride_bytes: stride };
         let samples = time_frames(60, 600, || {
@@ -257,7 +258,7 @@ mod with_librealsense {
             let depth_stream = streams.iter().find(|s| s.kind() == Rs2StreamKind::Depth).expect("depth stream");
             let colour_stream = streams.iter().find(|s| s.kind() == Rs2StreamKind::Color).expect("colour stream");
             let e = depth_stream.extrinsics(colour_stream).expect("extrinsics");
-            let aligner = DepthToColour::new(
+            let mut aligner = DepthToColour::new(
                 lens(&depth_stream.intrinsics().expect("depth intrinsics").0),
                 lens(&colour_stream.intrinsics().expect("colour intrinsics").0),
                 Extrinsics { rotation: e.rotation(), translation_m: e.translation() },
@@ -303,14 +304,14 @@ mod with_librealsense {
     }
 
     /// The whole `next_frame`, both modes, passes alternating.
-    pub fn next_frame(bag: &Path, cw: u32, ch: u32) {
+    pub fn next_frame(bag: &Path, cw: u32, ch: u32, rotate: Rotation) {
         let (mut ours, mut theirs) = (Vec::new(), Vec::new());
         for _pass in 0..2 {
             for align in [AlignMode::Librealsense, AlignMode::Op3dsg] {
                 let config = RealsenseConfig {
                     bag: bag.display().to_string(),
                     bag_real_time: true,
-                    rotate: Rotation::Cw90,
+                    rotate,
                     align,
                     ..RealsenseConfig::default()
                 };
@@ -334,7 +335,7 @@ mod with_librealsense {
                 }
             }
         }
-        let what = format!("{W}x{H} -> {cw}x{ch}, rotate 90");
+        let what = format!("{W}x{H} -> {cw}x{ch}, rotate {}", rotate.degrees());
         let t = report(&format!("next_frame, align = librealsense, {what}"), &theirs);
         let o = report(&format!("next_frame, align = op3dsg, {what}"), &ours);
         ratio("  next_frame", o, t);
@@ -349,8 +350,11 @@ fn playback() {
         with_librealsense::align_on_recording(bag, *cw, *ch);
     }
     for (bag, cw, ch) in &bags {
-        with_librealsense::next_frame(bag, *cw, *ch);
+        with_librealsense::next_frame(bag, *cw, *ch, Rotation::Cw90);
     }
+    // A camera mounted upright (rotate 0), at the D435i's usual 848x480 pair.
+    let (bag, cw, ch) = &bags[0];
+    with_librealsense::next_frame(bag, *cw, *ch, Rotation::None);
 }
 
 #[cfg(not(feature = "librealsense"))]

@@ -28,9 +28,11 @@
 //! (chosen once at run time from the CPU; no FMA, which would round differently from
 //! librealsense). Where the colour stream has at least 1.25 times the depth's pixels per degree
 //! (the D435i's 848x480 depth to 848x480 or 1280x720 colour) rectangles are written as fixed
-//! blocks, without a branch on each rectangle's size: turned 90° or 270° (the Stretch's mount) as
-//! 3 or 4 lines of 4 values along the output's rows, planned for 128 depth pixels at a time;
-//! otherwise 3x3 cell by cell. Below that ratio, with a loop sized per pixel.
+//! blocks, without a branch on each rectangle's size: 3 or 4 lines of 4 values along colour y,
+//! planned for 128 depth pixels at a time. Turned 90° or 270° (the Stretch's mount) colour y runs
+//! along the output's rows; unturned and 180° frames are aligned turned 90° into a buffer kept
+//! from frame to frame and turned the rest of the way. Below that ratio, with a loop sized per
+//! pixel.
 //!
 //! **Lens models**, as librealsense's align block (its SSE build, what the PyPI library and
 //! Intel's x86 packages run) applies them: depth rays through the inverse Brown-Conrady formula
@@ -45,7 +47,7 @@
 //! use op3dsg_realsense::rotate::{Rotation, SourceLayout};
 //!
 //! let lens = Lens::pinhole(4, 2, 2.0, 2.0, 1.5, 0.5);
-//! let align = DepthToColour::new(lens, lens, Extrinsics::IDENTITY, 0.001).unwrap();
+//! let mut align = DepthToColour::new(lens, lens, Extrinsics::IDENTITY, 0.001).unwrap();
 //! let depth: Vec<u8> = [1000u16, 0, 1200, 1300, 900, 950, 0, 1000].iter().flat_map(|d| d.to_le_bytes()).collect();
 //! let mut aligned = vec![0u16; 8];
 //! align.align(&depth, SourceLayout { width: 4, height: 2, stride_bytes: 8 }, Rotation::None, &mut aligned).unwrap();
@@ -288,25 +290,22 @@ impl Rays {
 /// (Timed on the `frame_handling` benchmark's synthetic room, one core, runs alternating: turned
 /// 90° about 8 % faster than 64, as fast as 256; unturned the same as 64.)
 const CHUNK: usize = 128;
-/// Rectangles up to this many colour pixels on a side are written as one fixed block.
-const KERNEL: usize = 3;
 /// Colour pixels per depth pixel (in both directions) from which rectangles are written as
-/// blocks. A rectangle spans the projections of a depth pixel's corners, rounded: at 1.25 or
-/// more it is 2 or 3 pixels a side, and the fixed block (no branch on its size, each cell
-/// written through [`nearest`]) wins; nearer 1 most rectangles are 1 or 2 a side and a block
-/// would write most cells several times. Measured by the `frame_handling` benchmark (synthetic
-/// room, one core): 848x480 depth to 848x480 colour (1.3 and 1.4 colour pixels per depth pixel)
-/// 2.03-2.15 ms with blocks against 2.26-2.36 ms with the sized loop; to 1280x720 colour (1.9
-/// and 2.1) blocks were already the faster.
+/// fixed blocks ([`LinePlan`]). A rectangle spans the projections of a depth pixel's corners,
+/// rounded: at 1.25 or more it is 2 or 3 pixels a side, and the fixed block (no branch on its
+/// size) wins; nearer 1 most rectangles are 1 or 2 a side and a block would write most cells
+/// several times. Measured by the `frame_handling` benchmark (synthetic room, one core), with
+/// 3x3 blocks written cell by cell: 848x480 depth to 848x480 colour (1.3 and 1.4 colour pixels
+/// per depth pixel) 2.03-2.15 ms with blocks against 2.26-2.36 ms with the sized loop; to
+/// 1280x720 colour (1.9 and 2.1) blocks were already the faster.
 const BLOCK_RATIO: f32 = 1.25;
 /// How each depth pixel is written: one colour pixel ...
 const PIXELS: u8 = 0;
 /// ... the rectangle between its corners, loop sized per pixel ...
 const RECTANGLES: u8 = 1;
-/// ... or that rectangle as a fixed block ...
-const BLOCKS: u8 = 2;
-/// ... or, turned 90° or 270° (colour y along the output's rows), as up to 3 or 4 lines of
-/// [`LANES`] values, planned for a whole chunk at once ([`LinePlan`]).
+/// ... or, with colour y along the output's rows (turned 90° or 270°), as up to 3 or 4 lines of
+/// [`LANES`] values, planned for a whole chunk at once ([`LinePlan`]). Unturned and 180° frames
+/// are aligned turned 90° and turned the rest of the way ([`DepthToColour::align`]).
 const LINES_3: u8 = 3;
 const LINES_4: u8 = 4;
 /// A corner that does not land in front of the colour camera.
@@ -472,8 +471,9 @@ pub struct DepthToColour {
     rays: Rays,
     /// Whether each depth pixel fills the rectangle between its corners (else one pixel).
     rectangles: bool,
-    /// Whether rectangles are written as fixed [`KERNEL`]-sided blocks (colour pixels per depth
-    /// pixel at least [`BLOCK_RATIO`] in both directions) rather than loops sized per pixel.
+    /// Whether rectangles are written as fixed blocks, lines of [`LANES`] values (colour pixels
+    /// per depth pixel at least [`BLOCK_RATIO`] in both directions) rather than loops sized per
+    /// pixel.
     blocks: bool,
     /// Whether rectangles are up to 4 colour pixels wide (at least 2 colour pixels per depth
     /// pixel along x), else 3: turned, blocks are written as that many lines.
@@ -483,6 +483,19 @@ pub struct DepthToColour {
     /// Whether chunks of depth whose corners cannot land on the colour image are passed over
     /// before the projection (always, but for the tests that compare with the full projection).
     skips: bool,
+    /// Unturned and 180° frames written as blocks: the aligned depth turned 90°, before it is
+    /// turned the rest of the way into the frame (made at the first such frame).
+    turned: Scratch,
+}
+
+/// A buffer reused from frame to frame (its values are not worth a `Debug` line).
+#[derive(Clone, Default)]
+struct Scratch(Vec<u16>);
+
+impl std::fmt::Debug for Scratch {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Scratch({} values)", self.0.len())
+    }
 }
 
 impl DepthToColour {
@@ -534,6 +547,7 @@ impl DepthToColour {
             },
             distort,
             skips: true,
+            turned: Scratch::default(),
         })
     }
 
@@ -587,8 +601,12 @@ impl DepthToColour {
     /// apart) to the colour stream and writes it, turned by `rotation`, into `out` (the pooled
     /// frame's depth: colour width x height values). Every value of `out` is written (0 where
     /// no depth lands).
+    ///
+    /// Where rectangles are written as blocks, an unturned or 180° frame is aligned turned 90°
+    /// into a buffer kept for the next frame (allocated at the first), then turned into `out`:
+    /// the blocks' lines run along colour y ([`LinePlan`]).
     pub fn align(
-        &self,
+        &mut self,
         depth: &[u8],
         layout: SourceLayout,
         rotation: Rotation,
@@ -617,33 +635,47 @@ impl DepthToColour {
                 height: ch,
             });
         }
-        out.fill(0);
-        let place = Placement::new(rotation, cw, ch);
         let mode = match (self.rectangles, self.blocks) {
             (false, _) => PIXELS,
-            (true, false) => RECTANGLES,
             // (A line needs LANES values of the output.)
-            (true, true) if place.along_x || out.len() < LANES => BLOCKS,
-            (true, true) if self.wide => LINES_4,
-            (true, true) => LINES_3,
+            (true, true) if out.len() >= LANES && self.wide => LINES_4,
+            (true, true) if out.len() >= LANES => LINES_3,
+            (true, _) => RECTANGLES,
         };
-        match (self.distort, mode) {
-            (false, PIXELS) => align_rows::<false, PIXELS>(self, depth, stride_bytes, place, out),
-            (false, RECTANGLES) => align_rows::<false, RECTANGLES>(self, depth, stride_bytes, place, out),
-            (false, BLOCKS) => align_rows::<false, BLOCKS>(self, depth, stride_bytes, place, out),
-            (false, LINES_3) => align_rows::<false, LINES_3>(self, depth, stride_bytes, place, out),
-            (false, _) => align_rows::<false, LINES_4>(self, depth, stride_bytes, place, out),
-            (true, PIXELS) => align_rows::<true, PIXELS>(self, depth, stride_bytes, place, out),
-            (true, RECTANGLES) => align_rows::<true, RECTANGLES>(self, depth, stride_bytes, place, out),
-            (true, BLOCKS) => align_rows::<true, BLOCKS>(self, depth, stride_bytes, place, out),
-            (true, LINES_3) => align_rows::<true, LINES_3>(self, depth, stride_bytes, place, out),
-            (true, _) => align_rows::<true, LINES_4>(self, depth, stride_bytes, place, out),
+        let place = Placement::new(rotation, cw, ch);
+        if place.along_x && (mode == LINES_3 || mode == LINES_4) {
+            // Lines along colour y: aligned turned 90° (ch wide, cw tall), then turned back 90°
+            // (unturned) or on by 90° (180°).
+            let mut turned = std::mem::take(&mut self.turned.0);
+            turned.clear();
+            turned.resize(out.len(), 0);
+            self.align_rows(mode, depth, stride_bytes, Placement::new(Rotation::Cw90, cw, ch), &mut turned);
+            let rest = if rotation == Rotation::None { Rotation::Cw270 } else { Rotation::Cw90 };
+            crate::rotate::turn_u16(&turned, ch, cw, rest, out);
+            self.turned.0 = turned;
+        } else {
+            out.fill(0);
+            self.align_rows(mode, depth, stride_bytes, place, out);
         }
         Ok(())
     }
 
+    /// The per-frame loop for `mode`, written into `out` (zeroed) as `place` turns it.
+    fn align_rows(&self, mode: u8, depth: &[u8], stride_bytes: usize, place: Placement, out: &mut [u16]) {
+        match (self.distort, mode) {
+            (false, PIXELS) => align_rows::<false, PIXELS>(self, depth, stride_bytes, place, out),
+            (false, RECTANGLES) => align_rows::<false, RECTANGLES>(self, depth, stride_bytes, place, out),
+            (false, LINES_3) => align_rows::<false, LINES_3>(self, depth, stride_bytes, place, out),
+            (false, _) => align_rows::<false, LINES_4>(self, depth, stride_bytes, place, out),
+            (true, PIXELS) => align_rows::<true, PIXELS>(self, depth, stride_bytes, place, out),
+            (true, RECTANGLES) => align_rows::<true, RECTANGLES>(self, depth, stride_bytes, place, out),
+            (true, LINES_3) => align_rows::<true, LINES_3>(self, depth, stride_bytes, place, out),
+            (true, _) => align_rows::<true, LINES_4>(self, depth, stride_bytes, place, out),
+        }
+    }
+
     #[inline(always)]
-    fn align_rows<const DISTORT: bool, const MODE: u8>(
+    fn align_chunks<const DISTORT: bool, const MODE: u8>(
         &self,
         depth: &[u8],
         stride_bytes: usize,
@@ -750,7 +782,7 @@ impl DepthToColour {
                     if xa > xb || ya > yb {
                         continue;
                     }
-                    write_rectangle::<MODE>(out, place, z1, [xa, ya, xb, yb]);
+                    write_rectangle(out, place, z1, [xa, ya, xb, yb]);
                 }
                 start += n;
             }
@@ -759,29 +791,15 @@ impl DepthToColour {
 }
 
 /// Writes depth `z1 + 1` into the colour pixels `xa..=xb` x `ya..=yb` (inside the colour image)
-/// of the rotated `out`, the nearest winning. With `MODE == BLOCKS` a rectangle up to
-/// [`KERNEL`] a side is one fixed block, without branches on its size: cells past the
-/// rectangle's edge repeat the edge cell (writing the same depth twice changes nothing); any
-/// other, with a loop sized to it.
+/// of the rotated `out`, the nearest winning, with a loop sized to the rectangle.
 ///
-/// Unturned (colour x along the output's rows) the block is written cell by cell: 4-value lines
-/// of neighbouring depth pixels would overlap shifted by a cell or two, and each load would wait
-/// on partly overlapping stores (`frame_handling` benchmark, 848x480 to 848x480 unturned: 2.38 ms
-/// cell by cell, 2.49 ms with lines). Turned 90° or 270° whole chunks go through [`LinePlan`].
+/// Blocks go through [`LinePlan`], with colour y along the output's rows. Along colour x,
+/// 4-value lines of neighbouring depth pixels would overlap shifted by a cell or two, and each
+/// load would wait on partly overlapping stores (`frame_handling` benchmark, 848x480 to 848x480
+/// unturned: 2.38 ms cell by cell, 2.49 ms with such lines): unturned frames are aligned turned.
 #[inline(always)]
-fn write_rectangle<const MODE: u8>(out: &mut [u16], place: Placement, z1: u16, [xa, ya, xb, yb]: [i32; 4]) {
+fn write_rectangle(out: &mut [u16], place: Placement, z1: u16, [xa, ya, xb, yb]: [i32; 4]) {
     let base = place.origin + xa as isize * place.step_x + ya as isize * place.step_y;
-    let (dx_max, dy_max) = ((xb - xa) as isize, (yb - ya) as isize);
-    if MODE == BLOCKS && dx_max < KERNEL as isize && dy_max < KERNEL as isize {
-        for dy in 0..KERNEL as isize {
-            let row_at = base + dy.min(dy_max) * place.step_y;
-            for dx in 0..KERNEL as isize {
-                let at = (row_at + dx.min(dx_max) * place.step_x) as usize;
-                nearest(out, at, z1);
-            }
-        }
-        return;
-    }
     let mut row_at = base;
     for _ in ya..=yb {
         let mut at = row_at;
@@ -924,15 +942,15 @@ impl<const L: usize> LinePlan<L> {
                 let clamp = |lo: i32, hi: i32, max: i32| (lo.max(0), hi.min(max - 1));
                 let (xa, xb) = clamp(c.x0[i], c.x1[i], cw);
                 let (ya, yb) = clamp(c.y0[i], c.y1[i], ch);
-                write_rectangle::<RECTANGLES>(out, place, c.raw[i] - 1, [xa, ya, xb, yb]);
+                write_rectangle(out, place, c.raw[i] - 1, [xa, ya, xb, yb]);
             }
         }
     }
 }
 
-/// Values per lane-wise write of [`nearest_lanes`]: one more than [`KERNEL`], so that a block's
-/// line is one 8-byte load and store.
-const LANES: usize = KERNEL + 1;
+/// Values per lane-wise write of [`nearest_lanes`]: a block's line (up to 3 colour pixels, one
+/// more so that it is one 8-byte load and store).
+const LANES: usize = 4;
 
 /// [`nearest`] on the `LANES` consecutive values from `low`, each with its own depth (a lane
 /// with `u16::MAX` keeps its value: `min(out - 1, MAX) + 1 = out`). Vectorised by the compiler.
@@ -966,7 +984,7 @@ fn nearest(out: &mut [u16], at: usize, z1: u16) {
     *cell = cell.wrapping_sub(1).min(z1) + 1;
 }
 
-/// [`DepthToColour::align_rows`], compiled for the baseline and for AVX2 (picked once at run
+/// [`DepthToColour::align_chunks`], compiled for the baseline and for AVX2 (picked once at run
 /// time from the CPU's features). No FMA: the result must stay bit-identical to librealsense's
 /// separate multiplies and adds.
 #[multiversion::multiversion(targets("x86_64+avx2"))]
@@ -977,7 +995,7 @@ fn align_rows<const DISTORT: bool, const MODE: u8>(
     place: Placement,
     out: &mut [u16],
 ) {
-    align.align_rows::<DISTORT, MODE>(depth, stride_bytes, place, out);
+    align.align_chunks::<DISTORT, MODE>(depth, stride_bytes, place, out);
 }
 
 fn check_extrinsics(e: &Extrinsics) -> Result<(), AlignError> {
@@ -1018,7 +1036,7 @@ mod tests {
 
     fn run(align: &DepthToColour, depth: &[u16], rotation: Rotation) -> Vec<u16> {
         let mut out = vec![0xABCDu16; align.colour().width as usize * align.colour().height as usize];
-        align.align(&bytes(depth), layout(align.depth()), rotation, &mut out).unwrap();
+        align.clone().align(&bytes(depth), layout(align.depth()), rotation, &mut out).unwrap();
         out
     }
 
@@ -1134,7 +1152,7 @@ mod tests {
     fn strided_rows_and_points_behind_the_colour_camera() {
         let lens = Lens::pinhole(8, 2, 10.0, 10.0, 3.5, 0.5);
         // Colour 1 m in front of depth: points nearer than 1 m are behind it.
-        let align =
+        let mut align =
             DepthToColour::new(lens, lens, Extrinsics { translation_m: [0.0, 0.0, -1.0], ..Extrinsics::IDENTITY }, MM)
                 .unwrap();
         let mut padded = vec![0xFFu8; 2 * 24];
@@ -1160,7 +1178,7 @@ mod tests {
         let e = DepthToColour::new(lens, lens, skewed, MM).unwrap_err();
         assert!(e.to_string().contains("not orthonormal"), "{e}");
         assert!(matches!(DepthToColour::new(lens, lens, Extrinsics::IDENTITY, 0.0), Err(AlignError::DepthScale(_))));
-        let align = DepthToColour::new(lens, lens, Extrinsics::IDENTITY, MM).unwrap();
+        let mut align = DepthToColour::new(lens, lens, Extrinsics::IDENTITY, MM).unwrap();
         let mut out = vec![0u16; 16];
         let e = align.align(&[0u8; 31], layout(&lens), Rotation::None, &mut out).unwrap_err();
         assert!(e.to_string().starts_with("depth: driver buffer holds 31 bytes"), "{e}");
@@ -1244,12 +1262,34 @@ mod tests {
         let held = DepthToColour { wide: false, ..wide.clone() };
         for (name, lines) in [("848x480, 3 lines", narrow), ("1280x720, 4 lines", wide), ("1280x720, 3 lines", held)] {
             let loops = DepthToColour { blocks: false, ..lines.clone() };
-            for rotation in [Rotation::Cw90, Rotation::Cw270] {
+            // Unturned and 180°: aligned turned 90° and turned the rest of the way.
+            for rotation in [Rotation::Cw90, Rotation::Cw270, Rotation::None, Rotation::Cw180] {
                 let want = run(&loops, &depth, rotation);
                 assert!(want.iter().filter(|&&z| z != 0).count() > want.len() * 9 / 10, "{name} {rotation:?}");
                 assert!(want[..4].iter().chain(&want[want.len() - 4..]).all(|&z| z != 0), "corners {name}");
                 assert_eq!(run(&lines, &depth, rotation), want, "{name} {rotation:?}");
             }
+        }
+    }
+
+    #[test]
+    fn frames_after_the_first_reuse_the_turned_buffer_and_keep_nothing_of_the_last() {
+        // Unturned blocks go through the turned buffer kept from frame to frame: a frame's image
+        // must not depend on the frame before (near depth there, holes here), whatever the
+        // rotations in between.
+        let depth_lens = Lens::pinhole(96, 64, 48.0, 48.0, 47.5, 31.5);
+        let colour_lens = Lens::pinhole(160, 100, 96.0, 96.0, 79.5, 49.5);
+        let fresh = DepthToColour::new(depth_lens, colour_lens, translation(0.015), MM).unwrap();
+        assert!(fresh.blocks);
+        let mut align = fresh.clone();
+        let near: Vec<u16> = vec![300; 96 * 64];
+        let far: Vec<u16> = (0..96 * 64).map(|i| if i % 5 == 0 { 0 } else { 2000 + (i % 96) as u16 }).collect();
+        let mut out = vec![0u16; 160 * 100];
+        for rotation in [Rotation::None, Rotation::Cw180, Rotation::Cw90, Rotation::None] {
+            align.align(&bytes(&near), layout(&depth_lens), Rotation::None, &mut out).unwrap();
+            align.align(&bytes(&far), layout(&depth_lens), rotation, &mut out).unwrap();
+            assert_eq!(out, run(&fresh, &far, rotation), "{rotation:?} after a near frame");
+            assert!(out.contains(&0) && !out.contains(&300), "{rotation:?}");
         }
     }
 

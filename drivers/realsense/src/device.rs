@@ -474,10 +474,7 @@ impl RealsenseSource {
     }
 
     fn name(&self) -> String {
-        match &self.bag {
-            Some(bag) => bag.display().to_string(),
-            None => format!("camera {}", if self.serial.is_empty() { "(first found)" } else { &self.serial }),
-        }
+        source_name(self.bag.as_deref(), &self.serial)
     }
 
     /// Starts the pipeline and reads the streams' calibration.
@@ -789,8 +786,12 @@ impl RealsenseSource {
                 aligner.set_metres_per_unit(units);
             }
         }
-        let copy_err =
-            |e: crate::rotate::CopyError| SourceError::Frame { seq: self.seq, reason: format!("{}: {e}", self.name()) };
+        // (The source's fields it names, apart from the aligner written below.)
+        let (seq, bag, serial) = (self.seq, self.bag.as_deref(), self.serial.as_str());
+        let copy_err = |e: crate::rotate::CopyError| SourceError::Frame {
+            seq,
+            reason: format!("{}: {e}", source_name(bag, serial)),
+        };
         // SAFETY: librealsense keeps each frame's buffer (get_data_size bytes) alive while the
         // frame object lives; the slices do not outlive `colour` / `depth`.
         let (colour_bytes, depth_bytes) = unsafe {
@@ -814,7 +815,7 @@ impl RealsenseSource {
         )
         .map_err(copy_err)?;
         let depth_layout = SourceLayout { width: dw, height: dh, stride_bytes: depth.stride() };
-        match &self.aligner {
+        match &mut self.aligner {
             Some(aligner) => aligner.align(depth_bytes, depth_layout, self.rotation, &mut frame.depth),
             None => copy_depth(depth_bytes, depth_layout, self.rotation, &mut frame.depth),
         }
@@ -1048,5 +1049,13 @@ impl FrameSource for RealsenseSource {
                 self.rotation.degrees()
             ),
         }
+    }
+}
+
+/// A source as messages name it: the recording's path, or the camera's serial number.
+fn source_name(bag: Option<&std::path::Path>, serial: &str) -> String {
+    match bag {
+        Some(bag) => bag.display().to_string(),
+        None => format!("camera {}", if serial.is_empty() { "(first found)" } else { serial }),
     }
 }

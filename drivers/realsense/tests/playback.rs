@@ -232,8 +232,34 @@ fn playback_delivers_the_recorded_frames_exactly() {
 fn frames_come_from_the_driver_into_the_pooled_frame_without_allocating() {
     let _one = one_at_a_time();
     let rec = record(FRAMES);
-    for align in [AlignMode::Op3dsg, AlignMode::Librealsense] {
-        let mut source = RealsenseSource::open(&config_aligned_by(&rec, align, Rotation::Cw90), None).expect("open");
+    // Colour with twice the depth's pixels per degree: depth pixels fill rectangles, written as
+    // blocks, and unturned through the aligner's turned buffer (made at the first frame).
+    let (w2, h2, f2) = ((2 * W).to_string(), (2 * H).to_string(), (2.0 * rec.intrinsics.fx).to_string());
+    let sharper = record_with(
+        FRAMES,
+        &[
+            "--width",
+            &W.to_string(),
+            "--height",
+            &H.to_string(),
+            "--colour-width",
+            &w2,
+            "--colour-height",
+            &h2,
+            "--colour-fx",
+            &f2,
+            "--colour-fy",
+            &f2,
+            "--scene",
+        ],
+    );
+    for (rec, align, rotate) in [
+        (&rec, AlignMode::Op3dsg, Rotation::Cw90),
+        (&rec, AlignMode::Librealsense, Rotation::Cw90),
+        (&sharper, AlignMode::Op3dsg, Rotation::None),
+        (&sharper, AlignMode::Op3dsg, Rotation::Cw90),
+    ] {
+        let mut source = RealsenseSource::open(&config_aligned_by(rec, align, rotate), None).expect("open");
         let mut frame = Frame::new(source.intrinsics());
         let (mut delivered, mut counted, mut allocations) = (0, 0, 0);
         loop {
@@ -254,8 +280,9 @@ fn frames_come_from_the_driver_into_the_pooled_frame_without_allocating() {
             }
             delivered += 1;
         }
-        assert!(counted >= FRAMES / 2, "{align:?}: only {counted} frames after the first two");
-        assert_eq!(allocations, 0, "{align:?}: {allocations} allocations in {counted} frames");
+        let what = format!("{align:?}, {}x{} colour, {rotate:?}", rec.intrinsics.width, rec.intrinsics.height);
+        assert!(counted >= FRAMES / 2, "{what}: only {counted} frames after the first two");
+        assert_eq!(allocations, 0, "{what}: {allocations} allocations in {counted} frames");
     }
 }
 
