@@ -525,7 +525,7 @@ fn turn_depth(src: &[u8], layout: SourceLayout, rotation: Rotation, dst: &mut [u
     let SourceLayout { width, height, .. } = layout;
     // The blocks copy the bytes as they are: little-endian values on x86_64, as both callers'.
     let fast = |rows: &[&[u8]; TILE_ROWS], v0: usize, dst: &mut [u16]| {
-        depth_blocks::turn_tile(rows, width, height, v0, rotation == Rotation::Cw90, dst)
+        depth_blocks::turn_tile(depth_blocks::Tile { rows, width, height, v0, cw90: rotation == Rotation::Cw90 }, dst)
     };
     turn_in_tiles::<u16, 2, 1>(src, layout, rotation, dst, fast, |px| [value([px[0], px[1]])]);
 }
@@ -541,17 +541,21 @@ fn turn_depth(src: &[u8], layout: SourceLayout, rotation: Rotation, dst: &mut [u
 mod depth_blocks {
     use super::TILE_ROWS;
 
-    /// Turns columns `0..done` of one whole tile (source rows `v0..v0 + TILE_ROWS` of a
-    /// `width x height` image of 16-bit values) into `dst` (`height` wide), clockwise by 90° if
-    /// `cw90`, else by 270°; returns `done`, a multiple of 8 (0 on other CPUs).
-    pub(super) fn turn_tile(
-        rows: &[&[u8]; TILE_ROWS],
-        width: usize,
-        height: usize,
-        v0: usize,
-        cw90: bool,
-        dst: &mut [u16],
-    ) -> usize {
+    /// One whole tile: source rows `v0..v0 + TILE_ROWS` of a `width x height` image of 16-bit
+    /// values, turned clockwise by 90° if `cw90`, else by 270°.
+    #[derive(Clone, Copy)]
+    pub(super) struct Tile<'a> {
+        pub(super) rows: &'a [&'a [u8]; TILE_ROWS],
+        pub(super) width: usize,
+        pub(super) height: usize,
+        pub(super) v0: usize,
+        pub(super) cw90: bool,
+    }
+
+    /// Turns columns `0..done` of `tile` into `dst` (`height` wide); returns `done`, a multiple
+    /// of 8 (0 on other CPUs).
+    pub(super) fn turn_tile(tile: Tile, dst: &mut [u16]) -> usize {
+        let Tile { rows, width, height, v0, .. } = tile;
         assert!(rows.iter().all(|r| r.len() >= width * 2) && dst.len() >= width * height);
         assert!(v0 + TILE_ROWS <= height);
         #[cfg(target_arch = "x86_64")]
@@ -559,11 +563,11 @@ mod depth_blocks {
         // the slices with checks.
         #[allow(unsafe_code)]
         unsafe {
-            x86::turn_tile(rows, width, height, v0, cw90, dst)
+            x86::turn_tile(tile, dst)
         }
         #[cfg(not(target_arch = "x86_64"))]
         {
-            let _ = (rows, width, height, v0, cw90, dst);
+            let _ = dst;
             0
         }
     }
@@ -576,32 +580,22 @@ mod depth_blocks {
             _mm_unpacklo_epi16, _mm_unpacklo_epi32, _mm_unpacklo_epi64,
         };
 
-        use super::TILE_ROWS;
+        use super::{TILE_ROWS, Tile};
 
         /// Columns `j` of eight rows of eight values: `out[j]` holds `r[0][j] .. r[7][j]`.
         #[target_feature(enable = "sse2")]
         fn transpose(r: [__m128i; 8]) -> [__m128i; 8] {
-            let t = [
-                _mm_unpacklo_epi16(r[0], r[1]),
-                _mm_unpackhi_epi16(r[0], r[1]),
-                _mm_unpacklo_epi16(r[2], r[3]),
-                _mm_unpackhi_epi16(r[2], r[3]),
-                _mm_unpacklo_epi16(r[4], r[5]),
-                _mm_unpackhi_epi16(r[4], r[5]),
-                _mm_unpacklo_epi16(r[6], r[7]),
-                _mm_unpackhi_epi16(r[6], r[7]),
-            ];
+            // Rows 2h, 2h + 1 interleaved: columns 0-3 (t[2h]) and 4-7 (t[2h + 1]).
+            let t: [__m128i; 8] = std::array::from_fn(|i| {
+                let (a, b) = (r[i / 2 * 2], r[i / 2 * 2 + 1]);
+                if i % 2 == 0 { _mm_unpacklo_epi16(a, b) } else { _mm_unpackhi_epi16(a, b) }
+            });
             // Columns 2k, 2k + 1 of rows 0-3 (s[k]) and of rows 4-7 (s[4 + k]).
-            let s = [
-                _mm_unpacklo_epi32(t[0], t[2]),
-                _mm_unpackhi_epi32(t[0], t[2]),
-                _mm_unpacklo_epi32(t[1], t[3]),
-                _mm_unpackhi_epi32(t[1], t[3]),
-                _mm_unpacklo_epi32(t[4], t[6]),
-                _mm_unpackhi_epi32(t[4], t[6]),
-                _mm_unpacklo_epi32(t[5], t[7]),
-                _mm_unpackhi_epi32(t[5], t[7]),
-            ];
+            let s: [__m128i; 8] = std::array::from_fn(|i| {
+                let (h, k) = (i / 4 * 4, i % 4);
+                let (a, b) = (t[h + k / 2], t[h + k / 2 + 2]);
+                if k % 2 == 0 { _mm_unpacklo_epi32(a, b) } else { _mm_unpackhi_epi32(a, b) }
+            });
             std::array::from_fn(|j| {
                 let (a, b) = (s[j / 2], s[4 + j / 2]);
                 if j % 2 == 0 { _mm_unpacklo_epi64(a, b) } else { _mm_unpackhi_epi64(a, b) }
@@ -610,14 +604,7 @@ mod depth_blocks {
 
         /// See [`super::turn_tile`].
         #[target_feature(enable = "sse2")]
-        pub(super) fn turn_tile(
-            rows: &[&[u8]; TILE_ROWS],
-            width: usize,
-            height: usize,
-            v0: usize,
-            cw90: bool,
-            dst: &mut [u16],
-        ) -> usize {
+        pub(super) fn turn_tile(Tile { rows, width, height, v0, cw90 }: Tile, dst: &mut [u16]) -> usize {
             let done = width / 8 * 8;
             // Destination run order: the 90° turn puts the tile's rows there bottom up.
             let row = |k: usize| if cw90 { rows[TILE_ROWS - 1 - k] } else { rows[k] };
