@@ -948,8 +948,8 @@ impl<const L: usize> LinePlan<L> {
     }
 }
 
-/// Values per lane-wise write of [`nearest_lanes`]: a block's line (up to 3 colour pixels, one
-/// more so that it is one 8-byte load and store).
+/// Values per lane-wise write of [`nearest_lanes`]: a block's line, up to 4 colour pixels along
+/// colour y, one 8-byte load and store.
 const LANES: usize = 4;
 
 /// [`nearest`] on the `LANES` consecutive values from `low`, each with its own depth (a lane
