@@ -638,8 +638,13 @@ impl DepthToColour {
         let mode = match (self.rectangles, self.blocks) {
             (false, _) => PIXELS,
             // (A line needs LANES values of the output.)
-            (true, true) if out.len() >= LANES && self.wide => LINES_4,
-            (true, true) if out.len() >= LANES => LINES_3,
+            (true, true) if out.len() >= LANES => {
+                if self.wide {
+                    LINES_4
+                } else {
+                    LINES_3
+                }
+            }
             (true, _) => RECTANGLES,
         };
         let place = Placement::new(rotation, cw, ch);

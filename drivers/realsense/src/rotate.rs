@@ -505,22 +505,12 @@ pub(crate) fn turn_u16(src: &[u16], width: usize, height: usize, rotation: Rotat
         dst.len()
     );
     let layout = SourceLayout { width, height, stride_bytes: width * 2 };
-    let bytes: &[u8] = bytemuck::cast_slice(src);
-    if rotation.swaps_axes() {
-        turn_depth(bytes, layout, rotation, dst, u16::from_ne_bytes);
-        return;
-    }
-    for v in 0..height {
-        let (mut at, step) = walk(rotation, v, width, height);
-        for &z in &src[v * width..(v + 1) * width] {
-            dst[at as usize] = z;
-            at += step;
-        }
-    }
+    copy_u16(bytemuck::cast_slice(src), layout, rotation, dst, u16::from_ne_bytes);
 }
 
 /// The quarter turns of 16-bit values (`value` reads one from its two bytes): whole tiles'
 /// columns in 8x8 blocks where the CPU has them ([`depth_blocks`]), the rest value by value.
+#[inline(always)]
 fn turn_depth(src: &[u8], layout: SourceLayout, rotation: Rotation, dst: &mut [u16], value: fn([u8; 2]) -> u16) {
     let SourceLayout { width, height, .. } = layout;
     // The blocks copy the bytes as they are: little-endian values on x86_64, as both callers'.
@@ -639,26 +629,34 @@ mod depth_blocks {
 /// `dst` (row-major depth of the rotated image).
 pub fn copy_depth(src: &[u8], layout: SourceLayout, rotation: Rotation, dst: &mut [u16]) -> Result<(), CopyError> {
     check("depth", src, layout, 2, dst.len(), 1)?;
+    copy_u16(src, layout, rotation, dst, u16::from_le_bytes);
+    Ok(())
+}
+
+/// Copies 16-bit values (`value` reads one from its two bytes) turned by `rotation` into `dst`,
+/// the layout checked by the caller: [`copy_depth`] (Z16, little-endian) and [`turn_u16`] (the
+/// aligner's own buffer, native order).
+#[inline(always)]
+fn copy_u16(src: &[u8], layout: SourceLayout, rotation: Rotation, dst: &mut [u16], value: fn([u8; 2]) -> u16) {
     let SourceLayout { width, height, stride_bytes } = layout;
     if rotation.swaps_axes() {
-        turn_depth(src, layout, rotation, dst, u16::from_le_bytes);
-        return Ok(());
+        turn_depth(src, layout, rotation, dst, value);
+        return;
     }
     for v in 0..height {
         let row = &src[v * stride_bytes..v * stride_bytes + width * 2];
         let (mut at, step) = walk(rotation, v, width, height);
         if rotation == Rotation::None {
             for (d, px) in dst[v * width..(v + 1) * width].iter_mut().zip(row.chunks_exact(2)) {
-                *d = u16::from_le_bytes([px[0], px[1]]);
+                *d = value([px[0], px[1]]);
             }
             continue;
         }
         for px in row.chunks_exact(2) {
-            dst[at as usize] = u16::from_le_bytes([px[0], px[1]]);
+            dst[at as usize] = value([px[0], px[1]]);
             at += step;
         }
     }
-    Ok(())
 }
 
 #[cfg(test)]
