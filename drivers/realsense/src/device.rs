@@ -997,7 +997,7 @@ impl FrameSource for RealsenseSource {
         match waited {
             Ok(set) => match &mut self.align {
                 Some(align) => {
-                    let name = || self.bag.as_ref().map_or_else(|| self.serial.clone(), |b| b.display().to_string());
+                    let name = || source_name(self.bag.as_deref(), &self.serial);
                     align.queue(set).map_err(|e| device_err(format!("{}: align: {e}", name())))?;
                     let aligned = align.wait(timeout).map_err(|e| device_err(format!("{}: align: {e}", name())))?;
                     self.fill(aligned, frame)
