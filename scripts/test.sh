@@ -36,7 +36,8 @@ RS_LIB="$PWD/.deps/realsense/lib"
 export PKG_CONFIG_PATH="$RS_LIB/pkgconfig${PKG_CONFIG_PATH:+:$PKG_CONFIG_PATH}"
 # cargo does not put realsense-sys's -L folder on the run-time path of tests and binaries.
 export LD_LIBRARY_PATH="$RS_LIB${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
-FEATURES=(--features op3dsgd/realsense)
+# The test fault hooks (daemon/runtime, feature `fault-hooks`) go into this build only.
+FEATURES=(--features op3dsgd/realsense,op3dsgd/fault-hooks)
 
 # iceoryx2 keeps its state in /tmp/iceoryx2 and /dev/shm; every test uses its own service
 # prefix, so parallel tests and a daemon running on this machine do not interfere.

@@ -39,7 +39,7 @@
 //!   points, `centre_m` (world, metres), `size_m` (extent along the box's first and second
 //!   horizontal axes and along up, metres) and `yaw_rad` (the box's first axis turned from the
 //!   world's first horizontal axis towards its second about the up axis, in (-pi/2, pi/2]; the
-//!   axes per `world.up_axis` are in `op3dsg_runtime::fusion::oriented_box`). The evaluation
+//!   axes per `world.up_axis` are in `op3dsg_runtime::world::oriented_box`). The evaluation
 //!   (`op3dsg eval`) scores boxes by their axis-aligned `box_min_m`/`box_max_m`: the ground truth
 //!   carries no orientation, so an oriented IoU would compare against boxes that have none.
 //!   `affordances`: names from the 9 canonical affordances. `affordance_origins` (optional;

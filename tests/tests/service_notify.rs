@@ -130,7 +130,8 @@ fn a_stalled_fusion_thread_stops_the_pings_within_two_periods() {
     let last = pings.last().copied().unwrap_or(stalled_at);
     assert!(
         last.saturating_duration_since(stalled_at) <= WATCHDOG * 2,
-        "pings went on {:?} after the fusion thread stalled (limit: two periods, {:?})",
+        "pings went on {:?} after the fusion thread stalled (limit: two periods, {:?}); the stall is a test \
+         fault hook: is op3dsgd built with --features op3dsgd/fault-hooks, as scripts/test.sh builds it?",
         last - stalled_at,
         WATCHDOG * 2
     );

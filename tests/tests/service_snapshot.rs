@@ -144,7 +144,13 @@ fn sigkill_during_a_snapshot_write_leaves_the_previous_snapshot_intact() {
         map_info(dir.path()).ok().filter(|i| i["nodes"].as_u64() > Some(0))
     });
     let previous = std::fs::read(&snapshot).expect("read the first snapshot");
-    wait_for("the next snapshot write to be under way", Duration::from_secs(60), || temp.exists().then_some(()));
+    // The pause is a test fault hook: only a daemon built with `--features op3dsgd/fault-hooks`
+    // (as scripts/test.sh builds it) has it.
+    wait_for(
+        "the next snapshot write to be under way (op3dsgd built with --features op3dsgd/fault-hooks?)",
+        Duration::from_secs(60),
+        || temp.exists().then_some(()),
+    );
     daemon.kill_9();
 
     assert!(temp.exists(), "the interrupted write is the temporary file");

@@ -223,7 +223,7 @@ fn in_process_client_gets_history_updates_and_poses() {
         publish_ns.push(t.elapsed());
     }
     assert!(graphs.wait_for_update(Duration::from_secs(5)).expect("wait"));
-    let received_at = op3dsg_runtime::ipc::wall_clock_ns();
+    let received_at = op3dsg_runtime::world::clock::wall_clock_ns();
     let graph = graphs.latest_if_newer(1).expect("read").expect("new sample");
     assert_eq!(graph.version(), 4);
     assert!(!graph.capacity_exceeded());

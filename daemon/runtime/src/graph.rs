@@ -1,12 +1,12 @@
 //! The in-memory scene graph: what the fusion thread hands to the publisher, the recorder and the
 //! refiner. Plain owned data; the publisher encodes it into a shared-memory graph sample
 //! ([`op3dsg_ipc_types::GraphHeader`] and node and edge records) and `op3dsg dump --json` writes
-//! its JSON form.
+//! its JSON form. A leaf above `world`: it imports nothing of the stages.
 
 use op3dsg_drivers::graph_json::{EdgeJson, GraphJson, NodeJson, OrientedBoxJson};
 use op3dsg_ipc_types::{EdgeKind, EdgeOrigin, NodeKind};
 
-pub use crate::fusion::oriented_box::OrientedBox;
+use crate::world::OrientedBox;
 
 /// One node of the graph.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -28,7 +28,7 @@ pub struct GraphNode {
     /// Axis-aligned box, world, metres.
     pub box_max_m: [f32; 3],
     /// Gravity-aligned oriented box around the same points (yaw about `world.up_axis`; see
-    /// [`crate::fusion::oriented_box`]).
+    /// [`crate::world::oriented_box`]).
     pub obb: OrientedBox,
     /// Keyframe detections fused.
     pub observation_count: u32,
@@ -151,4 +151,13 @@ impl SceneGraph {
             .collect();
         json
     }
+}
+
+/// One point of a node's cloud, world frame (the recorder's `/op3dsg/node_points`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NodePoint {
+    /// The node's id (as in the graph).
+    pub node_id: u32,
+    /// Position, world, metres.
+    pub position_m: [f32; 3],
 }

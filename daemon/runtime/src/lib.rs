@@ -1,26 +1,44 @@
 //! # op3dsg runtime
 //!
 //! What runs on the robot: the stages of `op3dsgd` and the composition that builds them from a
-//! profile. It holds no simulation and no evaluation: the synthetic rooms, the oracle detector,
-//! the batch runner and the benchmarks are the crate `op3dsg-sim`, which registers its source
-//! and detector here like any other backend ([`backend`]).
+//! profile. It holds no simulation, no evaluation and no research variant: the synthetic rooms,
+//! the oracle detector, the batch runner, the benchmarks, the reasoning ablations and the
+//! ConceptGraphs peer fusion are the crate `op3dsg-sim`, which registers its source, detector and
+//! fusion here like any other backend ([`backend`]).
 //!
-//! | stage | module | what |
+//! The crate is read bottom-up, and every import points down (the test command checks it; the
+//! rows are declared in this crate's `Cargo.toml`, `[package.metadata.layers]`):
+//!
+//! | layer | module | what it owns |
 //! |---|---|---|
-//! | profile | [`config`] | the layered, strictly validated TOML profile |
-//! | composition | [`backend`], [`pipeline`] | backends by name; the wiring of named stage threads and bounded queues, health, the shutdown ladder |
-//! | capture | `capture/` | the capture thread over a [`op3dsg_drivers::source::FrameSource`], frame pool |
-//! | keyframe | [`keyframe`] | the keyframe gate (pose lookup, motion test) and its thread |
-//! | keyframe path | [`keyframe_path`] | detection → fusion → prior graph → reasoner, as the pipeline and the batch runner both run it |
-//! | perception | [`perception`], [`onnx`] | the `Detector` trait, detections and masks; YOLOX and open-vocabulary detectors on ONNX Runtime; the text encoder; the detection workers |
-//! | fusion | [`fusion`] | the map: multi-view association of detections into 3D nodes; the fusion thread |
-//! | prior graph | [`prior`] | neighbours through a grid, spatial relations from geometry and gravity |
-//! | reasoning | [`reasoner`], [`knowledge`] | the offline knowledge reasoner, the asynchronous LLM refiner, their tables |
-//! | occupancy, navigation | [`occupancy`] | the 2D occupancy map from keyframes' depth (own thread, `<prefix>/occupancy`), approach poses and A* on it |
-//! | queries | [`query`] | language queries on `<prefix>/query`, with approach poses |
-//! | publish | [`ipc`] | the iceoryx2 server: graph, update event, health, pose input; the publisher thread |
-//! | service | [`service`] | sd_notify readiness, status and watchdog from stage heartbeats; map snapshots and their restoration |
-//! | support | [`graph`], [`queue`], [`stats`] | the in-memory scene graph; bounded queues with drop counters; per-stage latency percentiles |
+//! | leaf | [`world`] | the up axis and horizontal frame, gravity-aligned boxes, the wall clock |
+//! | leaf | [`embedding`] | embeddings, normalise / cosine, the [`embedding::PhraseEmbedder`] trait |
+//! | leaf | [`queue`] | bounded queues with named overflow policies, the latest-wins [`queue::Latest`] |
+//! | leaf | [`stats`] | stage latency figures, the watchdog's heartbeats, the pose input's counters, the health traits |
+//! | leaf | [`persist`] | atomic writes, the directory lock, moving a bad file aside |
+//! | leaf | [`graph`] | the in-memory scene graph, node points |
+//! | leaf | [`knowledge`] | object → part tables, label resolution and its fallbacks |
+//! | leaf | [`onnx`] | ONNX Runtime, model contracts, the text encoders |
+//! | leaf | [`flow`] | the items between stages: frames, keyframes, detections, graph versions |
+//! | leaf | [`ipc`] | iceoryx2 plumbing: services, the graph codec, the health report |
+//! | stage | [`record`] | the MCAP recorder's thread and its sender |
+//! | stage | [`prior`] | the prior graph: neighbours, spatial relations, part → object |
+//! | stage | [`reasoner`] | the knowledge reasoner, the LLM refiner, [`reasoner::enrich`] |
+//! | stage | [`perception`] | detectors, the detection workers |
+//! | stage | [`occupancy`] | the occupancy grid, approach poses, its thread and service |
+//! | stage | [`fusion`] | the map, its thread, its snapshots |
+//! | stage | [`query`] | language queries on `<prefix>/query` |
+//! | stage | [`capture`] | the capture thread |
+//! | stage | [`keyframe`] | the keyframe gate and its thread |
+//! | stage | [`publish`] | the publisher thread |
+//! | composition | [`config`] | the profile: the stages' sections and the checks across them |
+//! | composition | [`backend`] | source, detector and fusion registries |
+//! | composition | [`pipeline`] | the wiring of named stage threads and bounded queues, health, the shutdown ladder |
+//! | composition | [`service`] | sd_notify readiness, status and watchdog |
+//!
+//! Each stage is a folder with its profile section (`config.rs`), its counters, and a `*Thread`
+//! struct built from its section with a `run(self)`; a stage imports leaves and lower stages,
+//! never the composition nor another stage's thread.
 //!
 //! ```no_run
 //! use std::sync::{Arc, atomic::AtomicBool};
@@ -34,22 +52,26 @@
 //! ```
 
 pub mod backend;
-pub(crate) mod capture;
+pub mod capture;
 pub mod config;
+pub mod embedding;
+pub mod flow;
 pub mod fusion;
 pub mod graph;
 pub mod ipc;
 pub mod keyframe;
-pub mod keyframe_path;
 pub mod knowledge;
 pub mod occupancy;
 pub mod onnx;
 pub mod perception;
+pub mod persist;
 pub mod pipeline;
 pub mod prior;
+pub mod publish;
 pub mod query;
 pub mod queue;
 pub mod reasoner;
 pub mod record;
 pub mod service;
 pub mod stats;
+pub mod world;

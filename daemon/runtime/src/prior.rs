@@ -49,10 +49,10 @@ use glam::Vec3;
 use op3dsg_ipc_types::{EdgeKind, EdgeOrigin, NodeKind, relation_id};
 use rustc_hash::FxHashMap;
 
-use crate::config::UpAxis;
 use crate::graph::{GraphEdge, SceneGraph};
+use crate::knowledge::fallback::LabelFallback;
 use crate::knowledge::{KnowledgeBase, Resolved};
-use crate::reasoner::fallback::LabelFallback;
+use crate::world::UpAxis;
 
 /// Tolerances of the prior graph (see the module docs for how each is used).
 #[derive(Debug, Clone, PartialEq)]
@@ -99,7 +99,7 @@ pub struct PriorNode {
     /// its nearest known category by embedding when the builder has a fallback; then
     /// `by_embedding` is set).
     pub category: Option<Resolved>,
-    /// `category` came from the embedding fallback ([`crate::reasoner::fallback`]), not from
+    /// `category` came from the embedding fallback ([`crate::knowledge::fallback`]), not from
     /// the tables.
     pub by_embedding: bool,
     /// Node confidence.

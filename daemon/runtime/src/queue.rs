@@ -1,10 +1,11 @@
-//! Bounded queues between pipeline stages, with a named overflow policy and counters.
+//! Bounded queues between pipeline stages, with a named overflow policy and counters, and the
+//! latest-wins slot [`Latest`]. A leaf: it imports nothing of the stages.
 //!
 //! Every arrow of the pipeline is one [`Queue`]: its capacity and [`OverflowPolicy`] come from
 //! the profile, every item dropped is counted in [`QueueStats`] (published in `health`).
 
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use crossbeam_channel::{Receiver, RecvTimeoutError, Sender, TrySendError, bounded};
@@ -211,6 +212,62 @@ impl<T> QueueReceiver<T> {
     }
 }
 
+/// The newest value one thread produces for others to read: a slot, not a queue (latest wins,
+/// nothing waits). The publisher's graph for the query worker and the occupancy map for it are
+/// shared this way; `close` tells readers that no newer value will come.
+#[derive(Debug)]
+pub struct Latest<T> {
+    slot: Mutex<Option<T>>,
+    closed: AtomicBool,
+}
+
+impl<T> Default for Latest<T> {
+    fn default() -> Self {
+        Self { slot: Mutex::new(None), closed: AtomicBool::new(false) }
+    }
+}
+
+impl<T> Latest<T> {
+    /// An empty slot.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Replaces the value.
+    pub fn set(&self, value: T) {
+        *self.slot.lock().unwrap_or_else(PoisonError::into_inner) = Some(value);
+    }
+
+    /// Changes the value in place (`None` before the first), e.g. a copy into a buffer kept from
+    /// the last time.
+    pub fn update(&self, change: impl FnOnce(&mut Option<T>)) {
+        change(&mut self.slot.lock().unwrap_or_else(PoisonError::into_inner));
+    }
+
+    /// Reads the value under the slot's lock (keep it short: the producer waits for it).
+    pub fn read<R>(&self, read: impl FnOnce(Option<&T>) -> R) -> R {
+        read(self.slot.lock().unwrap_or_else(PoisonError::into_inner).as_ref())
+    }
+
+    /// A copy of the value.
+    pub fn get(&self) -> Option<T>
+    where
+        T: Clone,
+    {
+        self.read(|value| value.cloned())
+    }
+
+    /// The producer has ended: no newer value will come.
+    pub fn close(&self) {
+        self.closed.store(true, Ordering::Relaxed);
+    }
+
+    /// Whether [`Latest::close`] was called.
+    pub fn is_closed(&self) -> bool {
+        self.closed.load(Ordering::Relaxed)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -258,5 +315,19 @@ mod tests {
         drop(tx);
         assert!(matches!(rx.pop_timeout(Duration::ZERO), Popped::Item(2)));
         assert!(matches!(rx.pop_timeout(Duration::ZERO), Popped::Finished));
+    }
+
+    #[test]
+    fn latest_keeps_only_the_newest_value_and_says_when_it_is_closed() {
+        let latest = Latest::new();
+        assert_eq!(latest.get(), None);
+        latest.set(vec![1]);
+        latest.set(vec![2]);
+        latest.update(|slot| slot.get_or_insert_with(Vec::new).push(3));
+        assert_eq!(latest.read(|v| v.map(Vec::len)), Some(2));
+        assert_eq!(latest.get(), Some(vec![2, 3]));
+        assert!(!latest.is_closed());
+        latest.close();
+        assert!(latest.is_closed());
     }
 }

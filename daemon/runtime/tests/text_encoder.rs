@@ -5,7 +5,8 @@
 //! These tests need `.models/` (`./scripts/test.sh` runs `./scripts/setup-models.sh` first).
 //! Without it they fail with the error that says to run it; they never skip.
 
-use op3dsg_runtime::onnx::text_encoder::{EMBEDDING_DIM, Embedding, TextEncoder, TextEncoderConfig, cosine};
+use op3dsg_runtime::embedding::{EMBEDDING_DIM, Embedding, cosine};
+use op3dsg_runtime::onnx::text_encoder::{TextEncoder, TextEncoderConfig};
 use op3dsg_runtime::onnx::{OnnxConfig, OnnxError, OnnxRuntime};
 
 // scripts/reference/text_encoder_reference.py, onnxruntime 1.31.1, each label encoded alone:

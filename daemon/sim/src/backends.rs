@@ -22,6 +22,7 @@ use std::sync::Arc;
 use op3dsg_drivers::frame::Frame;
 use op3dsg_drivers::mcap::messages::RawImageIn;
 use op3dsg_drivers::source::FrameSource as _;
+use op3dsg_runtime::backend::StartError;
 use op3dsg_runtime::backend::{
     Backends, DetectorBackend, DetectorFactory, MCAP_SOURCE, McapBackend, OpenedSource, SectionError, SourceBackend,
     knowledge_base,
@@ -31,7 +32,6 @@ use op3dsg_runtime::onnx::OnnxRuntime;
 use op3dsg_runtime::onnx::text_encoder::TextEncoder;
 use op3dsg_runtime::perception::Detector;
 use op3dsg_runtime::perception::candidates::{CandidateMode, PartCandidates};
-use op3dsg_runtime::pipeline::StartError;
 use op3dsg_runtime::record::SideChannelTap;
 use op3dsg_synthetic::{GroundTruth, InstanceIdChannel, InstanceInfo, SyntheticConfig, SyntheticSource};
 use serde::Serialize;
@@ -55,7 +55,8 @@ pub fn backends() -> Backends {
     backends
         .register_source(Arc::new(SyntheticBackend))
         .register_source(Arc::new(SimMcapBackend))
-        .register_detector(Arc::new(OracleBackend));
+        .register_detector(Arc::new(OracleBackend))
+        .register_fusion(Arc::new(crate::conceptgraphs::ConceptGraphsBackend));
     backends
 }
 

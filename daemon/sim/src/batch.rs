@@ -4,8 +4,10 @@
 //!
 //! It opens the source and the detector with the backends the pipeline uses
 //! ([`crate::backends()`]), selects keyframes with the pipeline's [`KeyframeGate`], makes its
-//! map with [`make_fusion`] (or a fusion the caller passes), and takes every keyframe through
-//! the runtime's [`keyframe_path`] in order, so its final graph is the one the threaded pipeline
+//! map with the same backends (or takes a fusion the caller passes), and takes every keyframe
+//! through the stage functions the pipeline's threads call ([`perception::detect`],
+//! [`fusion::fuse`], [`fusion::map_graph`], [`reasoner::enrich`]) in order, so its final graph
+//! is the one the threaded pipeline
 //! publishes last when no frame is dropped (`block` queues, as in `profiles/sim-batch.toml`);
 //! `daemon/sim/tests/batch_determinism.rs` checks this.
 //!
@@ -30,12 +32,14 @@ use std::time::{Duration, Instant};
 use op3dsg_drivers::frame::Frame;
 use op3dsg_drivers::source::{SourceError, SourceStatus};
 use op3dsg_runtime::backend::OpenedSource;
-use op3dsg_runtime::config::{PoseSourceKind, Profile, REPLAY_SOURCE};
-use op3dsg_runtime::fusion::Fusion;
-use op3dsg_runtime::keyframe::{GateDecision, KeyframeGate};
-use op3dsg_runtime::keyframe_path::{self, Refinement};
-use op3dsg_runtime::perception::Detector;
-use op3dsg_runtime::pipeline::{StartError, make_enricher, make_fusion};
+use op3dsg_runtime::backend::StartError;
+use op3dsg_runtime::capture::REPLAY_SOURCE;
+use op3dsg_runtime::config::Profile;
+use op3dsg_runtime::fusion::{self, Fusion};
+use op3dsg_runtime::keyframe::{GateDecision, KeyframeGate, PoseSourceKind};
+use op3dsg_runtime::perception::{self, Detector};
+use op3dsg_runtime::pipeline::make_enricher;
+use op3dsg_runtime::reasoner::{self, Refinement};
 use op3dsg_synthetic::{GroundTruth, InstanceKind, Scene};
 use tracing::warn;
 
@@ -151,9 +155,9 @@ pub enum BatchError {
     },
 }
 
-/// Runs `profile` with the fusion the pipeline would make ([`make_fusion`]).
+/// Runs `profile` with the fusion the pipeline would make (`fusion.method`).
 pub fn run(profile: &Profile, visibility: &VisibilityThresholds) -> Result<BatchRun, BatchError> {
-    run_with_fusion(profile, visibility, make_fusion(profile))
+    run_with_fusion(profile, visibility, crate::backends().fusion(profile)?)
 }
 
 /// Runs `profile` with `fusion` instead of the profile's (ablations, alternative fusions).
@@ -418,7 +422,7 @@ pub fn run_lanes(
 
         for (lane_index, lane) in lanes.iter_mut().enumerate() {
             let t = Instant::now();
-            if let Err(e) = keyframe_path::detect(detectors[lane_index].as_mut(), &frame, &mut detections) {
+            if let Err(e) = perception::detect(detectors[lane_index].as_mut(), &frame, &mut detections) {
                 // As the pipeline does: the keyframe is fused empty.
                 warn!(frame_seq = frame.seq, error = %e, "detection failed; keyframe fused empty");
                 detector_errors[lane_index] += 1;
@@ -430,7 +434,7 @@ pub fn run_lanes(
                 lane.fusions.iter_mut().zip(&mut changed_keyframes[lane_index]).zip(&mut fusion_time[lane_index])
             {
                 let t = Instant::now();
-                let fused = keyframe_path::fuse(fusion.as_mut(), &frame, &lane_pose, &detections);
+                let fused = fusion::fuse(fusion.as_mut(), &frame, &lane_pose, &detections);
                 *time += t.elapsed();
                 *changed += u64::from(fused.changed());
             }
@@ -458,10 +462,9 @@ pub fn run_lanes(
         let mut runs = Vec::with_capacity(lane.fusions.len());
         for (i, fusion) in lane.fusions.iter_mut().enumerate() {
             let t = Instant::now();
-            let mut graph =
-                keyframe_path::map_graph(fusion.as_ref(), changed_keyframes[lane_index][i].max(1), stamp_ns);
+            let mut graph = fusion::map_graph(fusion.as_ref(), changed_keyframes[lane_index][i].max(1), stamp_ns);
             if let Some(enricher) = enricher.as_mut() {
-                keyframe_path::enrich(enricher, &mut graph, Refinement::Await(llm_wait));
+                reasoner::enrich(enricher, &mut graph, Refinement::Await(llm_wait));
             }
             let timing = BatchTiming {
                 detect: detect_time[lane_index],
@@ -542,7 +545,7 @@ mod tests {
         let both = run_with_fusions(
             &profile,
             &VisibilityThresholds::default(),
-            [make_fusion(&profile), make_fusion(&profile)],
+            [crate::backends().fusion(&profile).unwrap(), crate::backends().fusion(&profile).unwrap()],
         )
         .unwrap();
         for r in &both {

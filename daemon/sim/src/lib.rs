@@ -12,6 +12,9 @@
 //! | [`eval`] | scoring fused graphs against ground truth: the benchmark's recall protocol, fusion matching, the quality benchmark |
 //! | [`perf`] | `op3dsg bench perf`: pipeline, IPC and fusion-cost figures, JSON / Markdown / PNG |
 //! | [`workload`] | reproducible fusion workloads (real kitchen keyframes, maps of a chosen size) for benches |
+//! | [`conceptgraphs`] | ConceptGraphs' association and merging: the benchmark's peer fusion, registered as fusion `conceptgraphs` |
+//! | [`reasoning_ablation`] | the paper's ablations of the reasoning stage, as variants of the runtime's enricher |
+//! | [`knowledge_variants`] | knowledge bases derived for the evaluation (leave one category out, a short remote reach) |
 //!
 //! ```no_run
 //! let loaded = op3dsg_sim::load_profile(None, &["source.synthetic.frame_count=300".to_owned()]).unwrap();
@@ -22,9 +25,12 @@
 pub mod annotate;
 pub mod backends;
 pub mod batch;
+pub mod conceptgraphs;
 pub mod eval;
+pub mod knowledge_variants;
 pub mod oracle;
 pub mod perf;
+pub mod reasoning_ablation;
 pub mod workload;
 
 pub use backends::{backends, load_profile};

@@ -38,7 +38,7 @@ fn batch_runner_makes_the_threaded_pipelines_graph() {
     let pipeline = Pipeline::start(&profile, &op3dsg_sim::backends(), stop.clone()).expect("pipeline starts");
     let mut graphs =
         GraphSubscriber::open_wait(&prefix, "batch-determinism", Duration::from_secs(30)).expect("graph subscriber");
-    let stats = pipeline.stats().clone();
+    let stats = pipeline.counters().clone();
     let deadline = Instant::now() + Duration::from_secs(120);
     let mut latest: Option<SceneGraph> = None;
     let mut settled_since: Option<(u64, Instant)> = None;
@@ -47,9 +47,9 @@ fn batch_runner_makes_the_threaded_pipelines_graph() {
         if let Some(graph) = graphs.latest_if_newer(latest.as_ref().map_or(0, |g| g.version)).expect("read graph") {
             latest = Some(graph_to_scene_graph(graph));
         }
-        let version = stats.graph_version.load(Ordering::Relaxed);
-        let drained = stats.source_finished.load(Ordering::Relaxed)
-            && stats.detections_fused.load(Ordering::Relaxed) == batch_run.detections;
+        let version = stats.fusion.graph_version.load(Ordering::Relaxed);
+        let drained = stats.capture.source_finished.load(Ordering::Relaxed)
+            && stats.fusion.detections_fused.load(Ordering::Relaxed) == batch_run.detections;
         let received = latest.as_ref().is_some_and(|g| g.version == version);
         if drained && received {
             // The final graph is published right after the last keyframe is fused; wait a little

@@ -30,6 +30,7 @@ use op3dsg_runtime::pipeline::Pipeline;
 use op3dsg_runtime::reasoner::GraphEnricher;
 use op3dsg_runtime::reasoner::llm::gate::Rejection;
 use op3dsg_runtime::reasoner::llm::{RefinerState, RefinerStats};
+use op3dsg_runtime::stats::HealthSource as _;
 use serde_json::{Value, json};
 
 /// Watchdog of each wait (not a speed requirement).
@@ -415,7 +416,7 @@ fn overrides(server: &TestServer, extra: &[&str]) -> Vec<String> {
 
 fn enricher(overrides: &[String]) -> (GraphEnricher, Arc<RefinerStats>) {
     let profile = op3dsg_sim::load_profile(None, overrides).expect("profile").profile;
-    let mut enricher = GraphEnricher::from_profile(&profile).expect("enricher").expect("kind = llm");
+    let mut enricher = op3dsg_runtime::pipeline::make_enricher(&profile).expect("enricher").expect("kind = llm");
     enricher.set_synchronous(true);
     let stats = enricher.refiner_stats().expect("refiner");
     (enricher, stats)
@@ -555,7 +556,7 @@ fn a_stalled_server_times_out_while_the_pipeline_keeps_going() {
     .profile;
     let stop = Arc::new(AtomicBool::new(false));
     let pipeline = Pipeline::start(&profile, &op3dsg_sim::backends(), stop.clone()).expect("pipeline starts");
-    let stats = pipeline.stats().clone();
+    let stats = pipeline.counters().clone();
     let wait = |what: &str, done: &dyn Fn() -> bool| {
         let deadline = Instant::now() + WATCHDOG;
         while !done() {
@@ -564,14 +565,14 @@ fn a_stalled_server_times_out_while_the_pipeline_keeps_going() {
         }
     };
     wait("a stalled request", &|| !server.requests().is_empty());
-    let frames = stats.frames_captured.load(Ordering::Relaxed);
-    let version = stats.graph_version.load(Ordering::Relaxed);
+    let frames = stats.capture.frames_captured.load(Ordering::Relaxed);
+    let version = stats.fusion.graph_version.load(Ordering::Relaxed);
     // While the server sits on the request, frames and graph versions keep coming.
     let timed_out = || stats.refiner.timeouts.load(Ordering::Relaxed) > 0;
     wait("frames and graph versions during the stall", &|| {
         timed_out()
-            || stats.frames_captured.load(Ordering::Relaxed) > frames + 5
-                && stats.graph_version.load(Ordering::Relaxed) > version + 1
+            || stats.capture.frames_captured.load(Ordering::Relaxed) > frames + 5
+                && stats.fusion.graph_version.load(Ordering::Relaxed) > version + 1
     });
     assert_eq!(stats.refiner.timeouts.load(Ordering::Relaxed), 0, "the counters rose before the timeout");
     wait("the timeout", &|| stats.refiner.timeouts.load(Ordering::Relaxed) >= 1);
@@ -1018,7 +1019,7 @@ fn the_recorder_keeps_every_llm_exchange_and_never_the_key() {
     let profile = op3dsg_sim::load_profile(None, &o).expect("profile").profile;
     let stop = Arc::new(AtomicBool::new(false));
     let pipeline = Pipeline::start(&profile, &op3dsg_sim::backends(), stop.clone()).expect("pipeline starts");
-    let stats = pipeline.stats().clone();
+    let stats = pipeline.counters().clone();
     let wait = |what: &str, done: &dyn Fn() -> bool| {
         let deadline = Instant::now() + WATCHDOG;
         while !done() {

@@ -5,14 +5,14 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use op3dsg_runtime::pipeline::{Pipeline, PipelineStats};
+use op3dsg_runtime::pipeline::{Counters, Pipeline};
 
 /// Watchdog of each wait (not a speed requirement).
 const WATCHDOG: Duration = Duration::from_secs(60);
 
-fn wait_for_frames(stats: &PipelineStats, frames: u64) {
+fn wait_for_frames(stats: &Counters, frames: u64) {
     let deadline = Instant::now() + WATCHDOG;
-    while stats.frames_captured.load(Ordering::Relaxed) < frames {
+    while stats.capture.frames_captured.load(Ordering::Relaxed) < frames {
         assert!(Instant::now() < deadline, "timed out waiting for {frames} frames");
         std::thread::sleep(Duration::from_millis(10));
     }
@@ -34,14 +34,14 @@ fn stepped_replay_lets_frames_in_one_step_at_a_time() {
     let stop = Arc::new(AtomicBool::new(false));
     let pipeline = Pipeline::start(&profile, &op3dsg_sim::backends(), stop.clone()).expect("pipeline starts");
     let step = pipeline.step_control().expect("a stepped replay has a step control").clone();
-    let stats = pipeline.stats().clone();
+    let stats = pipeline.counters().clone();
 
     std::thread::sleep(Duration::from_millis(300));
-    assert_eq!(stats.frames_captured.load(Ordering::Relaxed), 0, "no frame before the first step");
+    assert_eq!(stats.capture.frames_captured.load(Ordering::Relaxed), 0, "no frame before the first step");
     step.step(3);
     wait_for_frames(&stats, 3);
     std::thread::sleep(Duration::from_millis(300));
-    assert_eq!(stats.frames_captured.load(Ordering::Relaxed), 3, "no frame beyond the steps");
+    assert_eq!(stats.capture.frames_captured.load(Ordering::Relaxed), 3, "no frame beyond the steps");
     step.step(2);
     wait_for_frames(&stats, 5);
 

@@ -4,9 +4,10 @@
 
 use std::sync::Arc;
 
+use op3dsg_runtime::backend::StartError;
 use op3dsg_runtime::backend::{Backends, OpenedSource, SectionError, SourceBackend};
-use op3dsg_runtime::config::{PoseSourceKind, Profile};
-use op3dsg_runtime::pipeline::StartError;
+use op3dsg_runtime::config::Profile;
+use op3dsg_runtime::keyframe::PoseSourceKind;
 
 use crate::{REALSENSE_SOURCE, RealsenseConfig, RealsenseSource};
 

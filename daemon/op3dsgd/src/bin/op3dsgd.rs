@@ -138,7 +138,7 @@ fn main() -> ExitCode {
     // READY=1 now: every stage runs and the graph service exists. Then STATUS= and the watchdog
     // (while the stages are alive), STOPPING=1 at the shutdown ladder (a no-op when not run by
     // systemd).
-    let notifier = match op3dsg_runtime::service::ServiceNotifier::start(pipeline.stats().clone(), stop.clone()) {
+    let notifier = match op3dsg_runtime::service::ServiceNotifier::start(pipeline.counters().clone(), stop.clone()) {
         Ok(notifier) => notifier,
         Err(e) => {
             error!(error = %e, "cannot start the sd_notify thread");

@@ -5,9 +5,28 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use super::{BASE_PROFILE, BASE_PROFILE_NAME, PATH_KEYS, Profile, ProfileError, YOLOX_DETECTOR};
-use crate::backend::Backends;
-use crate::pipeline::StartError;
+use super::{BASE_PROFILE, BASE_PROFILE_NAME, PATH_KEYS, Profile, ProfileError};
+use crate::perception::YOLOX_DETECTOR;
+
+/// A check of a section failed: `(field path, message)`. From a backend's own section the path
+/// is inside the section (the loader prefixes the section's path); from [`SectionRegistry::check_kinds`]
+/// it is the whole path.
+pub type SectionError = (String, String);
+
+/// The backends a build knows, as the loader sees them: the registry of the composition
+/// (`crate::backend::Backends`) implements it. The loader hands each section of a registered
+/// backend (`[source.<name>]`, `[detector.<name>]`, `[fusion.<name>]`) to it, and the loaded
+/// profile for the checks across sections.
+pub trait SectionRegistry {
+    /// Checks, and may complete, the section `[<group>.<name>]` of the backend `name` of
+    /// `group` (`source`, `detector`, `fusion`); an error naming the group and the backends the
+    /// build has when there is no such backend.
+    fn load_section(&self, group: &str, name: &str, section: &mut toml::Table) -> Result<(), SectionError>;
+
+    /// The kinds the profile names (`source.kind`, `detector.kind`, `fusion.method`) exist, and
+    /// their backends' checks across the profile hold.
+    fn check_kinds(&self, profile: &Profile) -> Result<(), SectionError>;
+}
 
 /// A loaded profile with where each value came from.
 #[derive(Debug, Clone)]
@@ -25,7 +44,7 @@ pub struct LoadedProfile {
 /// sections and the kinds the profile names. A section under `[source]` or `[detector]` that no
 /// backend of `backends` owns is an error naming it.
 pub fn load_with(
-    backends: &Backends,
+    backends: &dyn SectionRegistry,
     profile_path: Option<&Path>,
     overrides: &[String],
 ) -> Result<LoadedProfile, ProfileError> {
@@ -41,7 +60,7 @@ pub fn load(profile_path: Option<&Path>, overrides: &[String]) -> Result<LoadedP
 }
 
 fn load_layers(
-    backends: Option<&Backends>,
+    backends: Option<&dyn SectionRegistry>,
     profile_path: Option<&Path>,
     overrides: &[String],
 ) -> Result<LoadedProfile, ProfileError> {
@@ -110,14 +129,16 @@ fn load_layers(
     profile.sections = sections;
     profile.validate().map_err(named)?;
     if let Some(backends) = backends {
-        check_kinds(&profile, backends).map_err(named)?;
+        backends.check_kinds(&profile).map_err(named)?;
     }
     Ok(LoadedProfile { profile, effective, layers: layers.into_iter().map(|(n, _)| n).collect() })
 }
 
-/// Sub-tables of `[source]` and `[detector]` that are the runtime's own typed sections (`region_encoder` goes with every detector kind).
-const RUNTIME_SECTIONS: [(&str, &[&str]); 2] =
-    [("source", &["replay"]), ("detector", &["yolox", "open_vocab", "region_encoder"])];
+/// Sub-tables of `[source]`, `[detector]` and `[fusion]` that are the runtime's own typed sections
+/// (`region_encoder` goes with every detector kind, `colour` is the OP3DSG fusion's); any other
+/// sub-table is a registered backend's.
+const RUNTIME_SECTIONS: [(&str, &[&str]); 3] =
+    [("source", &["replay"]), ("detector", &["yolox", "open_vocab", "region_encoder"]), ("fusion", &["colour"])];
 
 /// `detector.kind = "onnx"` is the older name of `"yolox"`.
 fn normalise_kinds(merged: &mut toml::Table) {
@@ -133,7 +154,7 @@ fn normalise_kinds(merged: &mut toml::Table) {
 /// they are kept unchecked.
 fn take_backend_sections(
     merged: &mut toml::Table,
-    backends: Option<&Backends>,
+    backends: Option<&dyn SectionRegistry>,
 ) -> Result<BTreeMap<String, toml::Table>, (String, String)> {
     let mut sections = BTreeMap::new();
     for (group, runtime_own) in RUNTIME_SECTIONS {
@@ -147,40 +168,14 @@ fn take_backend_sections(
             let Some(toml::Value::Table(mut section)) = table.remove(&name) else { continue };
             let path = format!("{group}.{name}");
             if let Some(backends) = backends {
-                let checked = if group == "source" {
-                    backends.source(&name).map(|b| b.load_section(&mut section))
-                } else {
-                    backends.detector(&name).map(|b| b.load_section(&mut section))
-                };
-                match checked {
-                    Ok(result) => result.map_err(|(field, msg)| {
-                        (if field.is_empty() { path.clone() } else { format!("{path}.{field}") }, msg)
-                    })?,
-                    Err(_) => {
-                        let known = if group == "source" { backends.source_names() } else { backends.detector_names() };
-                        return Err((
-                            path,
-                            format!("no {group} backend \"{name}\" in this build (it has: {})", known.join(", ")),
-                        ));
-                    }
-                }
+                backends.load_section(group, &name, &mut section).map_err(|(field, msg)| {
+                    (if field.is_empty() { path.clone() } else { format!("{path}.{field}") }, msg)
+                })?;
             }
             sections.insert(path, section);
         }
     }
     Ok(sections)
-}
-
-/// The kinds the profile names exist in `backends`, and their cross-checks hold.
-fn check_kinds(profile: &Profile, backends: &Backends) -> Result<(), (String, String)> {
-    let to_pair = |e: StartError| match e {
-        StartError::Incompatible { field, reason } => (field.to_owned(), reason),
-        other => (String::new(), other.to_string()),
-    };
-    let source = backends.source(&profile.source.kind).map_err(to_pair)?;
-    let detector = backends.detector(&profile.detector.kind).map_err(to_pair)?;
-    source.validate(profile)?;
-    detector.validate(profile)
 }
 
 fn parse_toml(text: &str, name: &str) -> Result<toml::Table, ProfileError> {

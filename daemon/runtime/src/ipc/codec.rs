@@ -10,9 +10,10 @@ use op3dsg_ipc_types::{
 };
 use rustc_hash::FxHashMap;
 
-use crate::graph::{GraphEdge, GraphNode, OrientedBox, SceneGraph};
+use crate::graph::{GraphEdge, GraphNode, SceneGraph};
 #[cfg(doc)]
 use crate::ipc::GraphServer;
+use crate::world::OrientedBox;
 
 /// The most nodes and edges one graph sample holds (the profile's `ipc.max_nodes` and
 /// `ipc.max_edges`).

@@ -109,10 +109,7 @@
 
 pub mod codec;
 pub mod health_report;
-pub(crate) mod publisher;
 pub mod server;
-
-use std::time::{SystemTime, UNIX_EPOCH};
 
 use iceoryx2::prelude::{Node, NodeBuilder, NodeName, ServiceName, SignalHandlingMode};
 pub use op3dsg_ipc_types::SnapshotError;
@@ -291,17 +288,12 @@ fn warn_failed_cleanups(cleaned: u64, failed: u64) {
 pub fn new_instance_id() -> u64 {
     use std::hash::{BuildHasher, Hasher};
     let mut hasher = std::collections::hash_map::RandomState::new().build_hasher();
-    hasher.write_u64(wall_clock_ns());
+    hasher.write_u64(crate::world::clock::wall_clock_ns());
     hasher.write_u32(std::process::id());
     match hasher.finish() {
         0 => 1,
         id => id,
     }
-}
-
-/// Nanoseconds since the Unix epoch (0 if the clock is before 1970).
-pub fn wall_clock_ns() -> u64 {
-    SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_nanos() as u64).unwrap_or(0)
 }
 
 #[cfg(test)]

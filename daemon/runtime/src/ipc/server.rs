@@ -21,8 +21,9 @@ use op3dsg_ipc_types::{ClientError, GraphHeader, Health, PoseError, PoseStamped,
 use super::{
     GraphEncoder, IpcConfig, IpcError, IpcService, PublishReport, cleanup_dead_nodes, create_node, warn_failed_cleanups,
 };
-use super::{new_instance_id, service_err, service_name, wall_clock_ns};
+use super::{new_instance_id, service_err, service_name};
 use crate::graph::SceneGraph;
+use crate::world::clock::wall_clock_ns;
 
 /// The daemon's side: publishes graph and health, receives poses.
 #[derive(Debug)]

@@ -32,8 +32,8 @@ use op3dsg_ipc_types::{ApproachStatus, NodeKind, OCCUPANCY_FREE_MAX_PERCENT, OCC
 use serde::{Deserialize, Serialize};
 
 use super::{GridGeometry, RobotPose, to_plane};
-use crate::config::UpAxis;
 use crate::graph::{GraphNode, SceneGraph};
+use crate::world::UpAxis;
 
 /// `[navigation]`: approach poses on the occupancy map.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -1,10 +1,10 @@
 //! The occupancy map beside the map snapshot: `occupancy.snapshot` in the snapshot directory
-//! (`[snapshot]`, `crate::service::snapshot`), so a restarted daemon keeps its floor map as it
+//! (`[snapshot]`, `crate::fusion::snapshot`), so a restarted daemon keeps its floor map as it
 //! keeps its scene graph.
 //!
 //! Written by the occupancy thread (never the fusion thread) every `snapshot.period_s` while the
 //! map changes and at the end of the shutdown ladder; atomically like the map snapshot
-//! (`occupancy.snapshot.tmp`, fsync, rename, fsync of the directory). `op3dsg map save` asks the
+//! (`crate::persist::write_atomic`: `occupancy.snapshot.tmp`, fsync, rename, fsync of the directory). `op3dsg map save` asks the
 //! fusion map only; the occupancy map follows at its own period.
 //!
 //! # The file (format 1, little-endian)
@@ -20,18 +20,15 @@
 //! (`occupancy.snapshot.<reason>-<unix ms>`, never deleted), a warning names it and why, and the
 //! map starts empty.
 
-use std::fs::{File, OpenOptions};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use tracing::{info, warn};
 
 use super::OccupancyGrid;
+use crate::persist::{PersistError, move_aside, write_atomic};
 
 /// The file's name in the snapshot directory.
 pub const OCCUPANCY_FILE: &str = "occupancy.snapshot";
-/// Where it is written before the rename.
-pub const OCCUPANCY_TEMP_FILE: &str = "occupancy.snapshot.tmp";
 /// The format this build writes and reads.
 pub const FORMAT_VERSION: u32 = 1;
 const MAGIC: &[u8; 8] = b"OP3DSGOC";
@@ -56,7 +53,7 @@ impl OccupancyStore {
     }
 
     /// Writes `grid` atomically.
-    pub fn save(&mut self, grid: &OccupancyGrid) -> std::io::Result<()> {
+    pub fn save(&mut self, grid: &OccupancyGrid) -> Result<(), PersistError> {
         self.bytes.clear();
         self.bytes.extend_from_slice(MAGIC);
         self.bytes.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
@@ -64,14 +61,7 @@ impl OccupancyStore {
         grid.encode_into(&mut self.bytes);
         let crc = crc32fast::hash(&self.bytes[HEADER_BYTES..]);
         self.bytes[12..16].copy_from_slice(&crc.to_le_bytes());
-        let temp = self.dir.join(OCCUPANCY_TEMP_FILE);
-        {
-            let mut file = OpenOptions::new().write(true).create(true).truncate(true).open(&temp)?;
-            file.write_all(&self.bytes)?;
-            file.sync_all()?;
-        }
-        std::fs::rename(&temp, self.path())?;
-        File::open(&self.dir).and_then(|d| d.sync_all())
+        write_atomic(&self.dir, OCCUPANCY_FILE, &self.bytes, None)
     }
 
     /// Restores the saved map into `grid` (fresh from [`OccupancyGrid::new`]). `Ok(true)`:
@@ -91,7 +81,7 @@ impl OccupancyStore {
                 Ok(true)
             }
             Err((reason, why)) => {
-                let moved = crate::service::snapshot::move_aside(&path, reason)
+                let moved = move_aside(&path, reason)
                     .map_or_else(|e| format!("could not be moved aside: {e}"), |p| format!("moved to {}", p.display()));
                 let message = format!("{}: {why}; {moved}; the occupancy map starts empty", path.display());
                 warn!("{message}");
@@ -121,8 +111,8 @@ fn check(bytes: &[u8]) -> Result<&[u8], (&'static str, String)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::UpAxis;
     use crate::occupancy::{DepthScan, OccupancyConfig};
+    use crate::world::UpAxis;
     use glam::{DQuat, DVec3};
     use op3dsg_drivers::frame::Intrinsics;
     use op3dsg_drivers::pose::Isometry;

@@ -31,7 +31,7 @@ use ort::value::TensorRef;
 use serde::{Deserialize, Serialize};
 use tokenizers::Tokenizer;
 
-use super::contract::{self, Dim, FLOAT, INT64, TensorSpec};
+use super::contract::{self, Dim, FLOAT, INT64, TensorSpec, user_model};
 use super::{OnnxError, OnnxRuntime, SessionSpec, open_session, resolve_path};
 
 /// `<|startoftext|>`.
@@ -281,20 +281,7 @@ impl ClipTextEncoder {
             });
         }
         let mut features = data.to_vec();
-        features.chunks_exact_mut(self.config.dim).for_each(crate::perception::normalise);
+        features.chunks_exact_mut(self.config.dim).for_each(crate::embedding::normalise);
         Ok(features)
-    }
-}
-
-/// A missing user-supplied model: the setup script cannot fetch it, so say where it comes from.
-pub(crate) fn user_model(error: OnnxError) -> OnnxError {
-    match error {
-        OnnxError::FileMissing { what, looked_for, setting } => OnnxError::ModelMissing {
-            what,
-            looked_for,
-            setting,
-            hint: "no package registry ships these weights: export the model (README \"Bringing your own models\") and point the profile at the file",
-        },
-        other => other,
     }
 }

@@ -207,7 +207,7 @@ pub fn open_user_model(
     threads: usize,
 ) -> Result<(Session, std::path::PathBuf), OnnxError> {
     let (path_key, sha_key) = keys;
-    let path = super::resolve_path(configured, what, path_key).map_err(super::clip_text::user_model)?;
+    let path = super::resolve_path(configured, what, path_key).map_err(user_model)?;
     verify_sha256(&path, sha256, sha_key)?;
     let (session, _) = super::open_session(
         runtime,
@@ -216,6 +216,18 @@ pub fn open_user_model(
     Ok((session, path))
 }
 
+/// A missing user-supplied model: the setup script cannot fetch it, so say where it comes from.
+pub(crate) fn user_model(error: OnnxError) -> OnnxError {
+    match error {
+        OnnxError::FileMissing { what, looked_for, setting } => OnnxError::ModelMissing {
+            what,
+            looked_for,
+            setting,
+            hint: "no package registry ships these weights: export the model (README \"Bringing your own models\") and point the profile at the file",
+        },
+        other => other,
+    }
+}
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -40,12 +40,9 @@ use ort::value::TensorRef;
 use serde::{Deserialize, Serialize};
 use tokenizers::Tokenizer;
 
-use super::{OnnxError, OnnxRuntime, SessionSpec, open_session, resolve_path};
+use super::{OnnxConfig, OnnxError, OnnxRuntime, SessionSpec, open_session, resolve_path};
+use crate::embedding::{EMBEDDING_DIM, Embedding, PhraseEmbedder, SharedEmbedder};
 
-/// Length of an embedding.
-pub const EMBEDDING_DIM: usize = 384;
-/// One label's embedding: unit length (L2), so the dot product is the cosine.
-pub type Embedding = [f32; EMBEDDING_DIM];
 /// Labels run through the model in one call at most; longer batches are split (bounds the
 /// tensors: 64 x 128 tokens x 384 floats = 12 MB at worst).
 pub const MAX_BATCH: usize = 64;
@@ -456,9 +453,19 @@ impl TextEncoder {
     }
 }
 
-/// Cosine similarity of two embeddings (both unit length, so the dot product).
-pub fn cosine(a: &Embedding, b: &Embedding) -> f32 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
+/// A text encoder made from `[onnx]` and `[text_encoder]` (whether or not `enabled` is set: the
+/// caller asks for it), shared behind a lock as the label fallback's embedder. The error names
+/// what could not be loaded.
+pub fn load_shared(onnx: &OnnxConfig, config: &TextEncoderConfig) -> Result<SharedEmbedder, String> {
+    let runtime = OnnxRuntime::init(onnx).map_err(|e| format!("onnx: {e}"))?;
+    let encoder = TextEncoder::new(&runtime, config).map_err(|e| format!("text_encoder: {e}"))?;
+    Ok(std::sync::Arc::new(std::sync::Mutex::new(Box::new(encoder))))
+}
+
+impl PhraseEmbedder for TextEncoder {
+    fn embed(&mut self, phrases: &[&str]) -> Result<Vec<Embedding>, String> {
+        self.encode_batch(phrases).map_err(|e| e.to_string())
+    }
 }
 
 /// The model must have the three BERT inputs and a [.., .., 384] `last_hidden_state`.
@@ -507,16 +514,5 @@ mod tests {
         assert!(bad.validate("text_encoder").unwrap_err().starts_with("text_encoder.intra_op_threads: "));
         let bad = TextEncoderConfig { model_path: PathBuf::new(), ..ok };
         assert_eq!(bad.validate("text_encoder"), Err("text_encoder.model_path: must not be empty".to_owned()));
-    }
-
-    #[test]
-    fn cosine_of_unit_vectors() {
-        let mut a = [0.0; EMBEDDING_DIM];
-        let mut b = [0.0; EMBEDDING_DIM];
-        a[0] = 1.0;
-        b[0] = 0.6;
-        b[1] = 0.8;
-        assert!((cosine(&a, &a) - 1.0).abs() < 1e-6);
-        assert!((cosine(&a, &b) - 0.6).abs() < 1e-6);
     }
 }

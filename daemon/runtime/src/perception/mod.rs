@@ -1,76 +1,32 @@
 //! Perception: detectors behind one trait, the detections and masks they produce. Each
-//! detection worker owns one [`Detector`]; the backends that make them are in [`crate::backend`].
+//! detection worker (`[detector] workers`, [`DetectThread`]) owns one [`Detector`]; the backends
+//! that make them are in the composition's registry (`crate::backend`).
+//!
+//! | file | what |
+//! |---|---|
+//! | `config.rs` | `[detector]` ([`DetectorConfig`]) |
+//! | `thread.rs` | [`DetectThread`], a detection worker |
+//! | `yolox.rs`, `open_vocab/`, `mask_decoder.rs`, `region_encoder.rs`, `tagger.rs` | the ONNX detectors and their parts |
+//! | `candidates.rs`, `depth_mask.rs`, `image_input.rs` | what they share: knowledge-guided prompts, masks from depth, image tensors |
 
 use op3dsg_drivers::frame::Frame;
-use op3dsg_ipc_types::NodeKind;
 use serde::{Deserialize, Serialize};
 
 pub mod candidates;
+mod config;
 pub mod depth_mask;
 pub mod image_input;
 pub mod mask_decoder;
 pub mod open_vocab;
 pub mod region_encoder;
 pub mod tagger;
-pub(crate) mod worker;
+mod thread;
 pub mod yolox;
 
-/// A binary mask over the detection's pixel box.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct Mask {
-    /// Left column of the box (inclusive), pixels.
-    pub x0: u32,
-    /// Top row of the box (inclusive), pixels.
-    pub y0: u32,
-    /// Box width, pixels.
-    pub width: u32,
-    /// Box height, pixels.
-    pub height: u32,
-    /// Row-major, `width * height` entries, 1 = inside.
-    pub data: Vec<u8>,
-}
+pub use config::{DetectorConfig, OPEN_VOCAB_DETECTOR, YOLOX_DETECTOR};
+pub use thread::{DetectThread, Tickets};
 
-impl Mask {
-    /// Number of pixels inside.
-    pub fn area(&self) -> usize {
-        self.data.iter().filter(|v| **v != 0).count()
-    }
-
-    /// Whether image pixel `(x, y)` is inside.
-    #[inline]
-    pub fn contains(&self, x: u32, y: u32) -> bool {
-        x >= self.x0
-            && y >= self.y0
-            && x < self.x0 + self.width
-            && y < self.y0 + self.height
-            && self.data[((y - self.y0) * self.width + (x - self.x0)) as usize] != 0
-    }
-
-    /// Image pixel indices (row-major over a `image_width`-wide image) inside the mask.
-    pub fn pixel_indices(&self, image_width: u32) -> impl Iterator<Item = usize> + '_ {
-        (0..self.height).flat_map(move |row| {
-            (0..self.width).filter_map(move |col| {
-                (self.data[(row * self.width + col) as usize] != 0)
-                    .then_some(((self.y0 + row) * image_width + self.x0 + col) as usize)
-            })
-        })
-    }
-}
-
-/// One detected instance in one frame.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Detection {
-    /// Label as the detector names it (may be a synonym of the canonical label).
-    pub label: String,
-    /// Object or part.
-    pub kind: NodeKind,
-    /// Detector score in [0, 1].
-    pub score: f32,
-    /// Segmentation mask (its box is the detection box).
-    pub mask: Mask,
-    /// L2-normalised semantic feature when the detector provides one.
-    pub semantic_feature: Option<Vec<f32>>,
-}
+pub use crate::flow::{Detection, Mask};
 
 /// Greedy non-maximum suppression over `candidates` already sorted best first: each is kept
 /// unless `overlaps(kept, candidate)` holds for one kept before it; at most `max_kept`.
@@ -181,20 +137,6 @@ impl ScoreCalibration {
     }
 }
 
-/// Dot product of two semantic features (the cosine when both are L2-normalised).
-#[inline]
-pub fn dot(a: &[f32], b: &[f32]) -> f32 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum()
-}
-
-/// L2-normalises a semantic feature in place (a zero vector stays zero).
-pub fn normalise(v: &mut [f32]) {
-    let norm = dot(v, v).sqrt();
-    if norm > 0.0 {
-        v.iter_mut().for_each(|x| *x /= norm);
-    }
-}
-
 /// Errors of a detector.
 #[derive(Debug, thiserror::Error)]
 pub enum DetectorError {
@@ -218,6 +160,17 @@ pub trait Detector: Send {
 
     /// Name for logs and health (`oracle`, `yolox`).
     fn name(&self) -> &str;
+}
+
+/// Runs `detector` on a keyframe into `out`. On failure `out` is left empty, so the keyframe is
+/// fused as one where nothing was seen, and the error is returned for the caller to count and
+/// log (the pipeline's workers and the batch runner both go on).
+pub fn detect(detector: &mut dyn Detector, frame: &Frame, out: &mut Vec<Detection>) -> Result<(), DetectorError> {
+    let result = detector.detect(frame, out);
+    if result.is_err() {
+        out.clear();
+    }
+    result
 }
 
 #[cfg(test)]

@@ -42,7 +42,8 @@ use ort::session::Session;
 use serde::{Deserialize, Serialize};
 
 use super::image_input::{ImageInput, Resize, prepare, run_on_image};
-use super::{Detection, Detector, DetectorError, Mask, normalise};
+use super::{Detection, Detector, DetectorError, Mask};
+use crate::embedding::normalise;
 use crate::onnx::contract::{self, Dim, FLOAT, TensorSpec};
 use crate::onnx::{OnnxError, OnnxRuntime};
 

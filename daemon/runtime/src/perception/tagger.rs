@@ -30,8 +30,7 @@ use ort::session::Session;
 use serde::{Deserialize, Serialize};
 
 use super::image_input::{ImageInput, Resize, prepare, run_on_image};
-use crate::onnx::clip_text::user_model;
-use crate::onnx::contract::{self, Dim, FLOAT, TensorSpec};
+use crate::onnx::contract::{self, Dim, FLOAT, TensorSpec, user_model};
 use crate::onnx::{OnnxError, OnnxRuntime, resolve_path};
 
 /// How the tagger's output becomes probabilities.

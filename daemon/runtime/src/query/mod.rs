@@ -2,8 +2,35 @@
 //!
 //! A planner asks `<prefix>/query` (iceoryx2 request-response, [`op3dsg_ipc_types::query_types`])
 //! "somewhere to wash my hands" or "what controls the ceiling light" and gets the top-k nodes,
-//! objects and parts alike, with a score and the text that matched. [`service`] runs it on two
-//! threads of its own, never on the fusion thread.
+//! objects and parts alike, with a score and the text that matched. Two threads of its own run
+//! it ([`query_threads`]), never the fusion thread.
+//!
+//! ## Threads
+//!
+//! The query service's two threads: `op3dsg-query-rx` takes requests off `<prefix>/query` and
+//! `op3dsg-query` answers them, one at a time, with its own text encoder.
+//!
+//! ```text
+//! planners ──[iceoryx2 request-response <prefix>/query]──► query-rx ──[jobs: bounded, query.queue_capacity]──► query worker
+//!                                        ◄── busy / bad request / encoder off (at once) ◄┘                      │
+//!                                        ◄───────────────────────── top-k reply ◄───────────────────────────────┘
+//! publisher ──[latest graph, latest wins]──────────────────────────────────────────────────────────────────────►┘
+//! ```
+//!
+//! - The receiver never blocks: a request finds room in the bounded job queue or is refused at
+//!   once with [`QueryStatus::Busy`] (counted; the count travels in every reply). Malformed
+//!   requests and, without the text encoder, every request get their error reply here.
+//! - Every reply's hits carry approach poses ([`Navigator`]: the newest occupancy map the
+//!   occupancy thread handed over, inflated and flooded once per map version, A* per hit; see
+//!   [`crate::occupancy::nav`]). A request naming a node (`QueryRequest::node_id`) is answered
+//!   with that node alone and needs no text encoder, so the worker runs with the encoder off
+//!   too; text requests then get [`QueryStatus::EncoderOff`] from the receiver at once.
+//! - The worker holds the only [`TextEncoder`] of the service (ONNX Runtime with the profile's
+//!   `text_encoder.intra_op_threads`), so at most one query is scored at a time and the fusion
+//!   thread never waits on a query. It takes the newest graph the publisher has sent
+//!   ([`LatestGraph`]) and re-indexes only when the version changed.
+//! - Shutdown: both end with the stop flag, or when the publisher has ended (the end of a
+//!   finite source with `run.exit_at_end`); requests still queued get [`QueryStatus::ShuttingDown`].
 //!
 //! ## Scoring
 //!
@@ -37,16 +64,26 @@
 //! graph version arrives (a rebuild embeds only texts never seen before). A query then costs one
 //! encoder call for its own text plus one dot product per distinct text and a max per node.
 
-pub mod service;
+mod receiver;
+mod worker;
+
+pub use receiver::{QueryCounters, QueryReceiverThread};
+pub use worker::{EncoderSetup, NavigationSetup, Navigator, QueryWorkerThread, to_wire};
 
 use std::collections::HashMap;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+use crossbeam_channel::Receiver;
 
 use op3dsg_ipc_types::{AFFORDANCES, EdgeKind, NO_NODE, NodeKind, QueryMatch, relation_phrase};
 use serde::{Deserialize, Serialize};
 
+use crate::embedding::Embedding;
+use crate::flow::LatestGraph;
 use crate::graph::SceneGraph;
 use crate::onnx::OnnxError;
-use crate::onnx::text_encoder::{Embedding, TextEncoder};
+use crate::onnx::text_encoder::TextEncoder;
 
 /// `[query]`: the language query service.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -75,6 +112,35 @@ impl QueryConfig {
         }
         Ok(())
     }
+}
+
+/// The receiver and the worker of `<prefix>/query`, connected by the job queue
+/// (`query.queue_capacity`); `encoder_setup` is `None` when the profile has the text encoder off
+/// (node queries are answered all the same).
+pub fn query_threads(
+    prefix: &str,
+    config: &QueryConfig,
+    encoder_setup: Option<EncoderSetup>,
+    navigation: NavigationSetup,
+    latest: Arc<LatestGraph>,
+    stop: Arc<AtomicBool>,
+) -> (QueryReceiverThread, QueryWorkerThread, Receiver<Result<(), String>>) {
+    let counters = Arc::new(QueryCounters::default());
+    let (jobs_tx, jobs_rx) = crossbeam_channel::bounded(config.queue_capacity);
+    let (ready_tx, ready_rx) = crossbeam_channel::bounded(1);
+    let receiver = QueryReceiverThread {
+        prefix: prefix.to_owned(),
+        ready: ready_tx,
+        jobs: jobs_tx,
+        encoder_on: encoder_setup.is_some(),
+        capacity: config.queue_capacity,
+        counters: counters.clone(),
+        latest: latest.clone(),
+        stop: stop.clone(),
+    };
+    let worker =
+        QueryWorkerThread { encoder_setup, navigation, jobs: jobs_rx, config: config.clone(), counters, latest, stop };
+    (receiver, worker, ready_rx)
 }
 
 /// Which texts a node is scored on.

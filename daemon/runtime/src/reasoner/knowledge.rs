@@ -36,8 +36,9 @@ use std::sync::Arc;
 
 use op3dsg_ipc_types::NodeKind;
 
-use super::fallback::{EMBEDDING_CONFIDENCE, FallbackCounts, LabelFallback, RULE_CONFIDENCE, SharedEmbedder};
 use super::{FunctionalRelation, NodeAffordances, Reasoner, ReasonerOutput};
+use crate::embedding::SharedEmbedder;
+use crate::knowledge::fallback::{EMBEDDING_CONFIDENCE, FallbackCounts, LabelFallback, RULE_CONFIDENCE};
 use crate::knowledge::{Category, KnowledgeBase, Resolved, TargetChoice};
 use crate::prior::PriorGraph;
 
@@ -311,9 +312,10 @@ mod tests {
 
     #[test]
     fn parts_of_an_unknown_object_follow_the_part_label_rule() {
-        let kb = Arc::new(KnowledgeBase::builtin().unwrap().without_object("nightstand").unwrap());
-        let g = graph(vec![
-            node(1, "nightstand", None, [0.0, 0.0, 0.3], 0.25),
+        let kb = Arc::new(KnowledgeBase::builtin().unwrap());
+        // A piece of furniture no table lists.
+        let mut g = graph(vec![
+            node(1, "thingamajig", None, [0.0, 0.0, 0.3], 0.25),
             node(2, "handle", Some(1), [0.0, -0.25, 0.4], 0.01),
             node(3, "cabinet", None, [2.0, 0.0, 0.4], 0.3),
             node(4, "handle", Some(3), [2.0, -0.3, 0.6], 0.01),
@@ -326,21 +328,21 @@ mod tests {
         assert_eq!((unknown.target_id, relation_phrase(unknown.relation_id)), (1, Some("pull to open or close")));
         assert!(unknown.confidence < known.confidence, "{unknown:?} {known:?}");
         assert_eq!(output.fallback, FallbackCounts { unresolved: 1, by_part_rule: 1, ..FallbackCounts::default() });
-        // With the full tables nothing falls back.
-        let full = Arc::new(KnowledgeBase::builtin().unwrap());
-        let output = KnowledgeReasoner::new(full.clone()).reason(&prior::build(&g, &full, &PriorConfig::default()));
+        // A nightstand, which the tables list, falls back to nothing.
+        g.nodes[0].label = "nightstand".to_owned();
+        let output = KnowledgeReasoner::new(kb.clone()).reason(&prior::build(&g, &kb, &PriorConfig::default()));
         assert_eq!(output.fallback, FallbackCounts::default());
     }
 
     /// "larder" embeds exactly like "cabinet"; every other phrase is orthogonal to both.
     struct Larder;
-    impl crate::reasoner::llm::gate::PhraseEmbedder for Larder {
-        fn embed(&mut self, phrases: &[&str]) -> Result<Vec<crate::onnx::text_encoder::Embedding>, String> {
+    impl crate::embedding::PhraseEmbedder for Larder {
+        fn embed(&mut self, phrases: &[&str]) -> Result<Vec<crate::embedding::Embedding>, String> {
             use std::hash::{Hash, Hasher};
             Ok(phrases
                 .iter()
                 .map(|p| {
-                    let mut e = [0.0f32; crate::onnx::text_encoder::EMBEDDING_DIM];
+                    let mut e = [0.0f32; crate::embedding::EMBEDDING_DIM];
                     let index = if *p == "larder" || *p == "cabinet" {
                         0
                     } else {
@@ -358,7 +360,7 @@ mod tests {
     #[test]
     fn an_unknown_object_is_reasoned_as_its_nearest_category_by_embedding() {
         let kb = Arc::new(KnowledgeBase::builtin().unwrap());
-        let embedder: crate::reasoner::fallback::SharedEmbedder = Arc::new(std::sync::Mutex::new(Box::new(Larder)));
+        let embedder: crate::embedding::SharedEmbedder = Arc::new(std::sync::Mutex::new(Box::new(Larder)));
         let g = graph(vec![
             node(1, "larder", None, [0.0, 0.0, 0.4], 0.3),
             node(2, "handle", Some(1), [0.0, -0.3, 0.6], 0.01),
@@ -378,7 +380,7 @@ mod tests {
         assert!(rule.confidence < unknown.confidence, "{rule:?}");
         assert_eq!(output.fallback, FallbackCounts { unresolved: 1, by_part_rule: 1, ..FallbackCounts::default() });
         // A prior graph built with the fallback carries the category, flagged, and it is counted once.
-        let mut builder = prior::PriorBuilder::with_fallback(crate::reasoner::fallback::LabelFallback::new(
+        let mut builder = prior::PriorBuilder::with_fallback(crate::knowledge::fallback::LabelFallback::new(
             &kb,
             Some(embedder.clone()),
         ));

@@ -10,7 +10,7 @@ use op3dsg_ipc_types::NodeKind;
 use serde_json::json;
 
 use super::scene::{Colour, OBJECT_COLOUR, PART_COLOUR};
-use crate::fusion::NodePoint;
+use crate::graph::NodePoint;
 
 /// A detection as recorded: its box in the keyframe's image.
 #[derive(Debug, Clone, PartialEq)]

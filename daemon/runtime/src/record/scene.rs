@@ -14,9 +14,9 @@ use op3dsg_drivers::mcap::WORLD_FRAME;
 use op3dsg_drivers::mcap::messages::Time;
 use op3dsg_ipc_types::{EdgeKind, NodeKind};
 
-use crate::config::UpAxis;
-use crate::fusion::oriented_box::{OrientedBox, horizontal_frame};
 use crate::graph::{GraphNode, SceneGraph};
+use crate::world::UpAxis;
+use crate::world::{OrientedBox, horizontal_frame};
 
 /// Object cubes.
 pub const OBJECT_COLOUR: Colour = Colour { r: 0.45, g: 0.58, b: 0.72, a: 0.35 };

@@ -17,10 +17,10 @@ use tracing::{info, warn};
 
 use super::scene::write_scene_update;
 use super::{
-    Channel, ColourEncoding, Event, RawFrame, RawInput, RecordCompression, RecordConfig, RecorderParts, RecorderState,
+    Channel, ColourEncoding, Event, RawFrame, RawInput, RecordCompression, RecordConfig, RecordThread, RecorderState,
     RecorderStats,
 };
-use crate::config::UpAxis;
+use crate::world::UpAxis;
 
 type McapWriter = mcap::Writer<BufWriter<File>>;
 
@@ -498,8 +498,8 @@ impl Recorder {
     }
 }
 
-pub(super) fn recorder_loop(parts: RecorderParts) {
-    let RecorderParts { config, up_axis, profile_toml, side_topics, frames_rx, events_rx, pool_tx, stats } = parts;
+pub(super) fn recorder_loop(thread: RecordThread) {
+    let RecordThread { config, up_axis, profile_toml, side_topics, frames_rx, events_rx, pool_tx, stats } = thread;
     let flush_every = Duration::from_millis(config.flush_interval_ms);
     let mut rec = Recorder {
         config,

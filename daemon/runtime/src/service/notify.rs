@@ -21,92 +21,16 @@
 //!   by itself), once.
 
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use sd_notify::NotifyState;
 use tracing::{debug, warn};
 
-use crate::pipeline::PipelineStats;
+use crate::pipeline::Counters;
 
 /// How often `STATUS=` is refreshed when no watchdog is configured.
 const STATUS_PERIOD: Duration = Duration::from_secs(2);
-
-/// Heartbeats of the stages the watchdog watches: each records when its thread last went round
-/// its loop (milliseconds since the pipeline started; 0 = not yet).
-#[derive(Debug)]
-pub struct Liveness {
-    started: Instant,
-    capture_beat_ms: AtomicU64,
-    fusion_beat_ms: AtomicU64,
-    capture_ended: AtomicBool,
-    fusion_ended: AtomicBool,
-}
-
-impl Default for Liveness {
-    fn default() -> Self {
-        Self {
-            started: Instant::now(),
-            capture_beat_ms: AtomicU64::new(0),
-            fusion_beat_ms: AtomicU64::new(0),
-            capture_ended: AtomicBool::new(false),
-            fusion_ended: AtomicBool::new(false),
-        }
-    }
-}
-
-/// The stages [`Liveness`] watches.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum WatchedStage {
-    /// The capture thread.
-    Capture,
-    /// The fusion thread.
-    Fusion,
-}
-
-impl Liveness {
-    fn now_ms(&self) -> u64 {
-        // +1 so that a beat in the first millisecond is not "never".
-        self.started.elapsed().as_millis() as u64 + 1
-    }
-
-    fn slots(&self, stage: WatchedStage) -> (&AtomicU64, &AtomicBool) {
-        match stage {
-            WatchedStage::Capture => (&self.capture_beat_ms, &self.capture_ended),
-            WatchedStage::Fusion => (&self.fusion_beat_ms, &self.fusion_ended),
-        }
-    }
-
-    /// The stage's thread went round its loop.
-    pub fn beat(&self, stage: WatchedStage) {
-        self.slots(stage).0.store(self.now_ms(), Ordering::Relaxed);
-    }
-
-    /// The stage's thread ended normally (end of a finite source, the shutdown ladder): it is
-    /// no longer expected to beat.
-    pub fn ended(&self, stage: WatchedStage) {
-        self.slots(stage).1.store(true, Ordering::Relaxed);
-    }
-
-    /// `Ok` when every watched stage beat within `max_age` (or ended normally); otherwise what
-    /// is stalled, e.g. `fusion thread silent for 12.3 s`. A stage that never beat counts from
-    /// the pipeline's start.
-    pub fn check(&self, max_age: Duration) -> Result<(), String> {
-        let now = self.now_ms();
-        let mut stalled = Vec::new();
-        for (stage, name) in [(WatchedStage::Capture, "capture"), (WatchedStage::Fusion, "fusion")] {
-            let (beat, ended) = self.slots(stage);
-            if ended.load(Ordering::Relaxed) {
-                continue;
-            }
-            let age_ms = now.saturating_sub(beat.load(Ordering::Relaxed));
-            if age_ms > max_age.as_millis() as u64 {
-                stalled.push(format!("{name} thread silent for {:.1} s", age_ms as f64 / 1000.0));
-            }
-        }
-        if stalled.is_empty() { Ok(()) } else { Err(stalled.join(", ")) }
-    }
-}
 
 /// Sends sd_notify messages for the running daemon (a no-op without `$NOTIFY_SOCKET`).
 #[derive(Debug)]
@@ -124,30 +48,22 @@ fn send(states: &[NotifyState]) {
 }
 
 /// The `STATUS=` text of this moment.
-pub fn status_line(stats: &PipelineStats, state: &str) -> String {
-    let version = stats.graph_version.load(Ordering::Relaxed);
-    let nodes = stats.map_node_count.load(Ordering::Relaxed);
-    let source = if stats.source_failed.load(Ordering::Relaxed) {
-        "source failed"
-    } else if stats.source_finished.load(Ordering::Relaxed) {
-        "source ended"
-    } else if stats.source_connected.load(Ordering::Relaxed) {
-        "source delivering"
-    } else {
-        "source disconnected"
-    };
-    let snapshot = match stats.snapshot.version.load(Ordering::Relaxed) {
+pub fn status_line(counters: &Counters, state: &str) -> String {
+    let version = counters.fusion.graph_version.load(Ordering::Relaxed);
+    let nodes = counters.fusion.map_node_count.load(Ordering::Relaxed);
+    let source = counters.capture.source_state();
+    let snapshot = match counters.fusion.snapshot.version.load(Ordering::Relaxed) {
         0 => "no snapshot".to_owned(),
         v => format!("snapshot v{v}"),
     };
-    format!("{state}: graph v{version}, {nodes} nodes, {source}, {snapshot}")
+    format!("{state}: graph v{version}, {nodes} nodes, source {source}, {snapshot}")
 }
 
 impl ServiceNotifier {
     /// Sends `READY=1` (with a first `STATUS=`) and starts the thread `op3dsg-notify`, which
     /// pings the watchdog while the stages are alive and sends `STOPPING=1` when `stop` is set.
     /// Call it once the pipeline has started.
-    pub fn start(stats: Arc<PipelineStats>, stop: Arc<AtomicBool>) -> std::io::Result<Self> {
+    pub fn start(stats: Arc<Counters>, stop: Arc<AtomicBool>) -> std::io::Result<Self> {
         let watchdog = sd_notify::watchdog_enabled();
         send(&[NotifyState::Ready, NotifyState::Status(&status_line(&stats, "serving"))]);
         let done = Arc::new(AtomicBool::new(false));
@@ -187,7 +103,7 @@ impl Drop for ServiceNotifier {
 }
 
 fn notify_loop(
-    stats: &PipelineStats,
+    stats: &Counters,
     stop: &AtomicBool,
     done: &AtomicBool,
     stopping_sent: &AtomicBool,
@@ -230,24 +146,5 @@ fn notify_loop(
                 }
             },
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_silent_stage_is_named_and_an_ended_one_is_not() {
-        let liveness = Liveness::default();
-        liveness.beat(WatchedStage::Capture);
-        liveness.beat(WatchedStage::Fusion);
-        assert_eq!(liveness.check(Duration::from_secs(5)), Ok(()));
-        std::thread::sleep(Duration::from_millis(30));
-        liveness.beat(WatchedStage::Capture);
-        let err = liveness.check(Duration::from_millis(10)).unwrap_err();
-        assert!(err.starts_with("fusion thread silent for"), "{err}");
-        liveness.ended(WatchedStage::Fusion);
-        assert_eq!(liveness.check(Duration::from_millis(10)), Ok(()));
     }
 }

@@ -32,24 +32,23 @@ use super::fusion_match::{FusionMatchReport, KindReport, MatchCriteria, match_ru
 use crate::backends::{oracle_config, set_oracle_config, set_synthetic_config, synthetic_config};
 use crate::batch::{BatchError, BatchRun, VisibilityThresholds, run_with_fusions};
 use crate::oracle::OracleConfig;
+use op3dsg_runtime::backend::StartError;
 use op3dsg_runtime::config::Profile;
 use op3dsg_runtime::fusion::Fusion;
-use op3dsg_runtime::pipeline::StartError;
-use op3dsg_runtime::pipeline::make_fusion;
 
 /// Makes a fusion for a profile.
 pub type FusionFactory = dyn Fn(&Profile) -> Box<dyn Fusion>;
 
-/// The profile's fusion with its colour features on (as the pipeline makes it).
+/// The profile's OP3DSG fusion with its colour features on.
 pub fn fusion_with_colour(profile: &Profile) -> Box<dyn Fusion> {
-    make_fusion(profile)
+    op3dsg_runtime::fusion::build(&profile.fusion, profile.world.up_axis)
 }
 
 /// The profile's fusion with its colour features off (`fusion.colour_features = false`).
 pub fn fusion_without_colour(profile: &Profile) -> Box<dyn Fusion> {
     let mut p = profile.clone();
     p.fusion.colour_features = false;
-    make_fusion(&p)
+    op3dsg_runtime::fusion::build(&p.fusion, p.world.up_axis)
 }
 
 /// `base` turned into the ablation's setting: the `colour_panel` scene with `seed`, `frames`

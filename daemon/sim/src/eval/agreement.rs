@@ -22,11 +22,13 @@ use std::collections::{BTreeMap, BTreeSet};
 
 use op3dsg_drivers::graph_json::GraphJson;
 use op3dsg_ipc_types::{EdgeKind, EdgeOrigin, NodeKind};
-use op3dsg_runtime::config::{Profile, ReasonerKind};
-use op3dsg_runtime::graph::{GraphEdge, GraphNode, OrientedBox, SceneGraph};
+use op3dsg_runtime::config::Profile;
+use op3dsg_runtime::embedding::SharedEmbedder;
+use op3dsg_runtime::graph::{GraphEdge, GraphNode, SceneGraph};
+use op3dsg_runtime::knowledge::fallback::FallbackCounts;
 use op3dsg_runtime::pipeline::make_enricher;
-use op3dsg_runtime::reasoner::ReasoningSetup;
-use op3dsg_runtime::reasoner::fallback::{FallbackCounts, SharedEmbedder};
+use op3dsg_runtime::reasoner::ReasonerKind;
+use op3dsg_runtime::world::OrientedBox;
 use serde::Serialize;
 
 /// Agreeing items out of all.
@@ -115,7 +117,6 @@ pub fn knowledge_answer_with(
     if let Some(embedder) = embedder {
         enricher = enricher.with_label_embedder(embedder);
     }
-    let mut enricher = enricher.with_setup(ReasoningSetup::Split);
     let part_of = op3dsg_ipc_types::relation_id("part of").map_or(0, |(_, id)| id);
     let mut nodes: Vec<GraphNode> = ground_truth
         .nodes

@@ -26,19 +26,19 @@
 //! | row | what it measures | what it cannot |
 //! |---|---|---|
 //! | reasoner on GT nodes | reasoning alone: the ground-truth nodes (exact labels, kinds, parents, boxes, `part of` edges) through the prior graph and the reasoner, scored on the same items as every row | its node columns are 100 by construction (the nodes are the ground truth's); says nothing of perception or fusion |
-//! | peer: ConceptGraphs fusion | ConceptGraphs' association and merging ([`op3dsg_runtime::fusion::conceptgraphs`], their published algorithm and config defaults) in place of OP3DSG's fusion, fed the full row's keyframes and detections in the same pass, reasoned by the same reasoner | ConceptGraphs' perception (CLIP crops, SAM masks, their tagger) is not reproduced: it gets the oracle's detections and their semantic feature; only fusion differs from the full row |
+//! | peer: ConceptGraphs fusion | ConceptGraphs' association and merging ([`crate::conceptgraphs`], their published algorithm and config defaults) in place of OP3DSG's fusion, fed the full row's keyframes and detections in the same pass, reasoned by the same reasoner | ConceptGraphs' perception (CLIP crops, SAM masks, their tagger) is not reproduced: it gets the oracle's detections and their semantic feature; only fusion differs from the full row |
 //! | fusion on exact detections | fusion alone: the oracle with its noise off (every visible instance, canonical label, exact mask, unperturbed feature; `OracleConfig::clean` with the run's seed and semantic source) fused and reasoned like the full row | node columns are fusion's; the relation columns still include the reasoner; the detections are exact, so it bounds fusion from above |
 //!
 //! ## Leave one category out
 //!
 //! For each object category of a scene's ground truth, the reasoner's tables lose it
-//! ([`KnowledgeBase::without_object`]: the category, its synonyms, its object-part pairs, the
+//! ([`KnowledgeVariants::without_object`]: the category, its synonyms, its object-part pairs, the
 //! part categories no other object has, its remote templates and its place among remote
 //! targets). The full row's fused graph and the ground-truth nodes are reasoned again with
 //! those tables, and the items that involve the category are scored: its nodes and their parts,
 //! their affordances, and the triplets with one of them at either end. The same items of the
 //! full row and of "reasoner on GT nodes" are the comparison. The reasoner has to fall back
-//! ([`op3dsg_runtime::reasoner::fallback`]: nearest known category by MiniLM embedding, then
+//! ([`op3dsg_runtime::knowledge::fallback`]: nearest known category by MiniLM embedding, then
 //! the part-label rule), and the fallbacks are counted. The detector's knowledge-guided part
 //! prompts still come from the full tables (the rendering pass is shared), so the node columns
 //! of "leave one out" are perception with the category known; only reasoning loses it.
@@ -76,13 +76,15 @@ use super::fusion_match::{self, FusionMatchReport, MatchCriteria};
 use super::recall::{AffordanceMiss, EdgeMiss, K3, K5, K10, Recall, RecallEvaluator, RecallFigures, Vocabulary};
 use crate::backends::{oracle_config, set_oracle_config, set_synthetic_config, synthetic_config};
 use crate::batch::{self, Lane, VisibilityThresholds};
+use crate::conceptgraphs::{ConceptGraphsConfig, ConceptGraphsFusion};
+use crate::knowledge_variants::KnowledgeVariants;
 use crate::oracle::OracleConfig;
-use op3dsg_runtime::config::{Profile, ReasonerKind};
-use op3dsg_runtime::fusion::conceptgraphs::{ConceptGraphsConfig, ConceptGraphsFusion};
+use crate::reasoning_ablation::ReasoningSetup;
+use op3dsg_runtime::config::Profile;
 use op3dsg_runtime::knowledge::KnowledgeBase;
-use op3dsg_runtime::pipeline::{make_enricher, make_fusion};
-use op3dsg_runtime::reasoner::ReasoningSetup;
-use op3dsg_runtime::reasoner::fallback::{self, FallbackCounts};
+use op3dsg_runtime::knowledge::fallback::{self, FallbackCounts};
+use op3dsg_runtime::pipeline::make_enricher;
+use op3dsg_runtime::reasoner::ReasonerKind;
 use std::sync::Arc;
 
 /// The rows of the table, in order.
@@ -96,8 +98,13 @@ pub const ROWS: [&str; 8] = [
     "w/o prior graph",
     "w/o split",
 ];
+/// The OP3DSG fusion of `profile` (the method's rows).
+fn op3dsg_fusion(profile: &Profile) -> Box<dyn op3dsg_runtime::fusion::Fusion> {
+    op3dsg_runtime::fusion::build(&profile.fusion, profile.world.up_axis)
+}
+
 /// The peer baseline's row: ConceptGraphs' association and merging
-/// ([`op3dsg_runtime::fusion::conceptgraphs`]) in place of OP3DSG's fusion, on the full row's
+/// ([`crate::conceptgraphs`]) in place of OP3DSG's fusion, on the full row's
 /// keyframes and detections, reasoned by the same reasoner.
 pub const PEER_ROW: &str = "peer: ConceptGraphs fusion";
 /// Index of "reasoner on GT nodes" in [`ROWS`].
@@ -217,9 +224,12 @@ pub fn run_scene(base: &Profile, room: RoomKind, seed: u64) -> Result<SceneRun, 
     oracle.part_prompts = op3dsg_runtime::perception::candidates::CandidateMode::Generic;
     set_oracle_config(&mut generic, &oracle);
     let lanes = vec![
-        Lane { detector: None, fusions: vec![make_fusion(&profile), make_fusion(&no_colour), peer_fusion(&profile)] },
-        Lane { detector: Some(generic.clone()), fusions: vec![make_fusion(&generic)] },
-        Lane { detector: Some(exact.clone()), fusions: vec![make_fusion(&exact)] },
+        Lane {
+            detector: None,
+            fusions: vec![op3dsg_fusion(&profile), op3dsg_fusion(&no_colour), peer_fusion(&profile)],
+        },
+        Lane { detector: Some(generic.clone()), fusions: vec![op3dsg_fusion(&generic)] },
+        Lane { detector: Some(exact.clone()), fusions: vec![op3dsg_fusion(&exact)] },
     ];
     let mut runs = batch::run_lanes(&unenriched, &VisibilityThresholds::default(), lanes)
         .map_err(|e| format!("{name}: batch run: {e}"))?;
@@ -234,7 +244,8 @@ pub fn run_scene(base: &Profile, room: RoomKind, seed: u64) -> Result<SceneRun, 
     let Some(scene) = full_run.scene.as_ref() else { return Err(format!("{name}: no ground truth")) };
     // Every row reasons with the same reasoner: the knowledge tables and, for labels they do
     // not know, the embedding fallback on the MiniLM encoder.
-    let embedder = fallback::load_embedder(&profile).map_err(|e| format!("{name}: label fallback: {e}"))?;
+    let embedder = op3dsg_runtime::onnx::text_encoder::load_shared(&profile.onnx, &profile.text_encoder)
+        .map_err(|e| format!("{name}: label fallback: {e}"))?;
     let enricher = |knowledge: Option<Arc<KnowledgeBase>>, setup: ReasoningSetup| -> Result<_, String> {
         let Some(mut enricher) = make_enricher(&profile).map_err(|e| format!("{name}: {e}"))? else {
             return Ok(None);
@@ -242,7 +253,7 @@ pub fn run_scene(base: &Profile, room: RoomKind, seed: u64) -> Result<SceneRun, 
         if let Some(knowledge) = knowledge {
             enricher = enricher.with_knowledge(knowledge);
         }
-        Ok(Some(enricher.with_label_embedder(embedder.clone()).with_setup(setup)))
+        Ok(Some(setup.apply(enricher.with_label_embedder(embedder.clone()))))
     };
     let enrich_with = |graph: &op3dsg_runtime::graph::SceneGraph,
                        knowledge: Option<Arc<KnowledgeBase>>,
@@ -341,7 +352,7 @@ pub fn run_scene(base: &Profile, room: RoomKind, seed: u64) -> Result<SceneRun, 
 pub fn scene_profile(base: &Profile, room: RoomKind, seed: u64) -> Result<(Profile, OracleConfig), String> {
     let name = format!("{} seed {seed}", room.as_str());
     let mut profile = base.clone();
-    let setting = |e: op3dsg_runtime::pipeline::StartError| format!("{name}: {e}");
+    let setting = |e: op3dsg_runtime::backend::StartError| format!("{name}: {e}");
     let mut synthetic = synthetic_config(&profile).map_err(setting)?;
     synthetic.room = room;
     synthetic.seed = seed;

@@ -11,7 +11,8 @@
 //! seed, frame count and `[keyframe]` section) covers what that daemon's run saw.
 
 use op3dsg_drivers::graph_json::GraphJson;
-use op3dsg_runtime::config::{Profile, ReasonerKind};
+use op3dsg_runtime::config::Profile;
+use op3dsg_runtime::reasoner::ReasonerKind;
 use op3dsg_synthetic::RoomKind;
 
 use super::fusion_match::MatchCriteria;

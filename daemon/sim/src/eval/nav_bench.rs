@@ -34,9 +34,10 @@
 use std::time::Instant;
 
 use op3dsg_ipc_types::{ApproachStatus, NodeKind};
-use op3dsg_runtime::config::{Profile, ReasonerKind};
+use op3dsg_runtime::config::Profile;
 use op3dsg_runtime::occupancy::nav::MapView;
 use op3dsg_runtime::occupancy::{Planner, Target};
+use op3dsg_runtime::reasoner::ReasonerKind;
 use op3dsg_synthetic::{RoomKind, Scene, Shape};
 use serde::Serialize;
 

@@ -18,11 +18,12 @@ use std::collections::HashMap;
 use std::time::Instant;
 
 use op3dsg_ipc_types::NodeKind;
-use op3dsg_runtime::config::{Profile, ReasonerKind};
+use op3dsg_runtime::config::Profile;
 use op3dsg_runtime::graph::SceneGraph;
 use op3dsg_runtime::onnx::text_encoder::TextEncoder;
 use op3dsg_runtime::pipeline::make_enricher;
 use op3dsg_runtime::query::{Hit, QueryIndex, ScoringOptions};
+use op3dsg_runtime::reasoner::ReasonerKind;
 use op3dsg_synthetic::RoomKind;
 use serde::Serialize;
 

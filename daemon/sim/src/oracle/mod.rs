@@ -46,9 +46,10 @@ use std::sync::{Arc, Mutex, PoisonError};
 
 use op3dsg_drivers::frame::Frame;
 use op3dsg_ipc_types::NodeKind;
+use op3dsg_runtime::embedding::normalise;
 use op3dsg_runtime::knowledge::{ObjectId, PartId};
 use op3dsg_runtime::perception::candidates::{CandidateMode, PartCandidates, PromptList, match_part};
-use op3dsg_runtime::perception::{Detection, Detector, DetectorError, Mask, normalise};
+use op3dsg_runtime::perception::{Detection, Detector, DetectorError, Mask};
 use op3dsg_synthetic::{InstanceIdChannel, InstanceInfo};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

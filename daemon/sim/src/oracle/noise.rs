@@ -1,7 +1,7 @@
 //! The oracle's random draws: the per-frame seed, scores, Poisson counts and the per-label
 //! semantic vectors.
 
-use op3dsg_runtime::perception::normalise;
+use op3dsg_runtime::embedding::normalise;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;

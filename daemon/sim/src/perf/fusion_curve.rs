@@ -69,7 +69,7 @@ pub fn fusion_curve(options: &PerfOptions) -> anyhow::Result<FusionCurve> {
     let mut sizes = options.fusion_sizes.clone();
     sizes.sort_unstable();
     sizes.dedup();
-    let mut fusion = op3dsg_runtime::pipeline::make_fusion(&profile);
+    let mut fusion = op3dsg_runtime::fusion::build(&profile.fusion, profile.world.up_axis);
     let mut next_copy = 0;
     let mut points = Vec::new();
     for target in sizes {

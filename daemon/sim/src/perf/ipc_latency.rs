@@ -49,7 +49,8 @@ use serde::{Deserialize, Serialize};
 
 use super::{Percentiles, PerfOptions};
 use op3dsg_runtime::graph::{GraphEdge, GraphNode, SceneGraph};
-use op3dsg_runtime::ipc::{GraphServer, IpcConfig, IpcService, create_node, service_name, wall_clock_ns};
+use op3dsg_runtime::ipc::{GraphServer, IpcConfig, IpcService, create_node, service_name};
+use op3dsg_runtime::world::clock::wall_clock_ns;
 
 /// How long either side waits for the other before giving up.
 const PEER_TIMEOUT: Duration = Duration::from_secs(20);

@@ -52,7 +52,7 @@ pub fn peer_fusion_cost(options: &PerfOptions) -> anyhow::Result<PeerFusionCost>
         .profile;
     let workload = Workload::kitchen(3, options.fusion_keyframes.max(1), 15, OracleConfig::realistic());
     let mut fusions: Vec<(&str, Box<dyn Fusion>, Vec<f64>)> = vec![
-        ("OP3DSG multi-view fusion", op3dsg_runtime::pipeline::make_fusion(&profile), Vec::new()),
+        ("OP3DSG multi-view fusion", op3dsg_runtime::fusion::build(&profile.fusion, profile.world.up_axis), Vec::new()),
         (crate::eval::benchmark::PEER_ROW, crate::eval::benchmark::peer_fusion(&profile), Vec::new()),
     ];
     for keyframe in &workload.keyframes {

@@ -9,7 +9,7 @@ use anyhow::{Context as _, anyhow};
 use serde::{Deserialize, Serialize};
 
 use super::{Percentiles, PerfOptions};
-use op3dsg_runtime::pipeline::{Pipeline, PipelineStats};
+use op3dsg_runtime::pipeline::{Counters, Pipeline};
 use op3dsg_runtime::stats::LatencyHistogram;
 
 /// How the source delivers frames in a run.
@@ -199,7 +199,7 @@ pub(crate) fn pipeline_run_with(
     mode: Mode,
     tag: &str,
     extra: &[String],
-) -> anyhow::Result<(PipelineRun, Arc<PipelineStats>)> {
+) -> anyhow::Result<(PipelineRun, Arc<Counters>)> {
     let mut overrides = vec![
         format!("run.max_frames={}", options.frames),
         "run.exit_at_end=true".to_owned(),
@@ -216,16 +216,17 @@ pub(crate) fn pipeline_run_with(
     let sampler = RssSampler::start(options.rss_period)?;
     let stop = Arc::new(AtomicBool::new(false));
     let pipeline = Pipeline::start(&profile, &crate::backends(), stop).context("starting the pipeline")?;
-    let stats = pipeline.stats().clone();
+    let stats = pipeline.counters().clone();
+    let stage_stats = stats.stages();
     let summary = pipeline.wait().map_err(|stuck| anyhow!("stages did not end: {}", stuck.join(", ")))?;
     let rss = sampler.finish();
     if summary.source_failed {
         return Err(anyhow!("the frame source failed (see the log)"));
     }
 
-    let histogram = |name: &str| stats.stages.iter().find(|s| s.name == name).map(|s| s.since_start());
+    let histogram = |name: &str| stage_stats.iter().find(|s| s.name == name).map(|s| s.since_start());
     let mut detection = LatencyHistogram::default();
-    for stage in stats.stages.iter().filter(|s| s.name.starts_with("detect/")) {
+    for stage in stage_stats.iter().filter(|s| s.name.starts_with("detect/")) {
         detection.merge(&stage.since_start());
     }
     let mut stages = Vec::new();

@@ -213,7 +213,7 @@ fn run_one(options: &SoakOptions, frames: u64, snapshot_dir: Option<&Path>) -> a
     let (pipeline, stats) = pipeline_run_with(&perf, Mode::AsFastAsPossible, tag, &extra)?;
     let snapshot = snapshot_dir.map(|_| {
         use std::sync::atomic::Ordering::Relaxed;
-        let s = &stats.snapshot;
+        let s = &stats.fusion.snapshot;
         SnapshotFigures {
             period_s: options.snapshot_period_s,
             written: s.written.load(Relaxed),

@@ -1,12 +1,13 @@
 //! `op3dsg map info|save|reset`: the operator's view of the daemon's map snapshots
-//! (`op3dsg_runtime::service::snapshot`). They work on the snapshot directory, so they need
+//! (`op3dsg_runtime::fusion::snapshot`). They work on the snapshot directory, so they need
 //! read (info) or write (save, reset) access to it: on the robot, `sudo -u op3dsg` or root.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant, SystemTime};
 
 use anyhow::{Context, Result, bail};
-use op3dsg_runtime::service::snapshot::{self, SAVE_REQUEST, SNAPSHOT_FILE, SnapshotError};
+use op3dsg_runtime::fusion::snapshot::{self, SAVE_REQUEST, SNAPSHOT_FILE, SnapshotError};
+use op3dsg_runtime::persist::PersistError;
 
 /// Where the packaged unit keeps snapshots (`StateDirectory=op3dsg` + `snapshots`).
 pub(super) const DEFAULT_DIR: &str = "/var/lib/op3dsg/snapshots";
@@ -28,7 +29,7 @@ pub(super) fn info(dir: &Path, json: bool) -> Result<()> {
     let now_ms = SystemTime::now().duration_since(SystemTime::UNIX_EPOCH).map_or(0, |d| d.as_millis() as u64);
     let age_s = now_ms.saturating_sub(snap.taken_unix_ms) as f64 / 1000.0;
     let aside = moved_aside(dir);
-    let locked = matches!(snapshot::ensure_unlocked(dir), Err(SnapshotError::Locked { .. }));
+    let locked = matches!(snapshot::ensure_unlocked(dir), Err(SnapshotError::Persist(PersistError::Locked { .. })));
     if json {
         let value = serde_json::json!({
             "schema": "op3dsg.map_info/1",
@@ -134,7 +135,7 @@ pub(super) fn reset(dir: &Path) -> Result<()> {
     // The occupancy map saved beside it goes too (op3dsg_runtime::occupancy::persist).
     let occupancy = dir.join(op3dsg_runtime::occupancy::persist::OCCUPANCY_FILE);
     if occupancy.exists() {
-        let aside = snapshot::move_aside(&occupancy, "reset")
+        let aside = op3dsg_runtime::persist::move_aside(&occupancy, "reset")
             .with_context(|| format!("moving {} aside", occupancy.display()))?;
         println!(
             "moved {} to {}; the next start begins with an empty occupancy map",
@@ -147,7 +148,8 @@ pub(super) fn reset(dir: &Path) -> Result<()> {
         println!("{}: no map snapshot; the next start begins with an empty map", path.display());
         return Ok(());
     }
-    let aside = snapshot::move_aside(&path, "reset").with_context(|| format!("moving {} aside", path.display()))?;
+    let aside = op3dsg_runtime::persist::move_aside(&path, "reset")
+        .with_context(|| format!("moving {} aside", path.display()))?;
     println!("moved {} to {}; the next start begins with an empty map", path.display(), aside.display());
     Ok(())
 }

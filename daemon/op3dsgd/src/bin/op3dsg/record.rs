@@ -221,7 +221,7 @@ pub(super) fn bench(args: RecordBenchArgs) -> Result<()> {
             chunk_size_kib: args.chunk_size_kib,
             ..RecordConfig::default()
         };
-        let recorder = Recorder::start(&config, String::new(), frames[0].intrinsics, op3dsg_runtime::config::UpAxis::Z)
+        let recorder = Recorder::start(&config, String::new(), frames[0].intrinsics, op3dsg_runtime::world::UpAxis::Z)
             .with_context(|| format!("starting the recorder in {}", run_dir.display()))?;
         let mut sender = recorder.sender().context("recorder sender")?;
         let period = Duration::from_secs_f64(1.0 / args.rate_hz);

@@ -6,7 +6,7 @@ use op3dsg_ipc_types::NodeKind;
 
 use super::MultiViewFusion;
 use super::cloud::{cell_of, key};
-use crate::perception::{Detection, Mask};
+use crate::flow::{Detection, Mask};
 
 impl MultiViewFusion {
     /// Back-projects `det` into `scratch.points` (appended, downsampled); its bounds.

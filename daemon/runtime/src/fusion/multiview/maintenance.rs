@@ -6,9 +6,9 @@ use op3dsg_ipc_types::NodeKind;
 
 use super::MultiViewFusion;
 use super::node::{Node, blend, boxes_touch, top_vote};
+use crate::embedding::{dot, normalise};
 use crate::fusion::FusionReport;
 use crate::fusion::colour;
-use crate::perception::{dot, normalise};
 
 impl MultiViewFusion {
     /// Duplicate merge, outlier removal and pruning (see the module docs).

@@ -73,11 +73,12 @@ use op3dsg_ipc_types::NodeKind;
 use rustc_hash::{FxHashMap, FxHashSet};
 
 use super::colour::{self, ColourFeature};
-use super::oriented_box::OrientedBox;
 use super::{Fusion, FusionConfig, FusionReport};
-use crate::config::UpAxis;
+use crate::embedding::{dot, normalise};
+use crate::flow::Detection;
 use crate::graph::{GraphNode, SceneGraph};
-use crate::perception::{Detection, dot, normalise};
+use crate::world::OrientedBox;
+use crate::world::UpAxis;
 
 mod attach;
 mod back_projection;

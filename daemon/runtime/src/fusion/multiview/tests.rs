@@ -2,7 +2,7 @@
 
 use super::cloud::PointCloud;
 use super::*;
-use crate::perception::Mask;
+use crate::flow::Mask;
 use op3dsg_drivers::frame::Intrinsics;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -1,0 +1,89 @@
+//! What travels on the pipeline's queues between the stage threads: frames as captured,
+//! keyframes with their pose, each keyframe's detections, and graph versions. A leaf above
+//! `graph`: it imports nothing of the stages.
+//!
+//! ```text
+//! capture ──CapturedFrame──► keyframe gate ──KeyframeItem──► detect/i ──DetectionBatch──► fusion ──GraphItem──► publish
+//! ```
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use crossbeam_channel::Sender;
+use op3dsg_drivers::frame::PooledFrame;
+use op3dsg_drivers::pose::Isometry;
+use op3dsg_ipc_types::PoseStamped;
+use tracing::warn;
+
+mod detection;
+
+pub use detection::{Detection, Mask};
+
+use crate::graph::SceneGraph;
+use crate::queue::Latest;
+use crate::stats::PoseStats;
+
+/// How long a stage waits on an empty queue before it checks the stop flag again.
+pub const POLL: Duration = Duration::from_millis(20);
+
+/// A frame as the source delivered it, with the moment it was delivered (the start of the
+/// `end_to_end` latency).
+#[derive(Debug)]
+pub struct CapturedFrame {
+    /// The frame, in a buffer of the frame pool.
+    pub frame: PooledFrame,
+    /// When the source delivered it.
+    pub captured_at: Instant,
+}
+
+/// A keyframe: a frame the gate accepted, with its pose.
+#[derive(Debug)]
+pub struct KeyframeItem {
+    /// The frame.
+    pub frame: PooledFrame,
+    /// When the source delivered it.
+    pub captured_at: Instant,
+    /// Its pose.
+    pub world_from_camera: Isometry,
+}
+
+/// A keyframe's detections, with the ticket that orders results for fusion.
+#[derive(Debug)]
+pub struct DetectionBatch {
+    /// The keyframe's place in the order workers took keyframes (gapless).
+    pub ticket: u64,
+    /// The keyframe.
+    pub frame: PooledFrame,
+    /// When the source delivered it.
+    pub captured_at: Instant,
+    /// Its pose.
+    pub world_from_camera: Isometry,
+    /// What the worker's detector found (empty when it failed).
+    pub detections: Vec<Detection>,
+}
+
+/// The newest graph the publisher sent, with the sending daemon's instance id: the query
+/// worker's input (latest wins; a copy per version, made on the publisher thread).
+pub type LatestGraph = Latest<(Arc<SceneGraph>, u64)>;
+
+/// A graph version for the publisher, with the capture moment of the newest keyframe fused into
+/// it (`None` before the first keyframe).
+#[derive(Debug)]
+pub struct GraphItem {
+    /// The version.
+    pub graph: SceneGraph,
+    /// When the newest keyframe in it was captured.
+    pub newest_capture: Option<Instant>,
+}
+
+/// Hands a pose (`what`: received live, or recorded) to the keyframe gate without waiting. The
+/// gate drains the hand-over every frame; when it is full the pose is dropped and counted in
+/// `pose.queue_full` (losing the newest is acceptable too), with a warning at powers of two.
+pub fn hand_over_pose(tx: &Sender<PoseStamped>, pose: PoseStamped, stats: &PoseStats, what: &str) {
+    if tx.try_send(pose).is_err() {
+        let dropped = stats.queue_full.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+        if dropped.is_power_of_two() {
+            warn!(dropped, "pose hand-over queue to the keyframe gate full; {what} dropped");
+        }
+    }
+}

@@ -1,0 +1,349 @@
+//! Each stage's thread built from the profile, and the spawner that names and tracks them.
+
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use crossbeam_channel::{Receiver, Sender};
+use op3dsg_drivers::frame::{FramePool, Intrinsics};
+use op3dsg_drivers::source::FrameSource;
+use op3dsg_ipc_types::PoseStamped;
+use tracing::{info, warn};
+
+use super::Counters;
+use crate::backend::{Backends, StartError};
+use crate::capture::CaptureThread;
+use crate::config::{Profile, effective_toml};
+use crate::flow::{CapturedFrame, DetectionBatch, GraphItem, KeyframeItem, LatestGraph};
+use crate::fusion::snapshot::{SnapshotSink, SnapshotStore, SnapshotWriter};
+use crate::fusion::{Fusion, FusionThread, Resume};
+use crate::keyframe::{KeyframeGate, KeyframeRecorder, KeyframeThread, PoseSourceKind};
+use crate::occupancy::persist::OccupancyStore;
+use crate::occupancy::{
+    LatestOccupancy, OccupancyFeed, OccupancyGrid, OccupancyPublisher, OccupancyThread, scan_queue,
+};
+use crate::perception::{DetectThread, Tickets};
+use crate::publish::PublishThread;
+use crate::query::{EncoderSetup, NavigationSetup, QueryCounters, query_threads};
+use crate::queue::{QueueReceiver, QueueSender, QueueStats, queue};
+use crate::reasoner::GraphEnricher;
+use crate::record::{RecordSender, RecordThread, SideChannelTap};
+use crate::stats::StageStats;
+
+/// The stage threads of one pipeline: each spawned by name, each reporting its end.
+pub(super) struct Stages {
+    finished_tx: Sender<&'static str>,
+    pub(super) finished_rx: Receiver<&'static str>,
+    pub(super) running: Vec<&'static str>,
+    pub(super) handles: Vec<std::thread::JoinHandle<()>>,
+}
+
+impl Stages {
+    pub(super) fn new() -> Self {
+        let (finished_tx, finished_rx) = crossbeam_channel::unbounded::<&'static str>();
+        Self { finished_tx, finished_rx, running: Vec::new(), handles: Vec::new() }
+    }
+
+    /// Starts thread `op3dsg-<name>` running `body`.
+    pub(super) fn spawn(&mut self, name: &'static str, body: impl FnOnce() + Send + 'static) -> Result<(), StartError> {
+        let finished = self.finished_tx.clone();
+        let handle = std::thread::Builder::new()
+            .name(format!("op3dsg-{name}"))
+            .spawn(move || {
+                body();
+                let _ = finished.send(name);
+            })
+            .map_err(|e| StartError::Thread { name: name.to_owned(), reason: e.to_string() })?;
+        self.handles.push(handle);
+        self.running.push(name);
+        Ok(())
+    }
+
+    /// Starts a thread that creates its iceoryx2 services itself, and returns once it says they
+    /// exist (or why they could not be made).
+    pub(super) fn spawn_serving(
+        &mut self,
+        name: &'static str,
+        ready: &Receiver<Result<(), String>>,
+        body: impl FnOnce() + Send + 'static,
+    ) -> Result<(), StartError> {
+        self.spawn(name, body)?;
+        match ready.recv() {
+            Ok(Ok(())) => Ok(()),
+            Ok(Err(reason)) => Err(StartError::Ipc(reason)),
+            Err(_) => Err(StartError::Ipc(format!("{name} thread ended during start-up"))),
+        }
+    }
+}
+
+/// The queues between the stages, each with its profile's capacity and policy.
+pub(super) struct Queues {
+    pub(super) frames: (QueueSender<CapturedFrame>, QueueReceiver<CapturedFrame>),
+    pub(super) keyframes: (QueueSender<KeyframeItem>, QueueReceiver<KeyframeItem>),
+    pub(super) detections: (QueueSender<DetectionBatch>, QueueReceiver<DetectionBatch>),
+    pub(super) graph: (QueueSender<GraphItem>, QueueReceiver<GraphItem>),
+    /// Received and replayed poses for the keyframe gate.
+    pub(super) poses: (Sender<PoseStamped>, Receiver<PoseStamped>),
+    pub(super) stats: Vec<Arc<QueueStats>>,
+}
+
+impl Queues {
+    pub(super) fn new(profile: &Profile, stop: &Arc<std::sync::atomic::AtomicBool>) -> Self {
+        let q = &profile.queues;
+        let (frames_tx, frames_rx, frames) = queue::<CapturedFrame>("frames", q.frames, stop.clone());
+        let (kf_tx, kf_rx, keyframes) = queue::<KeyframeItem>("keyframes", q.keyframes, stop.clone());
+        let (det_tx, det_rx, detections) = queue::<DetectionBatch>("detections", q.detections, stop.clone());
+        let (graph_tx, graph_rx, graph) = queue::<GraphItem>("graph", q.graph, stop.clone());
+        Self {
+            frames: (frames_tx, frames_rx),
+            keyframes: (kf_tx, kf_rx),
+            detections: (det_tx, det_rx),
+            graph: (graph_tx, graph_rx),
+            poses: crossbeam_channel::bounded(profile.pose.buffer_len),
+            stats: vec![frames, keyframes, detections, graph],
+        }
+    }
+}
+
+/// The map the profile asks for, restored from the last snapshot before anything runs (so the
+/// first graph published holds it), and the snapshot writer's two ends when snapshots are on.
+pub(super) fn restored_map(
+    profile: &Profile,
+    backends: &Backends,
+    counters: &Counters,
+) -> Result<(Box<dyn Fusion>, Resume, Option<(SnapshotSink, SnapshotWriter)>), StartError> {
+    let mut fusion = backends.fusion(profile)?;
+    let mut resume = Resume::default();
+    let snapshots = match profile.snapshot.resolve_dir() {
+        None => {
+            info!("map snapshots off (snapshot.dir unset outside systemd, or snapshot.enabled = false)");
+            None
+        }
+        Some(dir) if fusion.export_state().is_none() => {
+            // A map without a saved form (a peer fusion): neither restore (which would move a
+            // saved map of the other fusion aside) nor write.
+            warn!(dir = %dir.display(), method = %profile.fusion.method, "map snapshots off: this fusion cannot save or restore its map (a snapshot there is left as it is)");
+            None
+        }
+        Some(dir) => {
+            let store = SnapshotStore::open(&dir)?;
+            let stats = counters.fusion.snapshot.clone();
+            if let Some(restored) = store.restore(fusion.as_mut(), &stats) {
+                resume = Resume { graph_version: restored.graph_version, stamp_ns: restored.stamp_ns, restored: true };
+            }
+            info!(dir = %store.dir().display(), period_s = profile.snapshot.period_s, "map snapshots on");
+            Some(crate::fusion::snapshot::channel(store, profile.snapshot.period_s, stats))
+        }
+    };
+    Ok((fusion, resume, snapshots))
+}
+
+/// The recorder's thread and its sender, when `[record] enabled`.
+pub(super) fn recorder(
+    profile: &Profile,
+    intrinsics: Intrinsics,
+    side_taps: &[Box<dyn SideChannelTap>],
+    counters: &Counters,
+) -> Result<Option<(RecordSender, RecordThread)>, StartError> {
+    if !profile.record.enabled {
+        return Ok(None);
+    }
+    let side_topics = side_taps.iter().map(|t| t.topic().to_owned()).collect();
+    RecordThread::prepare(
+        &profile.record,
+        effective_toml(profile),
+        intrinsics,
+        profile.world.up_axis,
+        side_topics,
+        counters.recorder.clone(),
+    )
+    .map(Some)
+    .map_err(|e| StartError::Incompatible { field: "record.dir", reason: e.to_string() })
+}
+
+/// The publisher: it owns the iceoryx2 services.
+pub(super) fn publisher(
+    profile: &Profile,
+    graph_rx: QueueReceiver<GraphItem>,
+    pose_tx: Sender<PoseStamped>,
+    counters: &Arc<Counters>,
+    stop: &Arc<std::sync::atomic::AtomicBool>,
+    recorder: Option<RecordSender>,
+    query_graph: Option<Arc<LatestGraph>>,
+) -> (PublishThread, Receiver<Result<(), String>>) {
+    let (ready, ready_rx) = crossbeam_channel::bounded(1);
+    let thread = PublishThread {
+        ipc: profile.ipc.clone(),
+        ready,
+        graph_rx,
+        pose_tx: (profile.pose.source == PoseSourceKind::Ipc).then_some(pose_tx),
+        health: counters.clone(),
+        pose_stats: counters.keyframe.pose.clone(),
+        counters: counters.publish.clone(),
+        stop: stop.clone(),
+        health_period: Duration::from_millis(profile.health.period_ms),
+        log_every: profile.health.log_every_periods,
+        exit_at_end: profile.run.exit_at_end,
+        recorder,
+        query_graph,
+    };
+    (thread, ready_rx)
+}
+
+/// The occupancy map (allocated now, restored beside the map snapshot), its publisher, and the
+/// keyframe gate's end of its queue.
+pub(super) fn occupancy(
+    profile: &Profile,
+    intrinsics: &Intrinsics,
+    latest: Option<Arc<LatestOccupancy>>,
+    stop: &Arc<std::sync::atomic::AtomicBool>,
+) -> Result<(OccupancyThread, OccupancyFeed), StartError> {
+    let config = &profile.occupancy;
+    let mut grid = OccupancyGrid::new(config, profile.world.up_axis, profile.navigation.robot_radius_m, intrinsics);
+    // A file that does not fit is moved aside, named in the log (crate::occupancy::persist).
+    let store = profile.snapshot.resolve_dir().map(|dir| OccupancyStore::new(&dir));
+    if let Some(store) = &store {
+        let _ = store.restore(&mut grid);
+    }
+    let publisher = OccupancyPublisher::open(&profile.ipc.prefix, grid.geometry().cell_count())
+        .map_err(|e| StartError::Ipc(e.to_string()))?;
+    info!(
+        cells = grid.geometry().cell_count(),
+        cell_size_m = config.cell_size_m,
+        memory_bytes = grid.memory_bytes(),
+        "occupancy map on"
+    );
+    let (feed, intake) = scan_queue(config.queue_capacity, intrinsics, config.pixel_stride);
+    let thread = OccupancyThread {
+        grid,
+        intake,
+        publisher,
+        latest,
+        period: Duration::from_millis(config.publish_period_ms),
+        exit_at_end: profile.run.exit_at_end,
+        cost: Arc::new(StageStats::new("occupancy")),
+        store,
+        save_period: (profile.snapshot.period_s > 0.0).then(|| Duration::from_secs_f64(profile.snapshot.period_s)),
+        stop: stop.clone(),
+    };
+    Ok((thread, feed))
+}
+
+/// The language query service's two threads (text queries need the text encoder; node queries
+/// and approach poses do not) and their counters.
+pub(super) fn query(
+    stages: &mut Stages,
+    profile: &Profile,
+    latest: Arc<LatestGraph>,
+    occupancy: Option<Arc<LatestOccupancy>>,
+    stop: &Arc<std::sync::atomic::AtomicBool>,
+) -> Result<Arc<QueryCounters>, StartError> {
+    let encoder = profile
+        .text_encoder
+        .enabled
+        .then(|| EncoderSetup { onnx: profile.onnx.clone(), text_encoder: profile.text_encoder.clone() });
+    let navigation = NavigationSetup { occupancy, config: profile.navigation.clone(), up_axis: profile.world.up_axis };
+    let (receiver, worker, ready) =
+        query_threads(&profile.ipc.prefix, &profile.query, encoder, navigation, latest, stop.clone());
+    let counters = worker.counters().clone();
+    stages.spawn_serving("query-rx", &ready, move || receiver.run())?;
+    stages.spawn("query", move || worker.run())?;
+    Ok(counters)
+}
+
+/// The fusion thread, with the LLM refiner's calls recorded when both are on.
+pub(super) fn fusion(
+    profile: &Profile,
+    map: (Box<dyn Fusion>, Resume, Option<SnapshotSink>),
+    enricher: Option<GraphEnricher>,
+    queues: (QueueReceiver<DetectionBatch>, QueueSender<GraphItem>),
+    counters: &Counters,
+    recorder: Option<RecordSender>,
+) -> FusionThread {
+    let (fusion, resume, snapshots) = map;
+    if let (Some(enricher), Some(recorder)) = (&enricher, &recorder) {
+        enricher.record_llm_to(recorder);
+    }
+    FusionThread {
+        fusion,
+        enricher,
+        det_rx: queues.0,
+        graph_tx: queues.1,
+        counters: counters.fusion.clone(),
+        liveness: counters.liveness.clone(),
+        min_interval: Duration::from_millis(profile.run.min_publish_interval_ms),
+        snapshots,
+        resume,
+        recorder,
+    }
+}
+
+/// The detection workers: one detector each from `factory`, one ticketed receiver shared.
+pub(super) fn detectors(
+    stages: &mut Stages,
+    factory: &crate::backend::DetectorFactory,
+    keyframes: QueueReceiver<KeyframeItem>,
+    det_tx: &QueueSender<DetectionBatch>,
+    counters: &Counters,
+) -> Result<(), StartError> {
+    let tickets: Tickets = Arc::new(Mutex::new((keyframes, 0u64)));
+    for (worker, stage) in counters.detect.iter().enumerate() {
+        let thread = DetectThread {
+            worker,
+            detector: factory(worker as u32),
+            tickets: tickets.clone(),
+            det_tx: det_tx.clone(),
+            stage: stage.clone(),
+        };
+        let name: &'static str = Box::leak(format!("detect-{worker}").into_boxed_str());
+        stages.spawn(name, move || thread.run())?;
+    }
+    Ok(())
+}
+
+/// The keyframe gate, with the source's stamp clock.
+pub(super) fn keyframe(
+    profile: &Profile,
+    source: &dyn FrameSource,
+    queues: (QueueReceiver<CapturedFrame>, QueueSender<KeyframeItem>, Receiver<PoseStamped>),
+    counters: &Counters,
+    stop: &Arc<std::sync::atomic::AtomicBool>,
+    recorder: Option<KeyframeRecorder>,
+    occupancy: Option<OccupancyFeed>,
+) -> KeyframeThread {
+    let mut gate = KeyframeGate::new(&profile.keyframe, &profile.pose);
+    gate.set_frame_clock(source.stamp_clock());
+    KeyframeThread {
+        gate,
+        frames_rx: queues.0,
+        kf_tx: queues.1,
+        pose_rx: queues.2,
+        counters: counters.keyframe.clone(),
+        stop: stop.clone(),
+        recorder,
+        occupancy,
+    }
+}
+
+/// The capture thread; a replayed recording's input poses go where the pose input's go.
+pub(super) fn capture(
+    profile: &Profile,
+    source: Box<dyn FrameSource>,
+    frames_tx: QueueSender<CapturedFrame>,
+    pose_tx: Sender<PoseStamped>,
+    counters: &Counters,
+    stop: &Arc<std::sync::atomic::AtomicBool>,
+) -> CaptureThread {
+    let pool = FramePool::new(profile.frame_pool_capacity(), source.intrinsics());
+    CaptureThread {
+        source,
+        pool,
+        frames_tx,
+        pose_tx: (profile.pose.source == PoseSourceKind::Ipc).then_some(pose_tx),
+        rate_hz: profile.source.rate_hz,
+        max_frames: profile.run.max_frames,
+        counters: counters.capture.clone(),
+        pose_stats: counters.keyframe.pose.clone(),
+        liveness: counters.liveness.clone(),
+        stop: stop.clone(),
+    }
+}
