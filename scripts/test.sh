@@ -53,6 +53,12 @@ cargo fmt --all -- --check
 echo "== clippy =="
 cargo clippy --workspace --all-targets --locked "${FEATURES[@]}" -- -D warnings
 
+# Layers that point down (tests/layering): no import circle between a crate's top-level modules,
+# no upward import where a crate declares its rows, no product file over 700 lines. Cheap and
+# early, before the long build; `-p` builds only the checker, in the same debug profile.
+echo "== layering =="
+cargo run --locked --quiet -p op3dsg-layering -- check
+
 echo "== build (debug, all targets) =="
 cargo build --workspace --all-targets --locked "${FEATURES[@]}"
 

@@ -1,0 +1,130 @@
+//! The Cargo.toml files: the workspace's members, each member's name, targets and declared
+//! layers (`[package.metadata.layers]`).
+
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use crate::error::Error;
+
+/// `[package.metadata.layers]` of a crate's Cargo.toml.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Layers {
+    /// Bottom first: a module may import only modules of earlier rows. Absent: only circles
+    /// are checked.
+    pub rows: Option<Vec<Vec<String>>>,
+    /// Submodules (`crate::<m>::<name>`) that only `<m>` itself and the last row may import.
+    #[serde(default)]
+    pub composition_only: Vec<String>,
+}
+
+/// One workspace member.
+#[derive(Debug, Clone)]
+pub struct Member {
+    pub name: String,
+    /// The member's folder, under the workspace root.
+    pub dir: PathBuf,
+    pub manifest: PathBuf,
+    pub lib: Option<PathBuf>,
+    /// Roots of binaries and examples declared with an explicit `path`.
+    pub declared_roots: Vec<PathBuf>,
+    pub layers: Option<Layers>,
+}
+
+#[derive(Deserialize)]
+struct WorkspaceManifest {
+    workspace: Option<Workspace>,
+}
+
+#[derive(Deserialize)]
+struct Workspace {
+    #[serde(default)]
+    members: Vec<String>,
+}
+
+#[derive(Deserialize)]
+struct CrateManifest {
+    package: Package,
+    lib: Option<Target>,
+    #[serde(default)]
+    bin: Vec<Target>,
+    #[serde(default)]
+    example: Vec<Target>,
+}
+
+#[derive(Deserialize)]
+struct Package {
+    name: String,
+    metadata: Option<Metadata>,
+}
+
+#[derive(Deserialize)]
+struct Metadata {
+    layers: Option<Layers>,
+}
+
+#[derive(Deserialize)]
+struct Target {
+    path: Option<PathBuf>,
+}
+
+/// Whether `dir/Cargo.toml` declares a `[workspace]`.
+pub fn is_workspace_root(dir: &Path) -> bool {
+    let path = dir.join("Cargo.toml");
+    std::fs::read_to_string(&path)
+        .ok()
+        .and_then(|text| toml::from_str::<WorkspaceManifest>(&text).ok())
+        .is_some_and(|m| m.workspace.is_some())
+}
+
+/// The members of the workspace at `root`, in the order `members` lists them. A member ending
+/// in `/*` stands for every folder under it that has a Cargo.toml.
+pub fn members(root: &Path) -> Result<Vec<Member>, Error> {
+    let path = root.join("Cargo.toml");
+    let manifest: WorkspaceManifest = read_toml(&path)?;
+    let Some(workspace) = manifest.workspace else {
+        return Err(Error::Manifest { path, message: "no [workspace] table".into() });
+    };
+    let mut dirs = Vec::new();
+    for member in &workspace.members {
+        match member.strip_suffix("/*") {
+            Some(parent) => {
+                let parent = root.join(parent);
+                let entries = std::fs::read_dir(&parent).map_err(|e| Error::io(&parent, e))?;
+                let mut found: Vec<PathBuf> = entries
+                    .filter_map(|e| e.ok().map(|e| e.path()))
+                    .filter(|p| p.join("Cargo.toml").is_file())
+                    .collect();
+                found.sort();
+                dirs.extend(found);
+            }
+            None => dirs.push(root.join(member)),
+        }
+    }
+    dirs.into_iter().map(|dir| member(&dir)).collect()
+}
+
+fn member(dir: &Path) -> Result<Member, Error> {
+    let manifest_path = dir.join("Cargo.toml");
+    let manifest: CrateManifest = read_toml(&manifest_path)?;
+    let lib = match manifest.lib.and_then(|l| l.path) {
+        Some(path) => Some(dir.join(path)),
+        None => Some(dir.join("src/lib.rs")).filter(|p| p.is_file()),
+    };
+    let declared_roots =
+        manifest.bin.iter().chain(&manifest.example).filter_map(|t| t.path.as_ref()).map(|p| dir.join(p)).collect();
+    Ok(Member {
+        name: manifest.package.name,
+        dir: dir.to_path_buf(),
+        manifest: manifest_path,
+        lib,
+        declared_roots,
+        layers: manifest.package.metadata.and_then(|m| m.layers),
+    })
+}
+
+fn read_toml<T: serde::de::DeserializeOwned>(path: &Path) -> Result<T, Error> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    toml::from_str(&text).map_err(|e| Error::Manifest { path: path.to_path_buf(), message: e.to_string() })
+}
