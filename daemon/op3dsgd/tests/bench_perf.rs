@@ -123,7 +123,7 @@ fn bench_perf_runs_and_reports_sane_figures() {
     assert_eq!(peer.keyframes, 4);
     assert!(peer.detections > 0);
     let names: Vec<&str> = peer.fusions.iter().map(|f| f.name.as_str()).collect();
-    assert_eq!(names, ["OP3DSG multi-view fusion", op3dsg_sim::eval::benchmark::PEER_ROW]);
+    assert_eq!(names, ["OP3DSG multi-view fusion", op3dsg_sim::conceptgraphs::PEER_ROW]);
     for f in &peer.fusions {
         sane(&f.keyframe, &f.name);
         assert_eq!(f.keyframe.count, 4, "{}", f.name);

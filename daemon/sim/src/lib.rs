@@ -11,6 +11,7 @@
 //! | [`batch`] | the deterministic single-thread runner: source → keyframe gate → the runtime's keyframe path, with ground-truth counts |
 //! | [`eval`] | scoring fused graphs against ground truth: the benchmark's recall protocol, fusion matching, the quality benchmark |
 //! | [`perf`] | `op3dsg bench perf`: pipeline, IPC and fusion-cost figures, JSON / Markdown / PNG |
+//! | [`plot`] | what the PNG plots share (font, series, legend, file) |
 //! | [`workload`] | reproducible fusion workloads (real kitchen keyframes, maps of a chosen size) for benches |
 //! | [`conceptgraphs`] | ConceptGraphs' association and merging: the benchmark's peer fusion, registered as fusion `conceptgraphs` |
 //! | [`reasoning_ablation`] | the paper's ablations of the reasoning stage, as variants of the runtime's enricher |
@@ -30,6 +31,7 @@ pub mod eval;
 pub mod knowledge_variants;
 pub mod oracle;
 pub mod perf;
+pub mod plot;
 pub mod reasoning_ablation;
 pub mod workload;
 

@@ -67,7 +67,7 @@ fn a_small_benchmark_scores_every_row_and_repeats() {
     assert!(exact.part.percent(K3).unwrap() >= full.part.percent(K3).unwrap() - 5.0, "{}", benchmark::text(&report));
     // The peer baseline (ConceptGraphs' fusion) is scored on the same items and finds objects:
     // a broken backend (nothing published, every detection filtered) fails here.
-    let peer = row(benchmark::PEER_ROW);
+    let peer = row(op3dsg_sim::conceptgraphs::PEER_ROW);
     assert_eq!(peer.object.total, full.object.total, "the same items are scored");
     assert!(peer.object.percent(K3).unwrap() > 30.0, "{}", benchmark::text(&report));
     // Leave one category out: every object category of the two rooms is left out once, its

@@ -15,7 +15,7 @@ pub fn violations(crates: &[CrateModel], max_file_lines: usize) -> Vec<String> {
         if let Some(rows) = &rows {
             upward(krate, rows, &mut out);
         }
-        composition_only(krate, rows.as_ref(), &mut out);
+        composition_only(krate, &mut out);
         for file in &krate.files {
             if file.lines > max_file_lines {
                 out.push(format!(
@@ -98,30 +98,31 @@ fn upward(krate: &CrateModel, rows: &BTreeMap<&str, usize>, out: &mut Vec<String
     }
 }
 
-fn composition_only(krate: &CrateModel, rows: Option<&BTreeMap<&str, usize>>, out: &mut Vec<String>) {
+fn composition_only(krate: &CrateModel, out: &mut Vec<String>) {
     let Some(layers) = &krate.layers else { return };
     if layers.composition_only.is_empty() {
         return;
     }
     let last_row: Vec<&str> =
         layers.rows.as_ref().and_then(|r| r.last()).map(|r| r.iter().map(String::as_str).collect()).unwrap_or_default();
-    let last = rows.map(|r| r.values().copied().max().unwrap_or(0));
+    let composition: Vec<&str> = match &layers.composition {
+        Some(modules) => modules.iter().map(String::as_str).collect(),
+        None => last_row,
+    };
     for arrow in &krate.arrows {
-        let in_last_row = match (rows, last) {
-            (Some(rows), Some(last)) => rows.get(arrow.from.as_str()) == Some(&last),
-            _ => false,
-        };
-        if in_last_row {
+        if composition.contains(&arrow.from.as_str()) {
             continue;
         }
         for sub in &layers.composition_only {
             let hits: Vec<&Occurrence> =
-                arrow.occurrences.iter().filter(|o| o.target.get(1) == Some(sub) && o.target[0] == arrow.to).collect();
+                arrow.occurrences.iter().filter(|o| o.target[0] == arrow.to && names(sub, &o.target[1..])).collect();
             let Some(first) = hits.first() else { continue };
-            let who = if last_row.is_empty() {
+            let who = if composition.is_empty() {
                 format!("only {} itself may import it", arrow.to)
+            } else if layers.composition.is_some() {
+                format!("only {} itself and the composition ({}) may import it", arrow.to, composition.join(", "))
             } else {
-                format!("only {} itself and the last row ({}) may import it", arrow.to, last_row.join(", "))
+                format!("only {} itself and the last row ({}) may import it", arrow.to, composition.join(", "))
             };
             let rest: Vec<Occurrence> = hits[1..].iter().map(|o| (*o).clone()).collect();
             out.push(format!(
@@ -134,6 +135,16 @@ fn composition_only(krate: &CrateModel, rows: Option<&BTreeMap<&str, usize>>, ou
                 also(&rest)
             ));
         }
+    }
+}
+
+/// Whether a path below a top-level module takes what a `composition_only` entry names: a
+/// submodule (`thread`: the path's first segment) or, written `*Suffix`, any item whose name
+/// ends so (`*Thread`: a stage's thread struct, wherever it is re-exported).
+fn names(entry: &str, below_module: &[String]) -> bool {
+    match entry.strip_prefix('*') {
+        Some(suffix) => below_module.iter().any(|segment| segment.ends_with(suffix)),
+        None => below_module.first().map(String::as_str) == Some(entry),
     }
 }
 

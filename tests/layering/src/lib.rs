@@ -21,8 +21,8 @@
 //! 1. an import circle between top-level modules (every module of it, and every arrow in it
 //!    with the file and line that writes it);
 //! 2. with declared rows, an import of a module that is not in a lower row;
-//! 3. with `composition_only`, an import of such a submodule from outside its module and the
-//!    last row;
+//! 3. with `composition_only`, an import of such a submodule or item from outside its module
+//!    and the composition (`composition`, else the last row);
 //! 4. a product file over 700 lines (`--max-file-lines`): the module trees of each member's lib
 //!    and binaries, `src/bin/**` and `examples/`; never `tests/` or `benches/`.
 //!
@@ -37,13 +37,16 @@
 //!   ["fusion", "perception"],  # stages
 //!   ["pipeline"],              # composition
 //! ]
-//! # submodules that only the last row may import from another top-level module
-//! composition_only = ["thread"]
+//! # what only the composition may import from another top-level module: a submodule, or
+//! # (`*Suffix`) any item whose name ends so
+//! composition_only = ["thread", "*Thread"]
+//! # the modules of the composition (default: the last row)
+//! composition = ["pipeline"]
 //! ```
 //!
 //! Every top-level module must be in exactly one row. With the rows above, `fusion` may import
 //! `graph`, `world` and `queue`, not `perception` (same row) or `pipeline` (above); and only
-//! `fusion` itself and `pipeline` may name `crate::fusion::thread`.
+//! `fusion` itself and `pipeline` may name `crate::fusion::thread` or `crate::fusion::FusionThread`.
 
 pub mod check;
 pub mod cycles;

@@ -14,9 +14,14 @@ pub struct Layers {
     /// Bottom first: a module may import only modules of earlier rows. Absent: only circles
     /// are checked.
     pub rows: Option<Vec<Vec<String>>>,
-    /// Submodules (`crate::<m>::<name>`) that only `<m>` itself and the last row may import.
+    /// What only `<m>` itself and the composition may import from another top-level module
+    /// `<m>`: a submodule (`thread`: `crate::<m>::thread`), or, written `*Suffix`, any item whose
+    /// name ends so (`*Thread`).
     #[serde(default)]
     pub composition_only: Vec<String>,
+    /// The modules that make up the composition (they may import what `composition_only`
+    /// names). Absent: the last row.
+    pub composition: Option<Vec<String>>,
 }
 
 /// One workspace member.

@@ -115,6 +115,31 @@ fn a_composition_only_submodule_is_for_its_module_and_the_last_row() {
 }
 
 #[test]
+fn a_thread_struct_is_for_the_composition_wherever_it_is_re_exported() {
+    let dir = app(
+        "[package.metadata.layers]\nrows = [[\"fusion\"], [\"keyframe\"], [\"config\"], [\"pipeline\"], [\"service\"]]\n\
+         composition_only = [\"thread\", \"*Thread\"]\ncomposition = [\"config\", \"pipeline\", \"service\"]\n",
+        &[
+            (
+                "src/lib.rs",
+                "pub mod config;\npub mod fusion;\npub mod keyframe;\npub mod pipeline;\npub mod service;\n",
+            ),
+            ("src/fusion/mod.rs", "mod thread;\npub use thread::FusionThread;\npub struct Fused;\n"),
+            ("src/fusion/thread.rs", "pub struct FusionThread;\n"),
+            ("src/keyframe.rs", "use crate::fusion::{Fused, FusionThread};\n"),
+            ("src/config.rs", "pub struct Profile;\n"),
+            ("src/pipeline.rs", "use crate::fusion::FusionThread;\n"),
+            ("src/service.rs", "use crate::pipeline::*;\n"),
+        ],
+    );
+    assert_eq!(
+        check(&dir),
+        ["app/src/keyframe.rs:1: keyframe imports fusion::*Thread (crate::fusion::FusionThread): *Thread is \
+          composition-only; only fusion itself and the composition (config, pipeline, service) may import it"]
+    );
+}
+
+#[test]
 fn an_oversized_product_file_is_flagged_and_test_files_are_not() {
     let dir = app(
         "",

@@ -213,29 +213,28 @@ impl ProfileError {
 impl Profile {
     /// Every section's checks, in the order of the sections. Errors are `(field path, message)`.
     pub fn validate(&self) -> Result<(), (String, String)> {
-        let checks: [(&str, &dyn Fn(&str) -> Result<(), String>); 17] = [
-            ("source", &|p| self.source.validate(p)),
-            ("pose", &|p| self.pose.validate(p)),
-            ("keyframe", &|p| self.keyframe.validate(p)),
-            ("detector", &|p| self.detector.validate(p)),
-            ("fusion", &|p| self.fusion.validate(p)),
-            ("queues", &|p| self.queues.validate(p)),
-            ("ipc", &|p| self.ipc.validate(p)),
-            ("onnx", &|p| self.onnx.validate(p)),
-            ("record", &|p| self.record.validate(p)),
-            ("text_encoder", &|p| self.text_encoder.validate(p)),
-            ("snapshot", &|p| self.snapshot.validate(p)),
-            ("query", &|p| self.query.validate(p)),
-            ("occupancy", &|p| self.occupancy.validate(p)),
-            ("navigation", &|p| self.navigation.validate(p)),
-            ("reasoner", &|p| self.reasoner.validate(p)),
-            ("health", &|p| self.health.validate(p)),
-            ("run", &|p| self.run.validate(p)),
-        ];
-        for (section, check) in checks {
-            check(section).map_err(split_message)?;
-        }
-        Ok(())
+        [
+            self.source.validate("source"),
+            self.pose.validate("pose"),
+            self.keyframe.validate("keyframe"),
+            self.detector.validate("detector"),
+            self.fusion.validate("fusion"),
+            self.queues.validate("queues"),
+            self.ipc.validate("ipc"),
+            self.onnx.validate("onnx"),
+            self.record.validate("record"),
+            self.text_encoder.validate("text_encoder"),
+            self.snapshot.validate("snapshot"),
+            self.query.validate("query"),
+            self.occupancy.validate("occupancy"),
+            self.navigation.validate("navigation"),
+            self.reasoner.validate("reasoner"),
+            self.health.validate("health"),
+            self.run.validate("run"),
+        ]
+        .into_iter()
+        .collect::<Result<(), String>>()
+        .map_err(split_message)
     }
 
     /// The section of a registered backend (`"source.synthetic"`), as loaded.

@@ -128,7 +128,7 @@ impl Pipeline {
         let enricher = make_enricher(profile)?;
         let refiner = enricher.as_ref().and_then(GraphEnricher::refiner_stats).unwrap_or_default();
         let counters = Arc::new(Counters::new(profile.detector.workers, q.stats.clone(), refiner));
-        let (fusion, resume, snapshots) = stages::restored_map(profile, backends, &counters)?;
+        let stages::RestoredMap { fusion, resume, snapshots } = stages::restored_map(profile, backends, &counters)?;
         let (snapshot_sink, snapshot_writer) = snapshots.unzip();
         let mut s = Stages::new();
         // The recorder first, so it is there before anything is produced; it ends after the last

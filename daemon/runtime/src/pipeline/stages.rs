@@ -104,13 +104,20 @@ impl Queues {
     }
 }
 
+/// The map at start, and the snapshot writer's two ends when snapshots are on.
+pub(super) struct RestoredMap {
+    pub(super) fusion: Box<dyn Fusion>,
+    pub(super) resume: Resume,
+    pub(super) snapshots: Option<(SnapshotSink, SnapshotWriter)>,
+}
+
 /// The map the profile asks for, restored from the last snapshot before anything runs (so the
-/// first graph published holds it), and the snapshot writer's two ends when snapshots are on.
+/// first graph published holds it).
 pub(super) fn restored_map(
     profile: &Profile,
     backends: &Backends,
     counters: &Counters,
-) -> Result<(Box<dyn Fusion>, Resume, Option<(SnapshotSink, SnapshotWriter)>), StartError> {
+) -> Result<RestoredMap, StartError> {
     let mut fusion = backends.fusion(profile)?;
     let mut resume = Resume::default();
     let snapshots = match profile.snapshot.resolve_dir() {
@@ -134,7 +141,7 @@ pub(super) fn restored_map(
             Some(crate::fusion::snapshot::channel(store, profile.snapshot.period_s, stats))
         }
     };
-    Ok((fusion, resume, snapshots))
+    Ok(RestoredMap { fusion, resume, snapshots })
 }
 
 /// The recorder's thread and its sender, when `[record] enabled`.

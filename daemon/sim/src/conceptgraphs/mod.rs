@@ -112,6 +112,21 @@ pub use config::ConceptGraphsConfig;
 /// The kd-tree over an object's points.
 type Tree = ImmutableKdTree<f32, u32, 3, 32>;
 
+/// The peer baseline's row: ConceptGraphs' association and merging
+/// (this module) in place of OP3DSG's fusion, on the full row's
+/// keyframes and detections, reasoned by the same reasoner.
+pub const PEER_ROW: &str = "peer: ConceptGraphs fusion";
+
+/// The peer baseline's fusion for `profile`: ConceptGraphs' defaults, with the profile's up axis
+/// and part attachment margin (the published graph is built like OP3DSG's).
+pub fn peer_fusion(profile: &op3dsg_runtime::config::Profile) -> Box<dyn Fusion> {
+    let config = ConceptGraphsConfig {
+        part_attach_margin_m: profile.fusion.part_attach_margin_m,
+        ..ConceptGraphsConfig::default()
+    };
+    Box::new(ConceptGraphsFusion::new(config).with_up_axis(profile.world.up_axis))
+}
+
 /// Their `bg_classes`.
 const BACKGROUND_CLASSES: [&str; 3] = ["wall", "floor", "ceiling"];
 

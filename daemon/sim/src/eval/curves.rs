@@ -155,9 +155,9 @@ pub const PLOT_SIZE: (u32, u32) = (1200, 520);
 /// Draws the curves side by side (R@3 per column against the level) into a PNG at `path`. Text
 /// uses DejaVu Sans embedded in the binary (the `dejavu` crate), so no font need be installed.
 pub fn plot_png(curves: &Curves, path: &Path) -> anyhow::Result<()> {
-    use crate::perf::fusion_curve::{draw_legend, draw_line_with_points, plot_err};
+    use crate::plot::{draw_legend, draw_line_with_points, plot_err};
     use plotters::prelude::*;
-    crate::perf::fusion_curve::register_font()?;
+    crate::plot::register_font()?;
     if curves.curves.iter().all(|c| c.points.is_empty()) {
         return Err(anyhow!("no curve points to plot"));
     }
@@ -194,7 +194,7 @@ pub fn plot_png(curves: &Curves, path: &Path) -> anyhow::Result<()> {
         }
         root.present().map_err(|e| plot_err("present", e))?;
     }
-    crate::perf::fusion_curve::save_png(buffer, (width, height), path, "curves plot")
+    crate::plot::save_png(buffer, (width, height), path, "curves plot")
 }
 
 #[cfg(test)]

@@ -7,7 +7,11 @@ use std::collections::{HashMap, HashSet};
 use op3dsg_drivers::frame::Intrinsics;
 use op3dsg_synthetic::InstanceKind;
 
+use op3dsg_runtime::embedding::normalise;
+use op3dsg_runtime::perception::Mask;
+
 use super::config::SEMANTIC_DIM;
+use super::masks::Morph;
 use super::*;
 
 /// A detection and the ground-truth instance the log gives for it (`None`: false positive).

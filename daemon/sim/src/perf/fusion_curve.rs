@@ -9,12 +9,13 @@
 use std::path::Path;
 use std::time::Instant;
 
-use anyhow::{Context as _, anyhow};
+use anyhow::anyhow;
 use op3dsg_ipc_types::NodeKind;
 use serde::{Deserialize, Serialize};
 
 use super::{Percentiles, PerfOptions};
 use crate::oracle::OracleConfig;
+use crate::plot::{draw_legend, draw_line_with_points, plot_err, register_font, save_png};
 use crate::workload::Workload;
 
 /// Untimed steps before the timed ones at each size.
@@ -113,65 +114,6 @@ pub const PLOT_SIZE: (u32, u32) = (1000, 600);
 /// Which figure of a point a plotted series shows.
 type Quantity = fn(&FusionPoint) -> f64;
 
-pub(crate) fn plot_err(what: &str, e: impl std::fmt::Debug) -> anyhow::Error {
-    anyhow!("drawing the plot ({what}): {e:?}")
-}
-
-/// One labelled series of the project's plots: a line of width 2 through `line` with a dot on
-/// every point, in `colour`, named `label` in the legend.
-pub(crate) fn draw_line_with_points<'a, DB, CT>(
-    chart: &mut plotters::chart::ChartContext<'a, DB, CT>,
-    line: Vec<(f64, f64)>,
-    colour: plotters::style::RGBColor,
-    label: String,
-) -> anyhow::Result<()>
-where
-    DB: plotters::prelude::DrawingBackend + 'a,
-    CT: plotters::coord::CoordTranslate<From = (f64, f64)>,
-{
-    use plotters::prelude::*;
-    chart
-        .draw_series(LineSeries::new(line.clone(), colour.stroke_width(2)))
-        .map_err(|e| plot_err(&label, e))?
-        .label(label.clone())
-        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], colour.stroke_width(2)));
-    chart
-        .draw_series(line.into_iter().map(|(x, y)| Circle::new((x, y), 4, colour.filled())))
-        .map_err(|e| plot_err(&label, e))?;
-    Ok(())
-}
-
-/// The legend of the project's plots: framed, on a white background, at `position`.
-pub(crate) fn draw_legend<'a, DB, CT>(
-    chart: &mut plotters::chart::ChartContext<'a, DB, CT>,
-    position: plotters::chart::SeriesLabelPosition,
-    font_size: u32,
-) -> anyhow::Result<()>
-where
-    DB: plotters::prelude::DrawingBackend + 'a,
-    CT: plotters::coord::CoordTranslate,
-{
-    use plotters::prelude::*;
-    chart
-        .configure_series_labels()
-        .position(position)
-        .background_style(WHITE.mix(0.9))
-        .border_style(BLACK)
-        .label_font(("sans-serif", font_size))
-        .draw()
-        .map_err(|e| plot_err("legend", e))
-}
-
-/// Registers DejaVu Sans (embedded by the `dejavu` crate) as plotters' `sans-serif`, once.
-pub(crate) fn register_font() -> anyhow::Result<()> {
-    use plotters::style::FontStyle;
-    static FONT: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    let registered = *FONT.get_or_init(|| {
-        plotters::style::register_font("sans-serif", FontStyle::Normal, dejavu::sans::regular()).is_ok()
-    });
-    if registered { Ok(()) } else { Err(anyhow!("the embedded DejaVu Sans font could not be loaded")) }
-}
-
 /// Draws the curve (p50 and p99 of the step against map nodes, log x axis) into a PNG at `path`.
 /// Text uses DejaVu Sans embedded in the binary, so no font needs to be installed.
 pub fn plot_png(curve: &FusionCurve, path: &Path) -> anyhow::Result<()> {
@@ -220,14 +162,6 @@ pub fn plot_png(curve: &FusionCurve, path: &Path) -> anyhow::Result<()> {
         root.present().map_err(|e| plot_err("present", e))?;
     }
     save_png(buffer, (width, height), path, "plot")
-}
-
-/// Writes an RGB8 plot buffer of `size` as a PNG at `path` (`what` names it in the error).
-pub(crate) fn save_png(buffer: Vec<u8>, size: (u32, u32), path: &Path, what: &str) -> anyhow::Result<()> {
-    let image = image::RgbImage::from_raw(size.0, size.1, buffer).ok_or_else(|| anyhow!("{what} buffer size"))?;
-    image
-        .save_with_format(path, image::ImageFormat::Png)
-        .with_context(|| format!("writing the {what} {}", path.display()))
 }
 
 #[cfg(test)]

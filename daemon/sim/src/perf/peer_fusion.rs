@@ -1,7 +1,7 @@
 //! The peer baseline's fusion cost next to ours for `op3dsg bench perf`: the kitchen path of
 //! the fusion curve ([`crate::workload::Workload::kitchen`], seed 3, `fusion_keyframes`
 //! keyframes 15 frames apart, realistic oracle), each keyframe integrated into OP3DSG's fusion
-//! (the profile's `[fusion]`) and then into ConceptGraphs' ([`crate::eval::benchmark::peer_fusion`]),
+//! (the profile's `[fusion]`) and then into ConceptGraphs' ([`crate::conceptgraphs::peer_fusion`]),
 //! on the calling thread with the same frame, pose and detections, each call timed. The graph
 //! each builds at the end is timed too (ConceptGraphs' final denoise, filter and merge run in
 //! it).
@@ -53,7 +53,7 @@ pub fn peer_fusion_cost(options: &PerfOptions) -> anyhow::Result<PeerFusionCost>
     let workload = Workload::kitchen(3, options.fusion_keyframes.max(1), 15, OracleConfig::realistic());
     let mut fusions: Vec<(&str, Box<dyn Fusion>, Vec<f64>)> = vec![
         ("OP3DSG multi-view fusion", op3dsg_runtime::fusion::build(&profile.fusion, profile.world.up_axis), Vec::new()),
-        (crate::eval::benchmark::PEER_ROW, crate::eval::benchmark::peer_fusion(&profile), Vec::new()),
+        (crate::conceptgraphs::PEER_ROW, crate::conceptgraphs::peer_fusion(&profile), Vec::new()),
     ];
     for keyframe in &workload.keyframes {
         for (_, fusion, times) in &mut fusions {
