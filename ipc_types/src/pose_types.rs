@@ -52,7 +52,8 @@ pub struct PoseStamped {
     /// Rotation as a unit quaternion `[x, y, z, w]`.
     pub rotation_xyzw: [f64; 4],
     /// Name of the child frame (for example `camera_color_optical_frame` or `base_link`),
-    /// UTF-8, NUL padded; checked against the profile when set.
+    /// UTF-8, NUL padded. For the reader's benefit (the recorder keeps it): the daemon compares
+    /// it with nothing; `kind` says which frame the pose is of.
     pub frame_id: [u8; NAME_CAPACITY_BYTES],
 }
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Writes the stand-in models: tiny ONNX graphs with exactly the tensor names, shapes and dtypes
 of the exports users bring for each model family the open-vocabulary detector adapter supports
-(daemon/runtime/src/perception/open_vocab.rs, README "Bringing your own models"), with answers
+(daemon/runtime/src/perception/open_vocab.rs, docs/models.md "Bringing your own models"), with answers
 known in advance, so every adapter is tested through ONNX Runtime without the real weights.
 
     .venv/bin/python scripts/reference/model_standins.py [--out .models/standins]

@@ -1,6 +1,6 @@
 //! `op3dsg bench perf` at CI size (30 frames, two small graph and map sizes, a few messages):
 //! it runs the real pipeline, spawns its IPC subscriber process, and writes JSON, Markdown and a
-//! PNG whose figures are sane. No timing is asserted; the release figures are in the README.
+//! PNG whose figures are sane. No timing is asserted; the release figures are in docs/benchmarks.md.
 
 use std::path::Path;
 use std::process::{Command, Stdio};

@@ -167,7 +167,7 @@ fn icl_living_room_with_yolox_has_one_chair_where_the_depth_puts_it() {
     }
 }
 
-/// The README's "real frames" row: this run scored with the benchmark's protocol against the
+/// The "real frames" figures of docs/benchmarks.md: this run scored with the benchmark's protocol against the
 /// hand-annotated ground truth of the sequence (`daemon/sim/data/icl_livingroom1/gt.json`, made
 /// with `op3dsg annotate` from 2D boxes drawn by hand, not from any detection). YOLOX-nano is
 /// closed-vocabulary (COCO): it finds the chair, the TV and the vase and cannot name the

@@ -214,7 +214,7 @@ enum Command {
     /// label vocabulary by all-MiniLM-L6-v2 similarity to the predicted label), the strict
     /// variants IoU >= 0.10 and IoP >= 0.25, affordance R@K, functional and spatial triplet R@K
     /// and associated node R@K, for K = 3, 5, 10. Needs .models/ (./scripts/setup-models.sh).
-    /// The choices the paper leaves open are listed in daemon/src/eval/recall.rs.
+    /// The choices the paper leaves open are listed in daemon/sim/src/eval/recall/mod.rs.
     Eval {
         /// Predicted graph (op3dsg.graph/1, e.g. from `op3dsg dump --json`).
         #[arg(long, value_name = "FILE")]
