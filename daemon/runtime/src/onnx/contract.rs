@@ -223,7 +223,7 @@ pub(crate) fn user_model(error: OnnxError) -> OnnxError {
             what,
             looked_for,
             setting,
-            hint: "no package registry ships these weights: export the model (README \"Bringing your own models\") and point the profile at the file",
+            hint: "no package registry ships these weights: export the model (docs/models.md, \"Bringing your own models\") and point the profile at the file",
         },
         other => other,
     }

@@ -8,7 +8,8 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 
-use super::{LlmBenchArgs, PerfArgs, SoakArgs, write_output};
+use super::bench_args::{LlmBenchArgs, PerfArgs, SoakArgs};
+use super::write_output;
 use crate::eval::load_text_encoder;
 
 /// `op3dsg bench llm`.

@@ -9,7 +9,7 @@ use anyhow::{Context, Result, bail};
 use op3dsg_drivers::mcap::reader::{Item, McapReader};
 use op3dsg_drivers::mcap::{METADATA_PROFILE, METADATA_RECORDER};
 
-use super::RecordBenchArgs;
+use super::bench_args::RecordBenchArgs;
 
 #[derive(Debug, Default, serde::Serialize)]
 struct ChannelSummary {

@@ -310,12 +310,12 @@ impl OpenVocabConfig {
             let family = self.family.as_str();
             if self.text != TextInput::default() {
                 return Err(format!(
-                    "{path}.text: only with family = \"generic\"; family = \"{family}\" fixes the text input (see the README, \"Bringing your own models\")"
+                    "{path}.text: only with family = \"generic\"; family = \"{family}\" fixes the text input (see docs/models.md, \"Bringing your own models\")"
                 ));
             }
             if self.outputs != OutputNames::default() {
                 return Err(format!(
-                    "{path}.outputs: only with family = \"generic\"; family = \"{family}\" fixes the outputs (see the README, \"Bringing your own models\")"
+                    "{path}.outputs: only with family = \"generic\"; family = \"{family}\" fixes the outputs (see docs/models.md, \"Bringing your own models\")"
                 ));
             }
         }

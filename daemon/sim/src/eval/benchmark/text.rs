@@ -253,7 +253,7 @@ pub fn mix_text(mix: &BTreeMap<String, u32>) -> String {
     s
 }
 
-/// The Markdown table (and the strict figures) for the README.
+/// The Markdown table (and the strict figures) for docs/benchmarks.md.
 pub fn markdown(report: &QualityReport) -> String {
     let mut s = String::from("| row |");
     for h in HEADER {
