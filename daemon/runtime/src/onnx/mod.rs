@@ -33,7 +33,7 @@
 //! let runtime = OnnxRuntime::init(&OnnxConfig::default())?;
 //! let mut encoder = TextEncoder::new(&runtime, &TextEncoderConfig::default())?;
 //! let embeddings = encoder.encode_batch(&["red chair", "crimson seat"])?;
-//! println!("cos = {:.3}", op3dsg_runtime::onnx::text_encoder::cosine(&embeddings[0], &embeddings[1]));
+//! println!("cos = {:.3}", op3dsg_runtime::embedding::cosine(&embeddings[0], &embeddings[1]));
 //! # Ok::<(), op3dsg_runtime::onnx::OnnxError>(())
 //! ```
 

@@ -21,7 +21,8 @@
 //! it to its worker) but deliberately not `Sync`; a pool of workers holds one encoder each.
 //!
 //! ```no_run
-//! use op3dsg_runtime::onnx::{OnnxConfig, OnnxRuntime, text_encoder::{TextEncoder, TextEncoderConfig, cosine}};
+//! use op3dsg_runtime::embedding::cosine;
+//! use op3dsg_runtime::onnx::{OnnxConfig, OnnxRuntime, text_encoder::{TextEncoder, TextEncoderConfig}};
 //! let runtime = OnnxRuntime::init(&OnnxConfig::default())?;
 //! let mut encoder = TextEncoder::new(&runtime, &TextEncoderConfig::default())?;
 //! let handles = encoder.encode_batch(&["cabinet handle", "drawer handle", "bathtub"])?;
