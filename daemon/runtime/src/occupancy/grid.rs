@@ -4,7 +4,7 @@ use glam::DVec3;
 use op3dsg_drivers::frame::Intrinsics;
 use op3dsg_ipc_types::{OCCUPANCY_MAX_SIDE_CELLS, OCCUPANCY_UNKNOWN, OccupancyHeader};
 
-use super::{DepthScan, OccupancyConfig, RobotPose, to_plane};
+use super::{DepthScan, OccupancyConfig, PlanePoint, RobotPose, to_plane};
 use crate::world::UpAxis;
 
 /// The grid's geometry.
@@ -169,6 +169,17 @@ impl OccupancyGrid {
 
     /// Integrates one keyframe's scan (see the module docs). Allocates nothing.
     pub fn integrate(&mut self, scan: &DepthScan) {
+        let camera = self.move_robot(scan);
+        let hit_mark = self.next_scan_mark();
+        let (camera_col, camera_row) = self.geometry.cell_of(camera.xy);
+        self.cast_rays(scan, hit_mark);
+        self.clear_along_rays((camera_col, camera_row), hit_mark);
+        self.clear_footprint(camera.xy, (camera_col, camera_row), hit_mark + 1);
+    }
+
+    /// The robot at the scan's camera (the grid placed around the first one); the camera's
+    /// point on the plane.
+    fn move_robot(&mut self, scan: &DepthScan) -> PlanePoint {
         let pose = &scan.world_from_camera;
         let camera = to_plane(self.up_axis, pose.translation.as_vec3());
         if !self.placed {
@@ -184,7 +195,11 @@ impl OccupancyGrid {
         self.robot = Some(RobotPose { xy: camera.xy, yaw_rad });
         self.keyframes += 1;
         self.stamp_ns = self.stamp_ns.max(scan.stamp_ns);
+        camera
+    }
 
+    /// This keyframe's hit mark (its free mark is the next number).
+    fn next_scan_mark(&mut self) -> u32 {
         self.scan = self.scan.wrapping_add(1);
         if self.scan >= u32::MAX / 2 {
             // Once in 2^31 keyframes: forget the old marks (a cell stays "observed").
@@ -193,10 +208,13 @@ impl OccupancyGrid {
             }
             self.scan = 1;
         }
-        let hit_mark = self.scan * 2;
-        let free_mark = hit_mark + 1;
+        self.scan * 2
+    }
+
+    /// Steps 1-2: each ray's end cell, and the hit cells (marked once per keyframe).
+    fn cast_rays(&mut self, scan: &DepthScan, hit_mark: u32) {
+        let pose = &scan.world_from_camera;
         let geometry = self.geometry;
-        let (camera_col, camera_row) = geometry.cell_of(camera.xy);
         let floor = self.config.floor_height_m;
         let (band_min, band_max) = (self.config.obstacle_min_height_m, self.config.obstacle_max_height_m);
         let max_range = f64::from(self.config.max_range_m);
@@ -204,8 +222,6 @@ impl OccupancyGrid {
         let units = f64::from(scan.depth_units_per_m.max(1e-6));
         let k = &scan.intrinsics;
         let stride = scan.stride.max(1) as f64;
-
-        // 1-2: ray ends and hits.
         self.ends.clear();
         self.hits.clear();
         for row in 0..scan.rows as usize {
@@ -245,7 +261,13 @@ impl OccupancyGrid {
                 }
             }
         }
-        // 3-4: free cells along each ray, once per keyframe, hits excluded.
+    }
+
+    /// Steps 3-4: free cells along each ray from the camera's cell, once per keyframe, hits
+    /// excluded; then the hits.
+    fn clear_along_rays(&mut self, (camera_col, camera_row): (i32, i32), hit_mark: u32) {
+        let free_mark = hit_mark + 1;
+        let geometry = self.geometry;
         let miss = self.config.miss_log_odds;
         let clamp = self.config.max_log_odds;
         for &(col_e, row_e, hit) in &self.ends {
@@ -268,14 +290,19 @@ impl OccupancyGrid {
             let l = &mut self.log_odds[index as usize];
             *l = (*l + hit_add).min(clamp);
         }
-        // 5: the robot's footprint is free.
+    }
+
+    /// Step 5: the robot's footprint around the camera is free.
+    fn clear_footprint(&mut self, camera_xy: [f32; 2], (camera_col, camera_row): (i32, i32), free_mark: u32) {
+        let geometry = self.geometry;
+        let miss = self.config.miss_log_odds;
         let radius_cells = (self.robot_radius_m / geometry.cell_size_m).ceil() as i32;
         let radius2 = self.robot_radius_m * self.robot_radius_m;
         for dr in -radius_cells..=radius_cells {
             for dc in -radius_cells..=radius_cells {
                 let (col, row) = (camera_col + dc, camera_row + dr);
                 let centre = geometry.centre_of(col, row);
-                let (dx, dy) = (centre[0] - camera.xy[0], centre[1] - camera.xy[1]);
+                let (dx, dy) = (centre[0] - camera_xy[0], centre[1] - camera_xy[1]);
                 if dx * dx + dy * dy > radius2 {
                     continue;
                 }

@@ -39,8 +39,8 @@ use op3dsg_ipc_types::NodeKind;
 use super::{FunctionalRelation, NodeAffordances, Reasoner, ReasonerOutput};
 use crate::embedding::SharedEmbedder;
 use crate::knowledge::fallback::{EMBEDDING_CONFIDENCE, FallbackCounts, LabelFallback, RULE_CONFIDENCE};
-use crate::knowledge::{Category, KnowledgeBase, Resolved, TargetChoice};
-use crate::prior::PriorGraph;
+use crate::knowledge::{Category, KnowledgeBase, ObjectId, PartId, Resolved, TargetChoice};
+use crate::prior::{PriorGraph, PriorNode};
 
 /// Confidence factor of a local relation from the parent's own pair.
 pub const LOCAL_CONFIDENCE: f32 = 0.9;
@@ -117,14 +117,12 @@ impl Reasoner for KnowledgeReasoner {
         let mut output = ReasonerOutput { graph_version: prior.version, ..ReasonerOutput::default() };
         let mut counts = FallbackCounts::default();
         let effective = self.effective(prior, &mut counts);
-        let kb = &*self.knowledge;
-        let object_of = |i: usize| effective[i].and_then(|e| e.resolved.object().map(|o| (o, e.factor)));
+        let graph = Effectives { prior, effective: &effective };
         for (index, node) in prior.nodes.iter().enumerate() {
             let Some(Effective { resolved, factor }) = effective[index] else { continue };
-            let mut has_local = false;
-            match resolved.category {
+            let has_local = match resolved.category {
                 Category::Object(object) => {
-                    let bits = kb.object(object).affordance_bits;
+                    let bits = self.knowledge.object(object).affordance_bits;
                     if bits != 0 {
                         output.affordances.push(NodeAffordances {
                             node_id: node.id,
@@ -132,115 +130,158 @@ impl Reasoner for KnowledgeReasoner {
                             confidence: factor * node.confidence,
                         });
                     }
+                    false
                 }
                 Category::Part(part) => {
-                    let parent_index = node.parent_id.and_then(|id| prior.index_of(id));
-                    let parent = parent_index.and_then(object_of);
-                    let (parent, parent_factor) = (parent.map(|(p, _)| p), parent.map_or(1.0, |(_, f)| f));
-                    let mut conditioned_on = parent
-                        .filter(|p| kb.pair(part, *p).is_some())
-                        .or(resolved.object_hint.filter(|h| kb.pair(part, *h).is_some()));
-                    let unknown_parent =
-                        parent_index.filter(|i| effective[*i].is_none_or(|e| e.factor < 1.0)).map(|i| &prior.nodes[i]);
-                    // A parent of unknown category: the nearest known category that has this part.
-                    let mut parent = parent;
-                    let mut parent_factor = parent_factor;
-                    if let (None, Some(p)) = (conditioned_on, unknown_parent) {
-                        let has_part = |o| kb.pair(part, o).is_some();
-                        if let Some((nearest, _)) = self.fallback.nearest_object_where(&p.label, &has_part) {
-                            counts.parts_by_embedding += 1;
-                            conditioned_on = Some(nearest);
-                            parent = Some(nearest);
-                            parent_factor = EMBEDDING_CONFIDENCE;
-                        }
-                    }
-                    // The part-label rule: a known part on a parent whose category is unknown,
-                    // or whose nearest category has no such part.
-                    let by_rule = conditioned_on.is_none() && unknown_parent.is_some();
-                    let rule = by_rule.then(|| self.fallback.rule(part));
-                    let bits = match rule {
-                        Some(rule) => rule.affordance_bits,
-                        None => kb.part_affordances(part, conditioned_on),
-                    };
-                    let base = factor * if rule.is_some() { RULE_CONFIDENCE } else { parent_factor };
-                    if bits != 0 {
-                        output.affordances.push(NodeAffordances {
-                            node_id: node.id,
-                            affordance_bits: bits,
-                            confidence: base * node.confidence,
-                        });
-                    }
-                    if let Some(parent_id) = node.parent_id {
-                        let local = match (parent, rule) {
-                            (_, Some(rule)) => rule.relation_id.map(|r| (r, LOCAL_CONFIDENCE)),
-                            (Some(parent), None) => {
-                                kb.local_relation(part, parent).map(|r| (r, LOCAL_CONFIDENCE)).or_else(|| {
-                                    let hint = resolved.object_hint.filter(|_| kb.pair(part, parent).is_none())?;
-                                    kb.local_relation(part, hint).map(|r| (r, HINTED_LOCAL_CONFIDENCE))
-                                })
-                            }
-                            // An unknown parent: the object the part's own label names ("oven
-                            // handle"), if the tables have that pair.
-                            (None, None) => resolved
-                                .object_hint
-                                .and_then(|hint| kb.local_relation(part, hint))
-                                .map(|r| (r, HINTED_LOCAL_CONFIDENCE)),
-                        };
-                        if let Some((relation_id, local_factor)) = local {
-                            has_local = true;
-                            output.functional.push(FunctionalRelation {
-                                source_id: node.id,
-                                target_id: parent_id,
-                                relation_id,
-                                confidence: local_factor * base * node.confidence,
-                                remote: false,
-                            });
-                        }
-                    }
-                    if rule.is_some() && (has_local || bits != 0) {
-                        counts.by_part_rule += 1;
-                    }
+                    self.reason_about_part(part, node, Effective { resolved, factor }, &graph, &mut output, &mut counts)
                 }
-            }
-            if has_local {
-                continue;
-            }
-            for template in kb.remote_templates_for(resolved.category) {
-                let mut best: Option<(f32, usize, u32, f32)> = None;
-                for (candidate_index, candidate) in prior.nodes.iter().enumerate() {
-                    if candidate.kind != NodeKind::Object
-                        || candidate.id == node.id
-                        || Some(candidate.id) == node.parent_id
-                    {
-                        continue;
-                    }
-                    let Some((target, target_factor)) = object_of(candidate_index) else { continue };
-                    let Some(rank) = template.targets.iter().position(|t| *t == target) else { continue };
-                    let distance = node.centre_m.distance(candidate.centre_m);
-                    if distance.is_nan() || distance > template.max_distance_m {
-                        continue;
-                    }
-                    let better = best.is_none_or(|(d, r, _, _)| match template.choose {
-                        TargetChoice::Nearest => (distance, rank) < (d, r),
-                        TargetChoice::ListedOrder => (rank, distance) < (r, d),
-                    });
-                    if better {
-                        best = Some((distance, rank, candidate.id, target_factor));
-                    }
-                }
-                if let Some((_, _, target_id, target_factor)) = best {
-                    output.functional.push(FunctionalRelation {
-                        source_id: node.id,
-                        target_id,
-                        relation_id: template.relation_id,
-                        confidence: template.confidence * factor * target_factor * node.confidence,
-                        remote: true,
-                    });
-                }
+            };
+            if !has_local {
+                remote_relations(&self.knowledge, node, Effective { resolved, factor }, &graph, &mut output);
             }
         }
         output.fallback = counts;
         output
+    }
+}
+
+/// The prior graph's nodes with their categories as the reasoner uses them.
+struct Effectives<'a> {
+    prior: &'a PriorGraph,
+    effective: &'a [Option<Effective>],
+}
+
+impl Effectives<'_> {
+    /// The object category of node `i` and its confidence factor, if it is an object the
+    /// reasoner knows.
+    fn object_of(&self, i: usize) -> Option<(ObjectId, f32)> {
+        self.effective[i].and_then(|e| e.resolved.object().map(|o| (o, e.factor)))
+    }
+}
+
+impl KnowledgeReasoner {
+    /// A part's affordances and its local relation to its object (the parent, the category its
+    /// own label names, or by the fallbacks); whether it got a local relation.
+    fn reason_about_part(
+        &mut self,
+        part: PartId,
+        node: &PriorNode,
+        Effective { resolved, factor }: Effective,
+        graph: &Effectives<'_>,
+        output: &mut ReasonerOutput,
+        counts: &mut FallbackCounts,
+    ) -> bool {
+        let kb = &*self.knowledge;
+        let mut has_local = false;
+        let parent_index = node.parent_id.and_then(|id| graph.prior.index_of(id));
+        let parent = parent_index.and_then(|i| graph.object_of(i));
+        let (parent, parent_factor) = (parent.map(|(p, _)| p), parent.map_or(1.0, |(_, f)| f));
+        let mut conditioned_on = parent
+            .filter(|p| kb.pair(part, *p).is_some())
+            .or(resolved.object_hint.filter(|h| kb.pair(part, *h).is_some()));
+        let unknown_parent =
+            parent_index.filter(|i| graph.effective[*i].is_none_or(|e| e.factor < 1.0)).map(|i| &graph.prior.nodes[i]);
+        // A parent of unknown category: the nearest known category that has this part.
+        let mut parent = parent;
+        let mut parent_factor = parent_factor;
+        if let (None, Some(p)) = (conditioned_on, unknown_parent) {
+            let has_part = |o| kb.pair(part, o).is_some();
+            if let Some((nearest, _)) = self.fallback.nearest_object_where(&p.label, &has_part) {
+                counts.parts_by_embedding += 1;
+                conditioned_on = Some(nearest);
+                parent = Some(nearest);
+                parent_factor = EMBEDDING_CONFIDENCE;
+            }
+        }
+        // The part-label rule: a known part on a parent whose category is unknown,
+        // or whose nearest category has no such part.
+        let by_rule = conditioned_on.is_none() && unknown_parent.is_some();
+        let rule = by_rule.then(|| self.fallback.rule(part));
+        let bits = match rule {
+            Some(rule) => rule.affordance_bits,
+            None => kb.part_affordances(part, conditioned_on),
+        };
+        let base = factor * if rule.is_some() { RULE_CONFIDENCE } else { parent_factor };
+        if bits != 0 {
+            output.affordances.push(NodeAffordances {
+                node_id: node.id,
+                affordance_bits: bits,
+                confidence: base * node.confidence,
+            });
+        }
+        if let Some(parent_id) = node.parent_id {
+            let local = match (parent, rule) {
+                (_, Some(rule)) => rule.relation_id.map(|r| (r, LOCAL_CONFIDENCE)),
+                (Some(parent), None) => kb.local_relation(part, parent).map(|r| (r, LOCAL_CONFIDENCE)).or_else(|| {
+                    let hint = resolved.object_hint.filter(|_| kb.pair(part, parent).is_none())?;
+                    kb.local_relation(part, hint).map(|r| (r, HINTED_LOCAL_CONFIDENCE))
+                }),
+                // An unknown parent: the object the part's own label names ("oven
+                // handle"), if the tables have that pair.
+                (None, None) => resolved
+                    .object_hint
+                    .and_then(|hint| kb.local_relation(part, hint))
+                    .map(|r| (r, HINTED_LOCAL_CONFIDENCE)),
+            };
+            if let Some((relation_id, local_factor)) = local {
+                has_local = true;
+                output.functional.push(FunctionalRelation {
+                    source_id: node.id,
+                    target_id: parent_id,
+                    relation_id,
+                    confidence: local_factor * base * node.confidence,
+                    remote: false,
+                });
+            }
+        }
+        if rule.is_some() && (has_local || bits != 0) {
+            counts.by_part_rule += 1;
+        }
+        if rule.is_some() && (has_local || bits != 0) {
+            counts.by_part_rule += 1;
+        }
+        has_local
+    }
+}
+
+/// A node's remote relations: for each template of its category, the best target object
+/// within reach.
+fn remote_relations(
+    kb: &KnowledgeBase,
+    node: &PriorNode,
+    Effective { resolved, factor }: Effective,
+    graph: &Effectives<'_>,
+    output: &mut ReasonerOutput,
+) {
+    for template in kb.remote_templates_for(resolved.category) {
+        let mut best: Option<(f32, usize, u32, f32)> = None;
+        for (candidate_index, candidate) in graph.prior.nodes.iter().enumerate() {
+            if candidate.kind != NodeKind::Object || candidate.id == node.id || Some(candidate.id) == node.parent_id {
+                continue;
+            }
+            let Some((target, target_factor)) = graph.object_of(candidate_index) else { continue };
+            let Some(rank) = template.targets.iter().position(|t| *t == target) else { continue };
+            let distance = node.centre_m.distance(candidate.centre_m);
+            if distance.is_nan() || distance > template.max_distance_m {
+                continue;
+            }
+            let better = best.is_none_or(|(d, r, _, _)| match template.choose {
+                TargetChoice::Nearest => (distance, rank) < (d, r),
+                TargetChoice::ListedOrder => (rank, distance) < (r, d),
+            });
+            if better {
+                best = Some((distance, rank, candidate.id, target_factor));
+            }
+        }
+        if let Some((_, _, target_id, target_factor)) = best {
+            output.functional.push(FunctionalRelation {
+                source_id: node.id,
+                target_id,
+                relation_id: template.relation_id,
+                confidence: template.confidence * factor * target_factor * node.confidence,
+                remote: true,
+            });
+        }
     }
 }
 

@@ -348,14 +348,11 @@ impl MultiViewFusion {
     }
 }
 
-impl Fusion for MultiViewFusion {
-    fn integrate(&mut self, frame: &Frame, world_from_camera: &Isometry, detections: &[Detection]) -> FusionReport {
-        let mut report = FusionReport::default();
-        self.keyframe += 1;
-        let pose = world_from_camera.to_mat4();
+impl MultiViewFusion {
+    /// Step 1: each detection back-projected into an observation (points, bounds, label; colour
+    /// features of parts); detections without enough depth are ignored, counted in `report`.
+    fn observe(&mut self, frame: &Frame, pose: &glam::Mat4, detections: &[Detection], report: &mut FusionReport) {
         let colour_on = self.config.colour_features;
-
-        // 1. Back-projection (and colour features of parts).
         let any_part = detections.iter().any(|d| d.kind == NodeKind::Part);
         let gains = if colour_on && any_part {
             let (w, h) = (frame.intrinsics.width as usize, frame.intrinsics.height as usize);
@@ -373,7 +370,7 @@ impl Fusion for MultiViewFusion {
             self.scratch.colours.resize(detections.len(), ColourFeature::default());
         }
         for (i, det) in detections.iter().enumerate() {
-            let Some((start, end, min, max)) = self.back_project(frame, &pose, det) else {
+            let Some((start, end, min, max)) = self.back_project(frame, pose, det) else {
                 report.ignored += 1;
                 continue;
             };
@@ -403,8 +400,11 @@ impl Fusion for MultiViewFusion {
                 assigned: NONE,
             });
         }
+    }
 
-        // 2–4. Candidates and scores.
+    /// Steps 2–4: the candidate nodes of each observation through the spatial index, and the
+    /// pairs whose score reaches the kind's threshold.
+    fn score_candidates(&mut self, detections: &[Detection]) {
         let mut pairs = std::mem::take(&mut self.scratch.pairs);
         let mut candidates = std::mem::take(&mut self.scratch.candidates);
         pairs.clear();
@@ -429,23 +429,29 @@ impl Fusion for MultiViewFusion {
                 }
             }
         }
+        self.scratch.pairs = pairs;
+        self.scratch.candidates = candidates;
+    }
 
-        // 5. Greedy one-to-one assignment, best score first (ties: lower observation, lower slot).
-        pairs.sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
-        let taken = &mut self.scratch.node_taken;
+    /// Step 5: greedy one-to-one assignment, best score first (ties: lower observation, lower
+    /// slot).
+    fn assign_greedily(&mut self) {
+        let scratch = &mut self.scratch;
+        scratch.pairs.sort_unstable_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+        let taken = &mut scratch.node_taken;
         taken.clear();
         taken.resize(self.nodes.len(), false);
-        for &(_, o, slot) in &pairs {
-            let obs = &mut self.scratch.observations[o as usize];
+        for &(_, o, slot) in &scratch.pairs {
+            let obs = &mut scratch.observations[o as usize];
             if obs.assigned == NONE && !taken[slot as usize] {
                 obs.assigned = slot;
                 taken[slot as usize] = true;
             }
         }
-        self.scratch.pairs = pairs;
-        self.scratch.candidates = candidates;
+    }
 
-        // 6. Updates, then new nodes.
+    /// Step 6: updates of the assigned nodes, then new nodes for the rest.
+    fn update_and_create(&mut self, frame: &Frame, detections: &[Detection], report: &mut FusionReport) {
         for o in 0..self.scratch.observations.len() {
             let obs = self.scratch.observations[o];
             if obs.assigned != NONE {
@@ -461,7 +467,17 @@ impl Fusion for MultiViewFusion {
                 report.created += 1;
             }
         }
+    }
+}
 
+impl Fusion for MultiViewFusion {
+    fn integrate(&mut self, frame: &Frame, world_from_camera: &Isometry, detections: &[Detection]) -> FusionReport {
+        let mut report = FusionReport::default();
+        self.keyframe += 1;
+        self.observe(frame, &world_from_camera.to_mat4(), detections, &mut report);
+        self.score_candidates(detections);
+        self.assign_greedily();
+        self.update_and_create(frame, detections, &mut report);
         let every = u64::from(self.config.maintenance_every_keyframes);
         if every > 0 && self.keyframe.is_multiple_of(every) {
             self.maintain(&mut report);

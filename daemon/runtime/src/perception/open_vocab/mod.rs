@@ -380,99 +380,15 @@ impl Detector for OpenVocabDetector {
             return Err(bad(format!("output boxes has shape {box_shape:?}, expected [N, 4]")));
         }
         let (score_shape, scores) = float(&names.scores).map_err(bad)?;
-        // (score, prompt) per region.
-        let mut best: Vec<(f32, usize)> = Vec::with_capacity(n);
-        match &names.prompt_index {
-            Some(index_name) => {
-                if rows(&score_shape, 1, "scores").map_err(bad)? != [n] {
-                    return Err(bad(format!("output scores has shape {score_shape:?}, expected [{n}]")));
-                }
-                let value = outputs.get(index_name.as_str()).ok_or_else(|| bad(format!("no output {index_name}")))?;
-                let indices: Vec<i64> = match value.try_extract_tensor::<i64>() {
-                    Ok((_, data)) => data.to_vec(),
-                    Err(_) => value
-                        .try_extract_tensor::<i32>()
-                        .map(|(_, data)| data.iter().map(|v| i64::from(*v)).collect())
-                        .map_err(|e| bad(format!("output {index_name}: expected int64 or int32: {e}")))?,
-                };
-                if indices.len() != n {
-                    return Err(bad(format!("output {index_name} has {} entries, expected {n}", indices.len())));
-                }
-                for (score, index) in scores.iter().zip(indices) {
-                    let prompt = usize::try_from(index).ok().filter(|i| *i < p).ok_or_else(|| {
-                        bad(format!("output {index_name}: prompt index {index} outside the {p} prompts"))
-                    })?;
-                    best.push((*score, prompt));
-                }
-            }
-            None => {
-                let dims = rows(&score_shape, 2, "scores").map_err(bad)?;
-                if dims != [n, p] {
-                    return Err(bad(format!(
-                        "output scores has shape {score_shape:?}, expected [{n}, {p}] (regions x prompts)"
-                    )));
-                }
-                for row in scores.chunks_exact(p) {
-                    let (prompt, score) = row
-                        .iter()
-                        .copied()
-                        .enumerate()
-                        // Ties go to the earlier prompt (objects come before their parts).
-                        .max_by(|a, b| a.1.total_cmp(&b.1).then(b.0.cmp(&a.0)))
-                        .unwrap_or((0, f32::NEG_INFINITY));
-                    best.push((score, prompt));
-                }
-            }
-        }
-
-        let (in_w, in_h) = (spec.width as f32, spec.height as f32);
-        let Placement { sx, sy } = placement;
-        let mut regions: Vec<Region> = Vec::new();
-        for (row, (b, &(score, prompt))) in boxes.chunks_exact(4).zip(&best).enumerate() {
-            let score = self.config.calibration.apply(names.score_activation.apply(score));
-            if score.is_nan() || score <= self.config.score_threshold {
-                continue;
-            }
-            let mut v = [b[0], b[1], b[2], b[3]];
-            if names.boxes_normalised {
-                v = [v[0] * in_w, v[1] * in_h, v[2] * in_w, v[3] * in_h];
-            }
-            if names.box_format == BoxFormat::Cxcywh {
-                v = [v[0] - v[2] / 2.0, v[1] - v[3] / 2.0, v[0] + v[2] / 2.0, v[1] + v[3] / 2.0];
-            }
-            let bbox = [v[0] / sx, v[1] / sy, v[2] / sx, v[3] / sy];
-            if bbox.iter().all(|c| c.is_finite()) {
-                regions.push(Region { bbox, score, prompt, row });
-            }
-        }
+        let best = best_per_region(&outputs, names, n, p, &score_shape, scores).map_err(bad)?;
+        let mut regions = decode_regions(boxes, &best, names, &self.config, placement);
         regions.sort_by(|a, b| b.score.total_cmp(&a.score).then(a.row.cmp(&b.row)));
         let nms = self.config.nms_iou_threshold;
         let kept = greedy_suppress(regions, self.config.max_detections, |k, r| {
             k.prompt == r.prompt && iou(&k.bbox, &r.bbox) > nms
         });
 
-        let masks = match &names.masks {
-            Some(name) => {
-                let (shape, data) = float(name).map_err(bad)?;
-                let dims = rows(&shape, 3, "masks").map_err(bad)?;
-                if dims[0] != n {
-                    return Err(bad(format!("output {name} has shape {shape:?}, expected [{n}, h, w]")));
-                }
-                Some((dims[1], dims[2], data))
-            }
-            None => None,
-        };
-        let embeddings = match &names.region_embeddings {
-            Some(name) => {
-                let (shape, data) = float(name).map_err(bad)?;
-                let dims = rows(&shape, 2, "region_embeddings").map_err(bad)?;
-                if dims[0] != n {
-                    return Err(bad(format!("output {name} has shape {shape:?}, expected [{n}, D]")));
-                }
-                Some((dims[1], data))
-            }
-            None => None,
-        };
+        let (masks, embeddings) = optional_outputs(&outputs, names, n).map_err(bad)?;
         self.box_masks.begin_frame();
         for r in kept {
             let Some(pixel_box) = PixelBox::from_float(r.bbox, intr.width, intr.height) else { continue };
@@ -506,6 +422,136 @@ impl Detector for OpenVocabDetector {
     fn name(&self) -> &str {
         "open_vocab"
     }
+}
+
+/// The optional outputs: per-region mask planes `(h, w, data)` and region embeddings `(D, data)`.
+type OptionalOutputs<'o> = (Option<(usize, usize, &'o [f32])>, Option<(usize, &'o [f32])>);
+
+/// The optional outputs of the `n` regions, checked against `n`.
+fn optional_outputs<'o>(
+    outputs: &'o ort::session::SessionOutputs<'_>,
+    names: &OutputNames,
+    n: usize,
+) -> Result<OptionalOutputs<'o>, String> {
+    let float = |name: &str| {
+        outputs
+            .get(name)
+            .ok_or_else(|| format!("no output {name}"))?
+            .try_extract_tensor::<f32>()
+            .map(|(shape, data)| (shape.to_vec(), data))
+            .map_err(|e| format!("output {name}: {e}"))
+    };
+    let masks = match &names.masks {
+        Some(name) => {
+            let (shape, data) = float(name)?;
+            let dims = rows(&shape, 3, "masks")?;
+            if dims[0] != n {
+                return Err(format!("output {name} has shape {shape:?}, expected [{n}, h, w]"));
+            }
+            Some((dims[1], dims[2], data))
+        }
+        None => None,
+    };
+    let embeddings = match &names.region_embeddings {
+        Some(name) => {
+            let (shape, data) = float(name)?;
+            let dims = rows(&shape, 2, "region_embeddings")?;
+            if dims[0] != n {
+                return Err(format!("output {name} has shape {shape:?}, expected [{n}, D]"));
+            }
+            Some((dims[1], data))
+        }
+        None => None,
+    };
+    Ok((masks, embeddings))
+}
+
+/// The best `(score, prompt)` of each of the `n` regions: from the prompt-index output, or the
+/// highest of each region's `p` scores (ties to the earlier prompt).
+fn best_per_region(
+    outputs: &ort::session::SessionOutputs<'_>,
+    names: &OutputNames,
+    n: usize,
+    p: usize,
+    score_shape: &[i64],
+    scores: &[f32],
+) -> Result<Vec<(f32, usize)>, String> {
+    let mut best: Vec<(f32, usize)> = Vec::with_capacity(n);
+    match &names.prompt_index {
+        Some(index_name) => {
+            if rows(score_shape, 1, "scores")? != [n] {
+                return Err(format!("output scores has shape {score_shape:?}, expected [{n}]"));
+            }
+            let value = outputs.get(index_name.as_str()).ok_or_else(|| format!("no output {index_name}"))?;
+            let indices: Vec<i64> = match value.try_extract_tensor::<i64>() {
+                Ok((_, data)) => data.to_vec(),
+                Err(_) => value
+                    .try_extract_tensor::<i32>()
+                    .map(|(_, data)| data.iter().map(|v| i64::from(*v)).collect())
+                    .map_err(|e| format!("output {index_name}: expected int64 or int32: {e}"))?,
+            };
+            if indices.len() != n {
+                return Err(format!("output {index_name} has {} entries, expected {n}", indices.len()));
+            }
+            for (score, index) in scores.iter().zip(indices) {
+                let prompt = usize::try_from(index)
+                    .ok()
+                    .filter(|i| *i < p)
+                    .ok_or_else(|| format!("output {index_name}: prompt index {index} outside the {p} prompts"))?;
+                best.push((*score, prompt));
+            }
+        }
+        None => {
+            let dims = rows(score_shape, 2, "scores")?;
+            if dims != [n, p] {
+                return Err(format!(
+                    "output scores has shape {score_shape:?}, expected [{n}, {p}] (regions x prompts)"
+                ));
+            }
+            for row in scores.chunks_exact(p) {
+                let (prompt, score) = row
+                    .iter()
+                    .copied()
+                    .enumerate()
+                    // Ties go to the earlier prompt (objects come before their parts).
+                    .max_by(|a, b| a.1.total_cmp(&b.1).then(b.0.cmp(&a.0)))
+                    .unwrap_or((0, f32::NEG_INFINITY));
+                best.push((score, prompt));
+            }
+        }
+    }
+    Ok(best)
+}
+
+/// The regions whose calibrated score passes the threshold, boxes in image pixels.
+fn decode_regions(
+    boxes: &[f32],
+    best: &[(f32, usize)],
+    names: &OutputNames,
+    config: &OpenVocabConfig,
+    placement: Placement,
+) -> Vec<Region> {
+    let (in_w, in_h) = (config.input.width as f32, config.input.height as f32);
+    let Placement { sx, sy } = placement;
+    let mut regions: Vec<Region> = Vec::new();
+    for (row, (b, &(score, prompt))) in boxes.chunks_exact(4).zip(best).enumerate() {
+        let score = config.calibration.apply(names.score_activation.apply(score));
+        if score.is_nan() || score <= config.score_threshold {
+            continue;
+        }
+        let mut v = [b[0], b[1], b[2], b[3]];
+        if names.boxes_normalised {
+            v = [v[0] * in_w, v[1] * in_h, v[2] * in_w, v[3] * in_h];
+        }
+        if names.box_format == BoxFormat::Cxcywh {
+            v = [v[0] - v[2] / 2.0, v[1] - v[3] / 2.0, v[0] + v[2] / 2.0, v[1] + v[3] / 2.0];
+        }
+        let bbox = [v[0] / sx, v[1] / sy, v[2] / sx, v[3] / sy];
+        if bbox.iter().all(|c| c.is_finite()) {
+            regions.push(Region { bbox, score, prompt, row });
+        }
+    }
+    regions
 }
 
 /// The image pixels of `pixel_box` whose mask probability (sampled nearest from the `mw x mh`

@@ -171,9 +171,20 @@ fn affordance_schema() -> Value {
 /// Builds the prompts of one refresh from `prior`.
 pub fn build(prior: &PriorGraph, knowledge: &KnowledgeBase, max_items: usize) -> PromptSet {
     let mut set = PromptSet { graph_version: prior.version, ..PromptSet::default() };
-    let node = |id: u32| prior.index_of(id).map(|i| &prior.nodes[i]);
+    set.prompts.extend(local_prompt(prior, max_items));
+    set.prompts.extend(remote_prompt(prior, knowledge, max_items, &mut set.remote_candidates));
+    set.prompts.extend(affordance_prompt(prior, max_items));
+    set
+}
 
-    // Local: part-of pairs.
+/// The node of `id` in `prior`.
+fn node_of(prior: &PriorGraph, id: u32) -> Option<&PriorNode> {
+    prior.index_of(id).map(|i| &prior.nodes[i])
+}
+
+/// The local agent's prompt: part-of pairs (none without one).
+fn local_prompt(prior: &PriorGraph, max_items: usize) -> Option<Prompt> {
+    let node = |id: u32| node_of(prior, id);
     let mut pairs: Vec<(f32, Value)> = Vec::new();
     for part in prior.nodes.iter().filter(|n| n.kind == NodeKind::Part) {
         let Some(parent) = part.parent_id.and_then(node) else { continue };
@@ -183,23 +194,34 @@ pub fn build(prior: &PriorGraph, knowledge: &KnowledgeBase, max_items: usize) ->
         ));
     }
     keep_most_confident(&mut pairs, max_items);
-    if !pairs.is_empty() {
-        let system = format!(
-            "{COMMON}\nTask: for each part-of pair below, say which functional relation the part performs on its \
-             object, choosing exactly one of: {}. Answer as {{\"relations\": [{{\"part_id\", \"object_id\", \
-             \"relation\", \"confidence\"}}]}}; leave out pairs without such a relation.",
-            quoted_list(&FUNCTIONAL_RELATIONS)
-        );
-        let user = json!({"graph_version": prior.version, "part_of_pairs": pairs.into_iter().map(|(_, v)| v).collect::<Vec<_>>()});
-        set.prompts.push(Prompt {
-            agent: Agent::Local,
-            system,
-            user: user.to_string(),
-            schema: relation_schema("local_relations", "part_id", "object_id"),
-        });
+    if pairs.is_empty() {
+        return None;
     }
+    let system = format!(
+        "{COMMON}\nTask: for each part-of pair below, say which functional relation the part performs on its \
+         object, choosing exactly one of: {}. Answer as {{\"relations\": [{{\"part_id\", \"object_id\", \
+         \"relation\", \"confidence\"}}]}}; leave out pairs without such a relation.",
+        quoted_list(&FUNCTIONAL_RELATIONS)
+    );
+    let user =
+        json!({"graph_version": prior.version, "part_of_pairs": pairs.into_iter().map(|(_, v)| v).collect::<Vec<_>>()});
+    Some(Prompt {
+        agent: Agent::Local,
+        system,
+        user: user.to_string(),
+        schema: relation_schema("local_relations", "part_id", "object_id"),
+    })
+}
 
-    // Remote: sources with a remote template, and their candidate targets.
+/// The remote agent's prompt: sources with a remote template and their candidate targets, each
+/// pair offered added to `offered` (none without one).
+fn remote_prompt(
+    prior: &PriorGraph,
+    knowledge: &KnowledgeBase,
+    max_items: usize,
+    offered: &mut FxHashSet<(u32, u32)>,
+) -> Option<Prompt> {
+    let node = |id: u32| node_of(prior, id);
     let mut candidates: Vec<(f32, Value)> = Vec::new();
     for source in &prior.nodes {
         let Some(resolved) = source.category else { continue };
@@ -232,31 +254,37 @@ pub fn build(prior: &PriorGraph, knowledge: &KnowledgeBase, max_items: usize) ->
             .collect();
         candidates.push((source.confidence, json!({"source": node_json(source), "candidate_targets": listed})));
         for (_, id) in targets {
-            set.remote_candidates.insert((source.id, id));
+            offered.insert((source.id, id));
         }
     }
     keep_most_confident(&mut candidates, max_items);
     // Pairs of sources that were cut are no longer allowed.
     let kept: FxHashSet<u64> = candidates.iter().filter_map(|(_, v)| v["source"]["id"].as_u64()).collect();
-    set.remote_candidates.retain(|(s, _)| kept.contains(&u64::from(*s)));
-    if !candidates.is_empty() {
-        let system = format!(
-            "{COMMON}\nTask: each source below can act on an object at a distance (a remote control on a TV, a \
-             switch on a light, an outlet powering an appliance, ...). For each source pick the target among its \
-             candidate_targets that it acts on, if any, and the functional relation, exactly one of: {}. Answer as \
-             {{\"relations\": [{{\"source_id\", \"target_id\", \"relation\", \"confidence\"}}]}}.",
-            quoted_list(&FUNCTIONAL_RELATIONS)
-        );
-        let user = json!({"graph_version": prior.version, "sources": candidates.into_iter().map(|(_, v)| v).collect::<Vec<_>>()});
-        set.prompts.push(Prompt {
-            agent: Agent::Remote,
-            system,
-            user: user.to_string(),
-            schema: relation_schema("remote_relations", "source_id", "target_id"),
-        });
+    offered.retain(|(s, _)| kept.contains(&u64::from(*s)));
+    if candidates.is_empty() {
+        return None;
     }
+    let system = format!(
+        "{COMMON}\nTask: each source below can act on an object at a distance (a remote control on a TV, a \
+         switch on a light, an outlet powering an appliance, ...). For each source pick the target among its \
+         candidate_targets that it acts on, if any, and the functional relation, exactly one of: {}. Answer as \
+         {{\"relations\": [{{\"source_id\", \"target_id\", \"relation\", \"confidence\"}}]}}.",
+        quoted_list(&FUNCTIONAL_RELATIONS)
+    );
+    let user =
+        json!({"graph_version": prior.version, "sources": candidates.into_iter().map(|(_, v)| v).collect::<Vec<_>>()});
+    Some(Prompt {
+        agent: Agent::Remote,
+        system,
+        user: user.to_string(),
+        schema: relation_schema("remote_relations", "source_id", "target_id"),
+    })
+}
 
-    // Affordances: every node, a part with its parent object.
+/// The affordance agent's prompt: every node, a part with its parent object (none without
+/// nodes).
+fn affordance_prompt(prior: &PriorGraph, max_items: usize) -> Option<Prompt> {
+    let node = |id: u32| node_of(prior, id);
     let mut nodes: Vec<(f32, Value)> = Vec::new();
     for n in &prior.nodes {
         let mut v = node_json(n);
@@ -267,24 +295,18 @@ pub fn build(prior: &PriorGraph, knowledge: &KnowledgeBase, max_items: usize) ->
         nodes.push((n.confidence, v));
     }
     keep_most_confident(&mut nodes, max_items);
-    if !nodes.is_empty() {
-        let system = format!(
-            "{COMMON}\nTask: for each node below, list how a robot hand would interact with it, using only these \
-             affordance classes: {}. Consider the parent object and the box size (a handle on a cabinet door is \
-             pulled, a knob on a stove is rotated). Answer as {{\"affordances\": [{{\"node_id\", \"affordances\", \
-             \"confidence\"}}]}}; leave out nodes without any.",
-            quoted_list(&AFFORDANCES)
-        );
-        let user =
-            json!({"graph_version": prior.version, "nodes": nodes.into_iter().map(|(_, v)| v).collect::<Vec<_>>()});
-        set.prompts.push(Prompt {
-            agent: Agent::Affordances,
-            system,
-            user: user.to_string(),
-            schema: affordance_schema(),
-        });
+    if nodes.is_empty() {
+        return None;
     }
-    set
+    let system = format!(
+        "{COMMON}\nTask: for each node below, list how a robot hand would interact with it, using only these \
+         affordance classes: {}. Consider the parent object and the box size (a handle on a cabinet door is \
+         pulled, a knob on a stove is rotated). Answer as {{\"affordances\": [{{\"node_id\", \"affordances\", \
+         \"confidence\"}}]}}; leave out nodes without any.",
+        quoted_list(&AFFORDANCES)
+    );
+    let user = json!({"graph_version": prior.version, "nodes": nodes.into_iter().map(|(_, v)| v).collect::<Vec<_>>()});
+    Some(Prompt { agent: Agent::Affordances, system, user: user.to_string(), schema: affordance_schema() })
 }
 
 #[cfg(test)]

@@ -138,22 +138,33 @@ impl RejectionLog {
     }
 }
 
-/// Checks one agent's answer against the graph version `prompts` was built from; accepted items
-/// are added to `output`, rejections to `log`. Returns how many items were accepted, or `None`
-/// when the answer as a whole is unusable (no JSON object, no list: counted once as
-/// `malformed`), which the refiner treats like a failed call.
-#[allow(clippy::too_many_arguments)]
+/// What an answer is checked against: the graph version its prompts were built from, the
+/// prompts, the plausibility rules and how strictly the answer is read.
+#[derive(Debug, Clone, Copy)]
+pub struct Against<'a> {
+    /// The prior graph the prompts were built from.
+    pub prior: &'a PriorGraph,
+    /// The refresh's prompts (which pairs were offered).
+    pub prompts: &'a PromptSet,
+    /// Geometry and knowledge-base rules.
+    pub rules: &'a Plausibility,
+    /// How strictly answers are read.
+    pub options: ParseOptions,
+}
+
+/// Checks one agent's answer against what its prompt offered; accepted items are added to
+/// `output`, rejections to `log`. Returns how many items were accepted, or `None` when the
+/// answer as a whole is unusable (no JSON object, no list: counted once as `malformed`), which
+/// the refiner treats like a failed call.
 pub fn check(
     agent: Agent,
     answer: &str,
-    prior: &PriorGraph,
-    prompts: &PromptSet,
+    against: Against<'_>,
     mapper: &mut LabelMapper,
-    options: ParseOptions,
-    rules: &Plausibility,
     output: &mut ReasonerOutput,
     log: &mut RejectionLog,
 ) -> Option<u64> {
+    let Against { prior, prompts, rules, options } = against;
     debug_assert_eq!(prior.version, prompts.graph_version);
     let node = |id: u32| prior.index_of(id).map(|i| &prior.nodes[i]);
     let name = agent.name();

@@ -19,7 +19,8 @@ fn run_with(
     let mut output = ReasonerOutput { graph_version: prior.version, ..ReasonerOutput::default() };
     let mut log = RejectionLog::default();
     let rules = Plausibility::new(&Default::default(), std::sync::Arc::new(kb));
-    let accepted = check(agent, answer, &prior, &prompts, mapper, options, &rules, &mut output, &mut log);
+    let against = Against { prior: &prior, prompts: &prompts, rules: &rules, options };
+    let accepted = check(agent, answer, against, mapper, &mut output, &mut log);
     ((output, log), accepted)
 }
 

@@ -257,17 +257,8 @@ impl Worker {
             };
             let mut output = ReasonerOutput { graph_version: prior.version, ..ReasonerOutput::default() };
             let before = log.counts;
-            let checked = gate::check(
-                prompt.agent,
-                answer,
-                prior,
-                &prompts,
-                &mut self.mapper,
-                options,
-                &self.rules,
-                &mut output,
-                &mut log,
-            );
+            let against = gate::Against { prior, prompts: &prompts, rules: &self.rules, options };
+            let checked = gate::check(prompt.agent, answer, against, &mut self.mapper, &mut output, &mut log);
             let mut rejected = Rejections::default();
             for ((r, after), before) in rejected.0.iter_mut().zip(log.counts.0).zip(before.0) {
                 *r = after - before;
