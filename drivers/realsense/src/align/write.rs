@@ -5,6 +5,8 @@
 use super::CHUNK;
 use super::projection::NOWHERE;
 use crate::rotate::Rotation;
+pub(super) use crate::unchecked::zbuffer::LANES;
+use crate::unchecked::zbuffer::{nearest_lines, nearest_rectangle};
 
 /// Where colour pixel `(x, y)` goes in the rotated output: `origin + x * step_x + y * step_y`.
 #[derive(Debug, Clone, Copy)]
@@ -50,17 +52,8 @@ impl Placement {
 /// load would wait on partly overlapping stores (`frame_handling` benchmark, 848x480 to 848x480
 /// unturned: 2.38 ms cell by cell, 2.49 ms with such lines): unturned frames are aligned turned.
 #[inline(always)]
-pub(super) fn write_rectangle(out: &mut [u16], place: Placement, z1: u16, [xa, ya, xb, yb]: [i32; 4]) {
-    let base = place.origin + xa as isize * place.step_x + ya as isize * place.step_y;
-    let mut row_at = base;
-    for _ in ya..=yb {
-        let mut at = row_at;
-        for _ in xa..=xb {
-            nearest(out, at as usize, z1);
-            at += place.step_x;
-        }
-        row_at += place.step_y;
-    }
+pub(super) fn write_rectangle(out: &mut [u16], place: Placement, z1: u16, rectangle: [i32; 4]) {
+    nearest_rectangle(out, [place.origin, place.step_x, place.step_y], z1, rectangle);
 }
 
 /// One chunk's depths and the colour pixels of their footprints' corners.
@@ -174,17 +167,13 @@ impl<const L: usize> LinePlan<L> {
         const FORWARD: [[u16; LANES]; LANES] = [[0, !0, !0, !0], [0, 0, !0, !0], [0, 0, 0, !0], [0; LANES]];
         const BACKWARD: [[u16; LANES]; LANES] = [[!0, !0, !0, 0], [!0, !0, 0, 0], [!0, 0, 0, 0], [0; LANES]];
         let masks = if place.along_step > 0 { &FORWARD } else { &BACKWARD };
-        for i in 0..n {
-            let z1 = self.z1[i] as u16;
-            if z1 == u16::MAX {
-                continue;
-            }
-            let z = masks[(self.height[i] & 3) as usize].map(|m| z1 | m);
-            for at in &self.at {
-                // 0 <= at[i] <= out.len() - LANES: checked above (or 0).
-                nearest_lanes(out, at[i] as usize, z);
-            }
-        }
+        // Every line start lies in 0..=last_low (tested when planned, or 0); the writes check
+        // the whole plan once more before they skip the test per line.
+        let (z1s, heights) = (&self.z1, &self.height);
+        nearest_lines(out, &self.at, n, |i| {
+            let z1 = z1s[i] as u16;
+            (z1 != u16::MAX).then(|| masks[(heights[i] & 3) as usize].map(|m| z1 | m))
+        });
         // Most chunks leave nothing to the sized loop: one vectorised test instead of a scan.
         if self.apart[..n].iter().fold(0, |any, &apart| any | apart) == 0 {
             return;
@@ -194,45 +183,16 @@ impl<const L: usize> LinePlan<L> {
                 let clamp = |lo: i32, hi: i32, max: i32| (lo.max(0), hi.min(max - 1));
                 let (xa, xb) = clamp(c.x0[i], c.x1[i], cw);
                 let (ya, yb) = clamp(c.y0[i], c.y1[i], ch);
-                write_rectangle(out, place, c.raw[i] - 1, [xa, ya, xb, yb]);
+                write_leftover(out, place, c.raw[i] - 1, [xa, ya, xb, yb]);
             }
         }
     }
 }
 
-/// Values per lane-wise write of [`nearest_lanes`]: a block's line, up to 4 colour pixels along
-/// colour y, one 8-byte load and store.
-pub(super) const LANES: usize = 4;
-
-/// [`nearest`] on the `LANES` consecutive values from `low`, each with its own depth (a lane
-/// with `u16::MAX` keeps its value: `min(out - 1, MAX) + 1 = out`). Vectorised by the compiler.
-///
-/// The caller checks `low + LANES <= out.len()`.
-#[inline(always)]
-#[allow(unsafe_code)] // One unchecked slice on the hot path, checked by the caller.
-fn nearest_lanes(out: &mut [u16], low: usize, z1: [u16; LANES]) {
-    debug_assert!(low + LANES <= out.len(), "aligned depth values {low}.. outside {} values", out.len());
-    // SAFETY: `low + LANES <= out.len()`, checked by the caller (and here in debug builds).
-    let cells = unsafe { out.get_unchecked_mut(low..low + LANES) };
-    for (cell, z) in cells.iter_mut().zip(z1) {
-        *cell = cell.wrapping_sub(1).min(z).wrapping_add(1);
-    }
-}
-
-/// Keeps the nearer of `out[at]` and depth `z1 + 1`; 0 (nothing yet) counts as farthest:
-/// `min(out - 1, z1) + 1` in wrapping `u16` arithmetic.
-///
-/// `at` lies inside `out` by construction: the callers clamp every rectangle to the colour
-/// image (`0 <= x < width`, `0 <= y < height`) before placing it, and [`Placement`] maps that
-/// image onto `out`, which [`DepthToColour::align`](super::DepthToColour::align) checked to be
-/// width x height long. The check is compiled out of release builds: on this hot path (about six
-/// writes per depth pixel) the bounds checks cost a measurable share of the alignment (the
-/// `frame_handling` benchmark).
-#[inline(always)]
-#[allow(unsafe_code)] // One unchecked index on the hot path, argued above.
-fn nearest(out: &mut [u16], at: usize, z1: u16) {
-    debug_assert!(at < out.len(), "aligned depth index {at} outside {} values", out.len());
-    // SAFETY: `at < out.len()` as argued above (and checked in debug builds).
-    let cell = unsafe { out.get_unchecked_mut(at) };
-    *cell = cell.wrapping_sub(1).min(z1) + 1;
+/// [`write_rectangle`] for the few rectangles a [`LinePlan`] leaves: kept out of the plan's
+/// loop, whose registers it would otherwise crowd (`frame_handling` benchmark).
+#[cold]
+#[inline(never)]
+fn write_leftover(out: &mut [u16], place: Placement, z1: u16, rectangle: [i32; 4]) {
+    write_rectangle(out, place, z1, rectangle);
 }

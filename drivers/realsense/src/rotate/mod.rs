@@ -16,7 +16,6 @@
 //! The copy kernels read the driver's buffer (any row stride) and write the pooled frame's
 //! buffers in place: nothing is allocated per frame.
 
-mod simd;
 #[cfg(test)]
 mod tests;
 
@@ -24,7 +23,7 @@ use op3dsg_drivers::frame::Intrinsics;
 use op3dsg_drivers::pose::Isometry;
 use serde::{Deserialize, Serialize};
 
-use self::simd::{blocks, depth_blocks};
+use crate::unchecked::{blocks, depth_blocks};
 
 /// A clockwise image rotation by a multiple of 90°.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -230,7 +229,11 @@ pub fn copy_colour(
     rotation: Rotation,
     dst: &mut [u8],
 ) -> Result<(), CopyError> {
-    copy_colour_with(src, layout, order, rotation, dst, blocks::Blocks::new(order, rotation))
+    let blocks = rotation
+        .swaps_axes()
+        .then(|| blocks::Blocks::new(order.bytes_per_pixel(), order.swaps_red_blue(), rotation == Rotation::Cw90))
+        .flatten();
+    copy_colour_with(src, layout, order, rotation, dst, blocks)
 }
 
 /// [`copy_colour`] without the SIMD blocks of the quarter turns: what CPUs without SSSE3 run,
