@@ -172,6 +172,24 @@ impl Drop for PooledFrame {
     }
 }
 
+/// `Ok` or `".field: message"` (to be prefixed with the intrinsics' own path).
+pub(crate) fn check_intrinsics(k: &Intrinsics) -> Result<(), String> {
+    if k.width < 16 || k.height < 16 {
+        return Err(format!(": image must be at least 16x16, got {}x{}", k.width, k.height));
+    }
+    for (name, v) in [("fx", k.fx), ("fy", k.fy)] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(format!(".{name}: must be > 0, got {v}"));
+        }
+    }
+    for (name, v) in [("cx", k.cx), ("cy", k.cy)] {
+        if !v.is_finite() {
+            return Err(format!(".{name}: must be a finite number, got {v}"));
+        }
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -8,6 +8,9 @@
 //! - [`mcap`]: the channels of MCAP recordings and their replay ([`mcap::McapSource`]).
 //! - [`graph_json`]: the scene-graph JSON form shared by published graphs and evaluation.
 //!
+//! Each module uses only those listed before it: `pose`, `frame`, `graph_json`, `source`, then
+//! `replay` and `mcap` (which share the pacing and the input poses through `source` and `pose`).
+//!
 //! The synthetic rooms (world, renderer, camera path) are the crate `op3dsg-synthetic` in
 //! `drivers/synthetic/`: their ground truth never travels in a [`frame::Frame`].
 //!

@@ -1,4 +1,5 @@
-//! Rigid transforms and pose sources.
+//! Rigid transforms, the interpolating [`PoseBuffer`], and the poses of the daemon's pose input as
+//! a recording keeps them ([`InputPose`]).
 //!
 //! Naming: `a_from_b` maps points expressed in frame `b` into frame `a`, so
 //! `world_from_camera * point_in_camera = point_in_world`.
@@ -90,6 +91,34 @@ pub struct StampedPose {
     pub stamp_ns: u64,
     /// `world_from_camera`.
     pub world_from_camera: Isometry,
+}
+
+/// What an [`InputPose`] describes (the pose input's `PoseKind`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InputPoseKind {
+    /// The colour camera's optical frame in the world.
+    WorldFromCamera,
+    /// The robot base in the world (composed with the profile's `pose.base_from_camera`).
+    WorldFromBase,
+}
+
+/// `op3dsg.InputPose`: a pose the daemon received on its pose input (`<prefix>/pose`, with
+/// `pose.source = "ipc"`), as the navigation stack sent it. A replay hands these to the keyframe
+/// gate again, in the order the gate received them among the frames.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InputPose {
+    /// Time the pose is valid at, nanoseconds, on the frames' clock.
+    pub stamp_ns: u64,
+    /// What the pose describes.
+    pub kind: InputPoseKind,
+    /// The child frame the sender named ("" when none).
+    pub frame_id: String,
+    /// Translation, metres, world frame.
+    pub translation_m: [f64; 3],
+    /// Unit quaternion `[x, y, z, w]`, as sent.
+    pub rotation_xyzw: [f64; 4],
 }
 
 /// How a [`PoseBuffer`] answers a lookup.

@@ -3,7 +3,10 @@
 use std::sync::{Arc, Condvar, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
+use serde::{Deserialize, Serialize};
+
 use crate::frame::{Frame, Intrinsics};
+use crate::pose::InputPose;
 
 /// What a call to [`FrameSource::next_frame`] produced.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -112,7 +115,7 @@ pub trait FrameSource: Send {
     /// `pose.source = "ipc"`), moved into `out`; the pipeline hands them to the keyframe gate
     /// before that frame, as if the navigation stack had sent them. After `EndOfStream`: the
     /// poses after the last frame. Default: none.
-    fn take_input_poses(&mut self, out: &mut Vec<crate::mcap::messages::InputPose>) {
+    fn take_input_poses(&mut self, out: &mut Vec<InputPose>) {
         let _ = out;
     }
 
@@ -226,6 +229,23 @@ pub fn check_frame_buffers(frame: &Frame, intrinsics: &Intrinsics, seq: u64) -> 
             pixels
         ),
     })
+}
+
+/// Longest a call to `next_frame` blocks in `recorded` and `stepped` modes before it returns
+/// `Pending`.
+pub const MAX_BLOCK: Duration = Duration::from_millis(100);
+
+/// How frames are paced.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PlaybackMode {
+    /// At the recording's own rate, by its timestamps.
+    #[default]
+    Recorded,
+    /// As fast as the caller asks.
+    Fast,
+    /// One frame per step of the [`StepControl`].
+    Stepped,
 }
 
 /// Recorded-pace playback: sleeps until the frame stamped `stamp_ns` is due, `origin` being when

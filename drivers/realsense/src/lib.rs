@@ -13,6 +13,11 @@
 //! realsense` turns on), so the default build needs no librealsense; the configuration, the
 //! rotation and the copy kernels (and their benchmark) always build.
 //!
+//! `unsafe` is in two files only, each use with its `// SAFETY:` argument: `device/ffi.rs`
+//! (librealsense's C API where `realsense-rust` stops short) and `unchecked.rs` (the entries into
+//! the quarter turns' SIMD kernels with their prefetch hints, and the alignment's z-buffer writes
+//! without a bounds check per value).
+//!
 //! ```
 //! use op3dsg_drivers::frame::Intrinsics;
 //! use op3dsg_realsense::rotate::Rotation;
@@ -31,6 +36,7 @@ pub mod config;
 pub mod device;
 pub mod imu;
 pub mod rotate;
+mod unchecked;
 
 pub use config::RealsenseConfig;
 #[cfg(feature = "librealsense")]

@@ -445,7 +445,7 @@ fn own_alignment_equals_librealsense_align_with_lens_distortion() {
     // Radial coefficients of the size a D435i's colour camera reports (modified Brown-Conrady,
     // what librealsense's align projects with) and an inverse Brown-Conrady depth lens (what it
     // deprojects with), tangential terms zero: librealsense's SSE align applies those as
-    // rs2_project_point_to_pixel does not (src/align.rs), so they are compared only where both
+    // rs2_project_point_to_pixel does not (src/align/), so they are compared only where both
     // agree on the formula.
     let rec = record_with(
         3,

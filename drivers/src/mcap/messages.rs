@@ -13,7 +13,9 @@ use base64::engine::general_purpose::STANDARD;
 use serde::{Deserialize, Serialize};
 
 use crate::frame::Intrinsics;
+// `op3dsg.InputPose`: defined with the poses, where the frame-source interface takes it from.
 use crate::pose::Isometry;
+pub use crate::pose::{InputPose, InputPoseKind};
 
 /// A Foxglove `time`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -77,34 +79,6 @@ pub struct FrameMeta {
     pub depth_units_per_m: f64,
     /// The pose the source delivered with the frame.
     pub world_from_camera: Option<IsometryJson>,
-}
-
-/// What an [`InputPose`] describes (the pose input's `PoseKind`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum InputPoseKind {
-    /// The colour camera's optical frame in the world.
-    WorldFromCamera,
-    /// The robot base in the world (composed with the profile's `pose.base_from_camera`).
-    WorldFromBase,
-}
-
-/// `op3dsg.InputPose`: a pose the daemon received on its pose input (`<prefix>/pose`, with
-/// `pose.source = "ipc"`), as the navigation stack sent it. A replay hands these to the keyframe
-/// gate again, in the order the gate received them among the frames.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct InputPose {
-    /// Time the pose is valid at, nanoseconds, on the frames' clock.
-    pub stamp_ns: u64,
-    /// What the pose describes.
-    pub kind: InputPoseKind,
-    /// The child frame the sender named ("" when none).
-    pub frame_id: String,
-    /// Translation, metres, world frame.
-    pub translation_m: [f64; 3],
-    /// Unit quaternion `[x, y, z, w]`, as sent.
-    pub rotation_xyzw: [f64; 4],
 }
 
 /// One message of a chat prompt.
@@ -212,7 +186,7 @@ impl CameraCalibration {
             cx: self.K[2] as f32,
             cy: self.K[5] as f32,
         };
-        crate::replay::check_intrinsics(&k).map_err(|e| format!("intrinsics{e}"))?;
+        crate::frame::check_intrinsics(&k).map_err(|e| format!("intrinsics{e}"))?;
         Ok(k)
     }
 }

@@ -50,7 +50,7 @@ use serde::{Deserialize, Serialize};
 
 pub use source::McapSource;
 
-use crate::replay::PlaybackMode;
+use crate::source::PlaybackMode;
 
 /// The graph in [`crate::graph_json`] form.
 pub const TOPIC_GRAPH: &str = "/op3dsg/graph";

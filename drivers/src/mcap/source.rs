@@ -10,8 +10,7 @@ use super::reader::{ChannelInfo, Item, McapReader, MessageAt, ReadError};
 use super::{McapReplayConfig, TOPIC_CALIBRATION, TOPIC_COLOUR, TOPIC_DEPTH, TOPIC_FRAME, TOPIC_INPUT_POSE, schemas};
 use crate::frame::{Frame, Intrinsics};
 use crate::pose::Isometry;
-use crate::replay::{MAX_BLOCK, PlaybackMode};
-use crate::source::{FrameSource, SourceError, SourceStatus, StampClock, StepControl};
+use crate::source::{FrameSource, MAX_BLOCK, PlaybackMode, SourceError, SourceStatus, StampClock, StepControl};
 
 /// Receives a side channel's message of each frame (the bytes of the JSON message) after the
 /// frame's pixels and meta are in place; an error stops the replay naming the channel.

@@ -72,7 +72,8 @@ impl CameraFile {
             Err(e) => return Err(file_error(&path, format!("cannot read: {e}"))),
         };
         let camera: Self = serde_json::from_str(&text).map_err(|e| file_error(&path, e.to_string()))?;
-        super::check_intrinsics(&camera.intrinsics()).map_err(|e| file_error(&path, format!("intrinsics{e}")))?;
+        crate::frame::check_intrinsics(&camera.intrinsics())
+            .map_err(|e| file_error(&path, format!("intrinsics{e}")))?;
         if let Some(units) = camera.depth_scale_per_m
             && !(units.is_finite() && units > 0.0)
         {

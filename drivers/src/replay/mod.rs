@@ -87,11 +87,10 @@
 //! ```
 
 use std::path::PathBuf;
-use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
-use crate::frame::Intrinsics;
+use crate::frame::{Intrinsics, check_intrinsics};
 
 mod decode;
 mod index;
@@ -102,22 +101,8 @@ mod tests;
 pub use index::{CameraFile, parse_stamp_ns};
 pub use source::ReplaySource;
 
-/// Longest a call to `next_frame` blocks in `recorded` and `stepped` modes before it returns
-/// `Pending`.
-pub const MAX_BLOCK: Duration = Duration::from_millis(100);
-
-/// How frames are paced.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum PlaybackMode {
-    /// At the recording's own rate, by its timestamps.
-    #[default]
-    Recorded,
-    /// As fast as the caller asks.
-    Fast,
-    /// One frame per step of the [`StepControl`](crate::source::StepControl).
-    Stepped,
-}
+// The pacing shared with the MCAP replay, defined with the frame-source interface.
+pub use crate::source::{MAX_BLOCK, PlaybackMode};
 
 /// What a bad line or frame does.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -212,22 +197,4 @@ impl ReplayConfig {
         }
         Ok(())
     }
-}
-
-/// `Ok` or `".field: message"` (to be prefixed with the intrinsics' own path).
-pub(crate) fn check_intrinsics(k: &Intrinsics) -> Result<(), String> {
-    if k.width < 16 || k.height < 16 {
-        return Err(format!(": image must be at least 16x16, got {}x{}", k.width, k.height));
-    }
-    for (name, v) in [("fx", k.fx), ("fy", k.fy)] {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(format!(".{name}: must be > 0, got {v}"));
-        }
-    }
-    for (name, v) in [("cx", k.cx), ("cy", k.cy)] {
-        if !v.is_finite() {
-            return Err(format!(".{name}: must be a finite number, got {v}"));
-        }
-    }
-    Ok(())
 }

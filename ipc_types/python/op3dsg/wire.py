@@ -1,5 +1,5 @@
 """The wire contract in Python: ctypes mirrors of the Rust types in ``ipc_types/src``
-(``graph_types.rs``, ``pose_types.rs``, ``health_types.rs``, ``text.rs``), numpy structured
+(``graph_types/``, ``pose_types.rs``, ``health_types.rs``, ``text.rs``), numpy structured
 dtypes for the node and edge records, and the constants a client needs.
 
 Each ``ctypes.Structure`` lists its fields in the Rust order with the Rust types; the package's
