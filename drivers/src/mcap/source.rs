@@ -91,6 +91,27 @@ fn at_error(path: &Path, channel: &ChannelInfo, at: MessageAt, reason: impl std:
     }
 }
 
+/// A channel the replay reads must have the schema and encoding the recorder writes.
+fn check_schema(path: &Path, channel: &ChannelInfo, at: MessageAt) -> Result<(), SourceError> {
+    if let Some(allowed) = expected_schema(&channel.topic)
+        && (!allowed.contains(&channel.schema_name.as_str()) || channel.message_encoding != schemas::MESSAGE_ENCODING)
+    {
+        let schema = allowed.join("\" or \"");
+        return Err(at_error(
+            path,
+            channel,
+            at,
+            format!(
+                "schema \"{}\" encoded \"{}\", expected \"{schema}\" encoded \"{}\"",
+                channel.schema_name,
+                channel.message_encoding,
+                schemas::MESSAGE_ENCODING
+            ),
+        ));
+    }
+    Ok(())
+}
+
 /// The schemas a raw-input topic may have (colour: raw, or compressed with `record.colour`).
 fn expected_schema(topic: &str) -> Option<&'static [&'static str]> {
     match topic {
@@ -237,24 +258,10 @@ impl McapSource {
         let mut calibration: Option<Intrinsics> = expected;
         loop {
             if self.reader.is_none() {
-                let Some(path) = self.files.get(self.next_file) else { return Ok(false) };
-                let opened = McapReader::open(path);
-                self.next_file += 1;
-                match opened {
-                    Ok(reader) => self.reader = Some(reader),
-                    // Listed when the replay opened, gone now (a retention job, an operator
-                    // tidying up): the rest of the recording is still worth playing.
-                    Err(e) if !path.exists() => {
-                        self.vanished_files += 1;
-                        warn!(
-                            path = %path.display(),
-                            error = %e.reason,
-                            vanished_files = self.vanished_files,
-                            "recording file vanished during replay; skipped, going on with the next file"
-                        );
-                        continue;
-                    }
-                    Err(e) => return Err(source_error(e)),
+                match self.open_next_file()? {
+                    None => return Ok(false),
+                    Some(false) => continue,
+                    Some(true) => {}
                 }
                 if expected.is_none() {
                     calibration = None;
@@ -272,23 +279,7 @@ impl McapSource {
             let Item::Message(at) = item else { continue };
             let path = reader.path().to_owned();
             let Some(channel) = reader.channel(at.channel_id).cloned() else { continue };
-            if let Some(allowed) = expected_schema(&channel.topic)
-                && (!allowed.contains(&channel.schema_name.as_str())
-                    || channel.message_encoding != schemas::MESSAGE_ENCODING)
-            {
-                let schema = allowed.join("\" or \"");
-                return Err(at_error(
-                    &path,
-                    &channel,
-                    at,
-                    format!(
-                        "schema \"{}\" encoded \"{}\", expected \"{schema}\" encoded \"{}\"",
-                        channel.schema_name,
-                        channel.message_encoding,
-                        schemas::MESSAGE_ENCODING
-                    ),
-                ));
-            }
+            check_schema(&path, &channel, at)?;
             match channel.topic.as_str() {
                 TOPIC_CALIBRATION => {
                     let calib: CameraCalibration = serde_json::from_slice(&self.scratch)
@@ -324,30 +315,7 @@ impl McapSource {
                 TOPIC_FRAME => {
                     let meta: FrameMeta = serde_json::from_slice(&self.scratch)
                         .map_err(|e| at_error(&path, &channel, at, format!("not an op3dsg.Frame: {e}")))?;
-                    if calibration.is_none() {
-                        return Err(at_error(
-                            &path,
-                            &channel,
-                            at,
-                            format!("frame seq {} has no {TOPIC_CALIBRATION} before it in this file", meta.seq),
-                        ));
-                    }
-                    for (topic, present) in
-                        [(TOPIC_COLOUR, self.staged.colour_at.is_some()), (TOPIC_DEPTH, self.staged.depth_at.is_some())]
-                    {
-                        if !present {
-                            return Err(at_error(
-                                &path,
-                                &channel,
-                                at,
-                                format!(
-                                    "frame seq {} has no {topic} message before it (was the channel off or \
-                                     rate-limited while recording? replay needs every frame's colour and depth)",
-                                    meta.seq
-                                ),
-                            ));
-                        }
-                    }
+                    self.check_frame(&path, &channel, at, &meta, calibration.is_some())?;
                     self.staged.meta = Some(meta);
                     return Ok(true);
                 }
@@ -359,6 +327,70 @@ impl McapSource {
                 }
             }
         }
+    }
+
+    /// Opens the next file of the recording: `None` after the last, `Some(false)` when it
+    /// vanished since the replay opened (skipped, counted, warned), `Some(true)` when open.
+    fn open_next_file(&mut self) -> Result<Option<bool>, SourceError> {
+        let Some(path) = self.files.get(self.next_file) else { return Ok(None) };
+        let opened = McapReader::open(path);
+        self.next_file += 1;
+        match opened {
+            Ok(reader) => {
+                self.reader = Some(reader);
+                Ok(Some(true))
+            }
+            // Listed when the replay opened, gone now (a retention job, an operator tidying up):
+            // the rest of the recording is still worth playing.
+            Err(e) if !path.exists() => {
+                self.vanished_files += 1;
+                warn!(
+                    path = %path.display(),
+                    error = %e.reason,
+                    vanished_files = self.vanished_files,
+                    "recording file vanished during replay; skipped, going on with the next file"
+                );
+                Ok(Some(false))
+            }
+            Err(e) => Err(source_error(e)),
+        }
+    }
+
+    /// A frame message needs a calibration before it in its file and the frame's colour and
+    /// depth staged.
+    fn check_frame(
+        &self,
+        path: &Path,
+        channel: &ChannelInfo,
+        at: MessageAt,
+        meta: &FrameMeta,
+        calibrated: bool,
+    ) -> Result<(), SourceError> {
+        if !calibrated {
+            return Err(at_error(
+                path,
+                channel,
+                at,
+                format!("frame seq {} has no {TOPIC_CALIBRATION} before it in this file", meta.seq),
+            ));
+        }
+        for (topic, present) in
+            [(TOPIC_COLOUR, self.staged.colour_at.is_some()), (TOPIC_DEPTH, self.staged.depth_at.is_some())]
+        {
+            if !present {
+                return Err(at_error(
+                    path,
+                    channel,
+                    at,
+                    format!(
+                        "frame seq {} has no {topic} message before it (was the channel off or \
+                         rate-limited while recording? replay needs every frame's colour and depth)",
+                        meta.seq
+                    ),
+                ));
+            }
+        }
+        Ok(())
     }
 
     /// Decodes the staged frame into `frame`.

@@ -23,32 +23,9 @@ impl RealsenseSource {
         let (Some(depth), Some(colour)) = (depth, colour) else {
             return Err(device_err(format!("{}: frame set without depth and colour", self.name())));
         };
-        // The device behind the first frame set received (delivered or passed over): playback
-        // pacing and its end, the motion sensor.
         if !self.received_any {
             self.received_any = true;
-            if (self.bag.is_some() || self.imu.is_some())
-                && let Some(first) = set.first::<DepthFrame>()
-            {
-                match DeviceHandle::from_frame(first) {
-                    Ok(device) => {
-                        if self.imu.is_some() {
-                            self.open_motion(&device)?;
-                        }
-                        if self.bag.is_some() {
-                            match device.set_real_time(self.config.bag_real_time) {
-                                Ok(()) => self.playback = Some(device),
-                                Err(e) => {
-                                    warn!(bag = %self.name(), error = %e, "cannot control playback pacing; playing in real time")
-                                }
-                            }
-                        }
-                    }
-                    Err(e) => {
-                        warn!(source = %self.name(), error = %e, "no device handle behind the first frame: no playback pacing, no IMU")
-                    }
-                }
-            }
+            self.take_device(&set)?;
         }
         let numbers = (depth.frame_number(), colour.frame_number());
         let repeated = self.last_numbers.is_some_and(|(d, c)| numbers.0 == d || numbers.1 == c);
@@ -105,7 +82,49 @@ impl RealsenseSource {
             None => copy_depth(depth_bytes, depth_layout, self.rotation, &mut frame.depth),
         }
         .map_err(copy_err)?;
-        let stamp_ms = match colour.timestamp_domain() {
+        let stamp_ms = self.stamp_ms(&colour);
+        frame.seq = self.seq;
+        frame.stamp_ns = (stamp_ms * 1e6).round().max(0.0) as u64;
+        frame.intrinsics = self.intrinsics;
+        frame.depth_units_per_m = self.streams.depth_units_per_m;
+        frame.world_from_camera = self.world_from_camera;
+        self.seq += 1;
+        self.delivered_any = true;
+        Ok(SourceStatus::Frame)
+    }
+
+    /// The device behind the first frame set received (delivered or passed over): playback
+    /// pacing and its end, the motion sensor.
+    fn take_device(&mut self, set: &FrameSet) -> Result<(), SourceError> {
+        if (self.bag.is_some() || self.imu.is_some())
+            && let Some(first) = set.first::<DepthFrame>()
+        {
+            match DeviceHandle::from_frame(first) {
+                Ok(device) => {
+                    if self.imu.is_some() {
+                        self.open_motion(&device)?;
+                    }
+                    if self.bag.is_some() {
+                        match device.set_real_time(self.config.bag_real_time) {
+                            Ok(()) => self.playback = Some(device),
+                            Err(e) => {
+                                warn!(bag = %self.name(), error = %e, "cannot control playback pacing; playing in real time")
+                            }
+                        }
+                    }
+                }
+                Err(e) => {
+                    warn!(source = %self.name(), error = %e, "no device handle behind the first frame: no playback pacing, no IMU")
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The frame's stamp, milliseconds: librealsense's global (or system) time, a recording's
+    /// own stamps, else the host arrival time (the camera's hardware clock is no host clock).
+    fn stamp_ms(&mut self, colour: &ColorFrame) -> f64 {
+        match colour.timestamp_domain() {
             Rs2TimestampDomain::GlobalTime | Rs2TimestampDomain::SystemTime => colour.timestamp(),
             _ if self.bag.is_some() => colour.timestamp(),
             _ => {
@@ -115,14 +134,6 @@ impl RealsenseSource {
                 }
                 colour.metadata(Rs2FrameMetadata::TimeOfArrival).map_or_else(|| colour.timestamp(), |ms| ms as f64)
             }
-        };
-        frame.seq = self.seq;
-        frame.stamp_ns = (stamp_ms * 1e6).round().max(0.0) as u64;
-        frame.intrinsics = self.intrinsics;
-        frame.depth_units_per_m = self.streams.depth_units_per_m;
-        frame.world_from_camera = self.world_from_camera;
-        self.seq += 1;
-        self.delivered_any = true;
-        Ok(SourceStatus::Frame)
+        }
     }
 }

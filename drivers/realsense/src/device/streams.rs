@@ -29,49 +29,27 @@ pub(super) struct Streams {
     pub(super) half_period_ms: f64,
 }
 
+/// The colour order of a colour stream's format.
+fn colour_order(format: Rs2Format, name: &str) -> Result<ColourOrder, SourceError> {
+    Ok(match format {
+        Rs2Format::Rgb8 => ColourOrder::Rgb8,
+        Rs2Format::Bgr8 => ColourOrder::Bgr8,
+        Rs2Format::Rgba8 => ColourOrder::Rgba8,
+        Rs2Format::Bgra8 => ColourOrder::Bgra8,
+        other => {
+            return Err(device_err(format!(
+                "{name}: colour stream format {other:?}; supported: RGB8, BGR8, RGBA8, BGRA8"
+            )));
+        }
+    })
+}
+
 impl RealsenseSource {
     /// Starts the pipeline and reads the streams' calibration.
     pub(super) fn start(&mut self) -> Result<Streams, SourceError> {
         let name = self.name();
-        let mut cfg = Config::new();
         let (depth, colour) = self.modes;
-        let enable = |cfg: &mut Config| -> Result<(), String> {
-            match &self.bag {
-                Some(bag) => {
-                    cfg.enable_device_from_file(bag, false).map_err(|e| e.to_string())?;
-                    cfg.enable_stream(Rs2StreamKind::Depth, None, 0, 0, Rs2Format::Z16, 0)
-                        .map_err(|e| e.to_string())?;
-                    cfg.enable_stream(Rs2StreamKind::Color, None, 0, 0, Rs2Format::Any, 0)
-                        .map_err(|e| e.to_string())?;
-                }
-                None => {
-                    if !self.serial.is_empty() {
-                        let serial = CString::new(self.serial.clone()).map_err(|e| e.to_string())?;
-                        cfg.enable_device_from_serial(&serial).map_err(|e| e.to_string())?;
-                    }
-                    cfg.enable_stream(
-                        Rs2StreamKind::Depth,
-                        None,
-                        depth.width as usize,
-                        depth.height as usize,
-                        Rs2Format::Z16,
-                        depth.fps as usize,
-                    )
-                    .map_err(|e| e.to_string())?;
-                    cfg.enable_stream(
-                        Rs2StreamKind::Color,
-                        None,
-                        colour.width as usize,
-                        colour.height as usize,
-                        Rs2Format::Rgb8,
-                        colour.fps as usize,
-                    )
-                    .map_err(|e| e.to_string())?;
-                }
-            }
-            Ok(())
-        };
-        enable(&mut cfg).map_err(|e| self.open_error(&name, e))?;
+        let cfg = self.stream_config().map_err(|e| self.open_error(&name, e))?;
         let pipeline =
             InactivePipeline::try_from(&self.context).map_err(|e| device_err(format!("{name}: pipeline: {e}")))?;
         if self.bag.is_none() && !pipeline.can_resolve(&cfg) {
@@ -87,17 +65,7 @@ impl RealsenseSource {
         let (Some(colour_stream), Some(depth_stream)) = (colour_stream, depth_stream) else {
             return Err(device_err(format!("{name}: needs a depth and a colour stream")));
         };
-        let colour_order = match colour_stream.format() {
-            Rs2Format::Rgb8 => ColourOrder::Rgb8,
-            Rs2Format::Bgr8 => ColourOrder::Bgr8,
-            Rs2Format::Rgba8 => ColourOrder::Rgba8,
-            Rs2Format::Bgra8 => ColourOrder::Bgra8,
-            other => {
-                return Err(device_err(format!(
-                    "{name}: colour stream format {other:?}; supported: RGB8, BGR8, RGBA8, BGRA8"
-                )));
-            }
-        };
+        let colour_order = colour_order(colour_stream.format(), &name)?;
         let k = colour_stream.intrinsics().map_err(|e| device_err(format!("{name}: colour intrinsics: {e}")))?;
         let colour = Intrinsics {
             width: k.width() as u32,
@@ -114,11 +82,76 @@ impl RealsenseSource {
             .map_err(|e| device_err(format!("{name}: depth intrinsics: {e}")))?;
         let colour_lens = lens(&k.0);
         let half_period_ms = 500.0 / f64::from(colour_stream.framerate().max(1));
+        let depth_units_per_m = self.configure_sensors(&mut profile.device().sensors(), &name);
+        let extrinsics_of_depth =
+            extrinsics.as_ref().map(|e| Extrinsics { rotation: e.rotation(), translation_m: e.translation() });
+        self.aligner = self.aligner_for(depth_lens, colour_lens, extrinsics_of_depth, depth_units_per_m, &name)?;
+        info!(
+            source = %name,
+            align = ?self.config.align,
+            depth = format!("{}x{}", depth_lens.width, depth_lens.height),
+            colour = format!("{}x{} {:?}", colour.width, colour.height, colour_order),
+            fx = colour.fx, fy = colour.fy, cx = colour.cx, cy = colour.cy,
+            depth_units_per_m,
+            depth_to_colour_translation_m = ?extrinsics.map(|e| e.translation()),
+            rotate = self.rotation.degrees(),
+            "realsense streams started (depth aligned to colour)"
+        );
+        self.pipeline = Some(pipeline);
+        self.motion = None;
+        self.playback = None;
+        self.last_numbers = None;
+        self.delivered_any = false;
+        self.received_any = false;
+        Ok(Streams { colour, depth_units_per_m, colour_order, half_period_ms })
+    }
+
+    /// The streams to start: a recording's, or the camera's (by serial when set) in the modes
+    /// resolved from the profile.
+    fn stream_config(&self) -> Result<Config, String> {
+        let mut cfg = Config::new();
+        let (depth, colour) = self.modes;
+        match &self.bag {
+            Some(bag) => {
+                cfg.enable_device_from_file(bag, false).map_err(|e| e.to_string())?;
+                cfg.enable_stream(Rs2StreamKind::Depth, None, 0, 0, Rs2Format::Z16, 0).map_err(|e| e.to_string())?;
+                cfg.enable_stream(Rs2StreamKind::Color, None, 0, 0, Rs2Format::Any, 0).map_err(|e| e.to_string())?;
+            }
+            None => {
+                if !self.serial.is_empty() {
+                    let serial = CString::new(self.serial.clone()).map_err(|e| e.to_string())?;
+                    cfg.enable_device_from_serial(&serial).map_err(|e| e.to_string())?;
+                }
+                cfg.enable_stream(
+                    Rs2StreamKind::Depth,
+                    None,
+                    depth.width as usize,
+                    depth.height as usize,
+                    Rs2Format::Z16,
+                    depth.fps as usize,
+                )
+                .map_err(|e| e.to_string())?;
+                cfg.enable_stream(
+                    Rs2StreamKind::Color,
+                    None,
+                    colour.width as usize,
+                    colour.height as usize,
+                    Rs2Format::Rgb8,
+                    colour.fps as usize,
+                )
+                .map_err(|e| e.to_string())?;
+            }
+        }
+        Ok(cfg)
+    }
+
+    /// Sets the sensors' options (global time; the depth sensor's preset, emitter and laser
+    /// power; none on a recording) and returns the depth sensor's units, metres per unit.
+    fn configure_sensors(&self, sensors: &mut [realsense_rust::sensor::Sensor], name: &str) -> f32 {
         // Depth units: the depth sensor's option (metres per unit); the first frame corrects it
         // when the sensor does not report it.
         let mut depth_units_per_m = 1000.0;
-        let mut sensors = profile.device().sensors();
-        for sensor in &mut sensors {
+        for sensor in sensors.iter_mut() {
             // (Sensor::extension panics on sensors of recordings; the depth sensor is the one
             // with depth units.)
             let is_depth = sensor.supports_option(Rs2Option::DepthUnits);
@@ -143,15 +176,26 @@ impl RealsenseSource {
                 set(Rs2Option::LaserPower, self.config.laser_power_mw, "laser_power_mw");
             }
         }
-        self.aligner = match self.config.align {
+        depth_units_per_m
+    }
+
+    /// Our depth-to-colour alignment for these lenses (`None` with librealsense's).
+    fn aligner_for(
+        &self,
+        depth_lens: Lens,
+        colour_lens: Lens,
+        extrinsics: Option<Extrinsics>,
+        depth_units_per_m: f32,
+        name: &str,
+    ) -> Result<Option<DepthToColour>, SourceError> {
+        Ok(match self.config.align {
             AlignMode::Librealsense => None,
             AlignMode::Op3dsg => {
-                let Some(e) = &extrinsics else {
+                let Some(e) = extrinsics else {
                     return Err(device_err(format!(
                         "{name}: no depth to colour extrinsics, cannot align (source.realsense.align = \"op3dsg\")"
                     )));
                 };
-                let e = Extrinsics { rotation: e.rotation(), translation_m: e.translation() };
                 let aligner = DepthToColour::new(depth_lens, colour_lens, e, 1.0 / depth_units_per_m)
                     .map_err(|e| device_err(format!("{name}: {e}")))?;
                 for (stream, model) in aligner.ignored_coefficients() {
@@ -159,25 +203,7 @@ impl RealsenseSource {
                 }
                 Some(aligner)
             }
-        };
-        info!(
-            source = %name,
-            align = ?self.config.align,
-            depth = format!("{}x{}", depth_lens.width, depth_lens.height),
-            colour = format!("{}x{} {:?}", colour.width, colour.height, colour_order),
-            fx = colour.fx, fy = colour.fy, cx = colour.cx, cy = colour.cy,
-            depth_units_per_m,
-            depth_to_colour_translation_m = ?extrinsics.map(|e| e.translation()),
-            rotate = self.rotation.degrees(),
-            "realsense streams started (depth aligned to colour)"
-        );
-        self.pipeline = Some(pipeline);
-        self.motion = None;
-        self.playback = None;
-        self.last_numbers = None;
-        self.delivered_any = false;
-        self.received_any = false;
-        Ok(Streams { colour, depth_units_per_m, colour_order, half_period_ms })
+        })
     }
 
     fn open_error(&self, name: &str, reason: String) -> SourceError {
