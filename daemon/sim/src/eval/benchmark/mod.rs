@@ -407,8 +407,6 @@ fn involved_ids(ground_truth: &GraphJson, of_category: impl Fn(&str) -> bool) ->
         .collect()
 }
 
-/// Runs scenes `0..scenes` on `threads` named threads; `progress` is called after each scene.
-/// Results come back in scene order whatever thread ran them.
 /// `base` on synthetic `room` / `seed` with the oracle's knowledge-guided part prompts, as the
 /// benchmark runs every scene; the oracle's configuration with it.
 pub fn scene_profile(base: &Profile, room: RoomKind, seed: u64) -> Result<(Profile, OracleConfig), String> {
@@ -425,6 +423,8 @@ pub fn scene_profile(base: &Profile, room: RoomKind, seed: u64) -> Result<(Profi
     Ok((profile, oracle))
 }
 
+/// Runs scenes `0..scenes` on `threads` named threads; `progress` is called after each scene.
+/// Results come back in scene order whatever thread ran them.
 pub fn run_scenes(
     base: &Profile,
     scenes: usize,
