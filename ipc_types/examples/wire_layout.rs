@@ -67,6 +67,13 @@ fn json_strings(items: &[&str]) -> String {
 }
 
 fn main() {
+    let mut types = graph_layouts();
+    types.extend(health_layouts());
+    println!("{{\"types\": {{{}}}, \"constants\": {{{}}}}}", types.join(", "), constants());
+}
+
+/// The layouts of the graph sample's records and of the pose input.
+fn graph_layouts() -> Vec<String> {
     let mut types = Vec::new();
     layout!(
         types,
@@ -113,6 +120,12 @@ fn main() {
         }
     );
     layout!(types, PoseStamped { stamp_ns, kind, reserved, translation_m, rotation_xyzw, frame_id });
+    types
+}
+
+/// The layouts of the health record and of the records it holds.
+fn health_layouts() -> Vec<String> {
+    let mut types = Vec::new();
     layout!(types, StageHealth { name, processed, rate_hz, latency_p50_us, latency_p99_us, errors, reserved });
     layout!(types, QueueHealth { name, depth, capacity, dropped, pushed });
     layout!(
@@ -198,7 +211,11 @@ fn main() {
             snapshot,
         }
     );
+    types
+}
 
+/// The constants a client mirrors, as the members of a JSON object.
+fn constants() -> String {
     let mut constants = String::new();
     let mut constant = |name: &str, value: String| {
         let _ = write!(constants, "{}\"{name}\": {value}", if constants.is_empty() { "" } else { ", " });
@@ -242,6 +259,5 @@ fn main() {
     constant("POSE_MAX_PUBLISHERS", POSE_MAX_PUBLISHERS.to_string());
     constant("POSE_MAX_SUBSCRIBERS", POSE_MAX_SUBSCRIBERS.to_string());
     constant("QUATERNION_NORM_TOLERANCE", format!("{QUATERNION_NORM_TOLERANCE:?}"));
-
-    println!("{{\"types\": {{{}}}, \"constants\": {{{constants}}}}}", types.join(", "));
+    constants
 }

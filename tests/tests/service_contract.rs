@@ -5,12 +5,15 @@
 //! as documented (history for late joiners, the borrow limit, the event id).
 
 use std::collections::HashMap;
+use std::fmt::Debug;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
 use iceoryx2::port::ReceiveError;
-use iceoryx2::prelude::{NodeBuilder, PortFactory as _, ServiceName};
+use iceoryx2::prelude::{IceoryxSend, NodeBuilder, PortFactory as _, ServiceName, ZeroCopySend};
 use iceoryx2::service::static_config::message_type_details::MessageTypeDetails;
+use iceoryx2::service::static_config::publish_subscribe::StaticConfig;
+use iceoryx2::service::{builder, port_factory};
 use op3dsg_ipc_types::services::IpcService;
 use op3dsg_ipc_types::{GraphHeader, Health, PoseStamped, ServiceKind};
 use op3dsg_tests::{Daemon, unique_prefix, wait_for};
@@ -81,6 +84,38 @@ fn assert_types(service: &str, details: &MessageTypeDetails, names: &[&str]) {
     }
 }
 
+/// `service_builder` with every QoS value of the documented `row` of `service` as a requirement.
+fn with_documented_qos<Payload, UserHeader>(
+    service_builder: builder::publish_subscribe::Builder<Payload, UserHeader, IpcService>,
+    row: &Row,
+    service: &str,
+) -> builder::publish_subscribe::Builder<Payload, UserHeader, IpcService>
+where
+    Payload: Debug + IceoryxSend + ?Sized,
+    UserHeader: Debug + ZeroCopySend,
+{
+    service_builder
+        .history_size(row.history.unwrap_or_else(|| panic!("{service} history")))
+        .subscriber_max_buffer_size(row.buffer.unwrap_or_else(|| panic!("{service} buffer")))
+        .subscriber_max_borrowed_samples(row.borrowed.unwrap_or_else(|| panic!("{service} borrowed")))
+        .enable_safe_overflow(row.safe_overflow.unwrap_or_else(|| panic!("{service} overflow")))
+        .max_publishers(row.publishers)
+        .max_subscribers(row.subscribers)
+        .max_nodes(row.nodes)
+}
+
+/// The publish-subscribe `service` has exactly the QoS and type names of its documented `row`.
+fn assert_documented_qos(service: &str, row: &Row, config: &StaticConfig) {
+    assert_eq!(Some(config.history_size()), row.history, "{service} history");
+    assert_eq!(Some(config.subscriber_max_buffer_size()), row.buffer, "{service} buffer");
+    assert_eq!(Some(config.subscriber_max_borrowed_samples()), row.borrowed, "{service} borrowed");
+    assert_eq!(Some(config.has_safe_overflow()), row.safe_overflow, "{service} overflow");
+    assert_eq!(config.max_publishers(), row.publishers, "{service} publishers");
+    assert_eq!(config.max_subscribers(), row.subscribers, "{service} subscribers");
+    assert_eq!(config.max_nodes(), row.nodes, "{service} nodes");
+    assert_types(service, config.message_type_details(), &row.type_names());
+}
+
 #[test]
 fn every_service_opens_with_exactly_the_documented_qos() {
     let table = documented_services();
@@ -101,28 +136,11 @@ fn every_service_opens_with_exactly_the_documented_qos() {
     // graph: a [u8] slice with the GraphHeader user header.
     let row = &table["graph"];
     assert_eq!(row.pattern, "publish-subscribe");
-    let graph = node
-        .service_builder(&name(ServiceKind::Graph))
-        .publish_subscribe::<[u8]>()
-        .user_header::<GraphHeader>()
-        .history_size(row.history.expect("graph history"))
-        .subscriber_max_buffer_size(row.buffer.expect("graph buffer"))
-        .subscriber_max_borrowed_samples(row.borrowed.expect("graph borrowed"))
-        .enable_safe_overflow(row.safe_overflow.expect("graph overflow"))
-        .max_publishers(row.publishers)
-        .max_subscribers(row.subscribers)
-        .max_nodes(row.nodes)
+    let graph_builder = node.service_builder(&name(ServiceKind::Graph)).publish_subscribe::<[u8]>();
+    let graph = with_documented_qos(graph_builder.user_header::<GraphHeader>(), row, "graph")
         .open()
         .expect("graph opens with the documented QoS as requirements");
-    let config = graph.static_config();
-    assert_eq!(config.history_size(), row.history.unwrap(), "graph history");
-    assert_eq!(config.subscriber_max_buffer_size(), row.buffer.unwrap(), "graph buffer");
-    assert_eq!(config.subscriber_max_borrowed_samples(), row.borrowed.unwrap(), "graph borrowed");
-    assert_eq!(config.has_safe_overflow(), row.safe_overflow.unwrap(), "graph overflow");
-    assert_eq!(config.max_publishers(), row.publishers, "graph publishers");
-    assert_eq!(config.max_subscribers(), row.subscribers, "graph subscribers");
-    assert_eq!(config.max_nodes(), row.nodes, "graph nodes");
-    assert_types("graph", config.message_type_details(), &row.type_names());
+    assert_documented_qos("graph", row, graph.static_config());
 
     // graph_updated: one event id.
     let row = &table["graph_updated"];
@@ -145,57 +163,33 @@ fn every_service_opens_with_exactly_the_documented_qos() {
     // health
     let row = &table["health"];
     assert_eq!(row.pattern, "publish-subscribe");
-    let health_service = node
-        .service_builder(&name(ServiceKind::Health))
-        .publish_subscribe::<Health>()
-        .history_size(row.history.expect("health history"))
-        .subscriber_max_buffer_size(row.buffer.expect("health buffer"))
-        .subscriber_max_borrowed_samples(row.borrowed.expect("health borrowed"))
-        .enable_safe_overflow(row.safe_overflow.expect("health overflow"))
-        .max_publishers(row.publishers)
-        .max_subscribers(row.subscribers)
-        .max_nodes(row.nodes)
+    let health_builder = node.service_builder(&name(ServiceKind::Health)).publish_subscribe::<Health>();
+    let health_service = with_documented_qos(health_builder, row, "health")
         .open()
         .expect("health opens with the documented QoS as requirements");
-    let config = health_service.static_config();
-    assert_eq!(config.history_size(), row.history.unwrap(), "health history");
-    assert_eq!(config.subscriber_max_buffer_size(), row.buffer.unwrap(), "health buffer");
-    assert_eq!(config.subscriber_max_borrowed_samples(), row.borrowed.unwrap(), "health borrowed");
-    assert_eq!(config.has_safe_overflow(), row.safe_overflow.unwrap(), "health overflow");
-    assert_eq!(config.max_publishers(), row.publishers, "health publishers");
-    assert_eq!(config.max_subscribers(), row.subscribers, "health subscribers");
-    assert_eq!(config.max_nodes(), row.nodes, "health nodes");
-    assert_types("health", config.message_type_details(), &row.type_names());
+    assert_documented_qos("health", row, health_service.static_config());
 
     // pose: the daemon created it (nobody else was there first).
     let row = &table["pose"];
     assert_eq!(row.pattern, "publish-subscribe");
-    let pose = node
-        .service_builder(&name(ServiceKind::Pose))
-        .publish_subscribe::<PoseStamped>()
-        .history_size(row.history.expect("pose history"))
-        .subscriber_max_buffer_size(row.buffer.expect("pose buffer"))
-        .subscriber_max_borrowed_samples(row.borrowed.expect("pose borrowed"))
-        .enable_safe_overflow(row.safe_overflow.expect("pose overflow"))
-        .max_publishers(row.publishers)
-        .max_subscribers(row.subscribers)
-        .max_nodes(row.nodes)
+    let pose_builder = node.service_builder(&name(ServiceKind::Pose)).publish_subscribe::<PoseStamped>();
+    let pose = with_documented_qos(pose_builder, row, "pose")
         .open()
         .expect("pose opens with the documented QoS as requirements");
-    let config = pose.static_config();
-    assert_eq!(config.history_size(), row.history.unwrap(), "pose history");
-    assert_eq!(config.subscriber_max_buffer_size(), row.buffer.unwrap(), "pose buffer");
-    assert_eq!(config.subscriber_max_borrowed_samples(), row.borrowed.unwrap(), "pose borrowed");
-    assert_eq!(config.has_safe_overflow(), row.safe_overflow.unwrap(), "pose overflow");
-    assert_eq!(config.max_publishers(), row.publishers, "pose publishers");
-    assert_eq!(config.max_subscribers(), row.subscribers, "pose subscribers");
-    assert_eq!(config.max_nodes(), row.nodes, "pose nodes");
-    assert_types("pose", config.message_type_details(), &row.type_names());
+    assert_documented_qos("pose", row, pose.static_config());
 
-    // Behaviour: a late joiner gets the newest graph from the history; the one event id wakes
-    // it; a second borrow while the first sample is held is refused.
-    let subscriber =
-        graph.subscriber_builder().history_request(table["graph"].history.unwrap()).create().expect("graph subscriber");
+    assert_late_joiner_event_and_borrow_limit(&graph, &event, &table);
+}
+
+/// Behaviour: a late joiner gets the newest graph from the history; the one event id wakes it;
+/// a second borrow while the first sample is held is refused.
+fn assert_late_joiner_event_and_borrow_limit(
+    graph: &port_factory::publish_subscribe::PortFactory<IpcService, [u8], GraphHeader>,
+    event: &port_factory::event::PortFactory<IpcService>,
+    table: &HashMap<String, Row>,
+) {
+    let history = table["graph"].history.expect("graph history");
+    let subscriber = graph.subscriber_builder().history_request(history).create().expect("graph subscriber");
     let listener = event.listener_builder().create().expect("graph_updated listener");
     let first = wait_for("the history sample (or the next graph)", Duration::from_secs(60), || {
         subscriber.receive().expect("receive a graph").filter(|s| s.payload().len() == s.user_header().payload_bytes())
@@ -209,7 +203,8 @@ fn every_service_opens_with_exactly_the_documented_qos() {
             .expect("wait on graph_updated");
     }
     assert!(!ids.is_empty(), "no graph_updated event within 60 s");
-    assert!(ids.iter().all(|&id| id == table["graph_updated"].event_id.unwrap()), "event ids {ids:?}");
+    let event_id = table["graph_updated"].event_id.expect("graph_updated event id");
+    assert!(ids.iter().all(|&id| id == event_id), "event ids {ids:?}");
     let deadline = Instant::now() + Duration::from_secs(60);
     let refused = loop {
         match subscriber.receive() {

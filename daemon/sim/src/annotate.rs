@@ -398,22 +398,13 @@ fn percentile(values: &mut [f64], p: f64) -> Option<f64> {
 /// `sequence`: the ground-truth graph, and what each node and box gave. Errors name the file,
 /// the node, the box and the frame.
 pub fn lift(annotation: &Annotation, annotation_path: &Path, sequence: &Path) -> Result<Lifted, String> {
-    let file = annotation_path.display();
+    let file = annotation_path.display().to_string();
     let wanted: BTreeSet<u64> = annotation.nodes.iter().flat_map(|n| n.boxes.iter().map(|b| b.frame)).collect();
-    let frames = read_frames(sequence, &wanted).map_err(|e| {
-        // Name the first box on a frame the recording does not have.
-        let past_end = annotation.nodes.iter().enumerate().find_map(|(i, node)| {
-            let b = node.boxes.iter().position(|b| e.starts_with(&format!("frame {}:", b.frame)))?;
-            Some(format!("{}.boxes[{b}].frame", node_path(i, node)))
-        });
-        match past_end {
-            Some(at) => format!("{file}: {at}: {e}"),
-            None => format!("{file}: {e}"),
-        }
-    })?;
+    let frames =
+        read_frames(sequence, &wanted).map_err(|e| format!("{file}: {}", with_box_of_frame(annotation, &e)))?;
     let mut graph = GraphJson::new(format!(
         "hand annotation {} of {} ({} nodes on {} frames; {}), lifted with op3dsg annotate",
-        annotation_path.file_name().map_or_else(|| file.to_string(), |n| n.to_string_lossy().into_owned()),
+        annotation_path.file_name().map_or_else(|| file.clone(), |n| n.to_string_lossy().into_owned()),
         sequence.file_name().map_or_else(|| sequence.display().to_string(), |n| n.to_string_lossy().into_owned()),
         annotation.nodes.len(),
         wanted.len(),
@@ -422,79 +413,8 @@ pub fn lift(annotation: &Annotation, annotation_path: &Path, sequence: &Path) ->
     let mut nodes = Vec::new();
     let mut boxes = Vec::new();
     for (i, node) in annotation.nodes.iter().enumerate() {
-        let at = node_path(i, node);
-        let params = node_params(&annotation.lift, node);
-        let mut points: [Vec<f64>; 3] = Default::default();
-        for (b, frame_box) in node.boxes.iter().enumerate() {
-            let at = format!("{file}: {at}.boxes[{b}] (frame {})", frame_box.frame);
-            let frame =
-                frames.get(&frame_box.frame).ok_or_else(|| format!("{at}: frame not read from the recording"))?;
-            let k = frame.intrinsics;
-            let [_, _, x1, y1] = frame_box.rect;
-            if x1 > k.width || y1 > k.height {
-                return Err(format!(
-                    "{at}.box: {:?} reaches past the {}x{} image (x1 <= {}, y1 <= {})",
-                    frame_box.rect, k.width, k.height, k.width, k.height
-                ));
-            }
-            let pose =
-                frame.world_from_camera.ok_or_else(|| format!("{at}: the frame has no pose in groundtruth.txt"))?;
-            let params = box_params(&params, frame_box);
-            let (kept, with_depth, reference) = kept_pixels(frame, frame_box.rect, &params);
-            let Some(reference) = reference else {
-                return Err(format!("{at}: no pixel of {:?} has depth", frame_box.rect));
-            };
-            if kept.len() < params.min_points {
-                return Err(format!(
-                    "{at}: only {} pixels within {} m of the reference depth {reference:.2} m (of {with_depth} with depth; min_points {})",
-                    kept.len(),
-                    params.band_m,
-                    params.min_points
-                ));
-            }
-            for &p in &kept {
-                let (u, v) = ((p as u32 % k.width) as f32, (p as u32 / k.width) as f32);
-                let world = pose.transform_point(k.point_in_camera(u, v, frame.depth_m(p)).as_dvec3());
-                for (axis, values) in points.iter_mut().enumerate() {
-                    values.push(world[axis]);
-                }
-            }
-            boxes.push(BoxLift {
-                node: node.id,
-                index: b,
-                frame: frame_box.frame,
-                with_depth,
-                kept: kept.len(),
-                reference_m: reference,
-            });
-        }
-        let count = points[0].len();
-        let [lo, hi] = params.box_percentiles;
-        let mut min = DVec3::ZERO;
-        let mut max = DVec3::ZERO;
-        for (axis, values) in points.iter_mut().enumerate() {
-            // Cannot be empty: every box kept at least min_points >= 1 pixels.
-            min[axis] = percentile(values, lo).unwrap_or(0.0);
-            max[axis] = percentile(values, hi).unwrap_or(0.0);
-        }
-        let round = |v: DVec3| v.to_array().map(|c| ((c * 1e4).round() / 1e4) as f32);
-        let (box_min_m, box_max_m) = (round(min), round(max));
-        let centre_m = round((min + max) * 0.5);
-        graph.nodes.push(NodeJson {
-            id: node.id,
-            label: node.label.clone(),
-            kind: node.kind.clone(),
-            parent: node.parent,
-            centre_m,
-            box_min_m,
-            box_max_m,
-            obb: None,
-            affordances: node.affordances.clone(),
-            affordance_origins: BTreeMap::new(),
-            confidence: 1.0,
-            observation_count: 0,
-            seen_keyframes: None,
-        });
+        let (node_json, node_lift) = lift_node(&file, i, node, &annotation.lift, &frames, &mut boxes)?;
+        graph.nodes.push(node_json);
         if let Some(parent) = node.parent {
             graph.edges.push(EdgeJson {
                 source: node.id,
@@ -505,11 +425,116 @@ pub fn lift(annotation: &Annotation, annotation_path: &Path, sequence: &Path) ->
                 origin: "ground_truth".to_owned(),
             });
         }
-        let frames_of_node: BTreeSet<u64> = node.boxes.iter().map(|b| b.frame).collect();
-        nodes.push(NodeLift { id: node.id, points: count, frames: frames_of_node.len(), box_min_m, box_max_m });
+        nodes.push(node_lift);
     }
     graph.check().map_err(|e| format!("{file}: the lifted graph: {e}"))?;
     Ok(Lifted { graph, nodes, boxes })
+}
+
+/// `error` of [`read_frames`], preceded by the first box on a frame the recording does not
+/// have, when it names one.
+fn with_box_of_frame(annotation: &Annotation, error: &str) -> String {
+    let past_end = annotation.nodes.iter().enumerate().find_map(|(i, node)| {
+        let b = node.boxes.iter().position(|b| error.starts_with(&format!("frame {}:", b.frame)))?;
+        Some(format!("{}.boxes[{b}].frame", node_path(i, node)))
+    });
+    match past_end {
+        Some(at) => format!("{at}: {error}"),
+        None => error.to_owned(),
+    }
+}
+
+/// Lifts node `i` of the annotation `file` from its boxes on `frames`: the ground-truth node
+/// (the box of its fused points) and what it gave; what each box gave is appended to `boxes`.
+fn lift_node(
+    file: &str,
+    i: usize,
+    node: &AnnotatedNode,
+    lift: &LiftParams,
+    frames: &BTreeMap<u64, Frame>,
+    boxes: &mut Vec<BoxLift>,
+) -> Result<(NodeJson, NodeLift), String> {
+    let at = node_path(i, node);
+    let params = node_params(lift, node);
+    let mut points: [Vec<f64>; 3] = Default::default();
+    for (b, frame_box) in node.boxes.iter().enumerate() {
+        let at = format!("{file}: {at}.boxes[{b}] (frame {})", frame_box.frame);
+        let frame = frames.get(&frame_box.frame).ok_or_else(|| format!("{at}: frame not read from the recording"))?;
+        let (kept, with_depth, reference_m) =
+            lift_box(frame, frame_box, &box_params(&params, frame_box), &at, &mut points)?;
+        boxes.push(BoxLift { node: node.id, index: b, frame: frame_box.frame, with_depth, kept, reference_m });
+    }
+    let count = points[0].len();
+    let [lo, hi] = params.box_percentiles;
+    let mut min = DVec3::ZERO;
+    let mut max = DVec3::ZERO;
+    for (axis, values) in points.iter_mut().enumerate() {
+        // Cannot be empty: every box kept at least min_points >= 1 pixels.
+        min[axis] = percentile(values, lo).unwrap_or(0.0);
+        max[axis] = percentile(values, hi).unwrap_or(0.0);
+    }
+    let round = |v: DVec3| v.to_array().map(|c| ((c * 1e4).round() / 1e4) as f32);
+    let (box_min_m, box_max_m) = (round(min), round(max));
+    let centre_m = round((min + max) * 0.5);
+    let node_json = NodeJson {
+        id: node.id,
+        label: node.label.clone(),
+        kind: node.kind.clone(),
+        parent: node.parent,
+        centre_m,
+        box_min_m,
+        box_max_m,
+        obb: None,
+        affordances: node.affordances.clone(),
+        affordance_origins: BTreeMap::new(),
+        confidence: 1.0,
+        observation_count: 0,
+        seen_keyframes: None,
+    };
+    let frames_of_node: BTreeSet<u64> = node.boxes.iter().map(|b| b.frame).collect();
+    let node_lift = NodeLift { id: node.id, points: count, frames: frames_of_node.len(), box_min_m, box_max_m };
+    Ok((node_json, node_lift))
+}
+
+/// Lifts one box (`at` names it in errors) on its `frame`: its kept pixels, back-projected and
+/// moved into the world, are appended to `points` (per axis). Returns how many pixels were kept,
+/// how many had depth, and the reference depth in metres.
+fn lift_box(
+    frame: &Frame,
+    frame_box: &FrameBox,
+    params: &LiftParams,
+    at: &str,
+    points: &mut [Vec<f64>; 3],
+) -> Result<(usize, usize, f64), String> {
+    let k = frame.intrinsics;
+    let [_, _, x1, y1] = frame_box.rect;
+    if x1 > k.width || y1 > k.height {
+        return Err(format!(
+            "{at}.box: {:?} reaches past the {}x{} image (x1 <= {}, y1 <= {})",
+            frame_box.rect, k.width, k.height, k.width, k.height
+        ));
+    }
+    let pose = frame.world_from_camera.ok_or_else(|| format!("{at}: the frame has no pose in groundtruth.txt"))?;
+    let (kept, with_depth, reference) = kept_pixels(frame, frame_box.rect, params);
+    let Some(reference) = reference else {
+        return Err(format!("{at}: no pixel of {:?} has depth", frame_box.rect));
+    };
+    if kept.len() < params.min_points {
+        return Err(format!(
+            "{at}: only {} pixels within {} m of the reference depth {reference:.2} m (of {with_depth} with depth; min_points {})",
+            kept.len(),
+            params.band_m,
+            params.min_points
+        ));
+    }
+    for &p in &kept {
+        let (u, v) = ((p as u32 % k.width) as f32, (p as u32 / k.width) as f32);
+        let world = pose.transform_point(k.point_in_camera(u, v, frame.depth_m(p)).as_dvec3());
+        for (axis, values) in points.iter_mut().enumerate() {
+            values.push(world[axis]);
+        }
+    }
+    Ok((kept.len(), with_depth, reference))
 }
 
 /// A text summary of a lift: per node its label, frames, points, box size and corners; per box

@@ -29,17 +29,19 @@
 
 use std::time::{Duration, Instant};
 
-use op3dsg_drivers::frame::Frame;
-use op3dsg_drivers::source::{SourceError, SourceStatus};
+use op3dsg_drivers::frame::{Frame, Intrinsics};
+use op3dsg_drivers::pose::Isometry;
+use op3dsg_drivers::source::{FrameSource, SourceError, SourceStatus};
 use op3dsg_runtime::backend::OpenedSource;
 use op3dsg_runtime::backend::StartError;
 use op3dsg_runtime::capture::REPLAY_SOURCE;
 use op3dsg_runtime::config::Profile;
 use op3dsg_runtime::fusion::{self, Fusion};
 use op3dsg_runtime::keyframe::{GateDecision, KeyframeGate, PoseSourceKind};
-use op3dsg_runtime::perception::{self, Detector};
+use op3dsg_runtime::occupancy::{DepthScan, OccupancyGrid};
+use op3dsg_runtime::perception::{self, Detection, Detector};
 use op3dsg_runtime::pipeline::make_enricher;
-use op3dsg_runtime::reasoner::{self, Refinement};
+use op3dsg_runtime::reasoner::{self, GraphEnricher, Refinement};
 use op3dsg_synthetic::{GroundTruth, InstanceKind, Scene};
 use tracing::warn;
 
@@ -245,16 +247,7 @@ pub fn run_lanes(
     mut lanes: Vec<Lane>,
 ) -> Result<Vec<Vec<BatchRun>>, BatchError> {
     let started = Instant::now();
-    let max_frames = profile.run.max_frames;
-    let unbounded = match profile.source.kind.as_str() {
-        SYNTHETIC_SOURCE => synthetic_config(profile)?.frame_count.is_none_or(|n| n == 0),
-        // A recording ends unless it loops.
-        REPLAY_SOURCE => profile.source.replay.as_ref().is_some_and(|r| r.looping),
-        _ => true,
-    };
-    if max_frames == 0 && unbounded {
-        return Err(BatchError::Unbounded);
-    }
+    refuse_unbounded(profile)?;
     let backends = crate::backends();
     let mut opened = backends.source(&profile.source.kind)?.open(profile)?;
     let truth = ground_truth(&opened);
@@ -263,10 +256,76 @@ pub fn run_lanes(
     if let Some(enricher) = enricher.as_mut() {
         enricher.set_synchronous(true);
     }
-    // Batch runs await the LLM refiner (when configured): the longest one refresh can take.
+    let llm_wait = llm_refresh_wait(profile);
+    refuse_without_poses(profile, &opened)?;
+    let mut instances = InstanceCounts::new(scene.as_ref(), visibility);
+    let mut lane_runs = Vec::with_capacity(lanes.len());
+    for lane in &mut lanes {
+        lane_runs.push(LaneRun::new(profile, lane, &opened, truth.as_deref(), instances.id_count())?);
+    }
+    let source = opened.source.as_mut();
+    let mut occupancy = OccupancyRun::new(profile, &source.intrinsics());
+    let mut frame = Frame::new(source.intrinsics());
+    let mut keyframes = KeyframeReader::new(source, profile);
+    let mut timing = BatchTiming::default();
+    let mut detections = Vec::new();
+    while let Some(world_from_camera) = keyframes.next_keyframe(&mut frame, &mut timing)? {
+        occupancy.integrate(&frame, &world_from_camera);
+        if instances.id_count() > 0 {
+            let t = Instant::now();
+            instances.count_visible(truth.as_deref(), &frame);
+            timing.ground_truth += t.elapsed();
+        }
+        for (lane, lane_run) in lanes.iter_mut().zip(&mut lane_runs) {
+            lane_run.keyframe(lane, &frame, &world_from_camera, &mut detections);
+            if instances.id_count() > 0
+                && let Some(log) = &lane_run.instance_log
+            {
+                let t = Instant::now();
+                instances.count_detected(log, &mut lane_run.detected_keyframes);
+                timing.ground_truth += t.elapsed();
+            }
+        }
+    }
+
+    let totals = RunTotals {
+        started,
+        scene,
+        counts: keyframes.counts,
+        visible_keyframes: instances.visible_keyframes,
+        occupancy,
+        timing,
+    };
+    let mut out = Vec::with_capacity(lanes.len());
+    for (lane, lane_run) in lanes.iter_mut().zip(&lane_runs) {
+        out.push(totals.lane_results(lane, lane_run, enricher.as_mut(), llm_wait));
+    }
+    Ok(out)
+}
+
+/// [`BatchError::Unbounded`] unless the source ends or `run.max_frames` stops it.
+fn refuse_unbounded(profile: &Profile) -> Result<(), BatchError> {
+    let unbounded = match profile.source.kind.as_str() {
+        SYNTHETIC_SOURCE => synthetic_config(profile)?.frame_count.is_none_or(|n| n == 0),
+        // A recording ends unless it loops.
+        REPLAY_SOURCE => profile.source.replay.as_ref().is_some_and(|r| r.looping),
+        _ => true,
+    };
+    if profile.run.max_frames == 0 && unbounded {
+        return Err(BatchError::Unbounded);
+    }
+    Ok(())
+}
+
+/// Batch runs await the LLM refiner (when configured): the longest one refresh can take.
+fn llm_refresh_wait(profile: &Profile) -> Duration {
     let llm = &profile.reasoner.llm;
-    let llm_wait =
-        Duration::from_secs_f64((llm.request_timeout_s + llm.backoff_max_s) * f64::from(llm.max_retries + 1) + 1.0);
+    Duration::from_secs_f64((llm.request_timeout_s + llm.backoff_max_s) * f64::from(llm.max_retries + 1) + 1.0)
+}
+
+/// The batch runner takes poses from the frames only: the profile must say so and the source
+/// must carry them.
+fn refuse_without_poses(profile: &Profile, opened: &OpenedSource) -> Result<(), BatchError> {
     if profile.pose.source != PoseSourceKind::Frame {
         return Err(StartError::Incompatible {
             field: "pose.source",
@@ -281,218 +340,337 @@ pub fn run_lanes(
         }
         .into());
     }
-    let mut detectors = Vec::with_capacity(lanes.len());
-    let mut instance_logs = Vec::with_capacity(lanes.len());
-    let mut pose_noise = Vec::with_capacity(lanes.len());
-    for lane in &mut lanes {
+    Ok(())
+}
+
+/// Frames the source delivered and what the gate made of them.
+#[derive(Debug, Clone, Copy, Default)]
+struct FrameCounts {
+    frames: u64,
+    keyframes: u64,
+    frames_without_pose: u64,
+    /// The newest keyframe's stamp.
+    stamp_ns: u64,
+}
+
+/// The source behind the keyframe gate: hands out keyframes only, and counts frames.
+struct KeyframeReader<'a> {
+    source: &'a mut dyn FrameSource,
+    gate: KeyframeGate,
+    /// `run.max_frames` (0: until the source ends).
+    max_frames: u64,
+    counts: FrameCounts,
+}
+
+impl<'a> KeyframeReader<'a> {
+    fn new(source: &'a mut dyn FrameSource, profile: &Profile) -> Self {
+        Self {
+            source,
+            gate: KeyframeGate::new(&profile.keyframe, &profile.pose),
+            max_frames: profile.run.max_frames,
+            counts: FrameCounts::default(),
+        }
+    }
+
+    /// Reads frames into `frame` until the gate takes one: its `world_from_camera`, or `None`
+    /// at the end of the source or after `max_frames` frames.
+    fn next_keyframe(&mut self, frame: &mut Frame, timing: &mut BatchTiming) -> Result<Option<Isometry>, BatchError> {
+        loop {
+            if self.max_frames > 0 && self.counts.frames >= self.max_frames {
+                return Ok(None);
+            }
+            let t = Instant::now();
+            // Preview the pose first where the source can: only keyframes are rendered.
+            let previewed = self.source.peek_pose(frame);
+            let status = match previewed {
+                Some(status) => status,
+                None => self.next_frame(frame)?,
+            };
+            timing.source += t.elapsed();
+            match status {
+                SourceStatus::Frame => self.counts.frames += 1,
+                SourceStatus::Pending => {
+                    std::thread::sleep(Duration::from_millis(1));
+                    continue;
+                }
+                SourceStatus::EndOfStream => return Ok(None),
+            }
+
+            let t = Instant::now();
+            let decision = self.gate.decide(frame);
+            timing.gate += t.elapsed();
+            let world_from_camera = match decision {
+                GateDecision::NoPose => {
+                    self.counts.frames_without_pose += 1;
+                    if previewed.is_some() {
+                        self.source.skip_frame();
+                    }
+                    continue;
+                }
+                GateDecision::Skip => {
+                    if previewed.is_some() {
+                        self.source.skip_frame();
+                    }
+                    continue;
+                }
+                GateDecision::Keyframe(world_from_camera) => world_from_camera,
+            };
+            if previewed.is_some() {
+                let t = Instant::now();
+                let status = self.next_frame(frame)?;
+                timing.source += t.elapsed();
+                if status != SourceStatus::Frame {
+                    return Err(BatchError::Source {
+                        frames: self.counts.frames,
+                        error: SourceError::Frame { seq: frame.seq, reason: "previewed but not delivered".to_owned() },
+                    });
+                }
+            }
+            self.counts.keyframes += 1;
+            self.counts.stamp_ns = self.counts.stamp_ns.max(frame.stamp_ns);
+            return Ok(Some(world_from_camera));
+        }
+    }
+
+    fn next_frame(&mut self, frame: &mut Frame) -> Result<SourceStatus, BatchError> {
+        let frames = self.counts.frames;
+        self.source.next_frame(frame).map_err(|error| BatchError::Source { frames, error })
+    }
+}
+
+/// The occupancy map integrated from every keyframe, as the daemon's occupancy thread builds it,
+/// and what each integration cost.
+struct OccupancyRun {
+    grid: Option<OccupancyGrid>,
+    depth_scan: DepthScan,
+    integrate_us: Vec<u32>,
+}
+
+impl OccupancyRun {
+    fn new(profile: &Profile, intrinsics: &Intrinsics) -> Self {
+        let occ = &profile.occupancy;
+        let grid = occ
+            .enabled
+            .then(|| OccupancyGrid::new(occ, profile.world.up_axis, profile.navigation.robot_radius_m, intrinsics));
+        Self { grid, depth_scan: DepthScan::with_capacity(intrinsics, occ.pixel_stride), integrate_us: Vec::new() }
+    }
+
+    fn integrate(&mut self, frame: &Frame, world_from_camera: &Isometry) {
+        let Some(grid) = self.grid.as_mut() else { return };
+        let t = Instant::now();
+        self.depth_scan.fill(
+            &frame.depth,
+            &frame.intrinsics,
+            frame.depth_units_per_m,
+            world_from_camera,
+            frame.stamp_ns,
+        );
+        grid.integrate(&self.depth_scan);
+        self.integrate_us.push(t.elapsed().as_micros().min(u128::from(u32::MAX)) as u32);
+    }
+}
+
+/// Ground-truth bookkeeping, indexed by instance id (none without ground truth).
+struct InstanceCounts {
+    /// Per instance, its kind's pixel threshold.
+    min_px: Vec<u32>,
+    /// Scratch: the current keyframe's pixels per instance.
+    pixels: Vec<u32>,
+    /// Scratch: whether the current keyframe's detections hold the instance.
+    detected_now: Vec<bool>,
+    /// Keyframes in which the instance was visible.
+    visible_keyframes: Vec<u32>,
+}
+
+impl InstanceCounts {
+    fn new(scene: Option<&Scene>, visibility: &VisibilityThresholds) -> Self {
+        let id_count = scene.map_or(0, |s| s.instances().iter().map(|i| usize::from(i.id)).max().unwrap_or(0) + 1);
+        let mut min_px = vec![u32::MAX; id_count];
+        if let Some(scene) = scene {
+            for info in scene.instances() {
+                min_px[usize::from(info.id)] = match info.kind {
+                    InstanceKind::Object => visibility.object_min_px,
+                    InstanceKind::Part => visibility.part_min_px,
+                };
+            }
+        }
+        Self {
+            min_px,
+            pixels: vec![0; id_count],
+            detected_now: vec![false; id_count],
+            visible_keyframes: vec![0; id_count],
+        }
+    }
+
+    /// Instance ids counted, 0 without ground truth.
+    fn id_count(&self) -> usize {
+        self.min_px.len()
+    }
+
+    /// Counts the instances `frame`'s instance-id image shows with enough pixels.
+    fn count_visible(&mut self, truth: Option<&GroundTruth>, frame: &Frame) {
+        let pixels = &mut self.pixels;
+        let counted = truth.and_then(|truth| {
+            truth.instance_ids.with_ids(frame, |ids| {
+                pixels.fill(0);
+                for &id in ids {
+                    if let Some(count) = pixels.get_mut(usize::from(id)) {
+                        *count += 1;
+                    }
+                }
+            })
+        });
+        if counted.is_some() {
+            for ((visible, count), min) in self.visible_keyframes.iter_mut().zip(&self.pixels).zip(&self.min_px) {
+                *visible += u32::from(*count >= *min);
+            }
+        }
+    }
+
+    /// Adds one to `detected_keyframes` for each instance the keyframe's detections (`log`) hold.
+    fn count_detected(&mut self, log: &InstanceLog, detected_keyframes: &mut [u32]) {
+        let detected_now = &mut self.detected_now;
+        detected_now.fill(false);
+        log.with(|instances| {
+            for id in instances.iter().flatten() {
+                if let Some(flag) = detected_now.get_mut(usize::from(*id)) {
+                    *flag = true;
+                }
+            }
+        });
+        for (count, now) in detected_keyframes.iter_mut().zip(&self.detected_now) {
+            *count += u32::from(*now);
+        }
+    }
+}
+
+/// A lane's detector, and what the lane and each of its fusions counted.
+struct LaneRun {
+    detector: Box<dyn Detector>,
+    /// The oracle's log of the instance behind each detection.
+    instance_log: Option<InstanceLog>,
+    /// The oracle's pose drift and jitter.
+    pose_noise: Option<PoseNoise>,
+    detections: u64,
+    detector_errors: u64,
+    detect_time: Duration,
+    /// Indexed by instance id.
+    detected_keyframes: Vec<u32>,
+    /// Per fusion: keyframes that changed its map.
+    changed_keyframes: Vec<u64>,
+    /// Per fusion.
+    fusion_time: Vec<Duration>,
+}
+
+impl LaneRun {
+    /// Takes the lane's detector profile (`None`: `profile`) and makes its detector.
+    fn new(
+        profile: &Profile,
+        lane: &mut Lane,
+        source: &OpenedSource,
+        truth: Option<&GroundTruth>,
+        id_count: usize,
+    ) -> Result<Self, BatchError> {
         let lane_profile = lane.detector.take();
         let lane_profile = lane_profile.as_ref().unwrap_or(profile);
-        let (detector, log) = make_detector(lane_profile, &opened, truth.as_deref())?;
-        detectors.push(detector);
-        instance_logs.push(log);
-        pose_noise.push(lane_pose_noise(lane_profile)?);
+        let (detector, instance_log) = make_detector(lane_profile, source, truth)?;
+        Ok(Self {
+            detector,
+            instance_log,
+            pose_noise: lane_pose_noise(lane_profile)?,
+            detections: 0,
+            detector_errors: 0,
+            detect_time: Duration::ZERO,
+            detected_keyframes: vec![0; id_count],
+            changed_keyframes: vec![0; lane.fusions.len()],
+            fusion_time: vec![Duration::ZERO; lane.fusions.len()],
+        })
     }
-    let source = &mut opened.source;
-    let mut gate = KeyframeGate::new(&profile.keyframe, &profile.pose);
-    // The occupancy map, as the daemon's occupancy thread builds it.
-    let occ = &profile.occupancy;
-    let mut occupancy = occ.enabled.then(|| {
-        op3dsg_runtime::occupancy::OccupancyGrid::new(
-            occ,
-            profile.world.up_axis,
-            profile.navigation.robot_radius_m,
-            &source.intrinsics(),
-        )
-    });
-    let mut depth_scan = op3dsg_runtime::occupancy::DepthScan::with_capacity(&source.intrinsics(), occ.pixel_stride);
-    let mut occupancy_integrate_us = Vec::new();
-    let mut frame = Frame::new(source.intrinsics());
 
-    // Ground-truth bookkeeping: per instance id, its kind's pixel threshold.
-    let id_count = scene.as_ref().map_or(0, |s| s.instances().iter().map(|i| usize::from(i.id)).max().unwrap_or(0) + 1);
-    let mut min_px = vec![u32::MAX; id_count];
-    if let Some(scene) = &scene {
-        for info in scene.instances() {
-            min_px[usize::from(info.id)] = match info.kind {
-                InstanceKind::Object => visibility.object_min_px,
-                InstanceKind::Part => visibility.part_min_px,
-            };
-        }
-    }
-    let lane_count = lanes.len();
-    let mut pixels = vec![0u32; id_count];
-    let mut detected_now = vec![false; id_count];
-    let mut visible_keyframes = vec![0u32; id_count];
-    let mut detected_keyframes = vec![vec![0u32; id_count]; lane_count];
-
-    let mut timing = BatchTiming::default();
-    let (mut frames, mut keyframes, mut frames_without_pose) = (0u64, 0u64, 0u64);
-    let mut detections_total = vec![0u64; lane_count];
-    let mut detector_errors = vec![0u64; lane_count];
-    let mut detect_time = vec![Duration::ZERO; lane_count];
-    let mut changed_keyframes: Vec<Vec<u64>> = lanes.iter().map(|l| vec![0; l.fusions.len()]).collect();
-    let mut fusion_time: Vec<Vec<Duration>> = lanes.iter().map(|l| vec![Duration::ZERO; l.fusions.len()]).collect();
-    let mut stamp_ns = 0u64;
-    let mut detections = Vec::new();
-    loop {
-        if max_frames > 0 && frames >= max_frames {
-            break;
-        }
+    /// Detects on the keyframe (into `detections`) and fuses the detections into each of the
+    /// lane's fusions.
+    fn keyframe(
+        &mut self,
+        lane: &mut Lane,
+        frame: &Frame,
+        world_from_camera: &Isometry,
+        detections: &mut Vec<Detection>,
+    ) {
         let t = Instant::now();
-        // Preview the pose first where the source can: only keyframes are rendered.
-        let previewed = source.peek_pose(&mut frame);
-        let status = match previewed {
-            Some(status) => status,
-            None => source.next_frame(&mut frame).map_err(|error| BatchError::Source { frames, error })?,
-        };
-        timing.source += t.elapsed();
-        match status {
-            SourceStatus::Frame => frames += 1,
-            SourceStatus::Pending => {
-                std::thread::sleep(Duration::from_millis(1));
-                continue;
-            }
-            SourceStatus::EndOfStream => break,
+        if let Err(e) = perception::detect(self.detector.as_mut(), frame, detections) {
+            // As the pipeline does: the keyframe is fused empty.
+            warn!(frame_seq = frame.seq, error = %e, "detection failed; keyframe fused empty");
+            self.detector_errors += 1;
         }
-
-        let t = Instant::now();
-        let decision = gate.decide(&frame);
-        timing.gate += t.elapsed();
-        let world_from_camera = match decision {
-            GateDecision::NoPose => {
-                frames_without_pose += 1;
-                if previewed.is_some() {
-                    source.skip_frame();
-                }
-                continue;
-            }
-            GateDecision::Skip => {
-                if previewed.is_some() {
-                    source.skip_frame();
-                }
-                continue;
-            }
-            GateDecision::Keyframe(world_from_camera) => world_from_camera,
-        };
-        if previewed.is_some() {
+        self.detect_time += t.elapsed();
+        // The pose this lane's fusions are given: the true one, or with the oracle's pose noise.
+        let lane_pose = self.pose_noise.as_mut().map_or(*world_from_camera, |n| n.apply(world_from_camera));
+        for ((fusion, changed), time) in
+            lane.fusions.iter_mut().zip(&mut self.changed_keyframes).zip(&mut self.fusion_time)
+        {
             let t = Instant::now();
-            let status = source.next_frame(&mut frame).map_err(|error| BatchError::Source { frames, error })?;
-            timing.source += t.elapsed();
-            if status != SourceStatus::Frame {
-                return Err(BatchError::Source {
-                    frames,
-                    error: SourceError::Frame { seq: frame.seq, reason: "previewed but not delivered".to_owned() },
-                });
-            }
+            let fused = fusion::fuse(fusion.as_mut(), frame, &lane_pose, detections);
+            *time += t.elapsed();
+            *changed += u64::from(fused.changed());
         }
-        keyframes += 1;
-        stamp_ns = stamp_ns.max(frame.stamp_ns);
-        if let Some(grid) = occupancy.as_mut() {
-            let t = Instant::now();
-            depth_scan.fill(
-                &frame.depth,
-                &frame.intrinsics,
-                frame.depth_units_per_m,
-                &world_from_camera,
-                frame.stamp_ns,
-            );
-            grid.integrate(&depth_scan);
-            occupancy_integrate_us.push(t.elapsed().as_micros().min(u128::from(u32::MAX)) as u32);
-        }
-
-        if id_count > 0 {
-            let t = Instant::now();
-            let counted = truth.as_ref().and_then(|truth| {
-                truth.instance_ids.with_ids(&frame, |ids| {
-                    pixels.fill(0);
-                    for &id in ids {
-                        if let Some(count) = pixels.get_mut(usize::from(id)) {
-                            *count += 1;
-                        }
-                    }
-                })
-            });
-            if counted.is_some() {
-                for ((visible, count), min) in visible_keyframes.iter_mut().zip(&pixels).zip(&min_px) {
-                    *visible += u32::from(*count >= *min);
-                }
-            }
-            timing.ground_truth += t.elapsed();
-        }
-
-        for (lane_index, lane) in lanes.iter_mut().enumerate() {
-            let t = Instant::now();
-            if let Err(e) = perception::detect(detectors[lane_index].as_mut(), &frame, &mut detections) {
-                // As the pipeline does: the keyframe is fused empty.
-                warn!(frame_seq = frame.seq, error = %e, "detection failed; keyframe fused empty");
-                detector_errors[lane_index] += 1;
-            }
-            detect_time[lane_index] += t.elapsed();
-            // The pose this lane's fusions are given: the true one, or with the oracle's pose noise.
-            let lane_pose = pose_noise[lane_index].as_mut().map_or(world_from_camera, |n| n.apply(&world_from_camera));
-            for ((fusion, changed), time) in
-                lane.fusions.iter_mut().zip(&mut changed_keyframes[lane_index]).zip(&mut fusion_time[lane_index])
-            {
-                let t = Instant::now();
-                let fused = fusion::fuse(fusion.as_mut(), &frame, &lane_pose, &detections);
-                *time += t.elapsed();
-                *changed += u64::from(fused.changed());
-            }
-            detections_total[lane_index] += detections.len() as u64;
-            if let (true, Some(log)) = (id_count > 0, &instance_logs[lane_index]) {
-                let t = Instant::now();
-                detected_now.fill(false);
-                log.with(|instances| {
-                    for id in instances.iter().flatten() {
-                        if let Some(flag) = detected_now.get_mut(usize::from(*id)) {
-                            *flag = true;
-                        }
-                    }
-                });
-                for (count, now) in detected_keyframes[lane_index].iter_mut().zip(&detected_now) {
-                    *count += u32::from(*now);
-                }
-                timing.ground_truth += t.elapsed();
-            }
-        }
+        self.detections += detections.len() as u64;
     }
+}
 
-    let mut out = Vec::with_capacity(lane_count);
-    for (lane_index, lane) in lanes.iter_mut().enumerate() {
+/// What every lane's runs share once the source has ended.
+struct RunTotals {
+    started: Instant,
+    scene: Option<Scene>,
+    counts: FrameCounts,
+    visible_keyframes: Vec<u32>,
+    occupancy: OccupancyRun,
+    /// Source, gate and ground-truth times; the lanes add their own.
+    timing: BatchTiming,
+}
+
+impl RunTotals {
+    /// One [`BatchRun`] per fusion of `lane`: its final graph, enriched as the pipeline does.
+    fn lane_results(
+        &self,
+        lane: &mut Lane,
+        lane_run: &LaneRun,
+        mut enricher: Option<&mut GraphEnricher>,
+        llm_wait: Duration,
+    ) -> Vec<BatchRun> {
         let mut runs = Vec::with_capacity(lane.fusions.len());
         for (i, fusion) in lane.fusions.iter_mut().enumerate() {
             let t = Instant::now();
-            let mut graph = fusion::map_graph(fusion.as_ref(), changed_keyframes[lane_index][i].max(1), stamp_ns);
-            if let Some(enricher) = enricher.as_mut() {
+            let mut graph =
+                fusion::map_graph(fusion.as_ref(), lane_run.changed_keyframes[i].max(1), self.counts.stamp_ns);
+            if let Some(enricher) = enricher.as_deref_mut() {
                 reasoner::enrich(enricher, &mut graph, Refinement::Await(llm_wait));
             }
             let timing = BatchTiming {
-                detect: detect_time[lane_index],
-                fusion: fusion_time[lane_index][i],
+                detect: lane_run.detect_time,
+                fusion: lane_run.fusion_time[i],
                 build_graph: t.elapsed(),
-                total: started.elapsed(),
-                ..timing
+                total: self.started.elapsed(),
+                ..self.timing
             };
             runs.push(BatchRun {
                 graph,
-                scene: scene.clone(),
-                frames,
-                keyframes,
-                frames_without_pose,
-                detections: detections_total[lane_index],
-                detector_errors: detector_errors[lane_index],
-                visible_keyframes: visible_keyframes.clone(),
-                detected_keyframes: detected_keyframes[lane_index].clone(),
+                scene: self.scene.clone(),
+                frames: self.counts.frames,
+                keyframes: self.counts.keyframes,
+                frames_without_pose: self.counts.frames_without_pose,
+                detections: lane_run.detections,
+                detector_errors: lane_run.detector_errors,
+                visible_keyframes: self.visible_keyframes.clone(),
+                detected_keyframes: lane_run.detected_keyframes.clone(),
                 map_nodes: fusion.node_count(),
                 map_memory_bytes: fusion.memory_bytes(),
                 timing,
-                occupancy: occupancy.clone(),
-                occupancy_integrate_us: occupancy_integrate_us.clone(),
+                occupancy: self.occupancy.grid.clone(),
+                occupancy_integrate_us: self.occupancy.integrate_us.clone(),
             });
         }
-        out.push(runs);
+        runs
     }
-    Ok(out)
 }
 
 #[cfg(test)]

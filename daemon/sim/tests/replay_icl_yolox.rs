@@ -22,6 +22,8 @@ use std::path::PathBuf;
 use op3dsg_drivers::frame::Frame;
 use op3dsg_drivers::replay::ReplaySource;
 use op3dsg_drivers::source::{FrameSource, SourceStatus};
+use op3dsg_runtime::config::Profile;
+use op3dsg_runtime::graph::{GraphNode, SceneGraph};
 use op3dsg_runtime::onnx::OnnxRuntime;
 use op3dsg_runtime::perception::yolox::YoloxDetector;
 use op3dsg_runtime::perception::{Detection, Detector};
@@ -37,7 +39,7 @@ fn shared() -> PathBuf {
 
 /// `profiles/replay-icl.toml` and its batch run; `None` (outside CI only: in CI the
 /// shared-data helper fails the test) when the shared data is absent.
-fn icl_batch_run() -> Option<(op3dsg_runtime::config::Profile, batch::BatchRun)> {
+fn icl_batch_run() -> Option<(Profile, batch::BatchRun)> {
     if op3dsg_shared_data::shared_data("rgbd/icl_livingroom1/rgb.txt").is_none()
         || op3dsg_shared_data::shared_data("models/yolox_nano/yolox_nano.onnx").is_none()
     {
@@ -52,6 +54,25 @@ fn icl_batch_run() -> Option<(op3dsg_runtime::config::Profile, batch::BatchRun)>
 #[test]
 fn icl_living_room_with_yolox_has_one_chair_where_the_depth_puts_it() {
     let Some((profile, run)) = icl_batch_run() else { return };
+    print_run(&run);
+    assert_eq!(run.frames, 211, "every frame of the sequence is read");
+    assert_eq!(run.detector_errors, 0);
+    assert_tv_hangs_above_the_vase(&run.graph);
+
+    // Repeated views of the chair fuse into one node.
+    let chairs: Vec<_> = run.graph.nodes.iter().filter(|n| n.label == "chair").collect();
+    assert_eq!(chairs.len(), 1, "one chair node: {chairs:?}");
+    let chair = chairs[0];
+
+    let (mut points, frames_with_chair) = chair_depth_points(&profile);
+    println!("chair detected in {frames_with_chair} of 211 frames; {} depth points", points[0].len());
+    assert!(frames_with_chair >= 20, "YOLOX sees the chair in many frames");
+    assert!(chair.observation_count >= 5, "the node gathers many views ({} observations)", chair.observation_count);
+    assert_box_agrees_with_points(chair, &mut points);
+}
+
+/// The run's counts and every node of its graph.
+fn print_run(run: &batch::BatchRun) {
     println!(
         "{} frames, {} keyframes, {} detections, {} detector errors, {:.1} keyframes/s (detect {:.2} s)",
         run.frames,
@@ -74,18 +95,18 @@ fn icl_living_room_with_yolox_has_one_chair_where_the_depth_puts_it() {
             node.box_max_m
         );
     }
-    assert_eq!(run.frames, 211, "every frame of the sequence is read");
-    assert_eq!(run.detector_errors, 0);
+}
 
-    // The wall TV and the vase standing on the cabinet under it (ICL's world: +y up). The TV is
-    // a flat screen: thin along one horizontal axis, wide along the other, hung above the vase.
+/// The wall TV and the vase standing on the cabinet under it (ICL's world: +y up). The TV is
+/// a flat screen: thin along one horizontal axis, wide along the other, hung above the vase.
+fn assert_tv_hangs_above_the_vase(graph: &SceneGraph) {
     let only = |label: &str| {
-        let nodes: Vec<_> = run.graph.nodes.iter().filter(|n| n.label == label).collect();
+        let nodes: Vec<_> = graph.nodes.iter().filter(|n| n.label == label).collect();
         assert_eq!(nodes.len(), 1, "one {label} node: {nodes:?}");
         nodes[0]
     };
     let (tv, vase) = (only("tv"), only("vase"));
-    let extent = |n: &op3dsg_runtime::graph::GraphNode, axis: usize| n.box_max_m[axis] - n.box_min_m[axis];
+    let extent = |n: &GraphNode, axis: usize| n.box_max_m[axis] - n.box_min_m[axis];
     let (thin, wide) = (extent(tv, 0).min(extent(tv, 2)), extent(tv, 0).max(extent(tv, 2)));
     assert!(thin < 0.15 && (0.5..2.0).contains(&wide), "the TV is a flat screen: {thin} x {wide} m");
     assert!((0.2..1.0).contains(&extent(tv, 1)), "TV height {} m", extent(tv, 1));
@@ -94,17 +115,15 @@ fn icl_living_room_with_yolox_has_one_chair_where_the_depth_puts_it() {
     assert!(extent(vase, 1) < 0.6, "vase height {} m", extent(vase, 1));
     let horizontal = ((tv.centre_m[0] - vase.centre_m[0]).powi(2) + (tv.centre_m[2] - vase.centre_m[2]).powi(2)).sqrt();
     assert!(horizontal < 0.8, "the vase stands below the TV ({horizontal} m apart horizontally)");
+}
 
-    // Repeated views of the chair fuse into one node.
-    let chairs: Vec<_> = run.graph.nodes.iter().filter(|n| n.label == "chair").collect();
-    assert_eq!(chairs.len(), 1, "one chair node: {chairs:?}");
-    let chair = chairs[0];
-
-    // Independently: the chair detections of the same detector on every keyframe-candidate frame,
-    // back-projected with the sequence's poses.
+/// Independently of the batch run: the chair detections of the same detector on every
+/// keyframe-candidate frame, back-projected with the sequence's poses. The world points per
+/// axis, and the frames with a chair.
+fn chair_depth_points(profile: &Profile) -> ([Vec<f32>; 3], usize) {
     let runtime = OnnxRuntime::init(&profile.onnx).expect("ONNX Runtime");
     let mut detector = YoloxDetector::new(&runtime, &profile.detector.yolox).expect("YOLOX");
-    let mut source = ReplaySource::new(profile.source.replay.as_ref().unwrap()).expect("replay");
+    let mut source = ReplaySource::new(profile.source.replay.as_ref().expect("a replay source")).expect("replay");
     let mut frame = Frame::new(source.intrinsics());
     let mut detections: Vec<Detection> = Vec::new();
     let mut points: [Vec<f32>; 3] = Default::default();
@@ -134,9 +153,11 @@ fn icl_living_room_with_yolox_has_one_chair_where_the_depth_puts_it() {
         }
         frames_with_chair += usize::from(seen);
     }
-    println!("chair detected in {frames_with_chair} of 211 frames; {} depth points", points[0].len());
-    assert!(frames_with_chair >= 20, "YOLOX sees the chair in many frames");
-    assert!(chair.observation_count >= 5, "the node gathers many views ({} observations)", chair.observation_count);
+    (points, frames_with_chair)
+}
+
+/// Per axis, the chair node's centre near the points' median and its box near their 5-95 %.
+fn assert_box_agrees_with_points(chair: &GraphNode, points: &mut [Vec<f32>; 3]) {
     let percentile = |list: &mut Vec<f32>, q: f32| {
         list.sort_unstable_by(f32::total_cmp);
         list[((list.len() - 1) as f32 * q) as usize]

@@ -67,79 +67,23 @@ impl Renderer {
 
         let rot = Mat3::from_quat(world_from_camera.rotation.as_quat());
         let origin = world_from_camera.translation.as_vec3();
-        let room = scene.size;
         let light = scene.light_m;
-        let prims = &scene.primitives;
-        let materials = &scene.materials;
         let (fx, fy, cx, cy) = (intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy);
 
         for row in 0..h {
-            let ty = row / TILE;
             let b = (row as f32 - cy) / fy;
             let row_dir = rot.y_axis * b + rot.z_axis;
             for col in 0..w {
                 let i = row * w + col;
                 let a = (col as f32 - cx) / fx;
                 let dir = rot.x_axis * a + row_dir;
-                let inv = dir.recip();
-                // Room box from the inside: the nearest exit face.
-                let mut best_t = f32::INFINITY;
-                let mut best_axis = 0usize;
-                for k in 0..3 {
-                    let t = if dir[k] > 0.0 {
-                        (room[k] - origin[k]) * inv[k]
-                    } else if dir[k] < 0.0 {
-                        -origin[k] * inv[k]
-                    } else {
-                        f32::INFINITY
-                    };
-                    if t < best_t {
-                        best_t = t;
-                        best_axis = k;
-                    }
-                }
-                if !(best_t > 0.0 && best_t.is_finite()) {
-                    best_t = f32::INFINITY;
-                }
-                let mut hit: Option<(u32, Vec3)> = None;
-                let list = &self.tile_lists[ty * self.tiles_x + col / TILE];
-                let (ci, ri) = (col as i32, row as i32);
-                for &p in list {
-                    let p = p as usize;
-                    if self.near[p] >= best_t {
-                        break;
-                    }
-                    let r = self.rects[p];
-                    if ci < r[0] || ci > r[2] || ri < r[1] || ri > r[3] {
-                        continue;
-                    }
-                    if let Some((t, normal)) = prims[p].shape.intersect(origin, dir, inv, best_t) {
-                        best_t = t;
-                        hit = Some((p as u32, normal));
-                    }
-                }
-                let (instance, material, normal) = match hit {
-                    Some((p, normal)) => {
-                        let prim = &prims[p as usize];
-                        (prim.instance, &materials[prim.material as usize], normal)
-                    }
-                    None => {
-                        let mut normal = Vec3::ZERO;
-                        normal[best_axis] = -dir[best_axis].signum();
-                        let m = match (best_axis, dir[best_axis] > 0.0) {
-                            (2, false) => &scene.structure[0],
-                            (2, true) => &scene.structure[2],
-                            _ => &scene.structure[1],
-                        };
-                        (0, m, normal)
-                    }
-                };
+                let hit = self.cast(scene, origin, dir, col, row);
                 if let Some(ids) = instance_ids.as_deref_mut() {
-                    ids[i] = instance;
+                    ids[i] = hit.instance;
                 }
-                if best_t.is_finite() {
-                    self.clean_depth[i] = best_t;
-                    let colour = shade(material, origin + dir * best_t, normal, -dir.normalize(), light);
+                if hit.t.is_finite() {
+                    self.clean_depth[i] = hit.t;
+                    let colour = shade(hit.material, origin + dir * hit.t, hit.normal, -dir.normalize(), light);
                     frame.rgb[i * 3] = colour[0];
                     frame.rgb[i * 3 + 1] = colour[1];
                     frame.rgb[i * 3 + 2] = colour[2];
@@ -156,6 +100,67 @@ impl Renderer {
                 for (d, &z) in frame.depth.iter_mut().zip(&self.clean_depth) {
                     *d = if z > 0.0 { noise::quantise(z, 1000.0) } else { 0 };
                 }
+            }
+        }
+    }
+
+    /// Casts the ray of pixel `(col, row)` from `origin` along `dir` (world frame): the nearest
+    /// of its tile's candidate primitives, else the face of the room it leaves through.
+    #[inline]
+    fn cast<'s>(&self, scene: &'s Scene, origin: Vec3, dir: Vec3, col: usize, row: usize) -> Hit<'s> {
+        let room = scene.size;
+        let prims = &scene.primitives;
+        let inv = dir.recip();
+        // Room box from the inside: the nearest exit face.
+        let mut best_t = f32::INFINITY;
+        let mut best_axis = 0usize;
+        for k in 0..3 {
+            let t = if dir[k] > 0.0 {
+                (room[k] - origin[k]) * inv[k]
+            } else if dir[k] < 0.0 {
+                -origin[k] * inv[k]
+            } else {
+                f32::INFINITY
+            };
+            if t < best_t {
+                best_t = t;
+                best_axis = k;
+            }
+        }
+        if !(best_t > 0.0 && best_t.is_finite()) {
+            best_t = f32::INFINITY;
+        }
+        let mut hit: Option<(u32, Vec3)> = None;
+        let list = &self.tile_lists[(row / TILE) * self.tiles_x + col / TILE];
+        let (ci, ri) = (col as i32, row as i32);
+        for &p in list {
+            let p = p as usize;
+            if self.near[p] >= best_t {
+                break;
+            }
+            let r = self.rects[p];
+            if ci < r[0] || ci > r[2] || ri < r[1] || ri > r[3] {
+                continue;
+            }
+            if let Some((t, normal)) = prims[p].shape.intersect(origin, dir, inv, best_t) {
+                best_t = t;
+                hit = Some((p as u32, normal));
+            }
+        }
+        match hit {
+            Some((p, normal)) => {
+                let prim = &prims[p as usize];
+                Hit { t: best_t, instance: prim.instance, material: &scene.materials[prim.material as usize], normal }
+            }
+            None => {
+                let mut normal = Vec3::ZERO;
+                normal[best_axis] = -dir[best_axis].signum();
+                let material = match (best_axis, dir[best_axis] > 0.0) {
+                    (2, false) => &scene.structure[0],
+                    (2, true) => &scene.structure[2],
+                    _ => &scene.structure[1],
+                };
+                Hit { t: best_t, instance: 0, material, normal }
             }
         }
     }
@@ -231,6 +236,17 @@ impl Renderer {
             }
         }
     }
+}
+
+/// What a pixel's ray meets first.
+struct Hit<'s> {
+    /// Distance along the ray, metres (infinite: the ray leaves the room through no face).
+    t: f32,
+    /// Instance id (0: the room itself).
+    instance: u16,
+    material: &'s Material,
+    /// Surface normal, world frame.
+    normal: Vec3,
 }
 
 /// Colour of a surface point seen along `to_eye` (unit), lit by `light` and a camera light.

@@ -22,6 +22,7 @@
 //! first N frames, with a factor 2 of margin), independent of the daemon's interpolation code.
 
 use std::io::BufRead;
+use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
 
 use op3dsg_ipc_types::iceoryx2::prelude::{NodeBuilder, ServiceName};
@@ -123,14 +124,7 @@ fn run() -> Result<(), String> {
         println!("translation_m {e_t} rotation_rad {e_r}");
         return Ok(());
     }
-    let ratio = args.frame_rate_hz / args.pose_rate_hz;
-    if (ratio - ratio.round()).abs() > 1e-9 || ratio < 1.0 {
-        return Err(format!(
-            "--pose-rate-hz {} must divide --frame-rate-hz {} (poses at frame stamps of the path)",
-            args.pose_rate_hz, args.frame_rate_hz
-        ));
-    }
-    let frames_per_pose = ratio.round() as u64;
+    let frames_per_pose = frames_per_pose(&args)?;
 
     op3dsg_ipc_types::iceoryx2::prelude::set_log_level_from_env_or(
         op3dsg_ipc_types::iceoryx2::prelude::LogLevel::Error,
@@ -139,7 +133,59 @@ fn run() -> Result<(), String> {
     let mut health = HealthSubscriber::open_wait(&args.prefix, "op3dsg-test-nav-health", Duration::from_secs(60))
         .map_err(|e| e.to_string())?;
     let raw = RawPoses::new(&args.prefix)?;
+    let lines = stdin_lines()?;
 
+    let mut nav = Nav {
+        poses,
+        raw,
+        path,
+        frame_rate_hz: args.frame_rate_hz,
+        lead_ns: args.lead_ns,
+        frames_per_pose,
+        next_pose: 0,
+        last_good_ns: 0,
+        newest_frame_ns: None,
+        paused: false,
+        sent: 0,
+    };
+    let started = Instant::now();
+    loop {
+        if let Ok(Some(h)) = health.latest()
+            && h.frames_captured > 0
+        {
+            nav.newest_frame_ns = Some(frame_stamp_ns(h.frames_captured - 1, args.frame_rate_hz));
+        }
+        nav.send_due_poses()?;
+        match lines.try_recv() {
+            Ok(line) => {
+                if nav.command(&line)?.is_break() {
+                    break;
+                }
+                println!("ok {line}");
+            }
+            Err(std::sync::mpsc::TryRecvError::Empty) => std::thread::sleep(Duration::from_millis(5)),
+            Err(std::sync::mpsc::TryRecvError::Disconnected) => break,
+        }
+    }
+    eprintln!("op3dsg-test-nav: {} good poses in {:.1} s", nav.sent, started.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// Frames of the path between two poses: `--frame-rate-hz` over `--pose-rate-hz`, which must be
+/// a whole number (poses at frame stamps of the path).
+fn frames_per_pose(args: &Args) -> Result<u64, String> {
+    let ratio = args.frame_rate_hz / args.pose_rate_hz;
+    if (ratio - ratio.round()).abs() > 1e-9 || ratio < 1.0 {
+        return Err(format!(
+            "--pose-rate-hz {} must divide --frame-rate-hz {} (poses at frame stamps of the path)",
+            args.pose_rate_hz, args.frame_rate_hz
+        ));
+    }
+    Ok(ratio.round() as u64)
+}
+
+/// The lines of standard input, read on a thread of their own; the channel closes with it.
+fn stdin_lines() -> Result<std::sync::mpsc::Receiver<String>, String> {
     let (lines_tx, lines_rx) = std::sync::mpsc::channel::<String>();
     std::thread::Builder::new()
         .name("test-nav-stdin".to_owned())
@@ -152,101 +198,101 @@ fn run() -> Result<(), String> {
             }
         })
         .map_err(|e| e.to_string())?;
+    Ok(lines_rx)
+}
 
-    let mut next_pose = 0u64; // index j: the pose at frame j * frames_per_pose
-    let mut last_good_ns = 0u64;
-    let mut newest_frame_ns = None::<u64>;
-    let mut paused = false;
-    let mut sent = 0u64;
-    let started = Instant::now();
-    loop {
-        if let Ok(Some(h)) = health.latest()
-            && h.frames_captured > 0
-        {
-            newest_frame_ns = Some(frame_stamp_ns(h.frames_captured - 1, args.frame_rate_hz));
+/// The stand-in navigation stack: the true path, sent as poses, and the faults it injects.
+struct Nav<'a> {
+    poses: PosePublisher,
+    raw: RawPoses,
+    path: &'a CameraPath,
+    frame_rate_hz: f64,
+    lead_ns: u64,
+    frames_per_pose: u64,
+    /// Index j of the next pose: the pose at frame j * frames_per_pose.
+    next_pose: u64,
+    /// Stamp of the last pose of the path sent.
+    last_good_ns: u64,
+    /// Stamp of the daemon's newest frame (`None`: no frame yet).
+    newest_frame_ns: Option<u64>,
+    paused: bool,
+    /// Poses of the path sent.
+    sent: u64,
+}
+
+impl Nav<'_> {
+    /// Sends the path's poses up to the newest frame's stamp plus the lead, unless paused.
+    fn send_due_poses(&mut self) -> Result<(), String> {
+        let Some(frame_ns) = self.newest_frame_ns else { return Ok(()) };
+        if self.paused {
+            return Ok(());
         }
-        if let Some(frame_ns) = newest_frame_ns
-            && !paused
-        {
-            loop {
-                let k = next_pose * frames_per_pose;
-                let stamp_ns = frame_stamp_ns(k, args.frame_rate_hz);
-                if stamp_ns > frame_ns + args.lead_ns {
-                    break;
-                }
-                poses
-                    .publish(stamp_ns, PoseKind::WorldFromCamera, &pose_of(path, k), "camera_color_optical_frame")
-                    .map_err(|e| e.to_string())?;
-                last_good_ns = stamp_ns;
-                next_pose += 1;
-                sent += 1;
+        loop {
+            let k = self.next_pose * self.frames_per_pose;
+            let stamp_ns = frame_stamp_ns(k, self.frame_rate_hz);
+            if stamp_ns > frame_ns + self.lead_ns {
+                return Ok(());
             }
-        }
-        match lines_rx.try_recv() {
-            Ok(line) => {
-                let mut words = line.split_whitespace();
-                let command = words.next().unwrap_or("");
-                let count: u64 = words.next().and_then(|w| w.parse().ok()).unwrap_or(1);
-                let frame_ns = newest_frame_ns.unwrap_or(0);
-                match command {
-                    "future" => {
-                        let stamp_ns = frame_ns + 100_000_000_000;
-                        poses
-                            .publish(
-                                stamp_ns,
-                                PoseKind::WorldFromCamera,
-                                &pose_of(path, 0),
-                                "camera_color_optical_frame",
-                            )
-                            .map_err(|e| e.to_string())?;
-                    }
-                    "nan" => {
-                        for i in 0..count {
-                            let mut pose = PoseStamped::new(
-                                last_good_ns + 1 + i,
-                                PoseKind::WorldFromCamera,
-                                [0.0; 3],
-                                [0.0, 0.0, 0.0, 1.0],
-                                "camera_color_optical_frame",
-                            )
-                            .map_err(|e| e.to_string())?;
-                            pose.translation_m[0] = f64::NAN;
-                            // The client library refuses to send it, naming the reason.
-                            match poses.publish_stamped(&pose) {
-                                Err(e) if matches!(check_pose(&pose), Err(PoseError::NonFiniteTranslation { .. })) => {
-                                    eprintln!("op3dsg-test-nav: the client refuses it: {e}");
-                                }
-                                other => return Err(format!("the client library sent a NaN pose: {other:?}")),
-                            }
-                            raw.send(pose)?;
-                        }
-                    }
-                    "out_of_order" => {
-                        for i in 0..count {
-                            let stamp_ns = last_good_ns.saturating_sub(50_000_000 + i * 1_000_000);
-                            poses
-                                .publish(
-                                    stamp_ns,
-                                    PoseKind::WorldFromCamera,
-                                    &pose_of(path, 0),
-                                    "camera_color_optical_frame",
-                                )
-                                .map_err(|e| e.to_string())?;
-                        }
-                    }
-                    "pause" => paused = true,
-                    "resume" => paused = false,
-                    "quit" => break,
-                    other => return Err(format!("unknown command {other:?}")),
-                }
-                println!("ok {line}");
-            }
-            Err(std::sync::mpsc::TryRecvError::Empty) => std::thread::sleep(Duration::from_millis(5)),
-            Err(std::sync::mpsc::TryRecvError::Disconnected) => break,
+            self.publish(stamp_ns, k)?;
+            self.last_good_ns = stamp_ns;
+            self.next_pose += 1;
+            self.sent += 1;
         }
     }
-    eprintln!("op3dsg-test-nav: {sent} good poses in {:.1} s", started.elapsed().as_secs_f64());
-    Ok(())
+
+    /// Publishes the path's pose at frame `k`, stamped `stamp_ns`, through the client library.
+    fn publish(&self, stamp_ns: u64, k: u64) -> Result<(), String> {
+        self.poses
+            .publish(stamp_ns, PoseKind::WorldFromCamera, &pose_of(self.path, k), "camera_color_optical_frame")
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    }
+
+    /// Carries out one line of standard input (see the module docs); `Break` on `quit`.
+    fn command(&mut self, line: &str) -> Result<ControlFlow<()>, String> {
+        let mut words = line.split_whitespace();
+        let command = words.next().unwrap_or("");
+        let count: u64 = words.next().and_then(|w| w.parse().ok()).unwrap_or(1);
+        match command {
+            "future" => self.publish(self.newest_frame_ns.unwrap_or(0) + 100_000_000_000, 0)?,
+            "nan" => self.send_nan(count)?,
+            "out_of_order" => {
+                for i in 0..count {
+                    self.publish(self.last_good_ns.saturating_sub(50_000_000 + i * 1_000_000), 0)?;
+                }
+            }
+            "pause" => self.paused = true,
+            "resume" => self.paused = false,
+            "quit" => return Ok(ControlFlow::Break(())),
+            other => return Err(format!("unknown command {other:?}")),
+        }
+        Ok(ControlFlow::Continue(()))
+    }
+
+    /// Sends `count` poses with a NaN translation past the client library (which must refuse
+    /// them), stamped just after the last good pose.
+    fn send_nan(&self, count: u64) -> Result<(), String> {
+        for i in 0..count {
+            let mut pose = PoseStamped::new(
+                self.last_good_ns + 1 + i,
+                PoseKind::WorldFromCamera,
+                [0.0; 3],
+                [0.0, 0.0, 0.0, 1.0],
+                "camera_color_optical_frame",
+            )
+            .map_err(|e| e.to_string())?;
+            pose.translation_m[0] = f64::NAN;
+            // The client library refuses to send it, naming the reason.
+            match self.poses.publish_stamped(&pose) {
+                Err(e) if matches!(check_pose(&pose), Err(PoseError::NonFiniteTranslation { .. })) => {
+                    eprintln!("op3dsg-test-nav: the client refuses it: {e}");
+                }
+                other => return Err(format!("the client library sent a NaN pose: {other:?}")),
+            }
+            self.raw.send(pose)?;
+        }
+        Ok(())
+    }
 }
 
 /// A publisher on `<prefix>/pose` without the client library's checks, for the poses a broken

@@ -15,7 +15,7 @@ use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use clap::Parser;
 use op3dsg_runtime::config;
-use op3dsg_runtime::pipeline::Pipeline;
+use op3dsg_runtime::pipeline::{Pipeline, RunSummary};
 use tracing::{error, info};
 
 #[derive(Debug, Parser)]
@@ -61,22 +61,7 @@ fn main() -> ExitCode {
     init_logging(&args.log);
     iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
 
-    let mut overrides = args.set.clone();
-    if let Some(n) = args.max_frames {
-        overrides.push(format!("run.max_frames={n}"));
-        overrides.push("run.exit_at_end=true".to_owned());
-    }
-    if args.exit_at_end {
-        overrides.push("run.exit_at_end=true".to_owned());
-    }
-    if let Some(dir) = &args.record {
-        let dir = dir.display().to_string();
-        overrides.push("record.enabled=true".to_owned());
-        overrides.push(format!("record.dir={}", toml::Value::String(dir)));
-    }
-    if let Some(prefix) = &args.prefix {
-        overrides.push(format!("ipc.prefix=\"{}\"", prefix.replace('"', "")));
-    }
+    let overrides = profile_overrides(&args);
     #[allow(unused_mut)] // registered into only with the feature `realsense`
     let mut backends = op3dsg_sim::backends();
     #[cfg(feature = "realsense")]
@@ -89,34 +74,14 @@ fn main() -> ExitCode {
         }
     };
     if args.print_config {
-        match toml::to_string_pretty(&loaded.effective) {
-            Ok(text) => {
-                println!("# layers: {}\n{text}", loaded.layers.join(" <- "));
-                return ExitCode::SUCCESS;
-            }
-            Err(e) => {
-                eprintln!("op3dsgd: cannot print the profile: {e}");
-                return ExitCode::FAILURE;
-            }
-        }
+        return print_config(&loaded);
     }
 
     // First signal: orderly shutdown ladder. Second: exit at once.
     let stop = Arc::new(AtomicBool::new(false));
-    let signals = Arc::new(AtomicU32::new(0));
-    {
-        let stop = stop.clone();
-        let signals = signals.clone();
-        if let Err(e) = ctrlc::set_handler(move || {
-            if signals.fetch_add(1, Ordering::SeqCst) == 0 {
-                stop.store(true, Ordering::SeqCst);
-            } else {
-                std::process::exit(130);
-            }
-        }) {
-            error!(error = %e, "cannot install the signal handler");
-            return ExitCode::FAILURE;
-        }
+    if let Err(e) = install_signal_handler(stop.clone()) {
+        error!(error = %e, "cannot install the signal handler");
+        return ExitCode::FAILURE;
     }
 
     let profile = &loaded.profile;
@@ -149,30 +114,82 @@ fn main() -> ExitCode {
     notifier.stopping();
     drop(notifier);
     match result {
-        Ok(summary) => {
-            info!(
-                frames = summary.frames,
-                keyframes = summary.keyframes,
-                graph_version = summary.graph_version,
-                map_nodes = summary.map_nodes,
-                map_mib = format!("{:.1}", op3dsg_runtime::stats::mib(summary.map_memory_bytes)),
-                elapsed_s = format!("{:.2}", summary.elapsed_s),
-                keyframes_per_s = format!("{:.1}", summary.keyframes_per_s()),
-                bad_data_skipped = summary.bad_data_skipped,
-                "stopped"
-            );
-            if summary.source_failed {
-                // The source logged its error when it stopped.
-                error!("the frame source stopped on bad data");
-                return ExitCode::FAILURE;
-            }
-            ExitCode::SUCCESS
-        }
+        Ok(summary) => report_stop(&summary),
         Err(stuck) => {
             error!(stages = ?stuck, "shutdown timed out");
             ExitCode::FAILURE
         }
     }
+}
+
+/// The profile overrides of the command line: `--set` values, then those `--max-frames`,
+/// `--exit-at-end`, `--record` and `--prefix` stand for.
+fn profile_overrides(args: &Args) -> Vec<String> {
+    let mut overrides = args.set.clone();
+    if let Some(n) = args.max_frames {
+        overrides.push(format!("run.max_frames={n}"));
+        overrides.push("run.exit_at_end=true".to_owned());
+    }
+    if args.exit_at_end {
+        overrides.push("run.exit_at_end=true".to_owned());
+    }
+    if let Some(dir) = &args.record {
+        let dir = dir.display().to_string();
+        overrides.push("record.enabled=true".to_owned());
+        overrides.push(format!("record.dir={}", toml::Value::String(dir)));
+    }
+    if let Some(prefix) = &args.prefix {
+        overrides.push(format!("ipc.prefix=\"{}\"", prefix.replace('"', "")));
+    }
+    overrides
+}
+
+/// `--print-config`: the effective profile, after the layers it came from.
+fn print_config(loaded: &config::LoadedProfile) -> ExitCode {
+    match toml::to_string_pretty(&loaded.effective) {
+        Ok(text) => {
+            println!("# layers: {}\n{text}", loaded.layers.join(" <- "));
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("op3dsgd: cannot print the profile: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// SIGINT/SIGTERM: the first sets `stop` (the orderly shutdown ladder), the second exits at once
+/// with 130.
+fn install_signal_handler(stop: Arc<AtomicBool>) -> Result<(), ctrlc::Error> {
+    let signals = AtomicU32::new(0);
+    ctrlc::set_handler(move || {
+        if signals.fetch_add(1, Ordering::SeqCst) == 0 {
+            stop.store(true, Ordering::SeqCst);
+        } else {
+            std::process::exit(130);
+        }
+    })
+}
+
+/// Logs what the run did once every stage stopped; failure when the source stopped on bad data.
+fn report_stop(summary: &RunSummary) -> ExitCode {
+    info!(
+        frames = summary.frames,
+        keyframes = summary.keyframes,
+        graph_version = summary.graph_version,
+        map_nodes = summary.map_nodes,
+        map_mib = format!("{:.1}", op3dsg_runtime::stats::mib(summary.map_memory_bytes)),
+        elapsed_s = format!("{:.2}", summary.elapsed_s),
+        keyframes_per_s = format!("{:.1}", summary.keyframes_per_s()),
+        bad_data_skipped = summary.bad_data_skipped,
+        "stopped"
+    );
+    if summary.source_failed {
+        // The source logged its error when it stopped.
+        error!("the frame source stopped on bad data");
+        return ExitCode::FAILURE;
+    }
+    ExitCode::SUCCESS
 }
 
 /// Logging: under systemd, when stderr is the journal (`$JOURNAL_STREAM` names stderr's device

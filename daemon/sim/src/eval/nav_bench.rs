@@ -35,10 +35,11 @@ use std::time::Instant;
 
 use op3dsg_ipc_types::{ApproachStatus, NodeKind};
 use op3dsg_runtime::config::Profile;
+use op3dsg_runtime::graph::GraphNode;
 use op3dsg_runtime::occupancy::nav::MapView;
-use op3dsg_runtime::occupancy::{Planner, Target};
+use op3dsg_runtime::occupancy::{Approach, NavigationConfig, Planner, Target};
 use op3dsg_runtime::reasoner::ReasonerKind;
-use op3dsg_synthetic::{RoomKind, Scene, Shape};
+use op3dsg_synthetic::{InstanceInfo, RoomKind, Scene, Shape};
 use serde::Serialize;
 
 use super::fusion_match::{self, MatchCriteria};
@@ -365,11 +366,7 @@ pub fn room_nav(base: &Profile, room: RoomKind, seed: u64) -> Result<RoomNav, St
     let t = Instant::now();
     planner.prepare(&MapView { geometry, cells: &cells }, robot);
     let prepare_us = t.elapsed().as_micros() as u64;
-    let occ = &profile.occupancy;
-    let band = [occ.floor_height_m + occ.obstacle_min_height_m, occ.floor_height_m + occ.obstacle_max_height_m];
-    let walls_and_things = obstacles(&scene, band);
-    let nav = &profile.navigation;
-    let checks = NavCriteria::for_cell(geometry.cell_size_m);
+    let truth = TruthChecks::new(&scene, &profile, NavCriteria::for_cell(geometry.cell_size_m));
 
     let (mut objects, mut parts) = (KindNav::default(), KindNav::default());
     let mut nodes = Vec::new();
@@ -379,75 +376,11 @@ pub fn room_nav(base: &Profile, room: RoomKind, seed: u64) -> Result<RoomNav, St
         let t = Instant::now();
         let result = planner.approach(&target);
         approach_us.push(t.elapsed().as_secs_f64() * 1e6);
-        let truth_id = truth_of.get(&node.id).copied();
-        let truth = truth_id.and_then(|id| u16::try_from(id).ok()).and_then(|id| scene.instance(id));
         let counts = match node.kind {
             NodeKind::Object => &mut objects,
             NodeKind::Part => &mut parts,
         };
-        counts.nodes += 1;
-        counts.matched += u32::from(truth.is_some());
-        let mut outcome = NodeNav {
-            node_id: node.id,
-            kind: node.kind.as_str(),
-            label: node.label.clone(),
-            truth_id,
-            status: match result {
-                Ok(_) => ApproachStatus::Ok.as_str(),
-                Err(status) => status.as_str(),
-            },
-            xy_m: None,
-            yaw_rad: None,
-            path_m: None,
-            clearance_m: None,
-            true_standoff_m: None,
-            facing_error_deg: None,
-            free: None,
-            in_band: None,
-            facing: None,
-            on_side: None,
-            correct: false,
-        };
-        match (result, truth) {
-            (Err(status), Some(_)) => match status {
-                ApproachStatus::NoFreeCell => counts.no_free_cell += 1,
-                ApproachStatus::Unreachable => counts.unreachable += 1,
-                _ => counts.robot_not_on_map += 1,
-            },
-            (Err(_), None) => {}
-            (Ok(approach), truth) => {
-                let p = approach.xy_m;
-                let clear = clearance(&scene, &walls_and_things, p);
-                let free = clear >= nav.robot_radius_m - checks.free_tolerance_m;
-                outcome.xy_m = Some(p);
-                outcome.yaw_rad = Some(approach.yaw_rad);
-                outcome.path_m = Some(approach.path_m);
-                outcome.clearance_m = Some(clear);
-                outcome.free = Some(free);
-                match truth {
-                    None => {
-                        counts.unmatched_reachable += 1;
-                        counts.unmatched_free += u32::from(free);
-                    }
-                    Some(info) => {
-                        counts.reachable += 1;
-                        let judged = judge(&scene, info, p, approach.yaw_rad, nav, &checks);
-                        outcome.true_standoff_m = Some(judged.true_standoff_m);
-                        outcome.facing_error_deg = Some(judged.facing_error_deg);
-                        outcome.in_band = Some(judged.in_band);
-                        outcome.facing = Some(judged.facing);
-                        outcome.on_side = judged.on_side;
-                        counts.not_free += u32::from(!free);
-                        counts.out_of_band += u32::from(!judged.in_band);
-                        counts.not_facing += u32::from(!judged.facing);
-                        counts.wrong_side += u32::from(judged.on_side == Some(false));
-                        outcome.correct = free && judged.in_band && judged.facing && judged.on_side != Some(false);
-                        counts.correct += u32::from(outcome.correct);
-                    }
-                }
-            }
-        }
-        nodes.push(outcome);
+        nodes.push(truth.node(node, truth_of.get(&node.id).copied(), result, counts));
     }
     approach_us.sort_by(f64::total_cmp);
     Ok(RoomNav {
@@ -464,6 +397,108 @@ pub fn room_nav(base: &Profile, room: RoomKind, seed: u64) -> Result<RoomNav, St
         prepare_us,
         approach_p50_us: approach_us.get(approach_us.len() / 2).copied().unwrap_or(0.0),
     })
+}
+
+/// What one room's approach poses are judged against: its true geometry, the profile's
+/// `[navigation]` and the tolerances.
+struct TruthChecks<'a> {
+    scene: &'a Scene,
+    /// The walls and things that reach into the obstacle band.
+    obstacles: Vec<Shape>,
+    nav: &'a NavigationConfig,
+    criteria: NavCriteria,
+}
+
+impl<'a> TruthChecks<'a> {
+    fn new(scene: &'a Scene, profile: &'a Profile, criteria: NavCriteria) -> Self {
+        let occ = &profile.occupancy;
+        let band = [occ.floor_height_m + occ.obstacle_min_height_m, occ.floor_height_m + occ.obstacle_max_height_m];
+        Self { scene, obstacles: obstacles(scene, band), nav: &profile.navigation, criteria }
+    }
+
+    /// The outcome of the planner's `result` for `node`, matched to the ground-truth instance
+    /// `truth_id` (`None`: unmatched), counted into `counts` (the node's kind).
+    fn node(
+        &self,
+        node: &GraphNode,
+        truth_id: Option<u32>,
+        result: Result<Approach, ApproachStatus>,
+        counts: &mut KindNav,
+    ) -> NodeNav {
+        let truth = truth_id.and_then(|id| u16::try_from(id).ok()).and_then(|id| self.scene.instance(id));
+        counts.nodes += 1;
+        counts.matched += u32::from(truth.is_some());
+        let status = match result {
+            Ok(_) => ApproachStatus::Ok.as_str(),
+            Err(status) => status.as_str(),
+        };
+        let mut outcome = NodeNav::unjudged(node, truth_id, status);
+        match (result, truth) {
+            (Err(status), Some(_)) => match status {
+                ApproachStatus::NoFreeCell => counts.no_free_cell += 1,
+                ApproachStatus::Unreachable => counts.unreachable += 1,
+                _ => counts.robot_not_on_map += 1,
+            },
+            (Err(_), None) => {}
+            (Ok(approach), truth) => self.approach(&approach, truth, &mut outcome, counts),
+        }
+        outcome
+    }
+
+    /// Judges an approach pose into `outcome` and `counts`: free space always, the band, facing
+    /// and side against the true instance `truth` when the node has one.
+    fn approach(&self, approach: &Approach, truth: Option<&InstanceInfo>, outcome: &mut NodeNav, counts: &mut KindNav) {
+        let p = approach.xy_m;
+        let clear = clearance(self.scene, &self.obstacles, p);
+        let free = clear >= self.nav.robot_radius_m - self.criteria.free_tolerance_m;
+        outcome.xy_m = Some(p);
+        outcome.yaw_rad = Some(approach.yaw_rad);
+        outcome.path_m = Some(approach.path_m);
+        outcome.clearance_m = Some(clear);
+        outcome.free = Some(free);
+        let Some(info) = truth else {
+            counts.unmatched_reachable += 1;
+            counts.unmatched_free += u32::from(free);
+            return;
+        };
+        counts.reachable += 1;
+        let judged = judge(self.scene, info, p, approach.yaw_rad, self.nav, &self.criteria);
+        outcome.true_standoff_m = Some(judged.true_standoff_m);
+        outcome.facing_error_deg = Some(judged.facing_error_deg);
+        outcome.in_band = Some(judged.in_band);
+        outcome.facing = Some(judged.facing);
+        outcome.on_side = judged.on_side;
+        counts.not_free += u32::from(!free);
+        counts.out_of_band += u32::from(!judged.in_band);
+        counts.not_facing += u32::from(!judged.facing);
+        counts.wrong_side += u32::from(judged.on_side == Some(false));
+        outcome.correct = free && judged.in_band && judged.facing && judged.on_side != Some(false);
+        counts.correct += u32::from(outcome.correct);
+    }
+}
+
+impl NodeNav {
+    /// `node` with the planner's `status` and nothing judged yet.
+    fn unjudged(node: &GraphNode, truth_id: Option<u32>, status: &'static str) -> Self {
+        Self {
+            node_id: node.id,
+            kind: node.kind.as_str(),
+            label: node.label.clone(),
+            truth_id,
+            status,
+            xy_m: None,
+            yaw_rad: None,
+            path_m: None,
+            clearance_m: None,
+            true_standoff_m: None,
+            facing_error_deg: None,
+            free: None,
+            in_band: None,
+            facing: None,
+            on_side: None,
+            correct: false,
+        }
+    }
 }
 
 fn percentile(sorted: &[u32], q: f64) -> f64 {

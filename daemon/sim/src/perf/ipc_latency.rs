@@ -266,10 +266,100 @@ impl BenchPublisher {
         self.raw_updated.notify().map_err(|e| anyhow!("notify raw: {e:?}"))?;
         Ok(())
     }
+
+    /// Sends, per size of `graphs`, `options.ipc_warmup + options.ipc_messages` pairs of a graph
+    /// and a raw sample of the graph's size (the first 8 bytes of `payload` its id), each after
+    /// `child`'s acknowledgement of the one before.
+    fn send_pairs(
+        &mut self,
+        child: &mut Child,
+        graphs: &[SceneGraph],
+        options: &PerfOptions,
+        payload: &mut [u8],
+    ) -> anyhow::Result<Sent> {
+        let mut sent = Sent {
+            graph: HashMap::new(),
+            raw: HashMap::new(),
+            graph_calls_ms: vec![Vec::new(); graphs.len()],
+            raw_calls_ms: vec![Vec::new(); graphs.len()],
+        };
+        let mut id = 0u64;
+        for (size_index, graph) in graphs.iter().enumerate() {
+            let mut graph = graph.clone();
+            let bytes = filled_bytes(&graph);
+            for k in 0..options.ipc_warmup + options.ipc_messages {
+                let timed = k >= options.ipc_warmup;
+                id += 1;
+                graph.version = id;
+                let t0 = wall_clock_ns();
+                let call = Instant::now();
+                self.server.publish_graph(&graph).context("publishing a graph")?;
+                let call_ms = call.elapsed().as_secs_f64() * 1e3;
+                sent.graph.insert(id, (size_index, t0, timed));
+                if timed {
+                    sent.graph_calls_ms[size_index].push(call_ms);
+                }
+                self.wait_ack(child, "a graph")?;
+
+                id += 1;
+                payload[..8].copy_from_slice(&id.to_le_bytes());
+                let t0 = wall_clock_ns();
+                let call = Instant::now();
+                self.send_raw(&payload[..bytes])?;
+                let call_ms = call.elapsed().as_secs_f64() * 1e3;
+                sent.raw.insert(id, (size_index, t0, timed));
+                if timed {
+                    sent.raw_calls_ms[size_index].push(call_ms);
+                }
+                self.wait_ack(child, "a raw sample")?;
+            }
+        }
+        Ok(sent)
+    }
+}
+
+/// Per message id: the index of its graph size, its send wall clock (ns), and whether it is
+/// timed (not warm-up).
+type SentAt = HashMap<u64, (usize, u64, bool)>;
+
+/// What [`BenchPublisher::send_pairs`] sent, and its publish calls' durations per size.
+struct Sent {
+    graph: SentAt,
+    raw: SentAt,
+    graph_calls_ms: Vec<Vec<f64>>,
+    raw_calls_ms: Vec<Vec<f64>>,
 }
 
 /// Kills the child on every early return.
 struct ChildGuard(Option<Child>);
+
+impl ChildGuard {
+    /// Starts the subscriber process (`op3dsg --prefix PREFIX bench ipc-peer --pairs N`).
+    fn spawn_peer(options: &PerfOptions, prefix: &str, pairs: usize) -> anyhow::Result<Self> {
+        let child = Command::new(&options.peer_exe)
+            .args(["--prefix", prefix, "bench", "ipc-peer", "--pairs", &pairs.to_string()])
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .with_context(|| format!("starting the subscriber process {}", options.peer_exe.display()))?;
+        Ok(Self(Some(child)))
+    }
+
+    /// Waits for the subscriber process to exit and reads its receipts from its standard output.
+    fn receipts(mut self) -> anyhow::Result<Receipts> {
+        let mut child = self.0.take().ok_or_else(|| anyhow!("subscriber process missing"))?;
+        let mut out = String::new();
+        if let Some(mut stdout) = child.stdout.take() {
+            stdout.read_to_string(&mut out).context("reading the subscriber's receipts")?;
+        }
+        let status = child.wait().context("waiting for the subscriber process")?;
+        if !status.success() {
+            bail!("the subscriber process failed ({status})");
+        }
+        serde_json::from_str(out.trim()).context("parsing the subscriber's receipts")
+    }
+}
 
 impl Drop for ChildGuard {
     fn drop(&mut self) {
@@ -289,104 +379,71 @@ pub fn ipc_latency(options: &PerfOptions) -> anyhow::Result<IpcLatency> {
     let per_size = options.ipc_warmup + options.ipc_messages;
     let pairs = per_size * graphs.len();
 
-    let child = Command::new(&options.peer_exe)
-        .args(["--prefix", &prefix, "bench", "ipc-peer", "--pairs", &pairs.to_string()])
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .with_context(|| format!("starting the subscriber process {}", options.peer_exe.display()))?;
-    let mut guard = ChildGuard(Some(child));
+    let mut guard = ChildGuard::spawn_peer(options, &prefix, pairs)?;
     let child = guard.0.as_mut().ok_or_else(|| anyhow!("subscriber process missing"))?;
     publisher.wait_ack(child, "start-up")?;
     publisher.server.update_connections()?;
     publisher.raw.update_connections().map_err(|e| anyhow!("update connections of the raw publisher: {e:?}"))?;
 
-    let mut graph_calls_ms: Vec<Vec<f64>> = vec![Vec::new(); graphs.len()];
-    let mut raw_calls_ms: Vec<Vec<f64>> = vec![Vec::new(); graphs.len()];
-    // id -> (size index, sent wall clock, timed)
-    let mut sent_graph: HashMap<u64, (usize, u64, bool)> = HashMap::new();
-    let mut sent_raw: HashMap<u64, (usize, u64, bool)> = HashMap::new();
     let mut payload = vec![0u8; max_bytes];
     for (i, b) in payload.iter_mut().enumerate() {
         *b = (i % 251) as u8;
     }
-    let mut id = 0u64;
-    for (size_index, graph) in graphs.iter().enumerate() {
-        let mut graph = graph.clone();
-        let bytes = filled_bytes(&graph);
-        for k in 0..per_size {
-            let timed = k >= options.ipc_warmup;
-            id += 1;
-            graph.version = id;
-            let t0 = wall_clock_ns();
-            let call = Instant::now();
-            publisher.server.publish_graph(&graph).context("publishing a graph")?;
-            let call_ms = call.elapsed().as_secs_f64() * 1e3;
-            sent_graph.insert(id, (size_index, t0, timed));
-            if timed {
-                graph_calls_ms[size_index].push(call_ms);
-            }
-            publisher.wait_ack(child, "a graph")?;
+    let mut sent = publisher.send_pairs(child, &graphs, options, &mut payload)?;
+    let receipts = guard.receipts()?;
+    Ok(IpcLatency {
+        wait: "iceoryx2 event listener (timed_wait), both kinds".to_owned(),
+        messages: options.ipc_messages,
+        warmup: options.ipc_warmup,
+        max_sample_bytes: size_of::<GraphHeader>() + IpcConfig::default().graph_capacity().max_payload_bytes(),
+        rows: ipc_rows(&graphs, &mut sent, &receipts, options.ipc_messages)?,
+    })
+}
 
-            id += 1;
-            payload[..8].copy_from_slice(&id.to_le_bytes());
-            let t0 = wall_clock_ns();
-            let call = Instant::now();
-            publisher.send_raw(&payload[..bytes])?;
-            let call_ms = call.elapsed().as_secs_f64() * 1e3;
-            sent_raw.insert(id, (size_index, t0, timed));
-            if timed {
-                raw_calls_ms[size_index].push(call_ms);
-            }
-            publisher.wait_ack(child, "a raw sample")?;
+/// Per size of `received` messages: the timed ones' latencies (receive − send), milliseconds.
+/// `what` names the kind in errors.
+fn latencies(sent: &SentAt, received: &[(u64, u64)], sizes: usize, what: &str) -> anyhow::Result<Vec<Vec<f64>>> {
+    let mut per_size: Vec<Vec<f64>> = vec![Vec::new(); sizes];
+    for &(id, t1) in received {
+        let Some(&(size, t0, timed)) = sent.get(&id) else {
+            bail!("the subscriber received {what} {id}, which was never sent");
+        };
+        if timed {
+            per_size[size].push(t1.saturating_sub(t0) as f64 / 1e6);
         }
     }
+    Ok(per_size)
+}
 
-    let mut child = guard.0.take().ok_or_else(|| anyhow!("subscriber process missing"))?;
-    let mut out = String::new();
-    if let Some(mut stdout) = child.stdout.take() {
-        stdout.read_to_string(&mut out).context("reading the subscriber's receipts")?;
-    }
-    let status = child.wait().context("waiting for the subscriber process")?;
-    if !status.success() {
-        bail!("the subscriber process failed ({status})");
-    }
-    let receipts: Receipts = serde_json::from_str(out.trim()).context("parsing the subscriber's receipts")?;
-
-    let latencies = |sent: &HashMap<u64, (usize, u64, bool)>, received: &[(u64, u64)], what: &str| {
-        let mut per_size: Vec<Vec<f64>> = vec![Vec::new(); graphs.len()];
-        for &(id, t1) in received {
-            let Some(&(size, t0, timed)) = sent.get(&id) else {
-                bail!("the subscriber received {what} {id}, which was never sent");
-            };
-            if timed {
-                per_size[size].push(t1.saturating_sub(t0) as f64 / 1e6);
-            }
-        }
-        Ok(per_size)
-    };
-    let mut graph_ms = latencies(&sent_graph, &receipts.graph, "graph")?;
+/// One row per size of `graphs` from what was sent and what the subscriber received; every
+/// size must have `messages` timed messages of each kind.
+fn ipc_rows(
+    graphs: &[SceneGraph],
+    sent: &mut Sent,
+    receipts: &Receipts,
+    messages: usize,
+) -> anyhow::Result<Vec<IpcRow>> {
+    let mut graph_ms = latencies(&sent.graph, &receipts.graph, graphs.len(), "graph")?;
     let mut read_ms: Vec<Vec<f64>> = vec![Vec::new(); graphs.len()];
     let mut index_ms: Vec<Vec<f64>> = vec![Vec::new(); graphs.len()];
     for ((&(id, _), &read_ns), &index_ns) in
         receipts.graph.iter().zip(&receipts.graph_read_ns).zip(&receipts.graph_index_ns)
     {
-        if let Some(&(size, _, true)) = sent_graph.get(&id) {
+        if let Some(&(size, _, true)) = sent.graph.get(&id) {
             read_ms[size].push(read_ns as f64 / 1e6);
             index_ms[size].push(index_ns as f64 / 1e6);
         }
     }
-    let mut raw_ms = latencies(&sent_raw, &receipts.raw, "raw sample")?;
+    let mut raw_ms = latencies(&sent.raw, &receipts.raw, graphs.len(), "raw sample")?;
     let mut rows = Vec::new();
     for (i, graph) in graphs.iter().enumerate() {
-        if graph_ms[i].len() != options.ipc_messages || raw_ms[i].len() != options.ipc_messages {
+        if graph_ms[i].len() != messages || raw_ms[i].len() != messages {
             bail!(
                 "graphs of {} nodes: {} graphs and {} raw samples received of {} sent each",
                 graph.nodes.len(),
                 graph_ms[i].len(),
                 raw_ms[i].len(),
-                options.ipc_messages
+                messages
             );
         }
         let g = Percentiles::from_samples_ms(&mut graph_ms[i]);
@@ -399,19 +456,13 @@ pub fn ipc_latency(options: &PerfOptions) -> anyhow::Result<IpcLatency> {
             ratio_p99: g.p99_ms / r.p99_ms.max(1e-9),
             graph: g,
             raw: r,
-            graph_publish_call: Percentiles::from_samples_ms(&mut graph_calls_ms[i]),
-            raw_publish_call: Percentiles::from_samples_ms(&mut raw_calls_ms[i]),
+            graph_publish_call: Percentiles::from_samples_ms(&mut sent.graph_calls_ms[i]),
+            raw_publish_call: Percentiles::from_samples_ms(&mut sent.raw_calls_ms[i]),
             graph_read_call: Percentiles::from_samples_ms(&mut read_ms[i]),
             graph_index_build: Percentiles::from_samples_ms(&mut index_ms[i]),
         });
     }
-    Ok(IpcLatency {
-        wait: "iceoryx2 event listener (timed_wait), both kinds".to_owned(),
-        messages: options.ipc_messages,
-        warmup: options.ipc_warmup,
-        max_sample_bytes: size_of::<GraphHeader>() + IpcConfig::default().graph_capacity().max_payload_bytes(),
-        rows,
-    })
+    Ok(rows)
 }
 
 /// The subscriber process: opens the services under `prefix`, acknowledges start-up, then takes

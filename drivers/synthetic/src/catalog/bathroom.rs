@@ -5,7 +5,9 @@
 use rand::Rng;
 
 use super::builder::Builder;
-use super::furniture::{Grip, cabinet, ceiling_light, door_and_switches, drawer_stack, outlet, sink_with_faucet};
+use super::furniture::{
+    Footprint, Grip, Metals, cabinet, ceiling_light, door_and_switches, drawer_stack, outlet, sink_with_faucet,
+};
 use super::materials::{
     BLACK_PLASTIC, BRASS, CERAMIC, CHROME, FRONTS, LIGHT_DIFFUSER, MIRROR, RED_PLASTIC, WHITE_LACQUER, WHITE_PLASTIC,
 };
@@ -17,8 +19,7 @@ pub(super) fn bathroom(b: &mut Builder, base: usize) {
     let door_wall = b.wall(base + 2);
     let radiator_wall = b.wall(base + 3);
     let front = b.pick(&FRONTS);
-    let metals = b.two_metals();
-    let mut metal_counter = 0usize;
+    let mut metals = Metals::new(b.two_metals());
     let light = ceiling_light(b, b.size.x * 0.5, b.size.y * 0.5);
 
     // Bathtub along the first wall, faucet on the wall above it.
@@ -50,9 +51,10 @@ pub(super) fn bathroom(b: &mut Builder, base: usize) {
     b.part(Some(toilet), "flush button", CHROME, toilet, &[button]);
 
     let v0 = t0 + 0.7;
-    let vanity = cabinet(b, vanity_wall, v0, 0.8, 0.5, [0.0, 0.8], front, Grip::Handle, metals, &mut metal_counter);
+    let vanity_at = Footprint { wall: vanity_wall, s0: v0, width: 0.8, depth: 0.5 };
+    let vanity = cabinet(b, vanity_at, [0.0, 0.8], front, Grip::Handle, &mut metals);
     if let Some(vanity) = vanity {
-        sink_with_faucet(b, vanity_wall, v0, 0.8, 0.5, 0.8, vanity);
+        sink_with_faucet(b, vanity_at, 0.8, vanity);
         let mirror = b.object("mirror", &[], MIRROR);
         b.add(mirror, vanity_wall.cuboid([v0 + 0.1, v0 + 0.7], [0.0, 0.02], [1.2, 1.85]), MIRROR);
         b.spatial(mirror, vanity, "above");
@@ -61,7 +63,8 @@ pub(super) fn bathroom(b: &mut Builder, base: usize) {
     b.add(wall_light, vanity_wall.cuboid([v0 + 0.25, v0 + 0.55], [0.0, 0.08], [1.92, 1.99]), LIGHT_DIFFUSER);
     let d0 = v0 + 0.8;
     let grip = if b.rng.random_bool(0.5) { Grip::Handle } else { Grip::Knob };
-    let drawers = drawer_stack(b, vanity_wall, d0, 0.4, 0.5, 0.8, 2, front, grip, metals, &mut metal_counter);
+    let drawers_at = Footprint { wall: vanity_wall, s0: d0, width: 0.4, depth: 0.5 };
+    let drawers = drawer_stack(b, drawers_at, 0.8, 2, front, grip, &mut metals);
     if let Some(&top) = drawers.last() {
         let dryer_mat = b.pick(&[BLACK_PLASTIC, WHITE_PLASTIC, RED_PLASTIC]);
         let dryer = b.object("hair dryer", &["blow dryer"], dryer_mat);
@@ -81,7 +84,7 @@ pub(super) fn bathroom(b: &mut Builder, base: usize) {
     b.claim(&panel);
     let valve = radiator_wall.post(rs + 0.45, 0.08, [0.12, 0.2], 0.022);
     b.part(Some(radiator), "radiator valve", WHITE_PLASTIC, radiator, &[valve]);
-    let knobs = [metals[1], metals[0]];
-    let mut counter = 0;
-    cabinet(b, radiator_wall, rs - 0.3, 0.7, 0.25, [1.4, 2.0], front, Grip::Knob, knobs, &mut counter);
+    let mut knobs = Metals::new([metals.pair[1], metals.pair[0]]);
+    let cabinet_at = Footprint { wall: radiator_wall, s0: rs - 0.3, width: 0.7, depth: 0.25 };
+    cabinet(b, cabinet_at, [1.4, 2.0], front, Grip::Knob, &mut knobs);
 }

@@ -4,7 +4,7 @@
 use rand::Rng;
 
 use super::builder::Builder;
-use super::furniture::{Grip, ceiling_light, door_and_switches, outlet, window};
+use super::furniture::{Grip, Metals, ceiling_light, door_and_switches, outlet, window};
 use super::materials::{
     BLACK_METAL, BLUE_FABRIC, GREY_FABRIC, HANDLE_METALS, LAMP_SHADE, LINEN, WHITE_LACQUER, WHITE_PLASTIC, WOOD_DARK,
     WOOD_LIGHT,
@@ -16,8 +16,7 @@ pub(super) fn bedroom(b: &mut Builder, base: usize) {
     let door_wall = b.wall(base + 2);
     let wardrobe_wall = b.wall(base + 3);
     let wood = b.pick(&[WOOD_LIGHT, WOOD_DARK, WHITE_LACQUER]);
-    let metals = b.two_metals();
-    let mut metal_counter = 0usize;
+    let mut metals = Metals::new(b.two_metals());
     let light = ceiling_light(b, b.size.x * 0.5, b.size.y * 0.5);
 
     let bw = if b.rng.random_bool(0.5) { 1.4 } else { 1.6 };
@@ -42,8 +41,7 @@ pub(super) fn bedroom(b: &mut Builder, base: usize) {
         let stand = b.object("nightstand", &["bedside table", "night table"], wood);
         b.add(stand, body, wood);
         let ns = (s0 + s1) * 0.5;
-        let metal = metals[metal_counter % 2];
-        metal_counter += 1;
+        let metal = metals.next();
         let knob = bed_wall.knob(ns, 0.4, 0.44, 0.015, 0.025);
         b.part(Some(stand), "drawer knob", metal, stand, &[knob]);
         let lamp = b.object("lamp", &["table lamp", "bedside lamp"], LAMP_SHADE);
@@ -69,8 +67,7 @@ pub(super) fn bedroom(b: &mut Builder, base: usize) {
             let zc = 0.2 + 0.27 * row as f32;
             for col in 0..2 {
                 let s = d0 + dw * (0.25 + 0.5 * col as f32);
-                let metal = metals[metal_counter % 2];
-                metal_counter += 1;
+                let metal = metals.next();
                 match grip {
                     Grip::Handle => {
                         let bar = dresser_wall.cuboid([s - 0.06, s + 0.06], [0.5, 0.525], [zc - 0.01, zc + 0.01]);

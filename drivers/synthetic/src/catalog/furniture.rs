@@ -97,21 +97,56 @@ pub(super) enum Grip {
     Knob,
 }
 
-/// A cabinet body with one or two doors and a handle or knob on each.
-#[allow(clippy::too_many_arguments)]
+/// Where a piece of furniture stands against a wall, in the wall's frame: from `s0` along the
+/// wall, `width` wide, `depth` into the room (metres).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Footprint {
+    pub(super) wall: Wall,
+    pub(super) s0: f32,
+    pub(super) width: f32,
+    pub(super) depth: f32,
+}
+
+impl Footprint {
+    /// The box over the footprint between the heights `z` (metres above the floor).
+    fn cuboid(&self, z: [f32; 2]) -> Shape {
+        self.wall.cuboid([self.s0, self.s0 + self.width], [0.0, self.depth], z)
+    }
+}
+
+/// The two handle metals of a room, handed out in turn to the handles and knobs of its
+/// cabinets and drawers.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Metals {
+    pub(super) pair: [Material; 2],
+    /// Handles and knobs made so far.
+    handed_out: usize,
+}
+
+impl Metals {
+    pub(super) fn new(pair: [Material; 2]) -> Self {
+        Self { pair, handed_out: 0 }
+    }
+
+    /// The metal of the next handle or knob.
+    pub(super) fn next(&mut self) -> Material {
+        let metal = self.pair[self.handed_out % 2];
+        self.handed_out += 1;
+        metal
+    }
+}
+
+/// A cabinet body between the heights `z` with one or two doors and a handle or knob on each.
 pub(super) fn cabinet(
     b: &mut Builder,
-    wall: Wall,
-    s0: f32,
-    width: f32,
-    depth: f32,
+    at: Footprint,
     z: [f32; 2],
     front: Material,
     grip: Grip,
-    metals: [Material; 2],
-    metal_counter: &mut usize,
+    metals: &mut Metals,
 ) -> Option<u16> {
-    let body = wall.cuboid([s0, s0 + width], [0.0, depth], z);
+    let Footprint { wall, s0, width, depth } = at;
+    let body = at.cuboid(z);
     if !b.fits(&body) {
         return None;
     }
@@ -129,8 +164,7 @@ pub(super) fn cabinet(
             (_, 0) => s0 + width * 0.5 - 0.05,
             _ => s0 + width * 0.5 + 0.05,
         };
-        let metal = metals[*metal_counter % 2];
-        *metal_counter += 1;
+        let metal = metals.next();
         match grip {
             Grip::Handle => {
                 let bar = wall.cuboid([s - 0.01, s + 0.01], [depth, depth + 0.025], [zc - 0.06, zc + 0.06]);
@@ -153,22 +187,19 @@ pub(super) fn cabinet(
     Some(id)
 }
 
-/// A stack of drawers (each its own object) with a handle or knob on each.
-#[allow(clippy::too_many_arguments)]
+/// A stack of `count` drawers (each its own object), `height` tall, with a handle or knob on
+/// each.
 pub(super) fn drawer_stack(
     b: &mut Builder,
-    wall: Wall,
-    s0: f32,
-    width: f32,
-    depth: f32,
+    at: Footprint,
     height: f32,
     count: usize,
     front: Material,
     grip: Grip,
-    metals: [Material; 2],
-    metal_counter: &mut usize,
+    metals: &mut Metals,
 ) -> Vec<u16> {
-    let whole = wall.cuboid([s0, s0 + width], [0.0, depth], [0.0, height]);
+    let Footprint { wall, s0, width, depth } = at;
+    let whole = at.cuboid([0.0, height]);
     if !b.fits(&whole) {
         return Vec::new();
     }
@@ -178,11 +209,10 @@ pub(super) fn drawer_stack(
     for k in 0..count {
         let (z0, z1) = (step * k as f32, step * (k + 1) as f32);
         let id = b.object("drawer", &["drawers", "chest of drawers"], front);
-        b.add(id, wall.cuboid([s0, s0 + width], [0.0, depth], [z0, z1]), front);
+        b.add(id, at.cuboid([z0, z1]), front);
         let sc = s0 + width * 0.5;
         let zc = z1 - step.min(0.3) * 0.35;
-        let metal = metals[*metal_counter % 2];
-        *metal_counter += 1;
+        let metal = metals.next();
         match grip {
             Grip::Handle => {
                 let bar = wall.cuboid([sc - 0.06, sc + 0.06], [depth, depth + 0.025], [zc - 0.01, zc + 0.01]);
@@ -198,16 +228,9 @@ pub(super) fn drawer_stack(
     ids
 }
 
-/// A sink slab with a faucet on top of a cabinet.
-pub(super) fn sink_with_faucet(
-    b: &mut Builder,
-    wall: Wall,
-    s0: f32,
-    width: f32,
-    depth: f32,
-    top: f32,
-    under: u16,
-) -> u16 {
+/// A sink slab with a faucet on top (at height `top`) of the cabinet `under` standing at `at`.
+pub(super) fn sink_with_faucet(b: &mut Builder, at: Footprint, top: f32, under: u16) -> u16 {
+    let Footprint { wall, s0, width, depth } = at;
     let sink = b.object("sink", &["basin", "washbasin"], STEEL);
     let slab = wall.cuboid([s0 + 0.05, s0 + width - 0.05], [0.04, depth - 0.04], [top, top + 0.04]);
     b.add(sink, slab, STEEL);

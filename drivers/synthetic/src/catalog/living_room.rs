@@ -5,7 +5,7 @@
 use rand::Rng;
 
 use super::builder::Builder;
-use super::furniture::{Grip, cabinet, ceiling_light, door_and_switches, outlet, window};
+use super::furniture::{Footprint, Grip, Metals, cabinet, ceiling_light, door_and_switches, outlet, window};
 use super::materials::{
     BLACK_METAL, BLACK_PLASTIC, BLUE_FABRIC, BRASS, DARK_GLASS, GREY_FABRIC, GREY_LAMINATE, LAMP_SHADE, LINEN,
     WHITE_LACQUER, WHITE_PLASTIC, WOOD_DARK, WOOD_LIGHT,
@@ -18,8 +18,7 @@ pub(super) fn living_room(b: &mut Builder, base: usize) {
     let sofa_wall = b.wall(base + 2);
     let door_wall = b.wall(base + 3);
     let wood = b.pick(&[WOOD_LIGHT, WOOD_DARK, WHITE_LACQUER, GREY_LAMINATE]);
-    let metals = b.two_metals();
-    let mut metal_counter = 0usize;
+    let mut metals = Metals::new(b.two_metals());
     let light = ceiling_light(b, b.size.x * 0.5, b.size.y * 0.5);
 
     // TV stand with drawers, TV, game console, power strip.
@@ -29,8 +28,7 @@ pub(super) fn living_room(b: &mut Builder, base: usize) {
     b.add(stand, body, wood);
     b.claim(&body);
     for s in [sc - 0.35, sc + 0.35] {
-        let metal = metals[metal_counter % 2];
-        metal_counter += 1;
+        let metal = metals.next();
         let bar = tv_wall.cuboid([s - 0.06, s + 0.06], [0.45, 0.475], [0.39, 0.41]);
         b.part(Some(stand), "drawer handle", metal, stand, &[bar]);
     }
@@ -100,7 +98,8 @@ pub(super) fn living_room(b: &mut Builder, base: usize) {
     // Sideboard (cabinet) with a table lamp on the side wall.
     let grip = if b.rng.random_bool(0.5) { Grip::Handle } else { Grip::Knob };
     let s0 = side_wall.len * 0.5 - 0.6;
-    if let Some(cab) = cabinet(b, side_wall, s0, 1.2, 0.45, [0.0, 0.8], wood, grip, metals, &mut metal_counter) {
+    let sideboard_at = Footprint { wall: side_wall, s0, width: 1.2, depth: 0.45 };
+    if let Some(cab) = cabinet(b, sideboard_at, [0.0, 0.8], wood, grip, &mut metals) {
         let lamp = b.object("lamp", &["table lamp"], LAMP_SHADE);
         let ls = s0 + 0.25;
         b.add(lamp, side_wall.post(ls, 0.2, [0.8, 0.84], 0.07), BRASS);

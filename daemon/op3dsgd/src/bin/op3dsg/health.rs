@@ -2,11 +2,13 @@
 //! [`HealthSubscriber`] (the `health` service alone, so it works when every graph subscriber
 //! slot is taken), as text or as [`HealthReport`] JSON.
 
+use std::fmt::Write as _;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
 use op3dsg_ipc_types::HealthSubscriber;
 use op3dsg_runtime::ipc::HealthReport;
+use op3dsg_runtime::ipc::health_report::{RecorderReport, RefinerReport, SnapshotReport};
 
 use super::{node_name, poll_until, write_output};
 
@@ -34,8 +36,23 @@ pub(super) fn health(prefix: &str, json: bool, timeout: Duration) -> Result<()> 
 }
 
 fn health_text(h: &HealthReport) -> String {
-    use std::fmt::Write as _;
     let mut s = String::new();
+    write_counters(&mut s, h);
+    write_stages_and_queues(&mut s, h);
+    if h.recorder.state != "off" {
+        write_recorder(&mut s, &h.recorder);
+    }
+    if h.snapshot.state != "off" {
+        write_snapshot(&mut s, &h.snapshot);
+    }
+    if h.refiner.state != "off" {
+        write_refiner(&mut s, &h.refiner);
+    }
+    s
+}
+
+/// The daemon's counters: uptime, source, graph and map, frames, planners, poses, models.
+fn write_counters(s: &mut String, h: &HealthReport) {
     let _ = writeln!(
         s,
         "uptime {:.1} s  source {}  graph version {}  map nodes {} ({:.1} MiB)",
@@ -62,6 +79,10 @@ fn health_text(h: &HealthReport) -> String {
         };
         let _ = writeln!(s, "model {} on {}{} ({} sessions)", m.name, m.provider, fallback, m.sessions);
     }
+}
+
+/// A table of the stages and one of the queues.
+fn write_stages_and_queues(s: &mut String, h: &HealthReport) {
     let _ = writeln!(
         s,
         "{:<16} {:>10} {:>9} {:>10} {:>10} {:>7}",
@@ -78,66 +99,65 @@ fn health_text(h: &HealthReport) -> String {
     for q in &h.queues {
         let _ = writeln!(s, "{:<16} {:>7} {:>9} {:>10} {:>10}", q.name, q.depth, q.capacity, q.dropped, q.pushed);
     }
-    let rec = &h.recorder;
-    if rec.state != "off" {
-        let _ = writeln!(
-            s,
-            "recorder {}  files {}  written {}  dropped {}  {:.1} MiB on disk",
-            rec.state,
-            rec.files,
-            rec.messages_written,
-            rec.messages_dropped,
-            rec.bytes_written as f64 / (1 << 20) as f64
-        );
-    }
-    let snap = &h.snapshot;
-    if snap.state != "off" {
-        let age = if snap.last_written_unix_ms == 0 {
-            "none written yet".to_owned()
-        } else {
-            let now_ms =
-                std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis() as u64);
-            format!("last written {} s ago", now_ms.saturating_sub(snap.last_written_unix_ms) / 1000)
-        };
-        let _ = writeln!(
-            s,
-            "snapshots {} (restored version {})  {}  version {}  {:.1} KiB  written {}  failed {}  skipped {}",
-            snap.state,
-            snap.restored_version,
-            age,
-            snap.version,
-            snap.last_bytes as f64 / 1024.0,
-            snap.written,
-            snap.failures,
-            snap.skipped
-        );
-    }
-    let r = &h.refiner;
-    if r.state != "off" {
-        let _ = writeln!(
-            s,
-            "llm refiner {}{}  refreshes {}  calls {}  failures {} (timeouts {}, 429 {}, last {})  accepted {}  last latency {:.0} ms  last graph version {}  format {}",
-            r.state,
-            if r.breaker_open { " (breaker open)" } else { "" },
-            r.refreshes,
-            r.calls,
-            r.failures,
-            r.timeouts,
-            r.rate_limited,
-            r.last_error,
-            r.accepted,
-            f64::from(r.last_latency_us) / 1000.0,
-            r.last_graph_version,
-            r.response_format
-        );
-        // In the wire order (malformed ... implausible_affordance), not alphabetically.
-        let rejections: Vec<String> = op3dsg_ipc_types::REFINER_REJECTIONS
-            .iter()
-            .map(|k| format!("{k} {}", r.rejections.get(*k).copied().unwrap_or(0)))
-            .collect();
-        let _ = writeln!(s, "llm rejections  {}", rejections.join("  "));
-    }
-    s
+}
+
+fn write_recorder(s: &mut String, rec: &RecorderReport) {
+    let _ = writeln!(
+        s,
+        "recorder {}  files {}  written {}  dropped {}  {:.1} MiB on disk",
+        rec.state,
+        rec.files,
+        rec.messages_written,
+        rec.messages_dropped,
+        rec.bytes_written as f64 / (1 << 20) as f64
+    );
+}
+
+fn write_snapshot(s: &mut String, snap: &SnapshotReport) {
+    let age = if snap.last_written_unix_ms == 0 {
+        "none written yet".to_owned()
+    } else {
+        let now_ms =
+            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis() as u64);
+        format!("last written {} s ago", now_ms.saturating_sub(snap.last_written_unix_ms) / 1000)
+    };
+    let _ = writeln!(
+        s,
+        "snapshots {} (restored version {})  {}  version {}  {:.1} KiB  written {}  failed {}  skipped {}",
+        snap.state,
+        snap.restored_version,
+        age,
+        snap.version,
+        snap.last_bytes as f64 / 1024.0,
+        snap.written,
+        snap.failures,
+        snap.skipped
+    );
+}
+
+fn write_refiner(s: &mut String, r: &RefinerReport) {
+    let _ = writeln!(
+        s,
+        "llm refiner {}{}  refreshes {}  calls {}  failures {} (timeouts {}, 429 {}, last {})  accepted {}  last latency {:.0} ms  last graph version {}  format {}",
+        r.state,
+        if r.breaker_open { " (breaker open)" } else { "" },
+        r.refreshes,
+        r.calls,
+        r.failures,
+        r.timeouts,
+        r.rate_limited,
+        r.last_error,
+        r.accepted,
+        f64::from(r.last_latency_us) / 1000.0,
+        r.last_graph_version,
+        r.response_format
+    );
+    // In the wire order (malformed ... implausible_affordance), not alphabetically.
+    let rejections: Vec<String> = op3dsg_ipc_types::REFINER_REJECTIONS
+        .iter()
+        .map(|k| format!("{k} {}", r.rejections.get(*k).copied().unwrap_or(0)))
+        .collect();
+    let _ = writeln!(s, "llm rejections  {}", rejections.join("  "));
 }
 
 #[cfg(test)]

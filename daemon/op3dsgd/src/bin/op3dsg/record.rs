@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use op3dsg_drivers::mcap::reader::{Item, McapReader};
 use op3dsg_drivers::mcap::{METADATA_PROFILE, METADATA_RECORDER};
+use op3dsg_runtime::record::{ColourEncoding, RecordCompression, RecordConfig, Recorder};
 
 use super::bench_args::RecordBenchArgs;
 
@@ -167,23 +168,11 @@ pub(super) fn info(files: &[PathBuf], json: bool) -> Result<()> {
 
 /// `op3dsg bench record`.
 pub(super) fn bench(args: RecordBenchArgs) -> Result<()> {
-    use op3dsg_runtime::record::{ColourEncoding, RecordCompression, RecordConfig, Recorder};
     if !(args.seconds > 0.0 && args.rate_hz > 0.0) {
         bail!("--seconds and --rate-hz must be > 0");
     }
-    let compressions: Vec<(&str, RecordCompression)> = match args.compression.as_str() {
-        "all" => vec![("zstd", RecordCompression::Zstd), ("lz4", RecordCompression::Lz4)],
-        "zstd" => vec![("zstd", RecordCompression::Zstd)],
-        "lz4" => vec![("lz4", RecordCompression::Lz4)],
-        "none" => vec![("none", RecordCompression::None)],
-        other => bail!("--compression {other}: expected zstd, lz4, none or all"),
-    };
-    let colour = match args.colour.as_str() {
-        "raw" => ColourEncoding::Raw,
-        "png" => ColourEncoding::Png,
-        "jpeg" => ColourEncoding::Jpeg,
-        other => bail!("--colour {other}: expected raw, png or jpeg"),
-    };
+    let compressions = compressions(&args.compression)?;
+    let colour = colour_encoding(&args.colour)?;
     if !(1..=100).contains(&args.jpeg_quality) {
         bail!("--jpeg-quality {}: must be within [1, 100]", args.jpeg_quality);
     }
@@ -210,18 +199,66 @@ pub(super) fn bench(args: RecordBenchArgs) -> Result<()> {
         "| compression | frames offered | messages written | dropped | raw input MB/s | file MB/s | recorder CPU (share of one core) |"
     );
     println!("|---|---|---|---|---|---|---|");
+    let bench = RecordBench { args: &args, colour, frames, graph, dir };
     for (name, compression) in compressions {
-        let run_dir = dir.join(name);
+        bench.run(name, compression)?;
+    }
+    if !args.keep {
+        let _ = std::fs::remove_dir(&bench.dir);
+    }
+    println!("\nCPU: the recorder thread's own time (/proc/thread-self/schedstat) over the run's wall time.");
+    Ok(())
+}
+
+/// `--compression`: the compressions to run, each with its name.
+fn compressions(name: &str) -> Result<Vec<(&'static str, RecordCompression)>> {
+    Ok(match name {
+        "all" => vec![("zstd", RecordCompression::Zstd), ("lz4", RecordCompression::Lz4)],
+        "zstd" => vec![("zstd", RecordCompression::Zstd)],
+        "lz4" => vec![("lz4", RecordCompression::Lz4)],
+        "none" => vec![("none", RecordCompression::None)],
+        other => bail!("--compression {other}: expected zstd, lz4, none or all"),
+    })
+}
+
+/// `--colour`.
+fn colour_encoding(name: &str) -> Result<ColourEncoding> {
+    Ok(match name {
+        "raw" => ColourEncoding::Raw,
+        "png" => ColourEncoding::Png,
+        "jpeg" => ColourEncoding::Jpeg,
+        other => bail!("--colour {other}: expected raw, png or jpeg"),
+    })
+}
+
+/// What every compression of `op3dsg bench record` records: the same frames and graph, into a
+/// folder of its own under `dir`.
+struct RecordBench<'a> {
+    args: &'a RecordBenchArgs,
+    colour: ColourEncoding,
+    /// Replayed in a loop.
+    frames: Vec<op3dsg_drivers::frame::Frame>,
+    graph: op3dsg_runtime::graph::SceneGraph,
+    dir: PathBuf,
+}
+
+impl RecordBench<'_> {
+    /// Records `args.seconds` of the stream at `args.rate_hz` with `compression` into `dir/name`
+    /// and prints its row of the table.
+    fn run(&self, name: &str, compression: RecordCompression) -> Result<()> {
+        let args = self.args;
+        let run_dir = self.dir.join(name);
         let config = RecordConfig {
             enabled: true,
             dir: run_dir.clone(),
             compression,
-            colour,
+            colour: self.colour,
             jpeg_quality: args.jpeg_quality,
             chunk_size_kib: args.chunk_size_kib,
             ..RecordConfig::default()
         };
-        let recorder = Recorder::start(&config, String::new(), frames[0].intrinsics, op3dsg_runtime::world::UpAxis::Z)
+        let intrinsics = self.frames[0].intrinsics;
+        let recorder = Recorder::start(&config, String::new(), intrinsics, op3dsg_runtime::world::UpAxis::Z)
             .with_context(|| format!("starting the recorder in {}", run_dir.display()))?;
         let mut sender = recorder.sender().context("recorder sender")?;
         let period = Duration::from_secs_f64(1.0 / args.rate_hz);
@@ -234,7 +271,7 @@ pub(super) fn bench(args: RecordBenchArgs) -> Result<()> {
             if let Some(wait) = due.checked_duration_since(Instant::now()) {
                 std::thread::sleep(wait);
             }
-            let mut frame = frames[i as usize % frames.len()].clone();
+            let mut frame = self.frames[i as usize % self.frames.len()].clone();
             frame.seq = i;
             frame.stamp_ns = i * period.as_nanos() as u64;
             sender.offer_frame(&frame, &mut []);
@@ -244,7 +281,7 @@ pub(super) fn bench(args: RecordBenchArgs) -> Result<()> {
                     sender.offer_keyframe(frame.stamp_ns, &pose);
                 }
                 version += 1;
-                let mut g = graph.clone();
+                let mut g = self.graph.clone();
                 g.version = version;
                 g.stamp_ns = frame.stamp_ns;
                 sender.offer_graph(g);
@@ -267,12 +304,8 @@ pub(super) fn bench(args: RecordBenchArgs) -> Result<()> {
         if !args.keep {
             let _ = std::fs::remove_dir_all(&run_dir);
         }
+        Ok(())
     }
-    if !args.keep {
-        let _ = std::fs::remove_dir(&dir);
-    }
-    println!("\nCPU: the recorder thread's own time (/proc/thread-self/schedstat) over the run's wall time.");
-    Ok(())
 }
 
 /// Frames of the synthetic kitchen at the bench's size (rendered once, replayed in a loop).

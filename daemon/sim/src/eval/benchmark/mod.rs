@@ -82,17 +82,19 @@ use op3dsg_drivers::graph_json::GraphJson;
 use op3dsg_synthetic::RoomKind;
 
 use crate::backends::{oracle_config, set_oracle_config, set_synthetic_config, synthetic_config};
-use crate::batch::{self, Lane, VisibilityThresholds};
+use crate::batch::{self, BatchRun, Lane, VisibilityThresholds};
 use crate::eval::agreement::{self, Agreement};
 use crate::eval::fusion_match::{self, FusionMatchReport, MatchCriteria};
 use crate::knowledge_variants::KnowledgeVariants;
 use crate::oracle::OracleConfig;
 use crate::reasoning_ablation::ReasoningSetup;
 use op3dsg_runtime::config::Profile;
+use op3dsg_runtime::embedding::SharedEmbedder;
+use op3dsg_runtime::graph::SceneGraph;
 use op3dsg_runtime::knowledge::KnowledgeBase;
 use op3dsg_runtime::knowledge::fallback::{self, FallbackCounts};
 use op3dsg_runtime::pipeline::make_enricher;
-use op3dsg_runtime::reasoner::ReasonerKind;
+use op3dsg_runtime::reasoner::{GraphEnricher, ReasonerKind};
 use std::sync::Arc;
 
 /// The rows of the table, in order.
@@ -196,130 +198,32 @@ pub struct LocoRun {
 /// Runs one scene: the full system and the ablations over one rendering pass.
 pub fn run_scene(base: &Profile, room: RoomKind, seed: u64) -> Result<SceneRun, String> {
     let name = format!("{} seed {seed}", room.as_str());
-    let (profile, mut oracle) = scene_profile(base, room, seed)?;
-    // Enrichment runs below, once per row.
-    let mut unenriched = profile.clone();
-    unenriched.reasoner.kind = ReasonerKind::None;
-    let mut no_colour = profile.clone();
-    no_colour.fusion.colour_features = false;
-    // Fusion alone: the oracle with its noise off (every visible instance, exact label, mask
-    // and feature), its seed and semantic features kept.
-    let mut exact = profile.clone();
-    set_oracle_config(
-        &mut exact,
-        &OracleConfig {
-            seed: oracle.seed,
-            semantic_dim: oracle.semantic_dim,
-            semantic_source: oracle.semantic_source,
-            ..OracleConfig::clean()
-        },
-    );
-    let mut generic = profile.clone();
-    oracle.part_prompts = op3dsg_runtime::perception::candidates::CandidateMode::Generic;
-    set_oracle_config(&mut generic, &oracle);
-    let lanes = vec![
-        Lane {
-            detector: None,
-            fusions: vec![
-                op3dsg_fusion(&profile),
-                op3dsg_fusion(&no_colour),
-                crate::conceptgraphs::peer_fusion(&profile),
-            ],
-        },
-        Lane { detector: Some(generic.clone()), fusions: vec![op3dsg_fusion(&generic)] },
-        Lane { detector: Some(exact.clone()), fusions: vec![op3dsg_fusion(&exact)] },
-    ];
-    let mut runs = batch::run_lanes(&unenriched, &VisibilityThresholds::default(), lanes)
-        .map_err(|e| format!("{name}: batch run: {e}"))?;
-    let exact_run = runs.pop().and_then(|mut r| r.pop());
-    let generic_run = runs.pop().and_then(|mut r| r.pop());
-    let (Some(exact_run), Some(generic_run), Some(mut lane)) = (exact_run, generic_run, runs.pop()) else {
-        return Err(format!("{name}: the batch runner returned fewer runs than asked"));
-    };
-    let (Some(peer_run), Some(no_colour_run), Some(full_run)) = (lane.pop(), lane.pop(), lane.pop()) else {
-        return Err(format!("{name}: the batch runner returned fewer runs than asked"));
-    };
+    let (profile, oracle) = scene_profile(base, room, seed)?;
+    let runs = RowRuns::run(&profile, oracle, &name)?;
+    let full_run = &runs.full;
     let Some(scene) = full_run.scene.as_ref() else { return Err(format!("{name}: no ground truth")) };
     // Every row reasons with the same reasoner: the knowledge tables and, for labels they do
     // not know, the embedding fallback on the MiniLM encoder.
     let embedder = op3dsg_runtime::onnx::text_encoder::load_shared(&profile.onnx, &profile.text_encoder)
         .map_err(|e| format!("{name}: label fallback: {e}"))?;
-    let enricher = |knowledge: Option<Arc<KnowledgeBase>>, setup: ReasoningSetup| -> Result<_, String> {
-        let Some(mut enricher) = make_enricher(&profile).map_err(|e| format!("{name}: {e}"))? else {
-            return Ok(None);
-        };
-        if let Some(knowledge) = knowledge {
-            enricher = enricher.with_knowledge(knowledge);
-        }
-        Ok(Some(setup.apply(enricher.with_label_embedder(embedder.clone()))))
-    };
-    let enrich_with = |graph: &op3dsg_runtime::graph::SceneGraph,
-                       knowledge: Option<Arc<KnowledgeBase>>,
-                       setup: ReasoningSetup|
-     -> Result<(GraphJson, FallbackCounts), String> {
-        let mut graph = graph.clone();
-        let mut counts = FallbackCounts::default();
-        if let Some(mut enricher) = enricher(knowledge, setup)? {
-            enricher.enrich(&mut graph);
-            counts = enricher.fallback_counts();
-        }
-        Ok((graph.to_json(&name), counts))
-    };
-    let enrich = |graph: &op3dsg_runtime::graph::SceneGraph, setup: ReasoningSetup| -> Result<GraphJson, String> {
-        Ok(enrich_with(graph, None, setup)?.0)
-    };
+    let reasoner = SceneReasoner { profile: &profile, name: &name, embedder };
     let ground_truth = scene.ground_truth();
-    let (gt_answer, _) = agreement::knowledge_answer_with(&ground_truth, &profile, None, Some(embedder.clone()))
-        .map_err(|e| format!("{name}: reasoner on ground-truth nodes: {e}"))?;
+    let (gt_answer, _) =
+        agreement::knowledge_answer_with(&ground_truth, &profile, None, Some(reasoner.embedder.clone()))
+            .map_err(|e| format!("{name}: reasoner on ground-truth nodes: {e}"))?;
     let predictions = vec![
-        enrich(&full_run.graph, ReasoningSetup::Split)?,
+        reasoner.enrich(&full_run.graph, ReasoningSetup::Split)?,
         gt_answer.clone(),
-        enrich(&exact_run.graph, ReasoningSetup::Split)?,
-        enrich(&peer_run.graph, ReasoningSetup::Split)?,
-        enrich(&generic_run.graph, ReasoningSetup::Split)?,
-        enrich(&no_colour_run.graph, ReasoningSetup::Split)?,
-        enrich(&full_run.graph, ReasoningSetup::FlatNodeList)?,
-        enrich(&full_run.graph, ReasoningSetup::Single)?,
+        reasoner.enrich(&runs.exact.graph, ReasoningSetup::Split)?,
+        reasoner.enrich(&runs.peer.graph, ReasoningSetup::Split)?,
+        reasoner.enrich(&runs.generic.graph, ReasoningSetup::Split)?,
+        reasoner.enrich(&runs.no_colour.graph, ReasoningSetup::Split)?,
+        reasoner.enrich(&full_run.graph, ReasoningSetup::FlatNodeList)?,
+        reasoner.enrich(&full_run.graph, ReasoningSetup::Single)?,
     ];
-    // Leave one category out: for each object category of the scene, the reasoner's tables
-    // without it (and its own parts), on the full row's fused graph and on the ground-truth nodes.
-    let knowledge = KnowledgeBase::from_profile_dir(profile.reasoner.knowledge_dir.as_deref())
-        .map_err(|e| format!("{name}: {e}"))?;
-    let category_of = |label: &str| knowledge.object_category(label).map(|o| knowledge.object(o).name.clone());
-    let mut categories: Vec<String> =
-        ground_truth.nodes.iter().filter(|n| n.kind == "object").filter_map(|n| category_of(&n.label)).collect();
-    categories.sort();
-    categories.dedup();
-    let mut loco = Vec::with_capacity(categories.len());
-    for category in categories {
-        let Some(reduced) = knowledge.without_object(&category) else { continue };
-        let reduced = Arc::new(reduced);
-        let of_category: Vec<u32> = ground_truth
-            .nodes
-            .iter()
-            .filter(|n| n.kind == "object" && category_of(&n.label).as_deref() == Some(category.as_str()))
-            .map(|n| n.id)
-            .collect();
-        let involved: Vec<u32> = ground_truth
-            .nodes
-            .iter()
-            .filter(|n| of_category.contains(&n.id) || n.parent.is_some_and(|p| of_category.contains(&p)))
-            .map(|n| n.id)
-            .collect();
-        let (fused, on_fused) = enrich_with(&full_run.graph, Some(reduced.clone()), ReasoningSetup::Split)?;
-        let (gt_nodes, on_gt) =
-            agreement::knowledge_answer_with(&ground_truth, &profile, Some(reduced.clone()), Some(embedder.clone()))
-                .map_err(|e| format!("{name}: leave out {category}: {e}"))?;
-        let nearest = fallback::LabelFallback::new(&reduced, Some(embedder.clone())).nearest(&category, true).and_then(
-            |(c, cosine)| match c {
-                op3dsg_runtime::knowledge::Category::Object(o) => Some((reduced.object(o).name.clone(), cosine)),
-                op3dsg_runtime::knowledge::Category::Part(_) => None,
-            },
-        );
-        loco.push(LocoRun { category, involved, fused, gt_nodes, fallback: [on_fused, on_gt], nearest });
-    }
+    let loco = reasoner.leave_one_category_out(&ground_truth, &full_run.graph)?;
     let criteria = MatchCriteria { min_observations: profile.fusion.min_observations, ..MatchCriteria::default() };
-    let fusion = fusion_match::match_run(&full_run, &criteria);
+    let fusion = fusion_match::match_run(full_run, &criteria);
     let scored_ids = scene
         .instances()
         .iter()
@@ -343,8 +247,166 @@ pub fn run_scene(base: &Profile, room: RoomKind, seed: u64) -> Result<SceneRun, 
     })
 }
 
-/// Runs scenes `0..scenes` on `threads` named threads; `progress` is called after each scene.
-/// Results come back in scene order whatever thread ran them.
+/// The batch runs of one scene's rows, unenriched (one rendering pass, three detector lanes).
+struct RowRuns {
+    /// The full row's fusion.
+    full: BatchRun,
+    /// "w/o colour".
+    no_colour: BatchRun,
+    /// The peer's fusion on the full row's detections.
+    peer: BatchRun,
+    /// "w/o knowledge": the oracle's generic part prompts.
+    generic: BatchRun,
+    /// "fusion on exact detections".
+    exact: BatchRun,
+}
+
+impl RowRuns {
+    /// Runs `profile` (the scene's, its oracle `oracle`) with every row's detector and fusion;
+    /// errors start with the scene's `name`.
+    fn run(profile: &Profile, mut oracle: OracleConfig, name: &str) -> Result<Self, String> {
+        // Enrichment runs afterwards, once per row.
+        let mut unenriched = profile.clone();
+        unenriched.reasoner.kind = ReasonerKind::None;
+        let mut no_colour = profile.clone();
+        no_colour.fusion.colour_features = false;
+        // Fusion alone: the oracle with its noise off (every visible instance, exact label, mask
+        // and feature), its seed and semantic features kept.
+        let mut exact = profile.clone();
+        set_oracle_config(
+            &mut exact,
+            &OracleConfig {
+                seed: oracle.seed,
+                semantic_dim: oracle.semantic_dim,
+                semantic_source: oracle.semantic_source,
+                ..OracleConfig::clean()
+            },
+        );
+        let mut generic = profile.clone();
+        oracle.part_prompts = op3dsg_runtime::perception::candidates::CandidateMode::Generic;
+        set_oracle_config(&mut generic, &oracle);
+        let lanes = vec![
+            Lane {
+                detector: None,
+                fusions: vec![
+                    op3dsg_fusion(profile),
+                    op3dsg_fusion(&no_colour),
+                    crate::conceptgraphs::peer_fusion(profile),
+                ],
+            },
+            Lane { detector: Some(generic.clone()), fusions: vec![op3dsg_fusion(&generic)] },
+            Lane { detector: Some(exact.clone()), fusions: vec![op3dsg_fusion(&exact)] },
+        ];
+        let mut runs = batch::run_lanes(&unenriched, &VisibilityThresholds::default(), lanes)
+            .map_err(|e| format!("{name}: batch run: {e}"))?;
+        let exact_run = runs.pop().and_then(|mut r| r.pop());
+        let generic_run = runs.pop().and_then(|mut r| r.pop());
+        let (Some(exact), Some(generic), Some(mut lane)) = (exact_run, generic_run, runs.pop()) else {
+            return Err(format!("{name}: the batch runner returned fewer runs than asked"));
+        };
+        let (Some(peer), Some(no_colour), Some(full)) = (lane.pop(), lane.pop(), lane.pop()) else {
+            return Err(format!("{name}: the batch runner returned fewer runs than asked"));
+        };
+        Ok(Self { full, no_colour, peer, generic, exact })
+    }
+}
+
+/// The reasoner every row of one scene is enriched with: the profile's, with the label
+/// fallback on `embedder`.
+struct SceneReasoner<'a> {
+    profile: &'a Profile,
+    /// The scene, for errors and graph sources.
+    name: &'a str,
+    embedder: SharedEmbedder,
+}
+
+impl SceneReasoner<'_> {
+    /// A fresh enricher with `knowledge` in place of the profile's tables (`None`: the
+    /// profile's) and the reasoning of `setup`; `None` when the profile reasons not at all.
+    fn enricher(
+        &self,
+        knowledge: Option<Arc<KnowledgeBase>>,
+        setup: ReasoningSetup,
+    ) -> Result<Option<GraphEnricher>, String> {
+        let Some(mut enricher) = make_enricher(self.profile).map_err(|e| format!("{}: {e}", self.name))? else {
+            return Ok(None);
+        };
+        if let Some(knowledge) = knowledge {
+            enricher = enricher.with_knowledge(knowledge);
+        }
+        Ok(Some(setup.apply(enricher.with_label_embedder(self.embedder.clone()))))
+    }
+
+    /// `graph` enriched by [`Self::enricher`], and how often its reasoner fell back.
+    fn enrich_with(
+        &self,
+        graph: &SceneGraph,
+        knowledge: Option<Arc<KnowledgeBase>>,
+        setup: ReasoningSetup,
+    ) -> Result<(GraphJson, FallbackCounts), String> {
+        let mut graph = graph.clone();
+        let mut counts = FallbackCounts::default();
+        if let Some(mut enricher) = self.enricher(knowledge, setup)? {
+            enricher.enrich(&mut graph);
+            counts = enricher.fallback_counts();
+        }
+        Ok((graph.to_json(self.name), counts))
+    }
+
+    /// `graph` enriched with the profile's tables.
+    fn enrich(&self, graph: &SceneGraph, setup: ReasoningSetup) -> Result<GraphJson, String> {
+        Ok(self.enrich_with(graph, None, setup)?.0)
+    }
+
+    /// Leave one category out: for each object category of the scene, the reasoner's tables
+    /// without it (and its own parts), on the full row's fused graph `full` and on the
+    /// ground-truth nodes.
+    fn leave_one_category_out(&self, ground_truth: &GraphJson, full: &SceneGraph) -> Result<Vec<LocoRun>, String> {
+        let name = self.name;
+        let knowledge = KnowledgeBase::from_profile_dir(self.profile.reasoner.knowledge_dir.as_deref())
+            .map_err(|e| format!("{name}: {e}"))?;
+        let category_of = |label: &str| knowledge.object_category(label).map(|o| knowledge.object(o).name.clone());
+        let mut categories: Vec<String> =
+            ground_truth.nodes.iter().filter(|n| n.kind == "object").filter_map(|n| category_of(&n.label)).collect();
+        categories.sort();
+        categories.dedup();
+        let mut loco = Vec::with_capacity(categories.len());
+        for category in categories {
+            let Some(reduced) = knowledge.without_object(&category) else { continue };
+            let reduced = Arc::new(reduced);
+            let involved = involved_ids(ground_truth, |label| category_of(label).as_deref() == Some(category.as_str()));
+            let (fused, on_fused) = self.enrich_with(full, Some(reduced.clone()), ReasoningSetup::Split)?;
+            let (gt_nodes, on_gt) = agreement::knowledge_answer_with(
+                ground_truth,
+                self.profile,
+                Some(reduced.clone()),
+                Some(self.embedder.clone()),
+            )
+            .map_err(|e| format!("{name}: leave out {category}: {e}"))?;
+            let nearest = fallback::LabelFallback::new(&reduced, Some(self.embedder.clone()))
+                .nearest(&category, true)
+                .and_then(|(c, cosine)| match c {
+                    op3dsg_runtime::knowledge::Category::Object(o) => Some((reduced.object(o).name.clone(), cosine)),
+                    op3dsg_runtime::knowledge::Category::Part(_) => None,
+                });
+            loco.push(LocoRun { category, involved, fused, gt_nodes, fallback: [on_fused, on_gt], nearest });
+        }
+        Ok(loco)
+    }
+}
+
+/// Ground-truth ids of the objects whose label `of_category` accepts, and of their parts.
+fn involved_ids(ground_truth: &GraphJson, of_category: impl Fn(&str) -> bool) -> Vec<u32> {
+    let objects: Vec<u32> =
+        ground_truth.nodes.iter().filter(|n| n.kind == "object" && of_category(&n.label)).map(|n| n.id).collect();
+    ground_truth
+        .nodes
+        .iter()
+        .filter(|n| objects.contains(&n.id) || n.parent.is_some_and(|p| objects.contains(&p)))
+        .map(|n| n.id)
+        .collect()
+}
+
 /// `base` on synthetic `room` / `seed` with the oracle's knowledge-guided part prompts, as the
 /// benchmark runs every scene; the oracle's configuration with it.
 pub fn scene_profile(base: &Profile, room: RoomKind, seed: u64) -> Result<(Profile, OracleConfig), String> {
@@ -361,6 +423,8 @@ pub fn scene_profile(base: &Profile, room: RoomKind, seed: u64) -> Result<(Profi
     Ok((profile, oracle))
 }
 
+/// Runs scenes `0..scenes` on `threads` named threads; `progress` is called after each scene.
+/// Results come back in scene order whatever thread ran them.
 pub fn run_scenes(
     base: &Profile,
     scenes: usize,

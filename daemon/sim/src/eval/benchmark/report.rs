@@ -8,7 +8,7 @@ use serde::Serialize;
 
 use super::{GT_NODES_ROW, ROWS, SceneRun};
 use crate::eval::agreement::Agreement;
-use crate::eval::recall::{AffordanceMiss, EdgeMiss, K3, RecallEvaluator, RecallFigures, Vocabulary};
+use crate::eval::recall::{AffordanceMiss, EdgeMiss, K3, RecallEvaluator, RecallFigures, RecallReport, Vocabulary};
 use op3dsg_runtime::knowledge::fallback::FallbackCounts;
 
 /// Where the full row lost recall at R@3 (see the module docs).
@@ -135,100 +135,13 @@ pub fn score(
         agreement.add(&run.agreement);
         coverage.scored += run.ground_truth.nodes.iter().filter(|n| run.scored_ids.contains(&n.id)).count();
         coverage.total += run.ground_truth.nodes.len();
-        let scored = |id: u32| run.scored_ids.contains(&id);
-        let mut kept: Vec<crate::eval::recall::RecallReport> = Vec::new();
-        for (i, (row, prediction)) in rows.iter_mut().zip(&run.predictions).enumerate() {
-            let report = evaluator
-                .evaluate(prediction, &run.ground_truth, Some(&scored))
-                .map_err(|e| format!("{} seed {}: {e}", run.room.as_str(), run.seed))?;
-            row.1.add(&report.figures);
-            if i == 0 || i == GT_NODES_ROW {
-                kept.push(report.clone());
-            }
-            if row.0 != ROWS[0] {
-                continue;
-            }
-            for node in report.nodes.iter().filter(|n| n.best_rank.is_none_or(|r| r > 3)) {
-                let fusion_miss = run.fusion.gt.iter().find(|g| g.id == node.id).and_then(|g| g.miss);
-                let reason = match (fusion_miss, node.best_rank) {
-                    (Some(miss), _) => miss.as_str().to_owned(),
-                    (None, None) => "no box overlap".to_owned(),
-                    (None, Some(_)) => "label ranks below 3".to_owned(),
-                };
-                let bucket = if node.kind == "object" { &mut losses.object } else { &mut losses.part };
-                *bucket.entry(reason).or_insert(0) += 1;
-                *losses.node_labels.entry(format!("{} {}", node.kind, node.label)).or_insert(0) += 1;
-            }
-            for a in report.affordances.iter().filter_map(|a| a.miss[K3]) {
-                let reason = match a {
-                    AffordanceMiss::NoNode => "node not found",
-                    AffordanceMiss::WrongAffordance => "wrong affordance",
-                };
-                *losses.affordance.entry(reason.to_owned()).or_insert(0) += 1;
-            }
-            for e in report.edges.iter().filter(|e| e.miss[K3].is_some()) {
-                let reason = e.miss[K3].map_or("", EdgeMiss::as_str).to_owned();
-                let bucket = if e.kind == "functional" { &mut losses.functional } else { &mut losses.spatial };
-                *bucket.entry(reason).or_insert(0) += 1;
-                *losses.relations.entry(format!("{} {}", e.kind, e.relation)).or_insert(0) += 1;
-            }
-        }
+        let kept = score_rows(&mut evaluator, run, &mut rows, &mut losses)?;
         for edge in run.ground_truth.edges.iter().filter(|e| e.kind == "functional") {
             *mix.entry(edge.relation.clone()).or_insert(0) += 1;
         }
         let [full_report, gt_report] = <[_; 2]>::try_from(kept).map_err(|_| "rows missing".to_owned())?;
-        for l in &run.loco {
-            let involved = |id: u32| l.involved.contains(&id);
-            let evaluate = |evaluator: &mut RecallEvaluator<'_>, g: &GraphJson| {
-                evaluator
-                    .evaluate(g, &run.ground_truth, Some(&scored))
-                    .map_err(|e| format!("{} seed {} without {}: {e}", run.room.as_str(), run.seed, l.category))
-            };
-            let fused = evaluate(&mut evaluator, &l.fused)?;
-            let gt_nodes = evaluate(&mut evaluator, &l.gt_nodes)?;
-            let figures = [&full_report, &fused, &gt_report, &gt_nodes].map(|r| r.subset(&involved));
-            let entry = match by_category.iter_mut().find(|c| c.category == l.category) {
-                Some(entry) => entry,
-                None => {
-                    by_category.push(LocoCategory {
-                        category: l.category.clone(),
-                        figures: vec![RecallFigures::default(); LOCO_ROWS.len()],
-                        ..LocoCategory::default()
-                    });
-                    by_category.last_mut().ok_or("no category")?
-                }
-            };
-            entry.scenes += 1;
-            entry.nearest.clone_from(&l.nearest);
-            for (a, b) in entry.figures.iter_mut().zip(&figures) {
-                a.add(b);
-            }
-            for (a, b) in entry.fallback.iter_mut().zip(&l.fallback) {
-                a.add(b);
-            }
-        }
+        score_loco(&mut evaluator, run, [&full_report, &gt_report], &mut by_category)?;
     }
-    by_category.sort_by(|a, b| a.category.cmp(&b.category));
-    let mut loco = Loco { pooled: vec![RecallFigures::default(); LOCO_ROWS.len()], ..Loco::default() };
-    for c in &by_category {
-        for (a, b) in loco.pooled.iter_mut().zip(&c.figures) {
-            a.add(b);
-        }
-        for (a, b) in loco.fallback.iter_mut().zip(&c.fallback) {
-            a.add(b);
-        }
-    }
-    loco.mean_r3 = (0..LOCO_ROWS.len())
-        .map(|v| {
-            let mut mean = [None; 5];
-            for (column, m) in mean.iter_mut().enumerate() {
-                let values: Vec<f64> = by_category.iter().filter_map(|c| r3_of(&c.figures[v])[column]).collect();
-                *m = (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64);
-            }
-            mean
-        })
-        .collect();
-    loco.categories = by_category;
     Ok(QualityReport {
         scenes: runs.iter().map(|r| format!("{} seed {}", r.room.as_str(), r.seed)).collect(),
         keyframes: runs.iter().map(|r| r.keyframes).sum(),
@@ -238,6 +151,133 @@ pub fn score(
         vocabulary_labels,
         agreement,
         coverage,
-        loco,
+        loco: Loco::from_categories(by_category),
     })
+}
+
+/// Scores each row's prediction of `run` into `rows` and counts where the full row lost recall
+/// into `losses`. The reports of the full row and of "reasoner on GT nodes", in that order.
+fn score_rows(
+    evaluator: &mut RecallEvaluator<'_>,
+    run: &SceneRun,
+    rows: &mut [(String, RecallFigures)],
+    losses: &mut Losses,
+) -> Result<Vec<RecallReport>, String> {
+    let scored = |id: u32| run.scored_ids.contains(&id);
+    let mut kept: Vec<RecallReport> = Vec::new();
+    for (i, (row, prediction)) in rows.iter_mut().zip(&run.predictions).enumerate() {
+        let report = evaluator
+            .evaluate(prediction, &run.ground_truth, Some(&scored))
+            .map_err(|e| format!("{} seed {}: {e}", run.room.as_str(), run.seed))?;
+        row.1.add(&report.figures);
+        if i == 0 || i == GT_NODES_ROW {
+            kept.push(report.clone());
+        }
+        if row.0 == ROWS[0] {
+            losses.add(&report, run);
+        }
+    }
+    Ok(kept)
+}
+
+impl Losses {
+    /// Counts the items the full row's `report` of `run` did not retrieve at R@3, by reason.
+    fn add(&mut self, report: &RecallReport, run: &SceneRun) {
+        for node in report.nodes.iter().filter(|n| n.best_rank.is_none_or(|r| r > 3)) {
+            let fusion_miss = run.fusion.gt.iter().find(|g| g.id == node.id).and_then(|g| g.miss);
+            let reason = match (fusion_miss, node.best_rank) {
+                (Some(miss), _) => miss.as_str().to_owned(),
+                (None, None) => "no box overlap".to_owned(),
+                (None, Some(_)) => "label ranks below 3".to_owned(),
+            };
+            let bucket = if node.kind == "object" { &mut self.object } else { &mut self.part };
+            *bucket.entry(reason).or_insert(0) += 1;
+            *self.node_labels.entry(format!("{} {}", node.kind, node.label)).or_insert(0) += 1;
+        }
+        for a in report.affordances.iter().filter_map(|a| a.miss[K3]) {
+            let reason = match a {
+                AffordanceMiss::NoNode => "node not found",
+                AffordanceMiss::WrongAffordance => "wrong affordance",
+            };
+            *self.affordance.entry(reason.to_owned()).or_insert(0) += 1;
+        }
+        for e in report.edges.iter().filter(|e| e.miss[K3].is_some()) {
+            let reason = e.miss[K3].map_or("", EdgeMiss::as_str).to_owned();
+            let bucket = if e.kind == "functional" { &mut self.functional } else { &mut self.spatial };
+            *bucket.entry(reason).or_insert(0) += 1;
+            *self.relations.entry(format!("{} {}", e.kind, e.relation)).or_insert(0) += 1;
+        }
+    }
+}
+
+/// Scores `run`'s leave-one-category-out graphs on the items of their category and adds them,
+/// with `full_and_gt` (the reports of the full row and of "reasoner on GT nodes") on the same
+/// items, to the category's entry of `by_category`.
+fn score_loco(
+    evaluator: &mut RecallEvaluator<'_>,
+    run: &SceneRun,
+    full_and_gt: [&RecallReport; 2],
+    by_category: &mut Vec<LocoCategory>,
+) -> Result<(), String> {
+    let [full_report, gt_report] = full_and_gt;
+    let scored = |id: u32| run.scored_ids.contains(&id);
+    for l in &run.loco {
+        let involved = |id: u32| l.involved.contains(&id);
+        let evaluate = |evaluator: &mut RecallEvaluator<'_>, g: &GraphJson| {
+            evaluator
+                .evaluate(g, &run.ground_truth, Some(&scored))
+                .map_err(|e| format!("{} seed {} without {}: {e}", run.room.as_str(), run.seed, l.category))
+        };
+        let fused = evaluate(evaluator, &l.fused)?;
+        let gt_nodes = evaluate(evaluator, &l.gt_nodes)?;
+        let figures = [full_report, &fused, gt_report, &gt_nodes].map(|r| r.subset(&involved));
+        let entry = match by_category.iter_mut().find(|c| c.category == l.category) {
+            Some(entry) => entry,
+            None => {
+                by_category.push(LocoCategory {
+                    category: l.category.clone(),
+                    figures: vec![RecallFigures::default(); LOCO_ROWS.len()],
+                    ..LocoCategory::default()
+                });
+                by_category.last_mut().ok_or("no category")?
+            }
+        };
+        entry.scenes += 1;
+        entry.nearest.clone_from(&l.nearest);
+        for (a, b) in entry.figures.iter_mut().zip(&figures) {
+            a.add(b);
+        }
+        for (a, b) in entry.fallback.iter_mut().zip(&l.fallback) {
+            a.add(b);
+        }
+    }
+    Ok(())
+}
+
+impl Loco {
+    /// The test's summary of its categories: sorted by name, pooled, and mean R@3 per column.
+    fn from_categories(mut by_category: Vec<LocoCategory>) -> Self {
+        by_category.sort_by(|a, b| a.category.cmp(&b.category));
+        let mut loco = Loco { pooled: vec![RecallFigures::default(); LOCO_ROWS.len()], ..Loco::default() };
+        for c in &by_category {
+            for (a, b) in loco.pooled.iter_mut().zip(&c.figures) {
+                a.add(b);
+            }
+            for (a, b) in loco.fallback.iter_mut().zip(&c.fallback) {
+                a.add(b);
+            }
+        }
+        loco.mean_r3 = (0..LOCO_ROWS.len())
+            .map(|v| {
+                let mut mean = [None; 5];
+                for (column, m) in mean.iter_mut().enumerate() {
+                    let values: Vec<f64> = by_category.iter().filter_map(|c| r3_of(&c.figures[v])[column]).collect();
+                    *m = (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64);
+                }
+                mean
+            })
+            .collect();
+        loco.categories = by_category;
+        loco
+    }
 }
