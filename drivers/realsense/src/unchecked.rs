@@ -87,7 +87,7 @@ pub(crate) mod blocks {
             // SAFETY: the kernel is compiled for SSSE3, and `supported()` (the CPU has it) held
             // when `self` was made; it reads and writes through checked slices only.
             unsafe {
-                x86::turn_tile(self, rows, bpp, done, width, height, v0, dst);
+                x86::turn_tile(self, rows, bpp, done, (width, height, v0), dst);
             }
             done
         }
@@ -136,16 +136,14 @@ pub(crate) mod blocks {
 
         /// See [`Blocks::turn_tile`]. Compiled for SSSE3: a caller that is not must know the CPU
         /// has it.
+        /// `(width, height, v0)`: the source image's size and the tile's first row.
         #[target_feature(enable = "ssse3")]
-        #[allow(clippy::too_many_arguments)]
         pub(super) fn turn_tile(
             blocks: &Blocks,
             rows: &[&[u8]; TILE_ROWS],
             bpp: usize,
             done: usize,
-            width: usize,
-            height: usize,
-            v0: usize,
+            (width, height, v0): (usize, usize, usize),
             dst: &mut [u8],
         ) {
             // Loads and stores as casts of 16-byte arrays, from and into checked slices.

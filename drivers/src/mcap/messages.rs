@@ -191,18 +191,26 @@ impl CameraCalibration {
     }
 }
 
-/// Writes a `foxglove.RawImage` into `out` (cleared first).
-#[allow(clippy::too_many_arguments)]
-pub fn encode_raw_image(
-    out: &mut Vec<u8>,
-    stamp_ns: u64,
-    frame_id: &str,
-    width: u32,
-    height: u32,
-    encoding: &str,
-    step: u32,
-    data: &[u8],
-) {
+/// What a `foxglove.RawImage` says of its pixels.
+#[derive(Debug, Clone, Copy)]
+pub struct RawImageHeader<'a> {
+    /// Stamp, nanoseconds.
+    pub stamp_ns: u64,
+    /// The image's frame of reference.
+    pub frame_id: &'a str,
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// `rgb8`, `16UC1`, ...
+    pub encoding: &'a str,
+    /// Bytes per row.
+    pub step: u32,
+}
+
+/// Writes a `foxglove.RawImage` of `data` into `out` (cleared first).
+pub fn encode_raw_image(out: &mut Vec<u8>, header: RawImageHeader<'_>, data: &[u8]) {
+    let RawImageHeader { stamp_ns, frame_id, width, height, encoding, step } = header;
     out.clear();
     let t = Time::from_ns(stamp_ns);
     // Writing into a Vec cannot fail.
@@ -344,7 +352,18 @@ mod tests {
     fn raw_image_round_trips() {
         let pixels: Vec<u8> = (0..=255).cycle().take(4 * 3 * 3).collect();
         let mut out = Vec::new();
-        encode_raw_image(&mut out, 1_500_000_001, "camera", 4, 3, "rgb8", 12, &pixels);
+        encode_raw_image(
+            &mut out,
+            RawImageHeader {
+                stamp_ns: 1_500_000_001,
+                frame_id: "camera",
+                width: 4,
+                height: 3,
+                encoding: "rgb8",
+                step: 12,
+            },
+            &pixels,
+        );
         let value: serde_json::Value = serde_json::from_slice(&out).unwrap();
         assert_eq!(value["timestamp"]["sec"], 1);
         assert_eq!(value["timestamp"]["nsec"], 500_000_001);

@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::io::BufWriter;
 use std::path::Path;
 
-use super::messages::{CameraCalibration, FrameMeta, encode_raw_image};
+use super::messages::{CameraCalibration, FrameMeta, RawImageHeader, encode_raw_image};
 use super::{McapReplayConfig, McapSource, TOPIC_CALIBRATION, TOPIC_COLOUR, TOPIC_DEPTH, TOPIC_FRAME, schemas};
 use crate::frame::{Frame, Intrinsics};
 use crate::pose::Isometry;
@@ -58,9 +58,17 @@ impl Writer {
         let rgb: Vec<u8> = (0..K.pixel_count() * 3).map(|i| (i as u64 + seq) as u8).collect();
         let depth: Vec<u16> = (0..K.pixel_count()).map(|i| (i as u64 * 7 + seq) as u16).collect();
         let mut out = Vec::new();
-        encode_raw_image(&mut out, stamp_ns, "camera", 16, 16, "rgb8", 48, &rgb);
+        encode_raw_image(
+            &mut out,
+            RawImageHeader { stamp_ns, frame_id: "camera", width: 16, height: 16, encoding: "rgb8", step: 48 },
+            &rgb,
+        );
         self.write(TOPIC_COLOUR, colour_schema, &out);
-        encode_raw_image(&mut out, stamp_ns, "camera", 16, 16, "16UC1", 32, bytemuck::cast_slice(&depth));
+        encode_raw_image(
+            &mut out,
+            RawImageHeader { stamp_ns, frame_id: "camera", width: 16, height: 16, encoding: "16UC1", step: 32 },
+            bytemuck::cast_slice(&depth),
+        );
         self.write(TOPIC_DEPTH, schemas::RAW_IMAGE, &out);
         let pose = Isometry::new(glam::DQuat::from_rotation_z(0.1 * seq as f64), glam::DVec3::new(0.1, 0.2, 0.3));
         let meta = FrameMeta { seq, stamp_ns, depth_units_per_m: 1000.0, world_from_camera: Some((&pose).into()) };

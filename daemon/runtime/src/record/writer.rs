@@ -10,7 +10,9 @@ use std::time::{Duration, Instant};
 
 use mcap::records::{MessageHeader, Metadata};
 use op3dsg_drivers::frame::Intrinsics;
-use op3dsg_drivers::mcap::messages::{CameraCalibration, FrameMeta, Time, encode_compressed_image, encode_raw_image};
+use op3dsg_drivers::mcap::messages::{
+    CameraCalibration, FrameMeta, RawImageHeader, Time, encode_compressed_image, encode_raw_image,
+};
 use op3dsg_drivers::mcap::{self as topics, CAMERA_FRAME, WORLD_FRAME, schemas};
 use op3dsg_ipc_types::{Health, RECORDER_STATES, fixed_str};
 use tracing::{info, warn};
@@ -316,32 +318,14 @@ impl Recorder {
         } else if raw.has_colour
             && let Some(colour) = &raw.colour
         {
-            encode_raw_image(
-                &mut self.bytes,
-                raw.stamp_ns,
-                CAMERA_FRAME,
-                k.width,
-                k.height,
-                "rgb8",
-                k.width * 3,
-                colour,
-            );
+            encode_raw_image(&mut self.bytes, image_header(raw, "rgb8", 3), colour);
             self.write(topics::TOPIC_COLOUR, schemas::RAW_IMAGE, t)?;
         }
         if raw.has_depth
             && let Some(depth) = &raw.depth
         {
             let bytes: &[u8] = bytemuck::cast_slice(depth);
-            encode_raw_image(
-                &mut self.bytes,
-                raw.stamp_ns,
-                CAMERA_FRAME,
-                k.width,
-                k.height,
-                "16UC1",
-                k.width * 2,
-                bytes,
-            );
+            encode_raw_image(&mut self.bytes, image_header(raw, "16UC1", 2), bytes);
             self.write(topics::TOPIC_DEPTH, schemas::RAW_IMAGE, t)?;
         }
         for i in 0..raw.sides.len().min(self.side_topics.len()) {
@@ -350,16 +334,7 @@ impl Recorder {
                 continue;
             }
             let bytes: &[u8] = bytemuck::cast_slice(ids);
-            encode_raw_image(
-                &mut self.bytes,
-                raw.stamp_ns,
-                CAMERA_FRAME,
-                k.width,
-                k.height,
-                "16UC1",
-                k.width * 2,
-                bytes,
-            );
+            encode_raw_image(&mut self.bytes, image_header(raw, "16UC1", 2), bytes);
             let topic = self.side_topics[i].clone();
             self.write(&topic, schemas::RAW_IMAGE, t)?;
         }
@@ -578,6 +553,19 @@ pub(super) fn recorder_loop(thread: RecordThread) {
         }
     }
     rec.stats.cpu_ns.store(thread_cpu_ns(), Ordering::Relaxed);
+}
+
+/// The `foxglove.RawImage` header of one of `raw`'s images (`bytes_per_pixel` wide pixels).
+fn image_header(raw: &RawFrame, encoding: &'static str, bytes_per_pixel: u32) -> RawImageHeader<'static> {
+    let k = raw.intrinsics;
+    RawImageHeader {
+        stamp_ns: raw.stamp_ns,
+        frame_id: CAMERA_FRAME,
+        width: k.width,
+        height: k.height,
+        encoding,
+        step: k.width * bytes_per_pixel,
+    }
 }
 
 #[cfg(test)]

@@ -145,7 +145,6 @@ impl Projection {
     /// Colour pixel indices of one corner for each depth value of a chunk: the corner rays are
     /// `rays.{x,y,z}[at + i] + row`.
     #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
     pub(super) fn corners<const DISTORT: bool>(
         &self,
         rays: &Rays,
