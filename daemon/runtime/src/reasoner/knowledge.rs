@@ -237,9 +237,6 @@ impl KnowledgeReasoner {
         if rule.is_some() && (has_local || bits != 0) {
             counts.by_part_rule += 1;
         }
-        if rule.is_some() && (has_local || bits != 0) {
-            counts.by_part_rule += 1;
-        }
         has_local
     }
 }
