@@ -361,25 +361,17 @@ impl Detector for OpenVocabDetector {
             DetectorError::Backend(format!("running the open-vocabulary detector ({}): {e}", self.model_path.display()))
         })?;
         let names = &self.outputs;
-        let float = |name: &str| {
-            outputs
-                .get(name)
-                .ok_or_else(|| format!("no output {name}"))?
-                .try_extract_tensor::<f32>()
-                .map(|(shape, data)| (shape.to_vec(), data))
-                .map_err(|e| format!("output {name}: {e}"))
-        };
         let bad = |message: String| {
             DetectorError::Backend(format!("open-vocabulary detector ({}): {message}", self.model_path.display()))
         };
 
-        let (box_shape, boxes) = float(&names.boxes).map_err(bad)?;
+        let (box_shape, boxes) = float_output(&outputs, &names.boxes).map_err(bad)?;
         let box_dims = rows(&box_shape, 2, "boxes").map_err(bad)?;
         let n = box_dims[0];
         if box_dims[1] != 4 {
             return Err(bad(format!("output boxes has shape {box_shape:?}, expected [N, 4]")));
         }
-        let (score_shape, scores) = float(&names.scores).map_err(bad)?;
+        let (score_shape, scores) = float_output(&outputs, &names.scores).map_err(bad)?;
         let best = best_per_region(&outputs, names, n, p, &score_shape, scores).map_err(bad)?;
         let mut regions = decode_regions(boxes, &best, names, &self.config, placement);
         regions.sort_by(|a, b| b.score.total_cmp(&a.score).then(a.row.cmp(&b.row)));
@@ -424,6 +416,19 @@ impl Detector for OpenVocabDetector {
     }
 }
 
+/// The output `name` as an f32 tensor: its shape and data.
+fn float_output<'o>(
+    outputs: &'o ort::session::SessionOutputs<'_>,
+    name: &str,
+) -> Result<(Vec<i64>, &'o [f32]), String> {
+    outputs
+        .get(name)
+        .ok_or_else(|| format!("no output {name}"))?
+        .try_extract_tensor::<f32>()
+        .map(|(shape, data)| (shape.to_vec(), data))
+        .map_err(|e| format!("output {name}: {e}"))
+}
+
 /// The optional outputs: per-region mask planes `(h, w, data)` and region embeddings `(D, data)`.
 type OptionalOutputs<'o> = (Option<(usize, usize, &'o [f32])>, Option<(usize, &'o [f32])>);
 
@@ -433,14 +438,7 @@ fn optional_outputs<'o>(
     names: &OutputNames,
     n: usize,
 ) -> Result<OptionalOutputs<'o>, String> {
-    let float = |name: &str| {
-        outputs
-            .get(name)
-            .ok_or_else(|| format!("no output {name}"))?
-            .try_extract_tensor::<f32>()
-            .map(|(shape, data)| (shape.to_vec(), data))
-            .map_err(|e| format!("output {name}: {e}"))
-    };
+    let float = |name: &str| float_output(outputs, name);
     let masks = match &names.masks {
         Some(name) => {
             let (shape, data) = float(name)?;
