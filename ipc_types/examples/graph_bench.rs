@@ -94,7 +94,7 @@ fn synthetic_graph(count: usize) -> GraphBuffer {
 }
 
 fn publish(prefix: &str, nodes: usize, period: Duration, seconds: f64) -> Result<(), Error> {
-    let node = NodeBuilder::new().create::<IpcService>()?;
+    let node = NodeBuilder::new().config(&op3dsg_ipc_types::access::creator_config()?).create::<IpcService>()?;
     let service = node
         .service_builder(&ServiceName::new(&ServiceKind::Graph.name(prefix))?)
         .publish_subscribe::<GraphPayload>()

@@ -113,6 +113,7 @@
 pub use iceoryx2;
 pub use iceoryx2::prelude::{PlacementDefault, ZeroCopySend};
 
+pub mod access;
 pub mod client;
 mod graph_types;
 mod health_types;
@@ -123,6 +124,7 @@ pub mod query_types;
 pub mod services;
 mod text;
 
+pub use access::{IPC_ROOT_ENV, IpcRoot, RootError};
 pub use client::{
     ClientError, EdgeView, ErrorCause, Graph, GraphSubscriber, HealthSubscriber, NodeView, Operation, Pose,
     PosePublisher, QueryClient, QueryClientError, SnapshotError, UnknownAffordance, check_message,

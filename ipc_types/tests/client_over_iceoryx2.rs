@@ -136,12 +136,11 @@ fn without_a_daemon_open_fails_clearly_and_open_wait_waits_for_it() {
     let prefix = unique_prefix();
     let err = GraphSubscriber::open(&prefix, "op3dsg-test-planner").expect_err("no daemon");
     assert!(err.is_not_serving());
-    assert_eq!(
-        err.to_string(),
-        format!(
-            "{prefix}/graph: open: no op3dsgd is serving under prefix '{prefix}' (service {prefix}/graph not found)"
-        )
+    let expected = format!(
+        "{prefix}/graph: open: no op3dsgd is serving under prefix '{prefix}' in IPC root {} (service {prefix}/graph not found)",
+        op3dsg_ipc_types::IpcRoot::resolve().path().display()
     );
+    assert!(err.to_string().starts_with(&expected), "{err}");
     let err = HealthSubscriber::open(&prefix, "op3dsg-test-monitor").expect_err("no daemon");
     assert!(err.is_not_serving() && err.service() == ServiceKind::Health);
     let started = Instant::now();

@@ -50,7 +50,10 @@ fn a_planner_gets_approach_poses_on_free_cells_of_the_published_map() {
     let client = QueryClient::open_wait(&prefix, "goal-planner", Duration::from_secs(60)).expect("query service");
 
     // The occupancy service, opened as any client opens it, with the documented QoS.
-    let node = NodeBuilder::new().create::<IpcService>().expect("a plain iceoryx2 node");
+    let node = NodeBuilder::new()
+        .config(&op3dsg_ipc_types::access::creator_config().expect("IPC root"))
+        .create::<IpcService>()
+        .expect("a plain iceoryx2 node");
     let service = open_occupancy_service(&node, &prefix);
     let config = service.static_config();
     assert_eq!(
@@ -241,7 +244,10 @@ fn the_occupancy_map_survives_a_restart_beside_the_map_snapshot() {
     let dir = tempfile::tempdir().expect("snapshot dir");
     let dir_arg = format!("snapshot.dir={}", dir.path().display());
     let args = ["--set", "source.rate_hz=15", "--set", &dir_arg];
-    let node = NodeBuilder::new().create::<IpcService>().expect("a plain iceoryx2 node");
+    let node = NodeBuilder::new()
+        .config(&op3dsg_ipc_types::access::creator_config().expect("IPC root"))
+        .create::<IpcService>()
+        .expect("a plain iceoryx2 node");
     let first_map = |what: &str, above: u64| -> OccupancyHeader {
         let service = open_occupancy_service(&node, &prefix);
         let subscriber = service.subscriber_builder().create().expect("occupancy subscriber");

@@ -31,7 +31,10 @@ impl RawPosePublisher {
     /// Creates `<prefix>/pose` with iceoryx2's default QoS (nothing set), or opens it with no
     /// requirement when `create` is false.
     fn new(prefix: &str, create: bool) -> Self {
-        let node = NodeBuilder::new().create::<IpcService>().expect("raw node");
+        let node = NodeBuilder::new()
+            .config(&op3dsg_ipc_types::access::creator_config().expect("IPC root"))
+            .create::<IpcService>()
+            .expect("raw node");
         let name = ServiceName::new(&ServiceKind::Pose.name(prefix)).expect("service name");
         let builder = node.service_builder(&name).publish_subscribe::<PoseStamped>();
         let service = if create {

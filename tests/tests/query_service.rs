@@ -204,7 +204,10 @@ fn without_the_text_encoder_queries_get_a_clear_error() {
     let daemon = Daemon::start(&prefix, &["--set", "source.rate_hz=15"]);
     let client = QueryClient::open_wait(&prefix, "query-off", Duration::from_secs(60)).expect("query service");
     // The service has exactly the QoS `op3dsg_ipc_types::services` documents.
-    let node = NodeBuilder::new().create::<IpcService>().expect("a plain iceoryx2 node");
+    let node = NodeBuilder::new()
+        .config(&op3dsg_ipc_types::access::creator_config().expect("IPC root"))
+        .create::<IpcService>()
+        .expect("a plain iceoryx2 node");
     let service = node
         .service_builder(&ServiceName::new(&query_service_name(&prefix)).expect("service name"))
         .request_response::<QueryRequest, QueryResponse>()

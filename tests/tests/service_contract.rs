@@ -130,7 +130,10 @@ fn every_service_opens_with_exactly_the_documented_qos() {
     let mut health = daemon.health_subscriber("contract-health");
     wait_for("the daemon's first health record", Duration::from_secs(60), || health.latest().ok().flatten());
 
-    let node = NodeBuilder::new().create::<IpcService>().expect("a plain iceoryx2 node");
+    let node = NodeBuilder::new()
+        .config(&op3dsg_ipc_types::access::creator_config().expect("IPC root"))
+        .create::<IpcService>()
+        .expect("a plain iceoryx2 node");
     let name = |kind: ServiceKind| ServiceName::new(&kind.name(&prefix)).expect("service name");
 
     // graph: a [u8] slice with the GraphHeader user header.

@@ -193,7 +193,10 @@ fn cli_without_daemon_fails_with_a_clear_message() {
     assert_eq!(output.status.code(), Some(1));
     let stderr = String::from_utf8_lossy(&output.stderr);
     assert!(
-        stderr.contains(&format!("no op3dsgd is serving under prefix '{prefix}' (service {prefix}/graph not found)")),
+        stderr.contains(&format!(
+            "no op3dsgd is serving under prefix '{prefix}' in IPC root {} (service {prefix}/graph not found)",
+            op3dsg_ipc_types::IpcRoot::resolve().path().display()
+        )),
         "{stderr}"
     );
 }
@@ -246,7 +249,8 @@ fn in_process_client_gets_history_updates_and_poses() {
     let bad = Pose::new([0.0; 3], [0.0, 0.0, 0.0, 2.0]);
     assert!(poses.publish(30, PoseKind::WorldFromCamera, &bad, "base_link").is_err(), "client refuses norm 2");
     assert!(poses.publish(40, PoseKind::WorldFromCamera, &pose, &"x".repeat(40)).is_err(), "frame id too long");
-    let raw_node = op3dsg_runtime::ipc::create_node("op3dsg-test-raw-nav").expect("node");
+    let raw_node =
+        op3dsg_runtime::ipc::create_node(&op3dsg_ipc_types::IpcRoot::resolve(), "op3dsg-test-raw-nav").expect("node");
     let raw_poses = open_or_create_pose_service(&raw_node, &prefix, DEFAULT_POSE_BUFFER)
         .expect("open pose service")
         .factory

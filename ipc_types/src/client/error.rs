@@ -11,6 +11,7 @@ use iceoryx2::prelude::SemanticStringError;
 use iceoryx2::service::builder::event::EventOpenError;
 use iceoryx2::service::builder::publish_subscribe::{PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError};
 
+use crate::access::{AccessDenied, IPC_ROOT_ENV, IpcRoot};
 use crate::client::SnapshotError;
 use crate::services::{PrefixError, ServiceKind};
 use crate::{PoseError, SCHEMA_VERSION};
@@ -64,8 +65,13 @@ pub enum ErrorCause {
     InvalidNodeName(SemanticStringError),
     /// iceoryx2 could not create the node.
     Node(NodeCreationFailure),
-    /// No daemon has created the service under this prefix.
+    /// No daemon has created the service under this prefix (or its IPC root does not exist).
     NotServing,
+    /// The IPC root belongs to another user or is open to others
+    /// ([`IpcRoot::check`](crate::access::IpcRoot::check)).
+    AccessDenied(AccessDenied),
+    /// `$OP3DSG_IPC_ROOT` is no valid root (relative, too long, not UTF-8).
+    InvalidRoot,
     /// Opening a publish-subscribe service failed.
     OpenPublishSubscribe(PublishSubscribeOpenError),
     /// Opening or creating a publish-subscribe service failed.
@@ -107,6 +113,11 @@ impl core::fmt::Display for ErrorCause {
             Self::Node(e) => write!(f, "{e}"),
             // Filled in by ClientError's Display, which knows the prefix.
             Self::NotServing => write!(f, "no op3dsgd is serving (service not found)"),
+            Self::AccessDenied(why) => f.write_str(&why.explain(IpcRoot::resolve().path())),
+            Self::InvalidRoot => match IpcRoot::resolve().config() {
+                Err(e) => write!(f, "{e} (${IPC_ROOT_ENV})"),
+                Ok(_) => write!(f, "invalid IPC root (${IPC_ROOT_ENV})"),
+            },
             Self::OpenPublishSubscribe(e @ PublishSubscribeOpenError::IncompatibleTypes) => write!(
                 f,
                 "{e}: the service carries another payload type or layout than this build \
@@ -185,11 +196,20 @@ impl core::fmt::Display for ClientError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         let (service, operation) = (&self.service_name, self.operation.as_str());
         match self.cause {
-            ErrorCause::NotServing => write!(
-                f,
-                "{service}: {operation}: no op3dsgd is serving under prefix '{}' (service {service} not found)",
-                self.prefix()
-            ),
+            ErrorCause::NotServing => {
+                let root = IpcRoot::resolve();
+                write!(
+                    f,
+                    "{service}: {operation}: no op3dsgd is serving under prefix '{}' in IPC root {} \
+                     (service {service} not found)",
+                    self.prefix(),
+                    root.path().display()
+                )?;
+                match root.foreign_service_note() {
+                    Some(note) => write!(f, "; {note}"),
+                    None => Ok(()),
+                }
+            }
             cause => write!(f, "{service}: {operation}: {cause}"),
         }
     }
@@ -213,7 +233,10 @@ impl std::error::Error for ClientError {
             ErrorCause::OpenEvent(e) => Some(e),
             ErrorCause::CreateSubscriber(e) => Some(e),
             ErrorCause::CreatePublisher(e) => Some(e),
-            ErrorCause::NotServing | ErrorCause::HealthSchemaVersion { .. } => None,
+            ErrorCause::NotServing
+            | ErrorCause::AccessDenied(_)
+            | ErrorCause::InvalidRoot
+            | ErrorCause::HealthSchemaVersion { .. } => None,
         }
     }
 }
@@ -225,10 +248,12 @@ mod tests {
     #[test]
     fn messages_name_service_operation_and_cause() {
         let err = ClientError::new("lab/robot", ServiceKind::Graph, Operation::Open, ErrorCause::NotServing);
-        assert_eq!(
-            err.to_string(),
-            "lab/robot/graph: open: no op3dsgd is serving under prefix 'lab/robot' (service lab/robot/graph not found)"
+        let expected = format!(
+            "lab/robot/graph: open: no op3dsgd is serving under prefix 'lab/robot' in IPC root {} \
+             (service lab/robot/graph not found)",
+            IpcRoot::resolve().path().display()
         );
+        assert!(err.to_string().starts_with(&expected), "{err}");
         assert!(err.is_not_serving());
         assert_eq!(err.prefix(), "lab/robot");
         let err = ClientError::new(

@@ -1,6 +1,6 @@
 //! [`GraphSubscriber`]: the planner's reader of `<prefix>/graph`, woken by `<prefix>/graph_updated`.
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use iceoryx2::node::Node as IoxNode;
 use iceoryx2::port::listener::{Listener, ListenerWaitError};
@@ -8,7 +8,7 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::service::builder::event::EventOpenError;
 use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
 
-use crate::client::{ClientError, ErrorCause, Graph, Operation, create_node, retry_while_not_serving};
+use crate::client::{ClientError, ErrorCause, Graph, Operation, RootUse, create_node, retry_while_not_serving};
 use crate::publish::GraphPayload;
 use crate::services::{HISTORY_SIZE, IpcService, ServiceKind, ServiceNames, service_name};
 use crate::{GraphHeader, GraphMessage};
@@ -46,7 +46,7 @@ impl GraphSubscriber {
     /// `node_name`; fails with a "not serving" error ([`ClientError::is_not_serving`]) when no
     /// daemon has created them.
     pub fn open(prefix: &str, node_name: &str) -> Result<Self, ClientError> {
-        let node = create_node(prefix, ServiceKind::Graph, node_name)?;
+        let node = create_node(prefix, ServiceKind::Graph, node_name, RootUse::Existing)?;
         let (subscriber, listener) = open_ports(&node, prefix)?;
         Ok(Self::from_ports(prefix, node, subscriber, listener))
     }
@@ -55,7 +55,10 @@ impl GraphSubscriber {
     /// [`OPEN_RETRY_INTERVAL`](crate::services::OPEN_RETRY_INTERVAL), up to `timeout`: for a
     /// client started before the daemon.
     pub fn open_wait(prefix: &str, node_name: &str, timeout: Duration) -> Result<Self, ClientError> {
-        let node = create_node(prefix, ServiceKind::Graph, node_name)?;
+        let deadline = Instant::now() + timeout;
+        let node =
+            retry_while_not_serving(timeout, || create_node(prefix, ServiceKind::Graph, node_name, RootUse::Existing))?;
+        let timeout = deadline.saturating_duration_since(Instant::now());
         let (subscriber, listener) = retry_while_not_serving(timeout, || open_ports(&node, prefix))?;
         Ok(Self::from_ports(prefix, node, subscriber, listener))
     }

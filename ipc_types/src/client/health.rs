@@ -1,12 +1,12 @@
 //! [`HealthSubscriber`]: a reader of `<prefix>/health` that needs no graph subscriber slot.
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use iceoryx2::node::Node as IoxNode;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
 
-use crate::client::{ClientError, ErrorCause, Operation, create_node, retry_while_not_serving};
+use crate::client::{ClientError, ErrorCause, Operation, RootUse, create_node, retry_while_not_serving};
 use crate::services::{HISTORY_SIZE, IpcService, ServiceKind, service_name};
 use crate::{Health, SCHEMA_VERSION};
 
@@ -27,7 +27,7 @@ impl HealthSubscriber {
     /// Opens the daemon's `health` under `prefix` as iceoryx2 node `node_name`; fails with a
     /// "not serving" error ([`ClientError::is_not_serving`]) when no daemon has created it.
     pub fn open(prefix: &str, node_name: &str) -> Result<Self, ClientError> {
-        let node = create_node(prefix, ServiceKind::Health, node_name)?;
+        let node = create_node(prefix, ServiceKind::Health, node_name, RootUse::Existing)?;
         let subscriber = open_subscriber(&node, prefix)?;
         Ok(Self { prefix: prefix.to_owned(), subscriber, latest: None, node })
     }
@@ -35,7 +35,11 @@ impl HealthSubscriber {
     /// Like [`Self::open`], but while no daemon serves `prefix` retries every
     /// [`OPEN_RETRY_INTERVAL`](crate::services::OPEN_RETRY_INTERVAL), up to `timeout`.
     pub fn open_wait(prefix: &str, node_name: &str, timeout: Duration) -> Result<Self, ClientError> {
-        let node = create_node(prefix, ServiceKind::Health, node_name)?;
+        let deadline = Instant::now() + timeout;
+        let node = retry_while_not_serving(timeout, || {
+            create_node(prefix, ServiceKind::Health, node_name, RootUse::Existing)
+        })?;
+        let timeout = deadline.saturating_duration_since(Instant::now());
         let subscriber = retry_while_not_serving(timeout, || open_subscriber(&node, prefix))?;
         Ok(Self { prefix: prefix.to_owned(), subscriber, latest: None, node })
     }

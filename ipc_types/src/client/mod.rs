@@ -23,6 +23,7 @@ mod view;
 
 use std::time::{Duration, Instant};
 
+use iceoryx2::config::Config;
 use iceoryx2::node::Node as IoxNode;
 use iceoryx2::prelude::{NodeBuilder, NodeName, SignalHandlingMode};
 
@@ -34,6 +35,7 @@ pub use pose::{Pose, PosePublisher, PoseService, open_or_create_pose_service};
 pub use query::{QueryClient, QueryClientError};
 pub use view::{EdgeView, Graph, NodeView, UnknownAffordance};
 
+use crate::access::{IpcRoot, RootError};
 use crate::services::{IpcService, OPEN_RETRY_INTERVAL, ServiceKind, validate_prefix};
 
 /// Checks the prefix and creates the client's node; errors name `service`, the one being opened.
@@ -41,12 +43,15 @@ pub(crate) fn create_node(
     prefix: &str,
     service: ServiceKind,
     node_name: &str,
+    root: RootUse,
 ) -> Result<IoxNode<IpcService>, ClientError> {
     let fail = |cause| ClientError::new(prefix, service, Operation::CreateNode, cause);
     validate_prefix(prefix).map_err(|e| fail(ErrorCause::InvalidPrefix(e)))?;
     let name = NodeName::new(node_name).map_err(|e| fail(ErrorCause::InvalidNodeName(e)))?;
+    let config = client_config(root).map_err(fail)?;
     let node = NodeBuilder::new()
         .name(&name)
+        .config(&config)
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<IpcService>()
         .map_err(|e| fail(ErrorCause::Node(e)))?;
@@ -54,6 +59,33 @@ pub(crate) fn create_node(
     // but a faster start when leftovers stay.
     let _ = node.try_cleanup_dead_nodes();
     Ok(node)
+}
+
+/// What a client does with a missing IPC root.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RootUse {
+    /// Only use an existing root: a missing one means no daemon of this user has started.
+    Existing,
+    /// Make it (mode 0700) when missing: for a client that may create a service before the
+    /// daemon starts (the pose publisher).
+    MakeIfMissing,
+}
+
+/// The iceoryx2 configuration of a client: the root [`IpcRoot::resolve`] chooses, checked
+/// ([`IpcRoot::check`]) before iceoryx2 could create anything in it. A missing root is "not
+/// serving" (no daemon of this user has started), so `open_wait` keeps waiting for one.
+pub fn client_config(root_use: RootUse) -> Result<Config, ErrorCause> {
+    let root = IpcRoot::resolve();
+    let usable = match root_use {
+        RootUse::Existing => root.check(),
+        RootUse::MakeIfMissing => root.prepare(),
+    };
+    match usable.and_then(|()| root.config()) {
+        Ok(config) => Ok(config),
+        Err(RootError::Missing(_)) => Err(ErrorCause::NotServing),
+        Err(RootError::Denied(_, why)) => Err(ErrorCause::AccessDenied(why)),
+        Err(RootError::InvalidPath(..) | RootError::Create(..)) => Err(ErrorCause::InvalidRoot),
+    }
 }
 
 /// Calls `open` until it succeeds, fails with another error than "not serving", or `timeout`

@@ -9,7 +9,7 @@ use iceoryx2::service::builder::publish_subscribe::{
 use iceoryx2::service::port_factory::PortFactory as _;
 use iceoryx2::service::port_factory::publish_subscribe::PortFactory;
 
-use crate::client::{ClientError, ErrorCause, Operation, create_node};
+use crate::client::{ClientError, ErrorCause, Operation, RootUse, create_node};
 use crate::services::{
     DEFAULT_POSE_BUFFER, IpcService, POSE_HISTORY_SIZE, POSE_MAX_NODES, POSE_MAX_PUBLISHERS, POSE_MAX_SUBSCRIBERS,
     POSE_SUBSCRIBER_MAX_BORROWED_SAMPLES, SAFE_OVERFLOW, ServiceKind, service_name,
@@ -148,7 +148,7 @@ impl PosePublisher {
     /// `node_name`. It works before the daemon starts; poses sent while no daemon listens are
     /// lost (the service keeps no history).
     pub fn open(prefix: &str, node_name: &str) -> Result<Self, ClientError> {
-        let node = create_node(prefix, ServiceKind::Pose, node_name)?;
+        let node = create_node(prefix, ServiceKind::Pose, node_name, RootUse::MakeIfMissing)?;
         let service = open_or_create_pose_service(&node, prefix, DEFAULT_POSE_BUFFER)?;
         let publisher = service.factory.publisher_builder().create().map_err(|e| {
             ClientError::new(prefix, ServiceKind::Pose, Operation::CreatePublisher, ErrorCause::CreatePublisher(e))

@@ -21,6 +21,8 @@ use iceoryx2::port::client::Client;
 use iceoryx2::prelude::{NodeBuilder, NodeName, ServiceName, SignalHandlingMode};
 use iceoryx2::service::builder::request_response::RequestResponseOpenError;
 
+use crate::access::IpcRoot;
+use crate::client::{ErrorCause, RootUse, client_config};
 use crate::query_types::{QUERY_SCHEMA_VERSION, QUERY_TEXT_CAPACITY_BYTES, QueryRequest, QueryResponse};
 use crate::services::{
     IpcService, OPEN_RETRY_INTERVAL, PrefixError, QUERY_MAX_ACTIVE_REQUESTS_PER_CLIENT, query_service_name,
@@ -58,6 +60,13 @@ pub enum QueryClientError {
         /// Service name.
         service: String,
         /// iceoryx2's error.
+        reason: String,
+    },
+    /// The IPC root belongs to another user, or is no valid root.
+    NoAccess {
+        /// Service name.
+        service: String,
+        /// Why, and the fix.
         reason: String,
     },
     /// The text does not fit a request.
@@ -103,8 +112,18 @@ impl core::fmt::Display for QueryClientError {
             Self::InvalidPrefix { prefix, reason } => write!(f, "prefix {prefix:?}: {reason}"),
             Self::Node { service, reason } => write!(f, "{service}: creating the iceoryx2 node failed: {reason}"),
             Self::NotServing { service } => {
-                write!(f, "{service}: no op3dsgd daemon serves it (is op3dsgd running with this prefix?)")
+                let root = IpcRoot::resolve();
+                write!(
+                    f,
+                    "{service}: no op3dsgd daemon serves it in IPC root {} (is op3dsgd running with this prefix?)",
+                    root.path().display()
+                )?;
+                match root.foreign_service_note() {
+                    Some(note) => write!(f, "; {note}"),
+                    None => Ok(()),
+                }
             }
+            Self::NoAccess { service, reason } => write!(f, "{service}: {reason}"),
             Self::Open { service, reason } => write!(f, "{service}: open failed: {reason}"),
             Self::TextTooLong { len } => {
                 write!(f, "query text is {len} bytes; at most {QUERY_TEXT_CAPACITY_BYTES} fit a request")
@@ -150,8 +169,15 @@ impl QueryClient {
     /// Like [`Self::open`], but while no daemon serves `prefix` retries every
     /// [`OPEN_RETRY_INTERVAL`], up to `timeout`.
     pub fn open_wait(prefix: &str, node_name: &str, timeout: Duration) -> Result<Self, QueryClientError> {
-        let (node, service) = create_node(prefix, node_name)?;
         let deadline = Instant::now() + timeout;
+        let (node, service) = loop {
+            match create_node(prefix, node_name) {
+                Err(e) if e.is_not_serving() && Instant::now() < deadline => {
+                    std::thread::sleep(OPEN_RETRY_INTERVAL.min(deadline.saturating_duration_since(Instant::now())));
+                }
+                created => break created?,
+            }
+        };
         loop {
             match open_client(&node, &service) {
                 Err(e) if e.is_not_serving() && Instant::now() < deadline => {
@@ -224,8 +250,14 @@ fn create_node(prefix: &str, node_name: &str) -> Result<(IoxNode<IpcService>, St
     let service = query_service_name(prefix);
     let fail = |reason: String| QueryClientError::Node { service: service.clone(), reason };
     let name = NodeName::new(node_name).map_err(|e| fail(format!("node name {node_name:?}: {e}")))?;
+    let config = match client_config(RootUse::Existing) {
+        Ok(config) => config,
+        Err(ErrorCause::NotServing) => return Err(QueryClientError::NotServing { service }),
+        Err(cause) => return Err(QueryClientError::NoAccess { service, reason: cause.to_string() }),
+    };
     let node = NodeBuilder::new()
         .name(&name)
+        .config(&config)
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<IpcService>()
         .map_err(|e| fail(e.to_string()))?;

@@ -35,6 +35,7 @@ pub fn node(name: &str) -> IoxNode<IpcService> {
     NodeBuilder::new()
         .name(&NodeName::new(name).expect("valid node name"))
         .signal_handling_mode(SignalHandlingMode::Disabled)
+        .config(&op3dsg_ipc_types::access::creator_config().expect("IPC root"))
         .create::<IpcService>()
         .expect("create iceoryx2 node")
 }

@@ -306,7 +306,10 @@ struct RawPoses {
 
 impl RawPoses {
     fn new(prefix: &str) -> Result<Self, String> {
-        let node = NodeBuilder::new().create::<IpcService>().map_err(|e| format!("raw node: {e:?}"))?;
+        let node = NodeBuilder::new()
+            .config(&op3dsg_ipc_types::access::creator_config().expect("IPC root"))
+            .create::<IpcService>()
+            .map_err(|e| format!("raw node: {e:?}"))?;
         let name = ServiceName::new(&ServiceKind::Pose.name(prefix)).map_err(|e| format!("service name: {e:?}"))?;
         let service = node
             .service_builder(&name)

@@ -82,7 +82,10 @@
 //!                 ("graph_version", ctypes.c_uint64), ("instance_id", ctypes.c_uint64), ...]
 //!     @staticmethod
 //!     def type_name() -> str: return "op3dsg::GraphHeader"
-//! node = iox2.NodeBuilder.new().create(iox2.ServiceType.Ipc)
+//! config = iox2.config.default()             # the daemon's root and iceoryx2 prefix
+//! config.global_cfg.root_path = iox2.Path.new("/tmp/op3dsg-1000")   # see op3dsg_ipc_types::access
+//! config.global_cfg.prefix = iox2.FileName.new("op3dsg_")
+//! node = iox2.NodeBuilder.new().config(config).create(iox2.ServiceType.Ipc)
 //! service = (node.service_builder(iox2.ServiceName.new("op3dsg/graph"))
 //!            .publish_subscribe(iox2.Slice[ctypes.c_uint8]).user_header(GraphHeader).open())
 //! subscriber = service.subscriber_builder().create()
@@ -96,6 +99,13 @@
 //! `op3dsg::PoseStamped`), or opening fails with incompatible types. A header whose
 //! `instance_id` differs from the last one seen comes from a restarted daemon: forget the
 //! versions seen.
+//!
+//! ## Who can attach
+//! iceoryx2 0.10 gives everything it creates owner-only modes, fixed in its code, so only
+//! processes of the daemon's own user can read the graph, send poses or ask queries; the
+//! daemon and its clients meet in a root folder of that user ([`op3dsg_ipc_types::access`]:
+//! `ipc.root`, `$OP3DSG_IPC_ROOT`, `/run/op3dsg` of the service, `/tmp/op3dsg-<uid>`), and
+//! a root of another user is refused at start with the owner's name.
 //!
 //! ## Stale resources
 //! A daemon killed with `SIGKILL` leaves its node and ports behind in shared memory; the node is
@@ -113,6 +123,7 @@ pub mod server;
 
 use iceoryx2::prelude::{Node, NodeBuilder, NodeName, ServiceName, SignalHandlingMode};
 pub use op3dsg_ipc_types::SnapshotError;
+use op3dsg_ipc_types::access::{IpcRoot, RootError, RootSource};
 /// The iceoryx2 service flavour of every port here (see [`op3dsg_ipc_types::services::IpcService`]):
 /// inter-process, and `Send` so the daemon may build its [`GraphServer`] on one thread and hand
 /// it to the publisher thread.
@@ -146,6 +157,11 @@ pub struct IpcConfig {
     pub max_edges: usize,
     /// Remove the shared-memory leftovers of dead processes when the daemon starts.
     pub cleanup_dead_nodes_at_start: bool,
+    /// The iceoryx2 root folder (absolute). Empty: `$OP3DSG_IPC_ROOT`, else `/run/op3dsg` when
+    /// it belongs to the daemon's user (the systemd unit's), else `/tmp/op3dsg-<uid>` — the
+    /// rule every client follows too ([`op3dsg_ipc_types::access`]). A root of another user is
+    /// refused at start.
+    pub root: String,
 }
 
 impl Default for IpcConfig {
@@ -158,6 +174,7 @@ impl Default for IpcConfig {
             max_nodes: MAX_NODES,
             max_edges: MAX_EDGES,
             cleanup_dead_nodes_at_start: true,
+            root: String::new(),
         }
     }
 }
@@ -167,6 +184,9 @@ impl IpcConfig {
     /// [`op3dsg_ipc_types::validate_prefix`]'s.
     pub fn validate(&self, path: &str) -> Result<(), String> {
         validate_prefix(&self.prefix).map_err(|e| format!("{path}.prefix: {e}"))?;
+        if !self.root.is_empty() {
+            self.ipc_root().config().map_err(|e| format!("{path}.root: {e}"))?;
+        }
         let ranges = [
             ("max_subscribers", self.max_subscribers, 64),
             ("subscriber_buffer", self.subscriber_buffer, 16),
@@ -189,6 +209,11 @@ pub const MAX_CONFIGURABLE_NODES: usize = 1 << 20;
 pub const MAX_CONFIGURABLE_EDGES: usize = 1 << 22;
 
 impl IpcConfig {
+    /// The iceoryx2 root: `root` when set, else the clients' rule ([`IpcRoot::resolve`]).
+    pub fn ipc_root(&self) -> IpcRoot {
+        if self.root.is_empty() { IpcRoot::resolve() } else { IpcRoot::at(&self.root, RootSource::Profile) }
+    }
+
     /// The graph sample capacity of this configuration.
     pub fn graph_capacity(&self) -> GraphCapacity {
         GraphCapacity { max_nodes: self.max_nodes, max_edges: self.max_edges }
@@ -214,6 +239,9 @@ pub enum IpcError {
         /// iceoryx2's reason.
         reason: String,
     },
+    /// The iceoryx2 root cannot be made or used by this user.
+    #[error("{0}")]
+    Root(#[from] RootError),
     /// An iceoryx2 operation on a service failed.
     #[error("{operation} on service {service}: {reason}")]
     Service {
@@ -256,13 +284,17 @@ pub fn service_name(prefix: &str, full: &str) -> Result<ServiceName, IpcError> {
         .map_err(|e| IpcError::InvalidPrefix { prefix: prefix.to_owned(), reason: format!("{full}: {e:?}") })
 }
 
-/// An iceoryx2 node named `node_name`, with signal handling disabled (the daemon and the CLI
-/// install their own Ctrl-C handlers).
-pub fn create_node(node_name: &str) -> Result<Node<IpcService>, IpcError> {
+/// An iceoryx2 node named `node_name` in `root` (made when missing, and checked first: a root of
+/// another user is refused with the owner's name, before iceoryx2 could fail obscurely), with
+/// signal handling disabled (the daemon and the CLI install their own Ctrl-C handlers).
+pub fn create_node(root: &IpcRoot, node_name: &str) -> Result<Node<IpcService>, IpcError> {
     let name = NodeName::new(node_name)
         .map_err(|e| IpcError::Node { node: node_name.to_owned(), reason: format!("invalid name: {e:?}") })?;
+    root.prepare()?;
+    let config = root.config()?;
     NodeBuilder::new()
         .name(&name)
+        .config(&config)
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<IpcService>()
         .map_err(|e| IpcError::Node { node: node_name.to_owned(), reason: format!("{e:?}") })

@@ -48,7 +48,9 @@ impl GraphServer {
     pub fn open(config: &IpcConfig, node_name: &str) -> Result<Self, IpcError> {
         config.validate("ipc").map_err(|reason| IpcError::InvalidPrefix { prefix: config.prefix.clone(), reason })?;
         let names = ServiceNames::new(&config.prefix);
-        let node = create_node(node_name)?;
+        let root = config.ipc_root();
+        let node = create_node(&root, node_name)?;
+        tracing::info!(root = %root, "iceoryx2 root");
         let (dead_nodes_cleaned, failed_cleanups) =
             if config.cleanup_dead_nodes_at_start { cleanup_dead_nodes(&node) } else { (0, 0) };
         if failed_cleanups > 0 {

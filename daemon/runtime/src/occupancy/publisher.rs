@@ -10,7 +10,7 @@ use op3dsg_ipc_types::services::{
 use tracing::info;
 
 use super::OccupancyGrid;
-use crate::ipc::{IpcError, IpcService, create_node, new_instance_id, service_err, service_name};
+use crate::ipc::{IpcConfig, IpcError, IpcService, create_node, new_instance_id, service_err, service_name};
 use crate::world::clock::wall_clock_ns;
 
 /// The occupancy publisher: its own iceoryx2 node, service and publisher.
@@ -24,10 +24,11 @@ pub struct OccupancyPublisher {
 
 impl OccupancyPublisher {
     /// Creates `<prefix>/occupancy` with the contract's QoS and a publisher for `cells` cells.
-    pub fn open(prefix: &str, cells: usize) -> Result<Self, IpcError> {
+    pub fn open(ipc: &IpcConfig, cells: usize) -> Result<Self, IpcError> {
+        let prefix = ipc.prefix.as_str();
         let full = occupancy_service_name(prefix);
         let name = service_name(prefix, &full)?;
-        let node = create_node("op3dsgd-occupancy")?;
+        let node = create_node(&ipc.ipc_root(), "op3dsgd-occupancy")?;
         let service = node
             .service_builder(&name)
             .publish_subscribe::<[i8]>()

@@ -211,7 +211,7 @@ pub(super) fn occupancy(
     if let Some(store) = &store {
         let _ = store.restore(&mut grid);
     }
-    let publisher = OccupancyPublisher::open(&profile.ipc.prefix, grid.geometry().cell_count())
+    let publisher = OccupancyPublisher::open(&profile.ipc, grid.geometry().cell_count())
         .map_err(|e| StartError::Ipc(e.to_string()))?;
     info!(
         cells = grid.geometry().cell_count(),
@@ -250,7 +250,7 @@ pub(super) fn query(
         .then(|| EncoderSetup { onnx: profile.onnx.clone(), text_encoder: profile.text_encoder.clone() });
     let navigation = NavigationSetup { occupancy, config: profile.navigation.clone(), up_axis: profile.world.up_axis };
     let (receiver, worker, ready) =
-        query_threads(&profile.ipc.prefix, &profile.query, encoder, navigation, latest, stop.clone());
+        query_threads(&profile.ipc, &profile.query, encoder, navigation, latest, stop.clone());
     let counters = worker.counters().clone();
     stages.spawn_serving("query-rx", &ready, move || receiver.run())?;
     stages.spawn("query", move || worker.run())?;

@@ -82,6 +82,7 @@ use serde::{Deserialize, Serialize};
 use crate::embedding::Embedding;
 use crate::flow::LatestGraph;
 use crate::graph::SceneGraph;
+use crate::ipc::IpcConfig;
 use crate::onnx::OnnxError;
 use crate::onnx::text_encoder::TextEncoder;
 
@@ -118,7 +119,7 @@ impl QueryConfig {
 /// (`query.queue_capacity`); `encoder_setup` is `None` when the profile has the text encoder off
 /// (node queries are answered all the same).
 pub fn query_threads(
-    prefix: &str,
+    ipc: &IpcConfig,
     config: &QueryConfig,
     encoder_setup: Option<EncoderSetup>,
     navigation: NavigationSetup,
@@ -129,7 +130,7 @@ pub fn query_threads(
     let (jobs_tx, jobs_rx) = crossbeam_channel::bounded(config.queue_capacity);
     let (ready_tx, ready_rx) = crossbeam_channel::bounded(1);
     let receiver = QueryReceiverThread {
-        prefix: prefix.to_owned(),
+        ipc: ipc.clone(),
         ready: ready_tx,
         jobs: jobs_tx,
         encoder_on: encoder_setup.is_some(),

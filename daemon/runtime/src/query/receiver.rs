@@ -17,7 +17,7 @@ use op3dsg_ipc_types::{QUERY_MAX_K, QUERY_SCHEMA_VERSION, QueryRequest, QueryRes
 use tracing::{info, warn};
 
 use crate::flow::LatestGraph;
-use crate::ipc::{IpcError, IpcService, create_node, service_err, service_name};
+use crate::ipc::{IpcConfig, IpcError, IpcService, create_node, service_err, service_name};
 
 /// A request taken off the service, with its reply port.
 pub(super) type Request = ActiveRequest<IpcService, QueryRequest, (), QueryResponse, ()>;
@@ -46,10 +46,11 @@ pub struct QueryReceiver {
 
 impl QueryReceiver {
     /// Creates (or reopens) `<prefix>/query` with the contract's QoS and its server port.
-    pub fn open(prefix: &str) -> Result<Self, IpcError> {
+    pub fn open(ipc: &IpcConfig) -> Result<Self, IpcError> {
+        let prefix = ipc.prefix.as_str();
         let full = query_service_name(prefix);
         let name = service_name(prefix, &full)?;
-        let node = create_node("op3dsgd-query")?;
+        let node = create_node(&ipc.ipc_root(), "op3dsgd-query")?;
         let factory = node
             .service_builder(&name)
             .request_response::<QueryRequest, QueryResponse>()
@@ -102,7 +103,7 @@ fn check_request(request: &QueryRequest) -> Result<(), String> {
 /// [`QueryReceiverThread::run`] is its body. It creates `<prefix>/query` itself (the service
 /// belongs to its thread) and says on `ready` whether it could.
 pub struct QueryReceiverThread {
-    pub(super) prefix: String,
+    pub(super) ipc: IpcConfig,
     pub(super) ready: Sender<Result<(), String>>,
     pub(super) jobs: Sender<Request>,
     pub(super) encoder_on: bool,
@@ -114,14 +115,14 @@ pub struct QueryReceiverThread {
 
 impl std::fmt::Debug for QueryReceiverThread {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("QueryReceiverThread").field("prefix", &self.prefix).finish_non_exhaustive()
+        f.debug_struct("QueryReceiverThread").field("prefix", &self.ipc.prefix).finish_non_exhaustive()
     }
 }
 
 impl QueryReceiverThread {
     /// Creates the service, then takes requests until the stop flag or the publisher's end.
     pub fn run(self) {
-        let receiver = match QueryReceiver::open(&self.prefix) {
+        let receiver = match QueryReceiver::open(&self.ipc) {
             Ok(receiver) => {
                 let _ = self.ready.send(Ok(()));
                 receiver

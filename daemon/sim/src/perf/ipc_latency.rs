@@ -43,7 +43,7 @@ use iceoryx2::prelude::Node;
 #[cfg(doc)]
 use op3dsg_ipc_types::Graph;
 use op3dsg_ipc_types::{
-    EdgeKind, EdgeOrigin, GraphHeader, GraphSubscriber, MAX_EDGES, MAX_NODES, NodeKind, graph_payload_bytes,
+    EdgeKind, EdgeOrigin, GraphHeader, GraphSubscriber, IpcRoot, MAX_EDGES, MAX_NODES, NodeKind, graph_payload_bytes,
 };
 use serde::{Deserialize, Serialize};
 
@@ -206,7 +206,7 @@ impl BenchPublisher {
         let config = IpcConfig { prefix: prefix.to_owned(), max_subscribers: 2, ..IpcConfig::default() };
         let server = GraphServer::open(&config, "op3dsg-bench-publisher").context("graph services")?;
         let names = BenchServices::new(prefix);
-        let node = create_node("op3dsg-bench-raw")?;
+        let node = create_node(&config.ipc_root(), "op3dsg-bench-raw")?;
         let raw = node
             .service_builder(&service_name(prefix, &names.raw_name)?)
             .publish_subscribe::<[u8]>()
@@ -472,7 +472,7 @@ pub fn ipc_peer(prefix: &str, pairs: usize) -> anyhow::Result<Receipts> {
     let mut graphs = GraphSubscriber::open_wait(prefix, "op3dsg-bench-subscriber", PEER_TIMEOUT)
         .context("opening the graph services")?;
     let names = BenchServices::new(prefix);
-    let node = create_node("op3dsg-bench-subscriber-raw")?;
+    let node = create_node(&IpcRoot::resolve(), "op3dsg-bench-subscriber-raw")?;
     let raw: Subscriber<IpcService, [u8], ()> = node
         .service_builder(&service_name(prefix, &names.raw_name)?)
         .publish_subscribe::<[u8]>()

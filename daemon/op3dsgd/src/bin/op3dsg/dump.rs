@@ -11,7 +11,7 @@ use op3dsg_ipc_types::{EdgeKind, Graph, GraphSubscriber, NodeView};
 use op3dsg_runtime::ipc::graph_to_scene_graph;
 use serde_json::{Value, json};
 
-use super::{node_name, poll_until, write_output};
+use super::{connect_error, node_name, poll_until, write_output};
 
 /// What `op3dsg dump` prints.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -28,9 +28,8 @@ pub(super) enum DumpFormat {
 /// `out` (or standard output).
 pub(super) fn dump(prefix: &str, format: DumpFormat, timeout: Duration, out: Option<&Path>) -> Result<()> {
     let deadline = Instant::now() + timeout;
-    let mut graphs = GraphSubscriber::open_wait(prefix, &node_name(), timeout).with_context(|| {
-        format!("connecting to op3dsgd under prefix '{prefix}' (waited {:.1} s)", timeout.as_secs_f64())
-    })?;
+    let mut graphs =
+        GraphSubscriber::open_wait(prefix, &node_name(), timeout).map_err(|e| connect_error(prefix, timeout, e))?;
     let remaining = deadline.saturating_duration_since(Instant::now());
     let Some(graph) = poll_until(remaining, || graphs.latest().map(|graph| graph.cloned()))
         .with_context(|| format!("reading service {prefix}/graph"))?

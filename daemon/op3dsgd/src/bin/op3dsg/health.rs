@@ -10,14 +10,13 @@ use op3dsg_ipc_types::HealthSubscriber;
 use op3dsg_runtime::ipc::HealthReport;
 use op3dsg_runtime::ipc::health_report::{RecorderReport, RefinerReport, SnapshotReport};
 
-use super::{node_name, poll_until, write_output};
+use super::{connect_error, node_name, poll_until, write_output};
 
 /// `op3dsg health`: waits up to `timeout` for the daemon and a record, then prints it.
 pub(super) fn health(prefix: &str, json: bool, timeout: Duration) -> Result<()> {
     let deadline = Instant::now() + timeout;
-    let mut healths = HealthSubscriber::open_wait(prefix, &node_name(), timeout).with_context(|| {
-        format!("connecting to op3dsgd under prefix '{prefix}' (waited {:.1} s)", timeout.as_secs_f64())
-    })?;
+    let mut healths =
+        HealthSubscriber::open_wait(prefix, &node_name(), timeout).map_err(|e| connect_error(prefix, timeout, e))?;
     let remaining = deadline.saturating_duration_since(Instant::now());
     let Some(record) =
         poll_until(remaining, || healths.latest()).with_context(|| format!("reading service {prefix}/health"))?

@@ -52,6 +52,10 @@ use bench_args::{BenchCommand, RoomBench};
 /// prefix (services <prefix>/graph, <prefix>/graph_updated, <prefix>/health, <prefix>/pose,
 /// <prefix>/query, <prefix>/occupancy).
 /// This tool watches it, dumps it, shows its health, and writes synthetic ground truth.
+///
+/// Only processes of the daemon's own user can attach (iceoryx2 0.10 makes everything owner-only).
+/// They meet in an iceoryx2 root folder: $OP3DSG_IPC_ROOT, else /run/op3dsg when it belongs to
+/// this user (the installed service's), else /tmp/op3dsg-<uid>.
 #[derive(Debug, Parser)]
 #[command(name = "op3dsg", version, propagate_version = true)]
 struct Cli {
@@ -411,6 +415,17 @@ fn seconds(value: f64) -> Result<Duration> {
 }
 
 /// The iceoryx2 node name of this process's clients.
+/// A failed connection, with how long it waited when no daemon was serving (a refused root or
+/// another error fails at once).
+fn connect_error(prefix: &str, timeout: Duration, e: ClientError) -> anyhow::Error {
+    let context = if e.is_not_serving() {
+        format!("connecting to op3dsgd under prefix '{prefix}' (waited {:.1} s)", timeout.as_secs_f64())
+    } else {
+        format!("connecting to op3dsgd under prefix '{prefix}'")
+    };
+    anyhow::Error::new(e).context(context)
+}
+
 fn node_name() -> String {
     format!("op3dsg-cli-{}", std::process::id())
 }
