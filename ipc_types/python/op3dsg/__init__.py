@@ -21,6 +21,7 @@ Same iceoryx2 as the daemon: PyPI ``iceoryx2==0.10.0``.
 """
 
 from .errors import (
+    AccessDeniedError,
     Iceoryx2Error,
     InvalidGraphError,
     InvalidPoseError,

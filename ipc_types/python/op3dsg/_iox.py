@@ -10,7 +10,15 @@ from typing import Callable, TypeVar
 
 import iceoryx2 as iox2
 
-from .errors import InvalidPrefixError, NotServingError, Op3dsgError, Iceoryx2Error, SubscriberSlotsFullError
+from . import access
+from .errors import (
+    AccessDeniedError,
+    Iceoryx2Error,
+    InvalidPrefixError,
+    NotServingError,
+    Op3dsgError,
+    SubscriberSlotsFullError,
+)
 from .wire import MAX_PREFIX_LEN
 
 #: How often a client started before the daemon retries opening its services (seconds).
@@ -52,16 +60,37 @@ def reason(error: BaseException) -> str:
     return str(error.args[0]) if error.args else type(error).__name__
 
 
-def create_node(prefix: str, service: str, node_name: str):
-    """The client's iceoryx2 node (signal handling off: Ctrl-C stays Python's), after checking the
-    prefix; removes the shared-memory leftovers of dead processes, as the Rust client does."""
+def client_config(service: str, make_root: bool = False):
+    """The iceoryx2 configuration of a client: the root :func:`access.resolve_root` chooses,
+    checked before iceoryx2 may create anything in it. A missing root means no daemon of this user
+    runs (:class:`NotServingError`, so waiting clients keep waiting), unless ``make_root`` (the pose
+    publisher, which may come first)."""
+    root, _ = access.resolve_root()
+    try:
+        if make_root:
+            access.prepare_root(root)
+        else:
+            access.check_root(root)
+    except access.RootMissing:
+        raise NotServingError(service, "create node") from None
+    except access.RootDenied as e:
+        raise AccessDeniedError(service, "create node", str(e)) from None
+    return access.config(root)
+
+
+def create_node(prefix: str, service: str, node_name: str, make_root: bool = False):
+    """The client's iceoryx2 node in the IPC root (signal handling off: Ctrl-C stays Python's),
+    after checking the prefix and the root; removes the shared-memory leftovers of dead processes,
+    as the Rust client does."""
     validate_prefix(prefix, service)
+    cfg = client_config(service, make_root)
     try:
         name = iox2.NodeName.new(node_name)
         node = (
             iox2.NodeBuilder.new()
             .name(name)
             .signal_handling_mode(iox2.SignalHandlingMode.Disabled)
+            .config(cfg)
             .create(iox2.ServiceType.Ipc)
         )
     except Exception as e:  # iceoryx2 raises its own exception classes
@@ -95,6 +124,14 @@ def open_error(service: str, error: BaseException, operation: str = "open") -> O
             service, operation, f"{why}: every subscriber slot of the service is taken (the daemon's ipc.max_subscribers)"
         )
     return Iceoryx2Error(service, operation, f"{type(error).__name__}: {why}")
+
+
+def deadline_after(timeout_s: float) -> float:
+    return time.monotonic() + max(0.0, timeout_s)
+
+
+def left_until(deadline: float) -> float:
+    return max(0.0, deadline - time.monotonic())
 
 
 def retry_while_not_serving(timeout_s: float, open_fn: Callable[[], T]) -> T:

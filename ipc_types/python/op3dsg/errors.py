@@ -25,8 +25,18 @@ class NotServingError(Op3dsgError):
     """No op3dsgd serves the prefix (the service does not exist); retrying later may succeed."""
 
     def __init__(self, service: str, operation: str = "open"):
+        from .access import foreign_service_note, resolve_root
+
         prefix = service.rsplit("/", 1)[0]
-        super().__init__(service, operation, f"no op3dsgd is serving under prefix '{prefix}' (service {service} not found)")
+        root, _ = resolve_root()
+        cause = f"no op3dsgd is serving under prefix '{prefix}' in IPC root {root} (service {service} not found)"
+        note = foreign_service_note(root)
+        super().__init__(service, operation, f"{cause}; {note}" if note else cause)
+
+
+class AccessDeniedError(Op3dsgError, PermissionError):
+    """The IPC root belongs to another user (iceoryx2 lets only the daemon's own user attach), is
+    open to others, or is no folder; the message names the owner and the fix."""
 
 
 class InvalidPrefixError(Op3dsgError, ValueError):

@@ -364,8 +364,10 @@ class GraphClient:
         self.prefix = prefix
         self.service = _iox.service_name(prefix, "graph")
         self.event_service = _iox.service_name(prefix, "graph_updated")
-        self._node = _iox.create_node(prefix, self.service, node_name or _iox.default_node_name("graph"))
-        self._subscriber, self._listener = _iox.retry_while_not_serving(timeout, self._open_ports)
+        deadline = _iox.deadline_after(timeout)
+        name = node_name or _iox.default_node_name("graph")
+        self._node = _iox.retry_while_not_serving(timeout, lambda: _iox.create_node(prefix, self.service, name))
+        self._subscriber, self._listener = _iox.retry_while_not_serving(_iox.left_until(deadline), self._open_ports)
         self._view: Optional[GraphView] = None
         self._last_instance = 0
         self._if_newer_instance = 0

@@ -25,8 +25,10 @@ class HealthClient:
     def __init__(self, prefix: str = DEFAULT_PREFIX, timeout: float = 0.0, node_name: Optional[str] = None):
         self.prefix = prefix
         self.service = _iox.service_name(prefix, "health")
-        self._node = _iox.create_node(prefix, self.service, node_name or _iox.default_node_name("health"))
-        self._subscriber = _iox.retry_while_not_serving(timeout, self._open)
+        deadline = _iox.deadline_after(timeout)
+        name = node_name or _iox.default_node_name("health")
+        self._node = _iox.retry_while_not_serving(timeout, lambda: _iox.create_node(prefix, self.service, name))
+        self._subscriber = _iox.retry_while_not_serving(_iox.left_until(deadline), self._open)
         self._latest: Optional[Health] = None
 
     def _open(self):

@@ -146,7 +146,9 @@ class PosePublisher:
     def __init__(self, prefix: str = DEFAULT_PREFIX, node_name: Optional[str] = None):
         self.prefix = prefix
         self.service = _iox.service_name(prefix, "pose")
-        self._node = _iox.create_node(prefix, self.service, node_name or _iox.default_node_name("pose"))
+        self._node = _iox.create_node(
+            prefix, self.service, node_name or _iox.default_node_name("pose"), make_root=True
+        )
         self.pose_service = open_or_create_pose_service(self._node, prefix, DEFAULT_POSE_BUFFER)
         try:
             self._publisher = self.pose_service.factory.publisher_builder().create()

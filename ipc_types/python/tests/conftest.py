@@ -51,6 +51,17 @@ def wire_layout_path() -> Path:
     return binary("OP3DSG_WIRE_LAYOUT", REPO / "target/debug/examples/wire_layout")
 
 
+def raw_node():
+    """A plain iceoryx2 node in the IPC root the clients use (made when missing), for tests that
+    stand in for the daemon or its peers."""
+    import iceoryx2 as iox2
+    from op3dsg import access
+
+    root, _ = access.resolve_root()
+    access.prepare_root(root)
+    return iox2.NodeBuilder.new().config(access.config(root)).create(iox2.ServiceType.Ipc)
+
+
 def unique_prefix(name: str) -> str:
     return f"op3dsg-py-{name}-{os.getpid()}-{next(_counter)}"
 

@@ -13,12 +13,14 @@ import pytest
 import op3dsg
 from op3dsg import wire
 
+from conftest import raw_node
+
 
 class GraphPublisher:
     """``<prefix>/graph`` and ``<prefix>/graph_updated`` with the daemon's QoS, from Python."""
 
     def __init__(self, prefix: str):
-        self.node = iox2.NodeBuilder.new().create(iox2.ServiceType.Ipc)
+        self.node = raw_node()
         service = (
             self.node.service_builder(iox2.ServiceName.new(f"{prefix}/graph"))
             .publish_subscribe(iox2.Slice[ctypes.c_uint8])
@@ -74,7 +76,8 @@ def test_no_daemon_is_a_not_serving_error_naming_prefix_and_service(prefix):
     with pytest.raises(op3dsg.NotServingError) as error:
         op3dsg.GraphClient(prefix)
     assert error.value.prefix == prefix
-    assert f"no op3dsgd is serving under prefix '{prefix}' (service {prefix}/graph not found)" in str(error.value)
+    root, _ = op3dsg.access.resolve_root()
+    assert f"no op3dsgd is serving under prefix '{prefix}' in IPC root {root} (service {prefix}/graph not found)" in str(error.value)
     with pytest.raises(op3dsg.NotServingError, match=f"{prefix}/health"):
         op3dsg.health(prefix, timeout=0.2)
     with pytest.raises(op3dsg.InvalidPrefixError, match="invalid character ' '"):
@@ -158,7 +161,7 @@ def test_another_schema_version_and_a_short_payload_are_named_errors(prefix):
 
 
 def test_pose_publisher_opens_a_service_created_first_with_iceoryx2_defaults_as_it_is(prefix):
-    node = iox2.NodeBuilder.new().create(iox2.ServiceType.Ipc)
+    node = raw_node()
     service = node.service_builder(iox2.ServiceName.new(f"{prefix}/pose")).publish_subscribe(wire.PoseStamped).create()
     subscriber = service.subscriber_builder().create()
     poses = op3dsg.PosePublisher(prefix)
