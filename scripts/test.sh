@@ -39,7 +39,7 @@ export LD_LIBRARY_PATH="$RS_LIB${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
 # The test fault hooks (daemon/runtime, feature `fault-hooks`) go into this build only.
 FEATURES=(--features op3dsgd/realsense,op3dsgd/fault-hooks)
 
-# iceoryx2 keeps its state in /tmp/iceoryx2 and /dev/shm; every test uses its own service
+# iceoryx2 keeps its state in /tmp/op3dsg-<uid> and /dev/shm/op3dsg_*; every test uses its own service
 # prefix, so parallel tests and a daemon running on this machine do not interfere.
 export RUST_BACKTRACE=1
 # One build, used once: incremental state would only cost disk (gigabytes across ~50 binaries).
