@@ -86,10 +86,41 @@ impl StampClock {
     }
 }
 
+/// What a source reads, as the daemon tells its planners (the graph header's `source_kind`):
+/// the world as it is now, a recording of it, or a simulated one.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SourceKind {
+    /// A live camera.
+    LiveCamera,
+    /// A recording played back, whoever plays it: a TUM RGB-D sequence, an MCAP recording, a
+    /// librealsense `.bag` (played by the camera's own source).
+    Replay,
+    /// A simulated world (the synthetic rooms).
+    Synthetic,
+    /// None of these (a source of another kind; its [`FrameSource::describe`] says what).
+    Other,
+}
+
+impl SourceKind {
+    /// How the kind reads in logs: `live camera`, `replay`, `synthetic`, `other`.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Self::LiveCamera => "live camera",
+            Self::Replay => "replay",
+            Self::Synthetic => "synthetic",
+            Self::Other => "other",
+        }
+    }
+}
+
 /// A source of RGB-D frames. Runs on the capture thread; `next_frame` fills a pooled buffer.
 pub trait FrameSource: Send {
     /// Intrinsics of every frame this source delivers (fixed for the source's lifetime).
     fn intrinsics(&self) -> Intrinsics;
+
+    /// What this source reads ([`SourceKind`]): decided by what it opened (the camera's source
+    /// playing a `.bag` is a replay), not by the profile's `source.kind`.
+    fn kind(&self) -> SourceKind;
 
     /// Whether frames carry their own `world_from_camera`.
     fn has_poses(&self) -> bool {

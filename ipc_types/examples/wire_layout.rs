@@ -21,8 +21,8 @@ use op3dsg_ipc_types::{
     FUTURE_POSE_LIMIT_NS, GraphHeader, Health, LABEL_CAPACITY_BYTES, MAX_EDGES, MAX_MODELS, MAX_NODES, MAX_QUEUES,
     MAX_STAGES, MAX_WORKERS, ModelHealth, NAME_CAPACITY_BYTES, NO_NODE, NODE_BYTES, Node, PHRASE_CAPACITY_BYTES,
     PoseHealth, PoseStamped, QueueHealth, RECORDER_STATES, REFINER_ERRORS, REFINER_FORMATS, REFINER_REJECTIONS,
-    REFINER_STATES, RecorderHealth, RefinerHealth, SCHEMA_VERSION, SNAPSHOT_STATES, SPATIAL_RELATIONS, SnapshotHealth,
-    StageHealth, ZeroCopySend,
+    REFINER_STATES, RecorderHealth, RefinerHealth, SCHEMA_VERSION, SNAPSHOT_STATES, SOURCE_KINDS, SPATIAL_RELATIONS,
+    SnapshotHealth, StageHealth, ZeroCopySend,
 };
 
 /// The JSON object of one type: `"Name": {"type_name", "size", "align", "fields": [...]}`.
@@ -111,11 +111,13 @@ fn graph_layouts() -> Vec<String> {
             object_count,
             part_count,
             capacity_exceeded,
+            source_kind,
             reserved,
             total_node_count,
             total_edge_count,
             node_capacity,
             edge_capacity,
+            world_frame,
             reserved2,
         }
     );
@@ -197,7 +199,7 @@ fn health_layouts() -> Vec<String> {
             map_node_count,
             queue_count,
             source_connected,
-            reserved,
+            source_kind,
             graph_subscribers,
             dead_nodes_cleaned,
             stages,
@@ -209,6 +211,7 @@ fn health_layouts() -> Vec<String> {
             models,
             recorder,
             snapshot,
+            world_frame,
         }
     );
     types
@@ -246,6 +249,7 @@ fn constants() -> String {
     constant("REFINER_ERRORS", json_strings(&REFINER_ERRORS));
     constant("REFINER_FORMATS", json_strings(&REFINER_FORMATS));
     constant("REFINER_REJECTIONS", json_strings(&REFINER_REJECTIONS));
+    constant("SOURCE_KINDS", json_strings(&SOURCE_KINDS));
     constant("DEFAULT_PREFIX", format!("\"{DEFAULT_PREFIX}\""));
     constant("MAX_PREFIX_LEN", MAX_PREFIX_LEN.to_string());
     constant("HISTORY_SIZE", HISTORY_SIZE.to_string());

@@ -235,8 +235,10 @@ pub struct Health {
     pub queue_count: u32,
     /// 1 while the frame source delivers, 0 when it is lost or finished.
     pub source_connected: u8,
-    /// Reserved, zero.
-    pub reserved: u8,
+    /// What the daemon reads its frames from, as in the graph header: a
+    /// [`SourceKind`](crate::SourceKind) value (0 unknown or other, 1 live camera, 2 replay,
+    /// 3 synthetic; names in [`SOURCE_KINDS`](crate::SOURCE_KINDS)).
+    pub source_kind: u8,
     /// Planners (graph subscribers) connected now, as iceoryx2 counts them: a planner killed
     /// without closing stays counted until its node is cleaned up (see `dead_nodes_cleaned`).
     pub graph_subscribers: u16,
@@ -262,6 +264,9 @@ pub struct Health {
     pub recorder: RecorderHealth,
     /// The map snapshots (`[snapshot]`).
     pub snapshot: SnapshotHealth,
+    /// Name of the frame the graph's coordinates are in (the profile's `world.frame_id`), as in
+    /// the graph header, UTF-8, NUL padded; so a monitor that reads health alone sees it.
+    pub world_frame: [u8; NAME_CAPACITY_BYTES],
 }
 
 impl Default for Health {
@@ -280,7 +285,7 @@ impl Default for Health {
             map_node_count: 0,
             queue_count: 0,
             source_connected: 0,
-            reserved: 0,
+            source_kind: 0,
             graph_subscribers: 0,
             dead_nodes_cleaned: 0,
             stages: [StageHealth::default(); MAX_STAGES],
@@ -292,6 +297,7 @@ impl Default for Health {
             models: [ModelHealth::default(); MAX_MODELS],
             recorder: RecorderHealth::default(),
             snapshot: SnapshotHealth::default(),
+            world_frame: [0; NAME_CAPACITY_BYTES],
         }
     }
 }
@@ -308,6 +314,15 @@ impl Health {
     /// The valid queue entries.
     pub fn valid_queues(&self) -> &[QueueHealth] {
         &self.queues[..(self.queue_count as usize).min(MAX_QUEUES)]
+    }
+    /// [`Self::source_kind`] decoded; a value this build does not know reads as
+    /// [`SourceKind::Unknown`](crate::SourceKind::Unknown).
+    pub fn source_kind(&self) -> crate::SourceKind {
+        crate::SourceKind::from_u8(self.source_kind).unwrap_or_default()
+    }
+    /// [`Self::world_frame`] as text.
+    pub fn world_frame_str(&self) -> &str {
+        crate::fixed_str(&self.world_frame)
     }
 }
 

@@ -47,8 +47,12 @@
 //!
 //! Conventions used by every type:
 //! - Units are part of field names: `_m` metres, `_ns` nanoseconds, `_us` microseconds, `_hz`.
-//! - Coordinates are in the `world` frame of the map (right-handed; which axis is up is the
-//!   profile's `world.up_axis`, `+z` by default).
+//! - Coordinates are in the world frame of the map, whose name every graph header carries
+//!   ([`GraphHeader::world_frame`]: the profile's `world.frame_id`, `world` by default, `map` on
+//!   the Stretch 3) (right-handed; which axis is up is the profile's `world.up_axis`, `+z` by
+//!   default). Poses sent on `pose` are in that frame too.
+//! - What the graph is of: [`GraphHeader::source_kind`] (and [`Health::source_kind`]) says
+//!   whether the daemon reads a live camera, a replay or the synthetic rooms ([`SourceKind`]).
 //! - Stamps are nanoseconds on the daemon's clock (`CLOCK_REALTIME` for live cameras, the
 //!   recording's clock for replay, scene time for the synthetic source).
 //! - Text is UTF-8 in a fixed buffer, padded with NUL bytes; a string that fills the buffer has no
@@ -132,8 +136,8 @@ pub use client::{
 pub use graph_types::{
     AFFORDANCES, EDGE_BYTES, Edge, EdgeKind, EdgeOrigin, FUNCTIONAL_RELATION_BASE, FUNCTIONAL_RELATIONS, GraphHeader,
     GraphMessage, LABEL_CAPACITY_BYTES, MAX_EDGES, MAX_NODES, NO_NODE, NODE_BYTES, Node, NodeKind,
-    PHRASE_CAPACITY_BYTES, SPATIAL_RELATIONS, affordance_bits, affordance_names, affordance_origin, affordance_origins,
-    graph_payload_bytes, relation_id, relation_phrase,
+    PHRASE_CAPACITY_BYTES, SOURCE_KINDS, SPATIAL_RELATIONS, SourceKind, affordance_bits, affordance_names,
+    affordance_origin, affordance_origins, graph_payload_bytes, relation_id, relation_phrase,
 };
 pub use health_types::{
     EXECUTION_PROVIDERS, FIXED_STAGES, FUTURE_POSE_LIMIT_NS, Health, MAX_MODELS, MAX_QUEUES, MAX_STAGES, MAX_WORKERS,
@@ -173,7 +177,15 @@ pub use text::{fixed_str, write_fixed_str};
 /// 8: [`Health`]'s reserved bytes after `source_connected` became `graph_subscribers` (u16) and
 /// `dead_nodes_cleaned` (u32), with one reserved byte before them; its size and every other
 /// offset are unchanged, and so is the graph's layout.
-pub const SCHEMA_VERSION: u32 = 8;
+///
+/// 9: what the graph is of. [`GraphHeader`] grew from 80 to 112 bytes: its first reserved byte
+/// (offset 53) became `source_kind` ([`SourceKind`]: live camera, replay, synthetic, unknown;
+/// `reserved` is the 2 bytes at 54), and after `edge_capacity` come `world_frame` (32 bytes at
+/// 72: the frame the coordinates are in, the profile's `world.frame_id`) and an 8-byte
+/// `reserved2` at 104 (was 4 bytes at 72); every other offset is unchanged. [`Health`]'s
+/// reserved byte after `source_connected` became `source_kind`, and `world_frame` (32 bytes)
+/// was appended after `snapshot`; every other offset is unchanged.
+pub const SCHEMA_VERSION: u32 = 9;
 
 /// Bytes in a frame id (`PoseStamped::frame_id`), a stage or a queue name.
 pub const NAME_CAPACITY_BYTES: usize = 32;
@@ -195,7 +207,7 @@ mod tests {
         assert_eq!(core::mem::offset_of!(Node, obb_size_m), 132);
         assert_eq!(align_of::<Node>(), 8);
         assert_eq!(size_of::<Edge>(), 64);
-        assert_eq!(size_of::<GraphHeader>(), 80);
+        assert_eq!(size_of::<GraphHeader>(), 112);
         assert_eq!(align_of::<GraphHeader>(), 8);
         assert_eq!((NODE_BYTES, EDGE_BYTES), (size_of::<Node>(), size_of::<Edge>()));
         assert_eq!(size_of::<PoseStamped>(), 104);
@@ -207,12 +219,18 @@ mod tests {
         assert_eq!(MAX_STAGES, 72);
         assert_eq!(
             size_of::<Health>(),
-            88 + MAX_STAGES * 64 + MAX_QUEUES * 56 + 128 + 96 + 8 + MAX_MODELS * 40 + 40 + 64
+            88 + MAX_STAGES * 64 + MAX_QUEUES * 56 + 128 + 96 + 8 + MAX_MODELS * 40 + 40 + 64 + NAME_CAPACITY_BYTES
         );
+        assert_eq!(core::mem::offset_of!(Health, source_kind), 81);
+        assert_eq!(core::mem::offset_of!(Health, world_frame), size_of::<Health>() - NAME_CAPACITY_BYTES);
         assert_eq!(size_of::<SnapshotHealth>(), 64);
         assert_eq!(core::mem::offset_of!(GraphHeader, instance_id), 16);
         assert_eq!(core::mem::offset_of!(GraphHeader, capacity_exceeded), 52);
         assert_eq!(core::mem::offset_of!(GraphHeader, node_capacity), 64);
+        assert_eq!(core::mem::offset_of!(GraphHeader, source_kind), 53);
+        assert_eq!(core::mem::offset_of!(GraphHeader, reserved), 54);
+        assert_eq!(core::mem::offset_of!(GraphHeader, world_frame), 72);
+        assert_eq!(core::mem::offset_of!(GraphHeader, reserved2), 104);
     }
 
     #[test]

@@ -22,6 +22,8 @@ summary for the cross-process tests (tests/tests/record_daemon.rs):
   "foxglove_errors": [str],          # every violation (first 50): "topic[index]: path: what"
   "embedded_validated": int,         # messages validated against the schema text in the file
   "embedded_errors": [str],          # violations of the file's own schemas (first 50)
+  "world_frames": {topic: [str]},    # the world frame names used: /tf parents, scene entities,
+                                     #   node point clouds, health records (sorted, distinct)
   "error": str | null                # why reading stopped before the end (truncated file)
 }
 
@@ -167,6 +169,7 @@ def main(path, schema_dir, needles=()):
         "foxglove_errors": [],
         "embedded_validated": 0,
         "embedded_errors": [],
+        "world_frames": {},
         "error": None,
     }
 
@@ -236,6 +239,21 @@ def main(path, schema_dir, needles=()):
                     report("embedded_errors", violations(embedded[schema.id], decoded, where))
                     out["embedded_validated"] += 1
                 s = stamp(decoded)
+                frame = None
+                if topic == "/tf":
+                    frame = decoded.get("parent_frame_id")
+                elif topic == "/op3dsg/node_points":
+                    frame = decoded.get("frame_id")
+                elif topic == "/op3dsg/health":
+                    frame = decoded.get("world_frame")
+                frames = [frame] if frame is not None else []
+                if topic == "/op3dsg/scene":
+                    frames = [e["frame_id"] for e in decoded.get("entities", [])]
+                for frame in frames:
+                    seen = out["world_frames"].setdefault(topic, [])
+                    if frame not in seen:
+                        seen.append(frame)
+                        seen.sort()
                 if topic == "/op3dsg/graph":
                     graphs[decoded["graph_version"]] = decoded
                     graph_by_stamp.setdefault(decoded["stamp_ns"], []).append(decoded)

@@ -93,8 +93,10 @@ fn synthetic_kitchen_recorded_then_replayed_gives_the_identical_graph() {
     let mut args = vec!["--set", "source.synthetic.frame_count=45", "--record", first];
     args.extend_from_slice(DETERMINISTIC);
     // Paced below what the recorder of a debug build keeps up with, and a deep frame queue: the
-    // recording must hold every frame the pipeline used (checked below: no drops).
+    // recording must hold every frame the pipeline used (checked below: no drops). The world
+    // frame is named as a robot's navigation stack names it; the replay below keeps the default.
     args.extend_from_slice(&["--set", "source.rate_hz=8", "--set", "record.frame_queue=32"]);
+    args.extend_from_slice(&["--set", "world.frame_id=\"map\""]);
     run_to_end(&unique_prefix("rec-a"), &args);
     let files = mcap_files(&first_dir);
     assert_eq!(files.len(), 1, "one file: {files:?}");
@@ -163,6 +165,8 @@ fn synthetic_kitchen_recorded_then_replayed_gives_the_identical_graph() {
     }
     assert_eq!(recorded["metadata"]["op3dsg.recorder"]["dropped_total"], "0");
     assert!(recorded["metadata"]["op3dsg.profile"].is_object());
+    // The recording names the world frame as the profile does, as the graph header does.
+    assert_world_frames(&recorded, "map");
 
     // Replay through source.kind = "mcap" with the same profile and detector, recording again.
     let second_dir = dir.path().join("second");
@@ -174,6 +178,17 @@ fn synthetic_kitchen_recorded_then_replayed_gives_the_identical_graph() {
     let replayed = check(&files[0]);
     assert_eq!(replayed["error"], Value::Null, "{replayed}");
     assert_same_final_graph(&recorded, &replayed);
+    // The world frame's name is the replaying profile's (here the default): it changes no graph.
+    assert_world_frames(&replayed, "world");
+}
+
+/// Every world frame name the recording uses (`/tf` parents, scene entities, node point clouds,
+/// health records) is `expected`, and each of those channels has one.
+fn assert_world_frames(summary: &Value, expected: &str) {
+    let frames = summary["world_frames"].as_object().expect("mcap_check.py lists the world frames");
+    for topic in ["/tf", "/op3dsg/scene", "/op3dsg/node_points", "/op3dsg/health"] {
+        assert_eq!(frames.get(topic), Some(&serde_json::json!([expected])), "{topic}: {frames:?}");
+    }
 }
 
 #[test]

@@ -84,8 +84,6 @@ pub const METADATA_PROFILE: &str = "op3dsg.profile";
 /// `dropped_total`.
 pub const METADATA_RECORDER: &str = "op3dsg.recorder";
 
-/// Frame id of the world frame in transforms and scene entities.
-pub const WORLD_FRAME: &str = "world";
 /// Frame id of the camera (OpenCV axes: x right, y down, z forward).
 pub const CAMERA_FRAME: &str = "camera";
 

@@ -503,6 +503,8 @@ fn health() -> Value {
             "keyframes": { "type": "integer" },
             "graph_version": { "type": "integer" },
             "map_node_count": { "type": "integer" },
+            "source_kind": { "enum": ["unknown", "live_camera", "replay", "synthetic"] },
+            "world_frame": { "type": "string" },
             "stages": { "type": "array", "items": { "type": "object" } },
             "queues": { "type": "array", "items": { "type": "object" } },
             "recorder": { "type": "object" }

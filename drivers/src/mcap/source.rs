@@ -10,7 +10,9 @@ use super::reader::{ChannelInfo, Item, McapReader, MessageAt, ReadError};
 use super::{McapReplayConfig, TOPIC_CALIBRATION, TOPIC_COLOUR, TOPIC_DEPTH, TOPIC_FRAME, TOPIC_INPUT_POSE, schemas};
 use crate::frame::{Frame, Intrinsics};
 use crate::pose::Isometry;
-use crate::source::{FrameSource, MAX_BLOCK, PlaybackMode, SourceError, SourceStatus, StampClock, StepControl};
+use crate::source::{
+    FrameSource, MAX_BLOCK, PlaybackMode, SourceError, SourceKind, SourceStatus, StampClock, StepControl,
+};
 
 /// Receives a side channel's message of each frame (the bytes of the JSON message) after the
 /// frame's pixels and meta are in place; an error stops the replay naming the channel.
@@ -461,6 +463,10 @@ impl McapSource {
 }
 
 impl FrameSource for McapSource {
+    fn kind(&self) -> SourceKind {
+        SourceKind::Replay
+    }
+
     fn intrinsics(&self) -> Intrinsics {
         self.intrinsics
     }

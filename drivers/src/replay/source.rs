@@ -9,7 +9,7 @@ use super::decode::ImageReader;
 use super::index::{CameraFile, Entry, EntryPose, Index, ListedImage, SkipLog, Tolerances, file_error, seconds};
 use super::{MAX_BLOCK, OnBadFrame, PlaybackMode, ReplayConfig};
 use crate::frame::{Frame, Intrinsics};
-use crate::source::{FrameSource, SourceError, SourceStatus, StepControl};
+use crate::source::{FrameSource, SourceError, SourceKind, SourceStatus, StepControl};
 
 /// Frame interval assumed for a one-frame recording without `camera.json`'s `rate_hz`.
 const DEFAULT_FRAME_INTERVAL_NS: u64 = 33_333_333;
@@ -178,6 +178,10 @@ fn median_interval_ns(entries: &[Entry]) -> Option<u64> {
 }
 
 impl FrameSource for ReplaySource {
+    fn kind(&self) -> SourceKind {
+        SourceKind::Replay
+    }
+
     fn intrinsics(&self) -> Intrinsics {
         self.intrinsics
     }

@@ -9,7 +9,7 @@ use super::scene::Scene;
 use super::side_channel::{GroundTruth, InstanceIdChannel};
 use super::{DepthNoiseConfig, SyntheticConfig};
 use op3dsg_drivers::frame::{Frame, Intrinsics};
-use op3dsg_drivers::source::{FrameSource, SourceError, SourceStatus, StampClock};
+use op3dsg_drivers::source::{FrameSource, SourceError, SourceKind, SourceStatus, StampClock};
 
 /// A [`FrameSource`] over a procedural room: RGB, noisy depth, instance ids and exact poses.
 #[derive(Debug)]
@@ -138,6 +138,10 @@ impl SyntheticSource {
 }
 
 impl FrameSource for SyntheticSource {
+    fn kind(&self) -> SourceKind {
+        SourceKind::Synthetic
+    }
+
     fn intrinsics(&self) -> Intrinsics {
         self.config.intrinsics
     }

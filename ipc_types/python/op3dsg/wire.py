@@ -20,7 +20,7 @@ from typing import Dict, Iterator, List, Optional
 import numpy as np
 
 #: Version of the wire contract this package reads (``SCHEMA_VERSION`` in ``ipc_types/src/lib.rs``).
-SCHEMA_VERSION = 8
+SCHEMA_VERSION = 9
 
 #: Bytes in a node label buffer.
 LABEL_CAPACITY_BYTES = 48
@@ -79,6 +79,13 @@ EXECUTION_PROVIDERS = ("unknown", "cpu", "cuda", "openvino")
 REFINER_STATES = ("off", "idle", "calling", "backoff", "breaker_open", "budget_exhausted")
 RECORDER_STATES = ("off", "recording", "failed", "finished")
 SNAPSHOT_STATES = ("off", "started_empty", "restored", "moved_aside")
+#: ``GraphHeader.source_kind`` / ``Health.source_kind`` values: what the daemon reads its frames
+#: from. ``unknown`` (0) is also what a value this package does not know reads as.
+SOURCE_KINDS = ("unknown", "live_camera", "replay", "synthetic")
+SOURCE_KIND_UNKNOWN = 0
+SOURCE_KIND_LIVE_CAMERA = 1
+SOURCE_KIND_REPLAY = 2
+SOURCE_KIND_SYNTHETIC = 3
 REFINER_ERRORS = ("none", "timeout", "refused", "dns", "tls", "connect", "transport", "http_status", "rate_limited", "not_chat")
 REFINER_FORMATS = ("json_schema", "json_object", "json_object_fallback")
 REFINER_REJECTIONS = (
@@ -200,11 +207,14 @@ class Edge(_Wire):
 
 
 class GraphHeader(_Wire):
-    """The user header of every ``<prefix>/graph`` sample (80 bytes): ``op3dsg::GraphHeader``.
+    """The user header of every ``<prefix>/graph`` sample (112 bytes): ``op3dsg::GraphHeader``.
 
     The payload is ``node_count`` node records, then ``edge_count`` edge records, exactly
     :meth:`payload_bytes` bytes. ``instance_id`` is drawn anew every time the daemon starts:
-    a different value than the last one seen means a restart (versions start again at 1)."""
+    a different value than the last one seen means a restart (versions start again at 1).
+    ``source_kind`` says what the daemon reads (:data:`SOURCE_KINDS`: a live camera, a replay,
+    the synthetic rooms) and ``world_frame`` names the frame every coordinate is in (the
+    profile's ``world.frame_id``); :meth:`source_kind_name` and :meth:`world_frame_str` decode them."""
 
     _fields_ = [
         ("schema_version", _u32),
@@ -217,12 +227,14 @@ class GraphHeader(_Wire):
         ("object_count", _u32),
         ("part_count", _u32),
         ("capacity_exceeded", _u8),
-        ("reserved", _u8 * 3),
+        ("source_kind", _u8),
+        ("reserved", _u8 * 2),
         ("total_node_count", _u32),
         ("total_edge_count", _u32),
         ("node_capacity", _u32),
         ("edge_capacity", _u32),
-        ("reserved2", _u32),
+        ("world_frame", _u8 * NAME_CAPACITY_BYTES),
+        ("reserved2", _u64),
     ]
 
     @staticmethod
@@ -231,6 +243,14 @@ class GraphHeader(_Wire):
 
     def payload_bytes(self) -> int:
         return self.node_count * NODE_BYTES + self.edge_count * EDGE_BYTES
+
+    def source_kind_name(self) -> str:
+        """``source_kind`` by name (:data:`SOURCE_KINDS`); a value this package does not know is ``unknown``."""
+        return source_kind_name(self.source_kind)
+
+    def world_frame_str(self) -> str:
+        """``world_frame`` as text (``""`` from a publisher that does not say)."""
+        return fixed_str(self.world_frame)
 
 
 class PoseStamped(_Wire):
@@ -408,7 +428,7 @@ class Health(_Wire):
         ("map_node_count", _u32),
         ("queue_count", _u32),
         ("source_connected", _u8),
-        ("reserved", _u8),
+        ("source_kind", _u8),
         ("graph_subscribers", _u16),
         ("dead_nodes_cleaned", _u32),
         ("stages", StageHealth * MAX_STAGES),
@@ -420,11 +440,20 @@ class Health(_Wire):
         ("models", ModelHealth * MAX_MODELS),
         ("recorder", RecorderHealth),
         ("snapshot", SnapshotHealth),
+        ("world_frame", _u8 * NAME_CAPACITY_BYTES),
     ]
 
     @staticmethod
     def type_name() -> str:
         return "op3dsg::Health"
+
+    def source_kind_name(self) -> str:
+        """``source_kind`` by name, as in the graph header (:data:`SOURCE_KINDS`)."""
+        return source_kind_name(self.source_kind)
+
+    def world_frame_str(self) -> str:
+        """``world_frame`` as text: the frame the graph's coordinates are in."""
+        return fixed_str(self.world_frame)
 
     def valid_stages(self) -> List[StageHealth]:
         return list(self.stages[: min(self.stage_count, MAX_STAGES)])
@@ -456,6 +485,8 @@ class Health(_Wire):
             "map_memory_bytes": self.map_memory_bytes,
             "map_node_count": self.map_node_count,
             "source_connected": bool(self.source_connected),
+            "source_kind": self.source_kind_name(),
+            "world_frame": self.world_frame_str(),
             "graph_subscribers": self.graph_subscribers,
             "dead_nodes_cleaned": self.dead_nodes_cleaned,
             "stages": [
@@ -516,6 +547,12 @@ class Health(_Wire):
 
 def _name_of(names, index: int) -> str:
     return names[index] if index < len(names) else f"unknown({index})"
+
+
+def source_kind_name(value: int) -> str:
+    """The name of a ``source_kind`` value (:data:`SOURCE_KINDS`); a value newer than this
+    package reads as ``unknown``, as the Rust client's ``SourceKind::Unknown``."""
+    return SOURCE_KINDS[value] if 0 <= value < len(SOURCE_KINDS) else SOURCE_KINDS[SOURCE_KIND_UNKNOWN]
 
 
 #: Every mirrored structure, by its Rust name.

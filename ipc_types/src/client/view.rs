@@ -290,6 +290,18 @@ impl Graph {
         self.header.capacity_exceeded != 0
     }
 
+    /// What the daemon reads its frames from: a live camera, a replay or the synthetic rooms
+    /// ([`SourceKind`](crate::SourceKind); `Unknown` from a publisher that does not say).
+    pub fn source_kind(&self) -> crate::SourceKind {
+        self.header.source_kind()
+    }
+
+    /// Name of the frame every coordinate of this graph is in (the daemon's `world.frame_id`:
+    /// `world` by default, `map` on the Stretch profile).
+    pub fn world_frame(&self) -> &str {
+        self.header.world_frame_str()
+    }
+
     /// The header as received (counts, totals beyond capacity, publish time).
     pub fn header(&self) -> &GraphHeader {
         &self.header

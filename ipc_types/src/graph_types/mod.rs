@@ -13,7 +13,7 @@ mod tests;
 mod vocabulary;
 
 pub use records::{EDGE_BYTES, Edge, LABEL_CAPACITY_BYTES, NO_NODE, NODE_BYTES, Node, PHRASE_CAPACITY_BYTES};
-pub use sample::{GraphHeader, GraphMessage, MAX_EDGES, MAX_NODES, graph_payload_bytes};
+pub use sample::{GraphHeader, GraphMessage, MAX_EDGES, MAX_NODES, SOURCE_KINDS, SourceKind, graph_payload_bytes};
 pub use vocabulary::{
     AFFORDANCES, EdgeKind, EdgeOrigin, FUNCTIONAL_RELATION_BASE, FUNCTIONAL_RELATIONS, NodeKind, SPATIAL_RELATIONS,
     affordance_bits, affordance_names, affordance_origin, affordance_origins, relation_id, relation_phrase,

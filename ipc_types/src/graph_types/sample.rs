@@ -7,6 +7,7 @@
 use iceoryx2::prelude::{PlacementDefault, ZeroCopySend};
 
 use super::records::{EDGE_BYTES, Edge, NODE_BYTES, Node};
+use crate::NAME_CAPACITY_BYTES;
 
 /// The most nodes one graph sample holds when the profile sets no `ipc.max_nodes`. A larger map
 /// sets [`GraphHeader::capacity_exceeded`] and publishes the most recently seen nodes that fit.
@@ -15,7 +16,54 @@ pub const MAX_NODES: usize = 16_384;
 /// [`MAX_NODES`] for what happens beyond).
 pub const MAX_EDGES: usize = 32_768;
 
-/// The user header of every `<prefix>/graph` sample (size 80 bytes, alignment 8).
+/// What the daemon reads its frames from, as [`GraphHeader::source_kind`] and
+/// [`Health::source_kind`](crate::Health::source_kind) carry it: the source the daemon actually
+/// opened, so a planner can tell a live robot from a replay before it acts on the graph.
+///
+/// | value | name | what |
+/// |---|---|---|
+/// | 0 | `unknown` | unknown or other: a source of another kind (a backend of another build), a publisher that does not say (a [`GraphBuffer`](crate::publish::GraphBuffer) left at its default), or a value newer than this build |
+/// | 1 | `live_camera` | a live camera (the RealSense on the robot): the graph is the world now |
+/// | 2 | `replay` | a recording played back: a TUM RGB-D / ICL-NUIM sequence (`source.kind = "replay"`), an MCAP recording of op3dsgd (`"mcap"`), or a librealsense `.bag` (`"realsense"` with `source.realsense.bag`: a replay although the camera's source plays it) |
+/// | 3 | `synthetic` | the built-in synthetic rooms (`"synthetic"`): a simulated world |
+///
+/// The names are [`SOURCE_KINDS`], indexed by the value.
+#[repr(u8)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum SourceKind {
+    /// Unknown or other (see the table).
+    #[default]
+    Unknown = 0,
+    /// A live camera.
+    LiveCamera = 1,
+    /// A recording played back (TUM/ICL replay, MCAP replay, librealsense `.bag`).
+    Replay = 2,
+    /// The built-in synthetic rooms.
+    Synthetic = 3,
+}
+
+/// The names of the [`SourceKind`] values, indexed by the wire value.
+pub const SOURCE_KINDS: [&str; 4] = ["unknown", "live_camera", "replay", "synthetic"];
+
+impl SourceKind {
+    /// Decodes a wire value; `None` for a value this build does not know.
+    pub fn from_u8(value: u8) -> Option<Self> {
+        match value {
+            0 => Some(Self::Unknown),
+            1 => Some(Self::LiveCamera),
+            2 => Some(Self::Replay),
+            3 => Some(Self::Synthetic),
+            _ => None,
+        }
+    }
+
+    /// The wire value's name ([`SOURCE_KINDS`]): `unknown`, `live_camera`, `replay`, `synthetic`.
+    pub fn as_str(self) -> &'static str {
+        SOURCE_KINDS[self as usize]
+    }
+}
+
+/// The user header of every `<prefix>/graph` sample (size 112 bytes, alignment 8).
 ///
 /// A sample is this header and a byte payload of exactly [`GraphHeader::payload_bytes`]:
 /// `node_count` nodes of [`NODE_BYTES`] each (sorted by id), then `edge_count` edges of
@@ -31,6 +79,12 @@ pub const MAX_EDGES: usize = 32_768;
 /// that remembers the last `(instance_id, graph_version)` it used must therefore treat a
 /// different `instance_id` as a new map: forget the version (and re-check any ids it cached) and
 /// take the new graph, whatever its version.
+///
+/// **What the coordinates mean**: every position in the payload is in the frame named by
+/// `world_frame` (the profile's `world.frame_id`, `world` by default; `map` on the Stretch
+/// profile, the navigation stack's frame), and `source_kind` says whether the graph comes from a
+/// live camera, a replay or the synthetic rooms ([`SourceKind`]). Both are fixed for one daemon
+/// instance.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, PlacementDefault)]
 #[type_name("op3dsg::GraphHeader")]
@@ -61,8 +115,11 @@ pub struct GraphHeader {
     /// `edge_capacity`): the sample then holds the most recently seen nodes and the edges among
     /// them. 0 otherwise.
     pub capacity_exceeded: u8,
+    /// What the daemon reads its frames from: a [`SourceKind`] value (0 unknown or other,
+    /// 1 live camera, 2 replay, 3 synthetic; names in [`SOURCE_KINDS`]).
+    pub source_kind: u8,
     /// Reserved, zero.
-    pub reserved: [u8; 3],
+    pub reserved: [u8; 2],
     /// Nodes in the map, including those not published because of capacity.
     pub total_node_count: u32,
     /// Edges in the graph, including those not published because of capacity.
@@ -71,8 +128,12 @@ pub struct GraphHeader {
     pub node_capacity: u32,
     /// Most edges the daemon publishes (its profile's `ipc.max_edges`).
     pub edge_capacity: u32,
+    /// Name of the frame every coordinate of the payload is in (the profile's
+    /// `world.frame_id`: `world` by default, `map` on the Stretch profile), UTF-8, NUL padded;
+    /// read it with [`GraphHeader::world_frame_str`]. Empty from a publisher that does not say.
+    pub world_frame: [u8; NAME_CAPACITY_BYTES],
     /// Reserved, zero.
-    pub reserved2: u32,
+    pub reserved2: u64,
 }
 
 impl GraphHeader {
@@ -80,6 +141,17 @@ impl GraphHeader {
     /// EDGE_BYTES`.
     pub fn payload_bytes(&self) -> usize {
         graph_payload_bytes(self.node_count as usize, self.edge_count as usize)
+    }
+
+    /// [`Self::source_kind`] decoded; a value this build does not know reads as
+    /// [`SourceKind::Unknown`].
+    pub fn source_kind(&self) -> SourceKind {
+        SourceKind::from_u8(self.source_kind).unwrap_or_default()
+    }
+
+    /// [`Self::world_frame`] as text (`""` when the publisher left it empty).
+    pub fn world_frame_str(&self) -> &str {
+        crate::fixed_str(&self.world_frame)
     }
 }
 

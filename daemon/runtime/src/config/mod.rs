@@ -231,6 +231,7 @@ impl Profile {
             self.reasoner.validate("reasoner"),
             self.health.validate("health"),
             self.run.validate("run"),
+            self.world.validate("world"),
         ]
         .into_iter()
         .collect::<Result<(), String>>()

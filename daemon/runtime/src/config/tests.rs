@@ -246,3 +246,23 @@ fn toml_syntax_error_names_the_file() {
     let err = load(Some(&path), &[]).unwrap_err();
     assert_eq!(err.file, path.display().to_string());
 }
+
+#[test]
+fn the_world_frame_defaults_to_world_and_a_bad_one_names_the_file_and_key() {
+    assert_eq!(load(None, &[]).unwrap().profile.world.frame_id, "world");
+    let dir = tempfile::tempdir().unwrap();
+    let path = write(&dir, "robot.toml", "[world]\nframe_id = \"map\"\n");
+    let profile = load(Some(&path), &[]).unwrap().profile;
+    assert_eq!((profile.world.frame_id.as_str(), profile.world.up_axis), ("map", crate::world::UpAxis::Z));
+    let path = write(&dir, "bad.toml", "[world]\nframe_id = \"base map\"\n");
+    let err = load(Some(&path), &[]).unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        format!(
+            "{}: world.frame_id: \"base map\" contains ' '; a ROS frame id is a letter, then letters, digits, '_' and '/'",
+            path.display()
+        )
+    );
+    let err = load(None, &["world.frame_id=\"\"".to_owned()]).unwrap_err();
+    assert!(err.to_string().contains("world.frame_id: must not be empty"), "{err}");
+}

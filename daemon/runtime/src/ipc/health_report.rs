@@ -32,6 +32,13 @@ pub struct HealthReport {
     pub map_memory_bytes: u64,
     /// Whether the frame source delivers.
     pub source_connected: bool,
+    /// What the daemon reads: `live_camera`, `replay`, `synthetic` or `unknown`
+    /// (`op3dsg_ipc_types::SOURCE_KINDS`).
+    #[serde(default)]
+    pub source_kind: String,
+    /// The frame the graph's coordinates are in (`world.frame_id`).
+    #[serde(default)]
+    pub world_frame: String,
     /// Planners (graph subscribers) connected now.
     #[serde(default)]
     pub graph_subscribers: u16,
@@ -282,6 +289,8 @@ impl From<&Health> for HealthReport {
             map_node_count: h.map_node_count,
             map_memory_bytes: h.map_memory_bytes,
             source_connected: h.source_connected != 0,
+            source_kind: h.source_kind().as_str().to_owned(),
+            world_frame: h.world_frame_str().to_owned(),
             graph_subscribers: h.graph_subscribers,
             dead_nodes_cleaned: h.dead_nodes_cleaned,
             stages: h

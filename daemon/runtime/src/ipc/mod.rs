@@ -77,7 +77,7 @@
 //! ```python
 //! import ctypes, iceoryx2 as iox2          # pip install iceoryx2==0.10.0
 //! import numpy as np
-//! class GraphHeader(ctypes.Structure):     # mirror field by field, 80 bytes
+//! class GraphHeader(ctypes.Structure):     # mirror field by field, 112 bytes
 //!     _fields_ = [("schema_version", ctypes.c_uint32), ("node_count", ctypes.c_uint32),
 //!                 ("graph_version", ctypes.c_uint64), ("instance_id", ctypes.c_uint64), ...]
 //!     @staticmethod
@@ -91,7 +91,7 @@
 //! subscriber = service.subscriber_builder().create()
 //! sample = subscriber.receive()            # None until the daemon has published
 //! if sample is not None:
-//!     header = sample.user_header().contents   # check header.schema_version == 5 first
+//!     header = sample.user_header().contents   # check header.schema_version == 9 first
 //!     # node_count records of 144 bytes, then edge_count records of 64 bytes (numpy dtypes
 //!     # mirroring Node and Edge view them without copying)
 //! ```
@@ -131,7 +131,7 @@ pub use op3dsg_ipc_types::services::IpcService;
 use op3dsg_ipc_types::services::{
     DEFAULT_GRAPH_SUBSCRIBER_BUFFER, DEFAULT_MAX_SUBSCRIBERS, DEFAULT_POSE_BUFFER, DEFAULT_PREFIX, validate_prefix,
 };
-use op3dsg_ipc_types::{MAX_EDGES, MAX_NODES};
+use op3dsg_ipc_types::{GraphHeader, Health, MAX_EDGES, MAX_NODES, NAME_CAPACITY_BYTES, SourceKind};
 use serde::{Deserialize, Serialize};
 
 pub use codec::{GraphCapacity, GraphEncoder, PublishReport, graph_to_scene_graph, message_to_scene_graph};
@@ -217,6 +217,47 @@ impl IpcConfig {
     /// The graph sample capacity of this configuration.
     pub fn graph_capacity(&self) -> GraphCapacity {
         GraphCapacity { max_nodes: self.max_nodes, max_edges: self.max_edges }
+    }
+}
+
+/// What every graph header and health record says about the daemon's input: the kind of source
+/// it opened ([`SourceKind`]: live camera, replay, synthetic) and the name of the world frame the
+/// coordinates are in (`world.frame_id`). Fixed for the daemon's run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct GraphOrigin {
+    /// The wire kind of the opened source.
+    pub source_kind: SourceKind,
+    /// The world frame's name, NUL padded as on the wire.
+    pub world_frame: [u8; NAME_CAPACITY_BYTES],
+}
+
+impl GraphOrigin {
+    /// The origin of a source of `kind` (what the opened source says of itself) with its
+    /// coordinates in `world_frame` (the profile's checked `world.frame_id`, which fits; a longer
+    /// one would be cut at a character boundary).
+    pub fn new(kind: op3dsg_drivers::source::SourceKind, world_frame: &str) -> Self {
+        use op3dsg_drivers::source::SourceKind as Opened;
+        let source_kind = match kind {
+            Opened::LiveCamera => SourceKind::LiveCamera,
+            Opened::Replay => SourceKind::Replay,
+            Opened::Synthetic => SourceKind::Synthetic,
+            Opened::Other => SourceKind::Unknown,
+        };
+        let mut frame = [0u8; NAME_CAPACITY_BYTES];
+        let _ = op3dsg_ipc_types::write_fixed_str(&mut frame, world_frame);
+        Self { source_kind, world_frame: frame }
+    }
+
+    /// Writes the source kind and the world frame into a graph header.
+    pub fn stamp_header(&self, header: &mut GraphHeader) {
+        header.source_kind = self.source_kind as u8;
+        header.world_frame = self.world_frame;
+    }
+
+    /// Writes the source kind and the world frame into a health record.
+    pub fn stamp_health(&self, health: &mut Health) {
+        health.source_kind = self.source_kind as u8;
+        health.world_frame = self.world_frame;
     }
 }
 
@@ -359,6 +400,25 @@ mod tests {
         assert!(parsed.is_err());
         let parsed: IpcConfig = toml::from_str("prefix = \"x\"\n").expect("partial table");
         assert_eq!(parsed.max_subscribers, 8);
+    }
+
+    #[test]
+    fn the_origin_maps_every_opened_kind_and_stamps_header_and_health_alike() {
+        use op3dsg_drivers::source::SourceKind as Opened;
+        for (opened, wire) in [
+            (Opened::LiveCamera, SourceKind::LiveCamera),
+            (Opened::Replay, SourceKind::Replay),
+            (Opened::Synthetic, SourceKind::Synthetic),
+            (Opened::Other, SourceKind::Unknown),
+        ] {
+            let origin = GraphOrigin::new(opened, "map");
+            let (mut header, mut health) = (GraphHeader::default(), Health::default());
+            origin.stamp_header(&mut header);
+            origin.stamp_health(&mut health);
+            assert_eq!((header.source_kind(), header.world_frame_str()), (wire, "map"), "{opened:?}");
+            assert_eq!((health.source_kind(), health.world_frame_str()), (wire, "map"), "{opened:?}");
+            assert_eq!(header.reserved, [0; 2], "reserved bytes stay zero");
+        }
     }
 
     #[test]

@@ -147,6 +147,12 @@ impl GraphServer {
         self.encoder.instance_id()
     }
 
+    /// Stamps `origin` (the opened source's kind, the world frame's name) into every graph header
+    /// from now on; the publisher stamps the same into its health records.
+    pub fn set_origin(&mut self, origin: super::GraphOrigin) {
+        self.encoder.set_origin(origin);
+    }
+
     /// Dead nodes whose resources were removed since start (at start and by
     /// [`Self::planner_health`]).
     pub fn dead_nodes_cleaned(&self) -> u64 {

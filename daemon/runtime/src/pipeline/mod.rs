@@ -121,7 +121,13 @@ impl Pipeline {
         let side_taps = backends.source(&profile.source.kind)?.side_channel_taps(&opened);
         let OpenedSource { source, .. } = opened;
         check_pose_source(profile, source.as_ref())?;
-        info!(source = %source.describe(), workers = profile.detector.workers, "starting pipeline");
+        info!(
+            source = %source.describe(),
+            source_kind = source.kind().describe(),
+            world_frame = %profile.world.frame_id,
+            workers = profile.detector.workers,
+            "starting pipeline"
+        );
         let step_control = source.step_control();
         let q = Queues::new(profile, &stop);
         // Before the counters: the LLM refiner (if any) owns its own.
@@ -140,8 +146,8 @@ impl Pipeline {
         let query_graph = profile.query.enabled.then(|| Arc::new(Latest::new()));
         let (publisher, ready) = stages::publisher(
             profile,
-            q.graph.1,
-            q.poses.0.clone(),
+            source.kind(),
+            (q.graph.1, q.poses.0.clone()),
             &counters,
             &stop,
             recorder.clone(),

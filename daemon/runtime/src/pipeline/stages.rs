@@ -5,7 +5,7 @@ use std::time::Duration;
 
 use crossbeam_channel::{Receiver, Sender};
 use op3dsg_drivers::frame::{FramePool, Intrinsics};
-use op3dsg_drivers::source::FrameSource;
+use op3dsg_drivers::source::{FrameSource, SourceKind};
 use op3dsg_ipc_types::PoseStamped;
 use tracing::{info, warn};
 
@@ -16,6 +16,7 @@ use crate::config::{Profile, effective_toml};
 use crate::flow::{CapturedFrame, DetectionBatch, GraphItem, KeyframeItem, LatestGraph};
 use crate::fusion::snapshot::{SnapshotSink, SnapshotStore, SnapshotWriter};
 use crate::fusion::{Fusion, FusionThread, Resume};
+use crate::ipc::GraphOrigin;
 use crate::keyframe::{KeyframeGate, KeyframeRecorder, KeyframeThread, PoseSourceKind};
 use crate::occupancy::persist::OccupancyStore;
 use crate::occupancy::{
@@ -159,7 +160,7 @@ pub(super) fn recorder(
         &profile.record,
         effective_toml(profile),
         intrinsics,
-        profile.world.up_axis,
+        &profile.world,
         side_topics,
         counters.recorder.clone(),
     )
@@ -167,19 +168,22 @@ pub(super) fn recorder(
     .map_err(|e| StartError::Incompatible { field: "record.dir", reason: e.to_string() })
 }
 
-/// The publisher: it owns the iceoryx2 services.
+/// The publisher: it owns the iceoryx2 services; `source_kind` is what the opened source reads;
+/// it takes graphs from fusion and hands received poses to the keyframe gate (`queues`).
 pub(super) fn publisher(
     profile: &Profile,
-    graph_rx: QueueReceiver<GraphItem>,
-    pose_tx: Sender<PoseStamped>,
+    source_kind: SourceKind,
+    queues: (QueueReceiver<GraphItem>, Sender<PoseStamped>),
     counters: &Arc<Counters>,
     stop: &Arc<std::sync::atomic::AtomicBool>,
     recorder: Option<RecordSender>,
     query_graph: Option<Arc<LatestGraph>>,
 ) -> (PublishThread, Receiver<Result<(), String>>) {
     let (ready, ready_rx) = crossbeam_channel::bounded(1);
+    let (graph_rx, pose_tx) = queues;
     let thread = PublishThread {
         ipc: profile.ipc.clone(),
+        origin: GraphOrigin::new(source_kind, &profile.world.frame_id),
         ready,
         graph_rx,
         pose_tx: (profile.pose.source == PoseSourceKind::Ipc).then_some(pose_tx),

@@ -11,7 +11,7 @@ use op3dsg_ipc_types::{Health, PoseStamped};
 use tracing::{debug, info, warn};
 
 use crate::flow::{GraphItem, LatestGraph, POLL, hand_over_pose};
-use crate::ipc::{GraphServer, IpcConfig, PoseCheckCounts};
+use crate::ipc::{GraphOrigin, GraphServer, IpcConfig, PoseCheckCounts};
 use crate::queue::{Popped, QueueReceiver};
 use crate::record::RecordSender;
 use crate::stats::{HealthSource, PoseStats, StageStats};
@@ -37,6 +37,9 @@ impl Default for PublishCounters {
 pub struct PublishThread {
     /// `[ipc]`.
     pub ipc: IpcConfig,
+    /// The opened source's kind and the world frame's name, in every graph header and health
+    /// record.
+    pub origin: GraphOrigin,
     /// Told once the services exist, or why they could not be made.
     pub ready: Sender<Result<(), String>>,
     /// From fusion.
@@ -75,7 +78,8 @@ impl PublishThread {
     /// (or, with `exit_at_end`, once it drained).
     pub fn run(mut self) {
         let mut server = match GraphServer::open(&self.ipc, "op3dsgd") {
-            Ok(server) => {
+            Ok(mut server) => {
+                server.set_origin(self.origin);
                 let _ = self.ready.send(Ok(()));
                 server
             }
@@ -114,8 +118,7 @@ impl PublishThread {
             }
             if upstream_done && (stopping || self.exit_at_end) {
                 // One last health record so watchers see the final counters.
-                let mut health = self.health.health();
-                server.planner_health(&mut health);
+                let health = self.health_record(&mut server);
                 let _ = server.publish_health(&health);
                 if let Some(latest) = self.query_graph.as_ref() {
                     latest.close();
@@ -173,9 +176,16 @@ impl PublishThread {
         }
     }
 
-    fn send_health(&mut self, server: &mut GraphServer, periods: &mut u32) {
+    /// The health record now: the stages' counters, the planners' part, the origin.
+    fn health_record(&self, server: &mut GraphServer) -> Health {
         let mut health = self.health.health();
         server.planner_health(&mut health);
+        self.origin.stamp_health(&mut health);
+        health
+    }
+
+    fn send_health(&mut self, server: &mut GraphServer, periods: &mut u32) {
+        let health = self.health_record(server);
         if let Err(e) = server.publish_health(&health) {
             warn!(error = %e, "health publish failed");
         }

@@ -4,7 +4,6 @@
 
 use base64::Engine as _;
 use base64::engine::general_purpose::STANDARD;
-use op3dsg_drivers::mcap::WORLD_FRAME;
 use op3dsg_drivers::mcap::messages::Time;
 use op3dsg_ipc_types::NodeKind;
 use serde_json::json;
@@ -79,9 +78,15 @@ pub(crate) fn write_detections(stamp_ns: u64, boxes: &[DetectionBox], out: &mut 
 /// Bytes per point of the cloud: x, y, z (float32), node_id (uint32), little-endian.
 pub(crate) const POINT_STRIDE: usize = 16;
 
-/// Writes the `foxglove.PointCloud` JSON of `points` (world frame) into `out`; `scratch` holds
-/// the packed points.
-pub(crate) fn write_node_points(stamp_ns: u64, points: &[NodePoint], scratch: &mut Vec<u8>, out: &mut Vec<u8>) {
+/// Writes the `foxglove.PointCloud` JSON of `points` (in the world frame, named `world_frame`)
+/// into `out`; `scratch` holds the packed points.
+pub(crate) fn write_node_points(
+    stamp_ns: u64,
+    points: &[NodePoint],
+    world_frame: &str,
+    scratch: &mut Vec<u8>,
+    out: &mut Vec<u8>,
+) {
     out.clear();
     scratch.clear();
     scratch.reserve(points.len() * POINT_STRIDE);
@@ -93,7 +98,7 @@ pub(crate) fn write_node_points(stamp_ns: u64, points: &[NodePoint], scratch: &m
     }
     let value = json!({
         "timestamp": Time::from_ns(stamp_ns),
-        "frame_id": WORLD_FRAME,
+        "frame_id": world_frame,
         "pose": { "position": { "x": 0.0, "y": 0.0, "z": 0.0 }, "orientation": { "x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0 } },
         "point_stride": POINT_STRIDE,
         "fields": [
@@ -136,12 +141,12 @@ mod tests {
     fn node_points_pack_xyz_and_the_node_id() {
         let points = [NodePoint { node_id: 7, position_m: [1.0, -2.0, 0.5] }];
         let (mut scratch, mut out) = (Vec::new(), Vec::new());
-        write_node_points(0, &points, &mut scratch, &mut out);
+        write_node_points(0, &points, "map", &mut scratch, &mut out);
         let v: serde_json::Value = serde_json::from_slice(&out).unwrap();
+        assert_eq!(v["frame_id"], "map", "the configured world frame");
         let data = STANDARD.decode(v["data"].as_str().unwrap()).unwrap();
         assert_eq!(data.len(), POINT_STRIDE);
         assert_eq!(f32::from_le_bytes(data[4..8].try_into().unwrap()), -2.0);
         assert_eq!(u32::from_le_bytes(data[12..16].try_into().unwrap()), 7);
-        assert_eq!(v["frame_id"], "world");
     }
 }

@@ -10,7 +10,6 @@
 
 use serde::Serialize;
 
-use op3dsg_drivers::mcap::WORLD_FRAME;
 use op3dsg_drivers::mcap::messages::Time;
 use op3dsg_ipc_types::{EdgeKind, NodeKind};
 
@@ -132,9 +131,9 @@ struct Duration {
 }
 
 #[derive(Debug, Serialize)]
-struct Entity {
+struct Entity<'a> {
     timestamp: Time,
-    frame_id: &'static str,
+    frame_id: &'a str,
     id: String,
     lifetime: Duration,
     frame_locked: bool,
@@ -149,11 +148,11 @@ struct Entity {
     models: [(); 0],
 }
 
-impl Entity {
-    fn new(timestamp: Time, id: String) -> Self {
+impl<'a> Entity<'a> {
+    fn new(timestamp: Time, frame_id: &'a str, id: String) -> Self {
         Self {
             timestamp,
-            frame_id: WORLD_FRAME,
+            frame_id,
             id,
             lifetime: Duration { sec: 0, nsec: 0 },
             frame_locked: false,
@@ -179,9 +178,9 @@ struct Deletion {
 }
 
 #[derive(Debug, Serialize)]
-struct SceneUpdate {
+struct SceneUpdate<'a> {
     deletions: Vec<Deletion>,
-    entities: Vec<Entity>,
+    entities: Vec<Entity<'a>>,
 }
 
 fn v3(p: [f32; 3]) -> [f64; 3] {
@@ -189,8 +188,9 @@ fn v3(p: [f32; 3]) -> [f64; 3] {
 }
 
 /// Writes the `foxglove.SceneUpdate` JSON of `graph` into `out` (cleared first); `up_axis` is the
-/// world's (`world.up_axis`), about which the boxes' yaw turns.
-pub fn write_scene_update(graph: &SceneGraph, up_axis: UpAxis, out: &mut Vec<u8>) {
+/// world's (`world.up_axis`), about which the boxes' yaw turns, and every entity is in the frame
+/// `world_frame` (`world.frame_id`).
+pub fn write_scene_update(graph: &SceneGraph, up_axis: UpAxis, world_frame: &str, out: &mut Vec<u8>) {
     out.clear();
     let timestamp = Time::from_ns(graph.stamp_ns);
     let mut entities = Vec::with_capacity(graph.nodes.len() + 2);
@@ -201,7 +201,7 @@ pub fn write_scene_update(graph: &SceneGraph, up_axis: UpAxis, out: &mut Vec<u8>
         let [sx, sy, sz] = v3(obb.size_m).map(|v| v.max(0.0));
         let top = glam::DVec3::from_array(centre) + up * (sz / 2.0 + 0.05);
         let part = node.kind == NodeKind::Part;
-        let mut entity = Entity::new(timestamp, format!("node/{}", node.id));
+        let mut entity = Entity::new(timestamp, world_frame, format!("node/{}", node.id));
         entity.metadata = vec![
             KeyValue { key: "graph_version", value: graph.version.to_string() },
             KeyValue { key: "node_id", value: node.id.to_string() },
@@ -247,7 +247,7 @@ pub fn write_scene_update(graph: &SceneGraph, up_axis: UpAxis, out: &mut Vec<u8>
                 points.push(b);
             }
         }
-        let mut entity = Entity::new(timestamp, name.to_owned());
+        let mut entity = Entity::new(timestamp, world_frame, name.to_owned());
         entity.metadata = vec![KeyValue { key: "graph_version", value: graph.version.to_string() }];
         if !points.is_empty() {
             entity.lines.push(Line {
@@ -327,7 +327,7 @@ mod tests {
             ],
         };
         let mut out = Vec::new();
-        write_scene_update(&graph, UpAxis::Z, &mut out);
+        write_scene_update(&graph, UpAxis::Z, "map", &mut out);
         let v: serde_json::Value = serde_json::from_slice(&out).unwrap();
         assert_eq!(v["deletions"][0]["type"], 1);
         let entities = v["entities"].as_array().unwrap();
@@ -346,6 +346,7 @@ mod tests {
         assert_eq!(entities[2]["lines"][0]["points"].as_array().unwrap().len(), 2);
         assert_ne!(entities[2]["lines"][0]["color"], entities[3]["lines"][0]["color"]);
         assert_eq!(entities[0]["timestamp"]["nsec"], 3);
+        assert!(entities.iter().all(|e| e["frame_id"] == "map"), "every entity in the configured world frame");
     }
 
     fn cube_axes(cube: &serde_json::Value) -> (glam::DVec3, [glam::DVec3; 3]) {
@@ -365,7 +366,7 @@ mod tests {
             n.obb = OrientedBox { centre_m: [1.0, 1.5, 0.5], size_m: [1.2, 0.4, 0.9], yaw_rad: yaw };
             let graph = SceneGraph { version: 1, stamp_ns: 0, nodes: vec![n.clone()], edges: vec![] };
             let mut out = Vec::new();
-            write_scene_update(&graph, up_axis, &mut out);
+            write_scene_update(&graph, up_axis, "world", &mut out);
             let v: serde_json::Value = serde_json::from_slice(&out).unwrap();
             let cube = &v["entities"][0]["cubes"][0];
             assert_eq!(cube["size"]["x"], f64::from(1.2f32));
@@ -396,7 +397,7 @@ mod tests {
         n.obb = OrientedBox::default();
         let graph = SceneGraph { version: 1, stamp_ns: 0, nodes: vec![n], edges: vec![] };
         let mut out = Vec::new();
-        write_scene_update(&graph, UpAxis::Z, &mut out);
+        write_scene_update(&graph, UpAxis::Z, "world", &mut out);
         let v: serde_json::Value = serde_json::from_slice(&out).unwrap();
         let cube = &v["entities"][0]["cubes"][0];
         assert_eq!(cube["pose"]["position"]["z"], 3.5);

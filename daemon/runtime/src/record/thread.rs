@@ -10,13 +10,15 @@ use op3dsg_ipc_types::RecorderHealth;
 
 use super::sender::{Limiter, RecordSender};
 use super::{Event, RawFrame, RawInput, RecordConfig, RecorderState, RecorderStats};
-use crate::world::UpAxis;
+use crate::world::{UpAxis, WorldConfig};
 
 /// The recorder thread `op3dsg-record`, made with its producers' sender by
 /// [`RecordThread::prepare`]; [`RecordThread::run`] is its body.
 pub struct RecordThread {
     pub(super) config: RecordConfig,
     pub(super) up_axis: UpAxis,
+    /// `world.frame_id`: the parent of `/tf`, the frame of the scene and the node points.
+    pub(super) world_frame: String,
     pub(super) profile_toml: String,
     pub(super) side_topics: Vec<String>,
     pub(super) frames_rx: Receiver<RawInput>,
@@ -44,13 +46,15 @@ pub struct RecordStartError {
 impl RecordThread {
     /// Makes the queues and the frame-buffer pool (buffers sized for `intrinsics` now, so the hot
     /// path does not allocate) and checks that the folder can be created. Returns the producers'
-    /// sender and the thread. `up_axis` is the world's (`world.up_axis`), for the scene's oriented
-    /// boxes; `side_topics` the source's side channels recorded with each frame.
+    /// sender and the thread. `world` is the profile's `[world]`: its up axis turns the scene's
+    /// oriented boxes, its frame id names the world frame in `/tf`, the scene and the node points
+    /// (so a recording and the graph header agree); `side_topics` are the source's side channels
+    /// recorded with each frame.
     pub fn prepare(
         config: &RecordConfig,
         profile_toml: String,
         intrinsics: Intrinsics,
-        up_axis: UpAxis,
+        world: &WorldConfig,
         side_topics: Vec<String>,
         stats: Arc<RecorderStats>,
     ) -> Result<(RecordSender, Self), RecordStartError> {
@@ -104,7 +108,8 @@ impl RecordThread {
         };
         let thread = RecordThread {
             config: config.clone(),
-            up_axis,
+            up_axis: world.up_axis,
+            world_frame: world.frame_id.clone(),
             profile_toml,
             side_topics,
             frames_rx,
@@ -136,16 +141,17 @@ impl std::fmt::Debug for Recorder {
 }
 
 impl Recorder {
-    /// Starts thread `op3dsg-record` writing into `config.dir`; `up_axis` is the world's.
+    /// Starts thread `op3dsg-record` writing into `config.dir`; `world` is the profile's
+    /// `[world]` (see [`RecordThread::prepare`]).
     pub fn start(
         config: &RecordConfig,
         profile_toml: String,
         intrinsics: Intrinsics,
-        up_axis: UpAxis,
+        world: &WorldConfig,
     ) -> Result<Self, RecordStartError> {
         let stats = Arc::new(RecorderStats::default());
         let (sender, thread) =
-            RecordThread::prepare(config, profile_toml, intrinsics, up_axis, Vec::new(), stats.clone())?;
+            RecordThread::prepare(config, profile_toml, intrinsics, world, Vec::new(), stats.clone())?;
         let thread = std::thread::Builder::new()
             .name("op3dsg-record".to_owned())
             .spawn(move || thread.run())

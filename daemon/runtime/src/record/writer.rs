@@ -13,7 +13,7 @@ use op3dsg_drivers::frame::Intrinsics;
 use op3dsg_drivers::mcap::messages::{
     CameraCalibration, FrameMeta, RawImageHeader, Time, encode_compressed_image, encode_raw_image,
 };
-use op3dsg_drivers::mcap::{self as topics, CAMERA_FRAME, WORLD_FRAME, schemas};
+use op3dsg_drivers::mcap::{self as topics, CAMERA_FRAME, schemas};
 use op3dsg_ipc_types::{Health, RECORDER_STATES, fixed_str};
 use tracing::{info, warn};
 
@@ -100,6 +100,7 @@ fn count_drops(stats: &RecorderStats, drops: &[(Channel, u64)]) {
 struct Recorder {
     config: RecordConfig,
     up_axis: UpAxis,
+    world_frame: String,
     profile_toml: String,
     side_topics: Vec<String>,
     stats: std::sync::Arc<RecorderStats>,
@@ -170,6 +171,8 @@ fn health_json(h: &Health) -> serde_json::Value {
         "map_node_count": h.map_node_count,
         "map_memory_bytes": h.map_memory_bytes,
         "source_connected": h.source_connected != 0,
+        "source_kind": h.source_kind().as_str(),
+        "world_frame": h.world_frame_str(),
         "graph_subscribers": h.graph_subscribers,
         "dead_nodes_cleaned": h.dead_nodes_cleaned,
         "stages": stages,
@@ -372,7 +375,7 @@ impl Recorder {
                 }
                 if scene {
                     let mut bytes = std::mem::take(&mut self.bytes);
-                    write_scene_update(&graph, self.up_axis, &mut bytes);
+                    write_scene_update(&graph, self.up_axis, &self.world_frame, &mut bytes);
                     self.bytes = bytes;
                     self.write(topics::TOPIC_SCENE, schemas::SCENE_UPDATE, log_time_ns)?;
                 }
@@ -382,7 +385,7 @@ impl Recorder {
                 let q = world_from_camera.rotation;
                 let value = serde_json::json!({
                     "timestamp": Time::from_ns(stamp_ns),
-                    "parent_frame_id": WORLD_FRAME,
+                    "parent_frame_id": self.world_frame,
                     "child_frame_id": CAMERA_FRAME,
                     "translation": { "x": t.x, "y": t.y, "z": t.z },
                     "rotation": { "x": q.x, "y": q.y, "z": q.z, "w": q.w }
@@ -399,7 +402,13 @@ impl Recorder {
             }
             Event::NodePoints { log_time_ns, stamp_ns, points } => {
                 let mut bytes = std::mem::take(&mut self.bytes);
-                super::annotations::write_node_points(stamp_ns, &points, &mut self.scratch, &mut bytes);
+                super::annotations::write_node_points(
+                    stamp_ns,
+                    &points,
+                    &self.world_frame,
+                    &mut self.scratch,
+                    &mut bytes,
+                );
                 self.bytes = bytes;
                 self.write(topics::TOPIC_NODE_POINTS, schemas::POINT_CLOUD, log_time_ns)?;
             }
@@ -474,11 +483,13 @@ impl Recorder {
 }
 
 pub(super) fn recorder_loop(thread: RecordThread) {
-    let RecordThread { config, up_axis, profile_toml, side_topics, frames_rx, events_rx, pool_tx, stats } = thread;
+    let RecordThread { config, up_axis, world_frame, profile_toml, side_topics, frames_rx, events_rx, pool_tx, stats } =
+        thread;
     let flush_every = Duration::from_millis(config.flush_interval_ms);
     let mut rec = Recorder {
         config,
         up_axis,
+        world_frame,
         profile_toml,
         side_topics,
         stats,

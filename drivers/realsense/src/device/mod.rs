@@ -42,7 +42,7 @@ use std::time::{Duration, Instant};
 
 use op3dsg_drivers::frame::{Frame, Intrinsics};
 use op3dsg_drivers::pose::Isometry;
-use op3dsg_drivers::source::{FrameSource, SourceError, SourceStatus, StampClock};
+use op3dsg_drivers::source::{FrameSource, SourceError, SourceKind, SourceStatus, StampClock};
 use realsense_rust::context::Context;
 use realsense_rust::kind::Rs2CameraInfo;
 use realsense_rust::pipeline::ActivePipeline;
@@ -218,6 +218,11 @@ impl RealsenseSource {
 impl FrameSource for RealsenseSource {
     fn intrinsics(&self) -> Intrinsics {
         self.intrinsics
+    }
+
+    /// A `.bag` is a replay although this source plays it; only a camera is live.
+    fn kind(&self) -> SourceKind {
+        if self.bag.is_some() { SourceKind::Replay } else { SourceKind::LiveCamera }
     }
 
     fn has_poses(&self) -> bool {

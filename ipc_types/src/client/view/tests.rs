@@ -227,7 +227,7 @@ fn a_three_node_sample_is_small() {
     let message = s.encode();
     // Header and payload together: what the graph holds, not the 4.3 MiB maximum.
     assert_eq!(message.payload.len(), 3 * 144 + 64);
-    assert_eq!(core::mem::size_of::<GraphHeader>() + message.payload.len(), 576);
+    assert_eq!(core::mem::size_of::<GraphHeader>() + message.payload.len(), 608);
     let graph = Graph::from_message(&message).expect("valid");
     assert_eq!(ids(graph.parts_of(1)), [2, 3]);
 }
@@ -288,4 +288,24 @@ fn each_affordance_names_its_origin() {
     assert_eq!(handle.affordance_origin("pinch_pull"), Some(EdgeOrigin::Llm));
     assert_eq!(handle.affordance_origin("rotate"), None, "not afforded");
     assert_eq!(handle.affordance_origin("fly"), None, "not canonical");
+}
+
+#[test]
+fn the_graph_says_what_it_is_of_and_in_which_frame() {
+    let mut s = kitchen(1);
+    let graph = graph_of(&mut s);
+    assert_eq!((graph.source_kind(), graph.world_frame()), (crate::SourceKind::Unknown, ""), "a default header");
+    s.header.source_kind = crate::SourceKind::Replay as u8;
+    write_fixed_str(&mut s.header.world_frame, "map");
+    let graph = graph_of(&mut s);
+    assert_eq!((graph.source_kind(), graph.world_frame()), (crate::SourceKind::Replay, "map"));
+    assert_eq!(graph.source_kind().as_str(), "replay");
+    // A value of a newer contract reads as unknown instead of failing the graph.
+    s.header.source_kind = 200;
+    assert_eq!(graph_of(&mut s).source_kind(), crate::SourceKind::Unknown);
+    for (value, name) in crate::SOURCE_KINDS.iter().enumerate() {
+        let kind = crate::SourceKind::from_u8(value as u8).expect("every listed value decodes");
+        assert_eq!((kind as usize, kind.as_str()), (value, *name));
+    }
+    assert_eq!(crate::SourceKind::from_u8(crate::SOURCE_KINDS.len() as u8), None);
 }

@@ -258,7 +258,8 @@ impl RecordBench<'_> {
             ..RecordConfig::default()
         };
         let intrinsics = self.frames[0].intrinsics;
-        let recorder = Recorder::start(&config, String::new(), intrinsics, op3dsg_runtime::world::UpAxis::Z)
+        let world = op3dsg_runtime::world::WorldConfig::default();
+        let recorder = Recorder::start(&config, String::new(), intrinsics, &world)
             .with_context(|| format!("starting the recorder in {}", run_dir.display()))?;
         let mut sender = recorder.sender().context("recorder sender")?;
         let period = Duration::from_secs_f64(1.0 / args.rate_hz);
