@@ -31,6 +31,9 @@
 //! - `source`: free text naming what produced the file.
 //! - `graph_version`, `stamp_ns`: the published graph version and the stamp of its newest
 //!   keyframe (0 in ground truth).
+//! - `source_kind`, `world_frame` (optional; `op3dsg dump --json` writes them from the graph
+//!   header): what the daemon read its frames from (`live_camera`, `replay`, `synthetic`,
+//!   `unknown`) and the name of the frame the coordinates are in (its `world.frame_id`).
 //! - `nodes[].id`: unique within the file. `label`: text; a label of the form `a / b` means
 //!   either name is correct (ground truth only). `kind`: `object` or `part`. `parent`: the id of
 //!   a part's object, `null` otherwise. `centre_m`, `box_min_m`, `box_max_m`: world frame,
@@ -79,6 +82,13 @@ pub struct GraphJson {
     /// Stamp of the newest keyframe, nanoseconds (0 in ground truth).
     #[serde(default)]
     pub stamp_ns: u64,
+    /// What the daemon read its frames from (the graph header's source kind by name); absent
+    /// where no daemon published the graph (ground truth, evaluations).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source_kind: Option<String>,
+    /// The frame the coordinates are in (the daemon's `world.frame_id`); absent as `source_kind`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub world_frame: Option<String>,
     /// Nodes.
     pub nodes: Vec<NodeJson>,
     /// Edges.
@@ -171,6 +181,8 @@ impl GraphJson {
             source: source.into(),
             graph_version: 0,
             stamp_ns: 0,
+            source_kind: None,
+            world_frame: None,
             nodes: Vec::new(),
             edges: Vec::new(),
         }

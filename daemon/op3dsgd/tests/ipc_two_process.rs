@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 
 use glam::DQuat;
 use op3dsg_drivers::graph_json::GraphJson;
+use op3dsg_drivers::source::SourceKind;
 use op3dsg_ipc_types::client::open_or_create_pose_service;
 use op3dsg_ipc_types::services::DEFAULT_POSE_BUFFER;
 use op3dsg_ipc_types::{
@@ -15,7 +16,7 @@ use op3dsg_ipc_types::{
     StageHealth, relation_id, write_fixed_str,
 };
 use op3dsg_runtime::graph::{GraphEdge, GraphNode, SceneGraph};
-use op3dsg_runtime::ipc::{GraphServer, HealthReport, IpcConfig, graph_to_scene_graph};
+use op3dsg_runtime::ipc::{GraphOrigin, GraphServer, HealthReport, IpcConfig, graph_to_scene_graph};
 
 static NEXT: AtomicUsize = AtomicUsize::new(0);
 
@@ -151,6 +152,10 @@ fn late_cli_process_reads_health_and_table_dump() {
     let mut server = server(&prefix);
     let mut health =
         Health { frames_captured: 300, keyframes: 42, graph_version: 7, source_connected: 1, ..Default::default() };
+    // What the daemon's publisher stamps into every health record and graph header.
+    let origin = GraphOrigin::new(SourceKind::Replay, "map");
+    origin.stamp_health(&mut health);
+    server.set_origin(origin);
     health.stage_count = 1;
     health.stages[0] = StageHealth {
         processed: 42,
@@ -171,6 +176,7 @@ fn late_cli_process_reads_health_and_table_dump() {
     let report: HealthReport = serde_json::from_slice(&output.stdout).expect("stdout is health JSON");
     assert_eq!((report.frames_captured, report.keyframes, report.graph_version), (300, 42, 7));
     assert!(report.source_connected);
+    assert_eq!((report.source_kind.as_str(), report.world_frame.as_str()), ("replay", "map"));
     assert_eq!(report.stages.len(), 1);
     assert_eq!(report.stages[0].name, "fusion");
     assert_eq!(report.stages[0].rate_hz, 2.5);
@@ -181,6 +187,12 @@ fn late_cli_process_reads_health_and_table_dump() {
     let table = String::from_utf8_lossy(&output.stdout);
     assert!(output.status.success(), "op3dsg dump failed: {}", String::from_utf8_lossy(&output.stderr));
     assert!(table.contains("cabinet handle") && table.contains("hook_pull") && table.contains("part of"), "{table}");
+    assert!(table.lines().next().is_some_and(|l| l.contains("source replay  frame map")), "{table}");
+
+    let output = run_cli(&server, &["--prefix", &prefix, "dump", "--json", "--timeout-s", "15"]);
+    assert!(output.status.success(), "op3dsg dump --json failed: {}", String::from_utf8_lossy(&output.stderr));
+    let json: GraphJson = serde_json::from_slice(&output.stdout).expect("stdout is graph JSON");
+    assert_eq!((json.source_kind.as_deref(), json.world_frame.as_deref()), (Some("replay"), Some("map")));
 }
 
 #[test]

@@ -112,6 +112,21 @@ class _GraphData:
         return bool(self._header.capacity_exceeded)
 
     @property
+    def source_kind(self) -> str:
+        """What the daemon reads its frames from: ``live_camera``, ``replay``, ``synthetic``, or
+        ``unknown`` (a value this package does not know, or a publisher that does not say). A
+        planner about to move the robot checks it is ``live_camera``."""
+        self._check()
+        return self._header.source_kind_name()
+
+    @property
+    def world_frame(self) -> str:
+        """Name of the frame every coordinate of this graph is in (the daemon's ``world.frame_id``:
+        ``world`` by default, ``map`` on the Stretch profile)."""
+        self._check()
+        return self._header.world_frame_str()
+
+    @property
     def node_count(self) -> int:
         self._check()
         return int(self._header.node_count)
@@ -229,6 +244,8 @@ class _GraphData:
             "source": "op3dsgd",
             "graph_version": self.version,
             "stamp_ns": self.stamp_ns,
+            "source_kind": self.source_kind,
+            "world_frame": self.world_frame,
             "nodes": [self.node_dict(i) for i in range(self.node_count)],
             "edges": [self.edge_dict(i) for i in range(self.edge_count)],
         }

@@ -37,9 +37,20 @@ class GraphPublisher:
         self.notifier = event.notifier_builder().create()
         self._keep = (service, event)
 
-    def send(self, version: int, nodes: np.ndarray, edges: np.ndarray, schema: int = wire.SCHEMA_VERSION, payload_extra: int = 0):
+    def send(
+        self,
+        version: int,
+        nodes: np.ndarray,
+        edges: np.ndarray,
+        schema: int = wire.SCHEMA_VERSION,
+        payload_extra: int = 0,
+        source_kind: int = wire.SOURCE_KIND_UNKNOWN,
+        world_frame: str = "",
+    ):
         header = wire.GraphHeader()
         header.schema_version = schema
+        header.source_kind = source_kind
+        header.world_frame[:] = wire.write_fixed_str(world_frame, wire.NAME_CAPACITY_BYTES)
         header.graph_version = version
         header.instance_id = 0x1234
         header.node_count = len(nodes)
@@ -128,6 +139,26 @@ def test_each_affordance_carries_its_origin_from_the_two_masks(prefix):
     assert op3dsg.affordance_origin(0b1000, 0b1000, 0, 3) == "knowledge"
     assert op3dsg.affordance_origin(0b1000, 0b1000, 0, 0) is None
     assert op3dsg.affordance_origin(0xFFFF, 0, 0xFFFF, 9) is None, "past the 9 canonical affordances"
+
+
+def test_the_header_says_what_the_graph_is_of_and_its_frame(prefix):
+    publisher = GraphPublisher(prefix)
+    client = op3dsg.GraphClient(prefix, timeout=5)
+    publisher.send(1, make_nodes(1), np.zeros(0, wire.EDGE_DTYPE), source_kind=wire.SOURCE_KIND_LIVE_CAMERA, world_frame="map")
+    view = received(client, 1)
+    assert (view.source_kind, view.world_frame) == ("live_camera", "map")
+    raw = bytes(view.header)
+    assert (raw[53], raw[72:76], raw[76]) == (1, b"map\0", 0), "source_kind at 53, world_frame at 72"
+    assert (view.to_dict()["source_kind"], view.to_dict()["world_frame"]) == ("live_camera", "map")
+    # A kind newer than this package reads as unknown; a frame filling the field has no NUL.
+    publisher.send(2, make_nodes(1), np.zeros(0, wire.EDGE_DTYPE), source_kind=200, world_frame="m" * 32)
+    view = received(client, 2)
+    assert (view.source_kind, view.world_frame) == ("unknown", "m" * 32)
+    assert [wire.source_kind_name(v) for v in range(5)] == ["unknown", "live_camera", "replay", "synthetic", "unknown"]
+    health = wire.Health()
+    health.source_kind = wire.SOURCE_KIND_REPLAY
+    health.world_frame[:] = wire.write_fixed_str("world", wire.NAME_CAPACITY_BYTES)
+    assert (health.to_dict()["source_kind"], health.to_dict()["world_frame"]) == ("replay", "world")
 
 
 def test_another_schema_version_and_a_short_payload_are_named_errors(prefix):

@@ -41,7 +41,9 @@ pub(super) fn dump(prefix: &str, format: DumpFormat, timeout: Duration, out: Opt
     };
     let text = match format {
         DumpFormat::Json => {
-            let json = graph_to_scene_graph(&graph).to_json("op3dsgd");
+            let mut json = graph_to_scene_graph(&graph).to_json("op3dsgd");
+            json.source_kind = Some(graph.source_kind().as_str().to_owned());
+            json.world_frame = Some(graph.world_frame().to_owned());
             let mut text = serde_json::to_string_pretty(&json).context("serialising the graph JSON")?;
             text.push('\n');
             text
@@ -62,10 +64,12 @@ fn graph_table(graph: &Graph) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "graph version {}  instance {:#018x}  stamp {} ns  {} objects  {} parts  {} edges",
+        "graph version {}  instance {:#018x}  stamp {} ns  source {}  frame {}  {} objects  {} parts  {} edges",
         graph.version(),
         graph.instance_id(),
         graph.stamp_ns(),
+        graph.source_kind().as_str(),
+        graph.world_frame(),
         graph.objects().count(),
         graph.parts().count(),
         graph.edge_count()
@@ -177,6 +181,8 @@ fn llm_form(graph: &Graph) -> String {
             "format": "op3dsg.llm/1",
             "instance_id": format!("{:#018x}", graph.instance_id()),
             "version": graph.version(),
+            "source_kind": graph.source_kind().as_str(),
+            "world_frame": graph.world_frame(),
             "objects": graph.objects().count(),
             "parts": graph.parts().count(),
         })

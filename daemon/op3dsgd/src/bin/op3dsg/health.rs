@@ -54,9 +54,11 @@ fn health_text(h: &HealthReport) -> String {
 fn write_counters(s: &mut String, h: &HealthReport) {
     let _ = writeln!(
         s,
-        "uptime {:.1} s  source {}  graph version {}  map nodes {} ({:.1} MiB)",
+        "uptime {:.1} s  source {} {}  world frame {}  graph version {}  map nodes {} ({:.1} MiB)",
         h.uptime_s,
+        h.source_kind,
         if h.source_connected { "connected" } else { "disconnected" },
+        h.world_frame,
         h.graph_version,
         h.map_node_count,
         op3dsg_runtime::stats::mib(h.map_memory_bytes)
@@ -191,5 +193,23 @@ mod tests {
         assert!(text.contains("failures 6 (timeouts 0, 429 0, last refused)"), "{text}");
         let json = serde_json::to_value(HealthReport::from(&health)).unwrap();
         assert_eq!(json["refiner"]["rejections"]["unknown_node"], 2);
+    }
+
+    #[test]
+    fn health_text_says_what_the_source_is_and_the_world_frame() {
+        let mut health = Health { source_connected: 1, source_kind: 1, ..Health::default() };
+        op3dsg_ipc_types::write_fixed_str(&mut health.world_frame, "map");
+        let text = health_text(&HealthReport::from(&health));
+        assert!(
+            text.starts_with("uptime 0.0 s  source live_camera connected  world frame map  graph version 0"),
+            "{text}"
+        );
+        // A kind this build does not know reads as unknown, not as a failure.
+        health.source_kind = 99;
+        let json = serde_json::to_value(HealthReport::from(&health)).unwrap();
+        assert_eq!(
+            (&json["source_kind"], &json["world_frame"]),
+            (&serde_json::json!("unknown"), &serde_json::json!("map"))
+        );
     }
 }

@@ -18,8 +18,10 @@ fn watch_line(graph: Option<&Graph>, health: Option<&Health>) -> String {
         Some(g) => {
             let _ = write!(
                 s,
-                "v{} objects {} parts {} edges {}{}{}",
+                "v{} {} in {} objects {} parts {} edges {}{}{}",
                 g.version(),
+                g.source_kind().as_str(),
+                if g.world_frame().is_empty() { "?" } else { g.world_frame() },
                 g.objects().count(),
                 g.parts().count(),
                 g.edge_count(),
