@@ -120,8 +120,14 @@ pub struct FixedPose {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RealsenseConfig {
-    /// Serial number of the camera to open; empty: the first one found.
+    /// Serial number of the camera to open; wins over `product`. Empty: chosen by `product`.
+    /// Ignored when playing a `bag` (a serial names one unit; recordings move between robots).
     pub serial: String,
+    /// The camera model to open when `serial` is empty: a word of the name librealsense reports
+    /// (`D435I` for `Intel RealSense D435I`) or the whole name, in any case
+    /// (`op3dsg_realsense::select`). Empty: any camera. With a `bag`, the recording's camera must
+    /// match it too, so a profile made for one camera does not play another's recording.
+    pub product: String,
     /// A librealsense recording (`.bag`) to play instead of a camera; empty: a live camera.
     /// Relative paths are resolved against the folder of the profile that sets it.
     pub bag: String,
@@ -170,6 +176,7 @@ impl Default for RealsenseConfig {
     fn default() -> Self {
         Self {
             serial: String::new(),
+            product: String::new(),
             bag: String::new(),
             bag_real_time: true,
             depth: StreamMode { width: 848, height: 480, fps: 30 },

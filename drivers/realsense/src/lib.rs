@@ -1,7 +1,8 @@
 //! # op3dsg-realsense: the Intel RealSense D435i as a frame source
 //!
 //! `source.kind = "realsense"` (`[source.realsense]`, [`RealsenseConfig`]): a live camera chosen
-//! by serial number, or a librealsense `.bag` recording played through the same code. Depth is
+//! by serial number or by product ([`select`]: the Stretch 3's head D435i, not its gripper's
+//! D405), or a librealsense `.bag` recording played through the same code. Depth is
 //! aligned to colour ([`align`]: from the device's calibration, or by librealsense's align block
 //! with `align = "librealsense"`); intrinsics and depth units come from the
 //! device (or the recording); frames are rotated upright ([`rotate`], the Stretch 3's head camera
@@ -36,6 +37,7 @@ pub mod config;
 pub mod device;
 pub mod imu;
 pub mod rotate;
+pub mod select;
 mod unchecked;
 
 pub use config::RealsenseConfig;

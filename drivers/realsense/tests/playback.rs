@@ -334,6 +334,38 @@ fn real_time_playback_keeps_the_recorded_pace() {
     );
 }
 
+/// A recording whose device reports `name` and `serial`, as a real camera's does.
+fn record_camera(name: &str, serial: &str) -> Recording {
+    let (w, h) = (W.to_string(), H.to_string());
+    record_with(3, &["--width", &w, "--height", &h, "--name", name, "--serial", serial])
+}
+
+#[test]
+fn a_recording_plays_only_when_its_camera_is_the_product_and_the_serial_is_not_checked() {
+    let _one = one_at_a_time();
+    // The Stretch profile's product under a recording of the gripper's D405: refused, naming it.
+    let gripper = record_camera("Intel RealSense D405", "218622271111");
+    let cfg = RealsenseConfig { product: "D435I".to_owned(), ..config(&gripper, false, Rotation::None) };
+    let err = RealsenseSource::open(&cfg, None).expect_err("a D405 recording under product D435I");
+    assert!(matches!(err, SourceError::Config(_)), "{err:?}");
+    assert!(
+        err.to_string().starts_with("config: source.realsense.product: \"D435I\", but ")
+            && err.to_string().contains("was recorded with Intel RealSense D405 (serial 218622271111)"),
+        "{err}"
+    );
+    // The head camera's recording plays under the product in any case, whatever the serial
+    // (the unit recorded is another robot's as often as not).
+    let head = record_camera("Intel RealSense D435I", "135322062222");
+    let cfg =
+        RealsenseConfig { product: "d435i".to_owned(), serial: "1".to_owned(), ..config(&head, false, Rotation::None) };
+    let mut source = RealsenseSource::open(&cfg, None).expect("the recording's camera is a D435I");
+    assert_eq!(source.kind(), op3dsg_drivers::source::SourceKind::Replay, "a bag is a replay");
+    assert!(!play(&mut source).is_empty(), "frames delivered");
+    // No product: any recording plays, a nameless one (the software device's default) too.
+    let cfg = RealsenseConfig { product: String::new(), ..config(&gripper, false, Rotation::None) };
+    assert!(RealsenseSource::open(&cfg, None).is_ok());
+}
+
 #[test]
 fn bad_files_are_errors_naming_the_file() {
     let dir = tempfile::tempdir().expect("tempdir");

@@ -5,6 +5,7 @@ known pattern, known intrinsics and depth units, so that a test can check what c
         [--fx FX --fy FY] [--colour-width CW --colour-height CH --colour-fx CFX --colour-fy CFY]
         [--translation TX TY TZ] [--yaw-deg A] [--scene] [--imu]
         [--depth-distortion MODEL K1 K2 P1 P2 K3] [--colour-distortion MODEL K1 K2 P1 P2 K3]
+        [--name NAME --serial SERIAL]
 
 Pixel values (frame i, pixel u, v):
     depth  = 500 + 7*u + 13*v + i            (sensor units)
@@ -20,6 +21,8 @@ extrinsics, so librealsense's align block maps every depth pixel onto the same c
 the colour options give the colour stream its own size and focal lengths (principal point near
 the centre) and the depth -> colour extrinsics a translation (metres) and a rotation about the
 camera's y axis, as a real D435i has.
+--name and --serial give the device the camera info a real camera reports (e.g. "Intel
+RealSense D435I"); without them the recording's device has no name.
 Prints one JSON line with what it wrote.
 """
 
@@ -53,6 +56,8 @@ def main():
     ap.add_argument("--yaw-deg", type=float, default=0.0)
     ap.add_argument("--scene", action="store_true")
     ap.add_argument("--imu", action="store_true")
+    ap.add_argument("--name")
+    ap.add_argument("--serial")
     ap.add_argument("--depth-distortion", nargs=6, metavar=("MODEL", "K1", "K2", "P1", "P2", "K3"))
     ap.add_argument("--colour-distortion", nargs=6, metavar=("MODEL", "K1", "K2", "P1", "P2", "K3"))
     a = ap.parse_args()
@@ -86,6 +91,10 @@ def main():
             cintr.model, cintr.coeffs = lens_model(a.colour_distortion)
 
     dev = rs.software_device()
+    if a.name:
+        dev.register_info(rs.camera_info.name, a.name)
+    if a.serial:
+        dev.register_info(rs.camera_info.serial_number, a.serial)
     depth_sensor = dev.add_sensor("Depth")
     colour_sensor = dev.add_sensor("Color")
 

@@ -19,6 +19,11 @@
 //! first depth frame with both streams enabled (pyrealsense2 shows the same), so a `.bag` of N
 //! frame pairs plays as N - 1 frames.
 //!
+//! **Which camera.** A live camera is chosen by `serial`, else by `product`
+//! ([`crate::select`]); the start log names it (name, serial, firmware, USB link). A recording's
+//! camera is logged the same way and must match `product` when that is set; `serial` is not
+//! checked against a recording.
+//!
 //! **Unplug.** A live camera whose frames stop is looked for among the connected devices after
 //! each timeout; once it is gone the pipeline is stopped, [`FrameSource::connected`] turns
 //! `false` (health's `source_connected`) and the source retries with a doubling backoff
@@ -133,12 +138,24 @@ impl RealsenseSource {
         };
         let mut modes = (config.depth, config.colour);
         let mut serial = config.serial.clone();
+        if let Some(bag) = &bag
+            && !config.serial.is_empty()
+        {
+            info!(bag = %bag.display(), serial = %config.serial, "source.realsense.serial is not checked against a recording");
+        }
         if bag.is_none() {
-            let device = find_device(&context, &config.serial)?;
+            let device = find_device(&context, &config.product, &config.serial)?;
             serial = info(&device, Rs2CameraInfo::SerialNumber);
             let usb = info(&device, Rs2CameraInfo::UsbTypeDescriptor);
             let name = info(&device, Rs2CameraInfo::Name);
-            info!(camera = %name, serial = %serial, usb = %usb, firmware = %info(&device, Rs2CameraInfo::FirmwareVersion), "realsense camera found");
+            info!(
+                camera = %name,
+                serial = %serial,
+                firmware = %info(&device, Rs2CameraInfo::FirmwareVersion),
+                usb = %usb,
+                product = %config.product,
+                "realsense camera chosen"
+            );
             if usb.starts_with('2') {
                 if config.usb2_fallback {
                     modes = (config.usb2_mode, config.usb2_mode);
@@ -280,7 +297,7 @@ impl FrameSource for RealsenseSource {
                         reason: format!("no frame set within {timeout:?}: {e}"),
                     });
                 }
-                if find_device(&self.context, &self.serial).is_err() {
+                if find_device(&self.context, "", &self.serial).is_err() {
                     self.lose("unplugged");
                     return Ok(SourceStatus::Pending);
                 }

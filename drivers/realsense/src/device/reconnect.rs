@@ -31,7 +31,8 @@ impl RealsenseSource {
             std::thread::sleep((self.retry_at - now).min(RETRY_SLICE));
             return Ok(SourceStatus::Pending);
         }
-        let attempt = find_device(&self.context, &self.serial).and_then(|_| self.start());
+        // By the serial of the camera first opened (chosen by product, or by serial).
+        let attempt = find_device(&self.context, "", &self.serial).and_then(|_| self.start());
         match attempt {
             Ok(streams)
                 if streams.colour == self.streams.colour && streams.colour_order == self.streams.colour_order =>

@@ -18,6 +18,7 @@ use super::{RealsenseSource, device_err};
 use crate::align::{DepthToColour, Distortion, Extrinsics, Lens};
 use crate::config::AlignMode;
 use crate::rotate::ColourOrder;
+use crate::select::{CameraId, choose_camera, product_matches};
 
 /// What the stream resolution gave at start.
 #[derive(Debug, Clone, Copy)]
@@ -60,6 +61,9 @@ impl RealsenseSource {
         }
         let pipeline = pipeline.start(Some(cfg)).map_err(|e| self.open_error(&name, e.to_string()))?;
         let profile = pipeline.profile();
+        if self.bag.is_some() {
+            self.check_recorded_camera(profile.device(), &name)?;
+        }
         let colour_stream = profile.streams().iter().find(|s| s.kind() == Rs2StreamKind::Color);
         let depth_stream = profile.streams().iter().find(|s| s.kind() == Rs2StreamKind::Depth);
         let (Some(colour_stream), Some(depth_stream)) = (colour_stream, depth_stream) else {
@@ -104,6 +108,28 @@ impl RealsenseSource {
         self.delivered_any = false;
         self.received_any = false;
         Ok(Streams { colour, depth_units_per_m, colour_order, half_period_ms })
+    }
+
+    /// Logs the camera a recording was made with; with `product` set it must match, so that a
+    /// profile made for one camera (its rotation, its presets) does not play another camera's
+    /// recording. `serial` is not checked: it names one unit, and recordings move between robots.
+    fn check_recorded_camera(&self, device: &realsense_rust::device::Device, name: &str) -> Result<(), SourceError> {
+        let recorded =
+            CameraId { name: info(device, Rs2CameraInfo::Name), serial: info(device, Rs2CameraInfo::SerialNumber) };
+        info!(
+            source = %name,
+            camera = %recorded.name,
+            serial = %recorded.serial,
+            firmware = %info(device, Rs2CameraInfo::FirmwareVersion),
+            "realsense recording made with this camera"
+        );
+        if product_matches(&self.config.product, &recorded.name) {
+            return Ok(());
+        }
+        Err(SourceError::Config(format!(
+            "source.realsense.product: {:?}, but {name} was recorded with {recorded}; set product = \"\" to play any camera's recording",
+            self.config.product
+        )))
     }
 
     /// The streams to start: a recording's, or the camera's (by serial when set) in the modes
@@ -252,19 +278,25 @@ pub(super) fn info(device: &realsense_rust::device::Device, what: Rs2CameraInfo)
     device.info(what).map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
 }
 
-/// The connected camera with `serial` (any when empty).
-pub(super) fn find_device(context: &Context, serial: &str) -> Result<realsense_rust::device::Device, SourceError> {
+/// The connected camera `[source.realsense]` names: by `serial` when set, else the first whose
+/// name matches `product` ([`choose_camera`]); a warning is logged when the choice was not
+/// unambiguous, and the error lists every camera seen.
+pub(super) fn find_device(
+    context: &Context,
+    product: &str,
+    serial: &str,
+) -> Result<realsense_rust::device::Device, SourceError> {
     let devices = context.query_devices(HashSet::new());
-    let serials: Vec<String> = devices.iter().map(|d| info(d, Rs2CameraInfo::SerialNumber)).collect();
-    let found =
-        devices.into_iter().zip(&serials).find(|(_, s)| serial.is_empty() || s.as_str() == serial).map(|(d, _)| d);
-    found.ok_or_else(|| {
-        if serials.is_empty() {
-            device_err(
-                "no RealSense camera connected (check the USB cable, `rs-enumerate-devices`, and the udev rules)",
-            )
-        } else {
-            device_err(format!("no RealSense camera with serial {serial:?}; connected: {}", serials.join(", ")))
-        }
-    })
+    let cameras: Vec<CameraId> = devices
+        .iter()
+        .map(|d| CameraId { name: info(d, Rs2CameraInfo::Name), serial: info(d, Rs2CameraInfo::SerialNumber) })
+        .collect();
+    let choice = choose_camera(&cameras, product, serial).map_err(device_err)?;
+    if let Some(warning) = &choice.warning {
+        warn!("{warning}");
+    }
+    devices
+        .into_iter()
+        .nth(choice.index)
+        .ok_or_else(|| device_err(format!("camera {} left the device list while it was read", cameras[choice.index])))
 }
