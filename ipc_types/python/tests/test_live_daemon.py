@@ -88,6 +88,9 @@ def test_numpy_views_equal_op3dsg_dump_json_at_the_same_version(prefix, daemons)
     # The plain-Python form is the dump's form too.
     mine = view.to_dict()
     assert {k: v for k, v in mine.items() if k != "source"} == {k: v for k, v in dumped.items() if k != "source"}
+    # What the graph is of, from the daemon itself: the synthetic rooms, in the default frame.
+    assert (view.source_kind, view.world_frame) == ("synthetic", "world")
+    assert (dumped["source_kind"], dumped["world_frame"]) == ("synthetic", "world")
     header = view.header
     assert header.object_count + header.part_count == view.node_count
     assert header.object_count == view.objects().size
@@ -168,7 +171,7 @@ def test_pose_publisher_created_before_the_daemon_has_its_poses_taken(prefix, da
 
 
 def test_health_is_readable_with_every_graph_subscriber_slot_taken_and_matches_op3dsg_health(prefix, daemons):
-    daemons(prefix, FAST + ["--set", "ipc.max_subscribers=2"])
+    daemons(prefix, FAST + ["--set", "ipc.max_subscribers=2", "--set", 'world.frame_id="map"'])
     planners = [op3dsg.GraphClient(prefix, timeout=30), op3dsg.GraphClient(prefix)]
     with pytest.raises(op3dsg.SubscriberSlotsFullError, match=f"{prefix}/graph: create subscriber: ExceedsMaxSupportedSubscribers"):
         op3dsg.GraphClient(prefix)
@@ -195,6 +198,9 @@ def test_health_is_readable_with_every_graph_subscriber_slot_taken_and_matches_o
     assert [s["name"] for s in report["stages"]] == names
     assert [q["name"] for q in report["queues"]] == [q["name"] for q in record.to_dict()["queues"]]
     assert report["schema_version"] == record.schema_version
+    # The profile's world frame and the opened source's kind, in the record and in op3dsg health.
+    assert (record.source_kind_name(), record.world_frame_str()) == ("synthetic", "map")
+    assert (report["source_kind"], report["world_frame"]) == ("synthetic", "map")
     # The planners holding the slots read graphs meanwhile.
     for planner in planners:
         assert graph_with_parts(planner).node_count > 0
