@@ -151,6 +151,10 @@ exit_at_end = false
                 .map(|g| (g.version(), g.stamp_ns()))
         });
     assert!(version >= 1, "graph version {version} at {stamp_ns} ns");
+    // The camera's source playing a .bag tells planners it is a replay, not the world now.
+    let graph = graphs.latest().ok().flatten().expect("the graph just read");
+    assert_eq!((graph.source_kind(), graph.world_frame()), (op3dsg_ipc_types::SourceKind::Replay, "world"));
+    assert_eq!(settled.source_kind(), op3dsg_ipc_types::SourceKind::Replay, "health says it too");
     // The pattern holds no objects and the default oracle detector cannot detect on recorded
     // frames, so the graph is empty; what matters here is that the recording drove it.
     daemon.kill_9();
