@@ -40,6 +40,15 @@ echo "== foxglove schemas =="
 
 # librealsense (from PyPI pyrealsense2 into .deps/realsense/; fast when already there): the
 # feature `realsense` of op3dsgd is built and tested with the rest, in the same debug build.
+# cargo-deb (crates.io, into .deps/cargo-deb/; kept between runs like the rest of .deps):
+# tests/tests/deb_package.rs packages the debug build below with it, installs the package into a
+# scratch root and starts the installed daemon.
+echo "== cargo-deb =="
+CARGO_DEB_VERSION=3.8.0
+if ! .deps/cargo-deb/bin/cargo-deb --version 2>/dev/null | grep -qx "cargo-deb $CARGO_DEB_VERSION"; then
+  cargo install cargo-deb --locked --version "$CARGO_DEB_VERSION" --root .deps/cargo-deb
+fi
+
 echo "== librealsense sysroot =="
 ./scripts/setup-realsense.sh
 RS_LIB="$PWD/.deps/realsense/lib"
