@@ -432,13 +432,22 @@ fn the_package_installs_a_service_that_publishes_graphs() {
     check_service_user(&root);
     check_daemon(&root, &work);
 
-    // Upgrade (a reinstall): the edited conffile stays; purge removes it and the key.
+    // Upgrade (a reinstall): the edited conffile stays; purge removes it and the key, not the map.
     let profile = root.join("etc/op3dsg/op3dsgd.toml");
     let edited = format!("{}\n# edited on the robot\n", std::fs::read_to_string(&profile).expect("profile"));
     std::fs::write(&profile, &edited).expect("edit");
     dpkg(&root, &["-i", &deb.display().to_string()]);
     assert_eq!(std::fs::read_to_string(&profile).expect("profile"), edited, "the robot's profile is kept on upgrade");
-    dpkg(&root, &["--purge", "op3dsg"]);
+    // What the robot built and recorded survives a purge.
+    let snapshot = root.join("var/lib/op3dsg/snapshots/map.snapshot");
+    let recording = root.join("var/log/op3dsg/field.mcap");
+    for kept in [&snapshot, &recording] {
+        std::fs::create_dir_all(kept.parent().expect("a folder")).expect("state folders");
+        std::fs::write(kept, b"kept").expect("a file of the robot's");
+    }
+    let purged = text(&dpkg(&root, &["--purge", "op3dsg"]));
+    assert!(snapshot.exists() && recording.exists(), "purge keeps the map and the recordings");
+    assert!(purged.contains("kept") && purged.contains("/var/lib/op3dsg"), "purge says what it kept: {purged}");
     assert!(
         !profile.exists() && !root.join("etc/op3dsg/credentials/llm-api-key").exists(),
         "purge removes /etc/op3dsg"
