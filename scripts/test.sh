@@ -18,6 +18,16 @@ echo "== models =="
 echo "== python venv =="
 ./scripts/setup-python.sh
 
+# The oldest environment the Python client supports, ROS 2 Humble's (Python 3.10, NumPy 1.21):
+# .venv-oldest/. Without a Python 3.10 it says SKIPPED (exit 3); with CI=true it fails instead.
+echo "== python venv (oldest: Python 3.10, NumPy 1.21) =="
+OLDEST_PYTHON_TESTS=1
+./scripts/setup-python-oldest.sh || {
+  rc=$?
+  [[ $rc -eq 3 ]] || exit "$rc"
+  OLDEST_PYTHON_TESTS=0
+}
+
 # Stand-in ONNX models of the detector families (.models/standins/, from the venv's onnx): the
 # family adapter tests run through ONNX Runtime on them.
 echo "== model stand-ins =="
@@ -30,6 +40,15 @@ echo "== foxglove schemas =="
 
 # librealsense (from PyPI pyrealsense2 into .deps/realsense/; fast when already there): the
 # feature `realsense` of op3dsgd is built and tested with the rest, in the same debug build.
+# cargo-deb (crates.io, into .deps/cargo-deb/; kept between runs like the rest of .deps):
+# tests/tests/deb_package.rs packages the debug build below with it, installs the package into a
+# scratch root and starts the installed daemon.
+echo "== cargo-deb =="
+CARGO_DEB_VERSION=3.8.0
+if ! .deps/cargo-deb/bin/cargo-deb --version 2>/dev/null | grep -qx "cargo-deb $CARGO_DEB_VERSION"; then
+  cargo install cargo-deb --locked --version "$CARGO_DEB_VERSION" --root .deps/cargo-deb
+fi
+
 echo "== librealsense sysroot =="
 ./scripts/setup-realsense.sh
 RS_LIB="$PWD/.deps/realsense/lib"
@@ -73,3 +92,12 @@ cargo test --workspace --locked --no-fail-fast "${FEATURES[@]}"
 echo "== python tests =="
 OP3DSGD="$PWD/target/debug/op3dsgd" OP3DSG_WIRE_LAYOUT="$PWD/target/debug/examples/wire_layout" \
   "${VENV_DIR:-.venv}/bin/python" -m pytest ipc_types/python/tests -q
+
+# The same tests on ROS 2 Humble's Python 3.10 and NumPy 1.21 (scripts/setup-python-oldest.sh).
+echo "== python tests (oldest: Python 3.10, NumPy 1.21) =="
+if [[ $OLDEST_PYTHON_TESTS -eq 1 ]]; then
+  OP3DSGD="$PWD/target/debug/op3dsgd" OP3DSG_WIRE_LAYOUT="$PWD/target/debug/examples/wire_layout" \
+    "${OLDEST_VENV_DIR:-.venv-oldest}/bin/python" -m pytest ipc_types/python/tests -q
+else
+  echo "******** SKIPPED: the Python client's tests on Python 3.10 and NumPy 1.21 (no Python 3.10; see above) ********"
+fi

@@ -243,9 +243,12 @@ fn strip_wrappers(words: &[String]) -> &[String] {
         }
         match first.as_str() {
             "sudo" | "env" | "time" | "exec" | "nohup" => {
+                let takes_value = first == "sudo";
                 rest = &rest[1..];
-                while rest.first().is_some_and(|w| w.starts_with('-')) {
-                    rest = &rest[1..];
+                while let Some(flag) = rest.first().filter(|w| w.starts_with('-')) {
+                    // sudo's -u USER, -g GROUP: the next word is the option's.
+                    let skip = if takes_value && (flag == "-u" || flag == "-g") { 2 } else { 1 };
+                    rest = &rest[skip.min(rest.len())..];
                 }
             }
             "nice" => {
@@ -992,6 +995,8 @@ fn commands_are_split_as_a_shell_would() {
     assert_eq!(commands.len(), 3, "{commands:?}");
     assert_eq!(strip_wrappers(&commands[0]), ["op3dsg", "--prefix", "x", "dump", "--json"]);
     assert_eq!(commands[2], ["op3dsgd", "--set", "a.b=\"c d\""]);
+    let as_user = split_commands("sudo -u hello-robot op3dsg health");
+    assert_eq!(strip_wrappers(&as_user[0]), ["op3dsg", "health"]);
     let text = "```sh\n$ op3dsgd --profile p.toml \\\n  --max-frames 5   # note\n```\n```text\nop3dsg nope\n```\n";
     let lines = sh_lines("x.md", text);
     assert_eq!(lines.len(), 1);
@@ -1011,4 +1016,139 @@ fn a_synopsis_in_a_table_becomes_a_command() {
 fn options_come_from_option_lines_only() {
     let help = "Options:\n  -p, --profile <PROFILE>\n          Profile; see --max-frames\n      --max-frames <N>\n";
     assert_eq!(options(help), ["--max-frames", "--profile", "-p"].map(str::to_owned).into());
+}
+
+/// The page a robot engineer follows from a fresh robot to a planner reading the graph: every
+/// command of its `sh` blocks must be one the checks above cover, or one of [`SYSTEM_TOOLS`],
+/// or one checked here against the files it names.
+const ROBOT_PAGE: &str = "docs/robot.md";
+
+/// Commands of the operating system the robot page uses as documented by their own manuals;
+/// nothing of ours to check in them beyond their names. A command of the robot page that is
+/// neither ours nor here fails the test, so a new one gets a check or a place on this list.
+const SYSTEM_TOOLS: &[&str] = &[
+    "cp",
+    "getent",
+    "id",
+    "install",
+    "ls",
+    "mkdir",
+    "printf",
+    "rs-enumerate-devices",
+    "sudoedit",
+    "tee",
+    "udevadm",
+    "usermod",
+];
+
+/// The verbs of `systemctl` the robot page may use.
+const SYSTEMCTL_VERBS: &[&str] =
+    &["daemon-reload", "edit", "enable", "is-active", "reset-failed", "restart", "show", "start", "status", "stop"];
+
+/// The units of this repository (`systemd/*.service`), and the system's units the page names.
+fn known_units() -> BTreeSet<String> {
+    let mut units: BTreeSet<String> = std::fs::read_dir(root().join("systemd"))
+        .expect("read systemd/")
+        .filter_map(Result::ok)
+        .filter_map(|e| e.file_name().to_string_lossy().strip_suffix(".service").map(str::to_owned))
+        .collect();
+    units.insert("systemd-logind".to_owned());
+    units
+}
+
+/// The `.deb` cargo-deb writes for the daemon's package: `target/debian/<name>_<version>-1_<arch>.deb`.
+fn deb_file_name(arch: &str) -> String {
+    let manifest =
+        std::fs::read_to_string(root().join("daemon/op3dsgd/Cargo.toml")).expect("read daemon/op3dsgd/Cargo.toml");
+    let deb =
+        &manifest[manifest.find("[package.metadata.deb]").expect("the daemon's package has [package.metadata.deb]")..];
+    let name = deb
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("name = ").and_then(quoted))
+        .expect("[package.metadata.deb] names the package");
+    let workspace = std::fs::read_to_string(root().join("Cargo.toml")).expect("read Cargo.toml");
+    let version = workspace
+        .lines()
+        .skip_while(|l| l.trim() != "[workspace.package]")
+        .find_map(|l| l.trim().strip_prefix("version = ").and_then(quoted))
+        .expect("[workspace.package] version");
+    format!("{name}_{version}-1_{arch}.deb")
+}
+
+/// What is wrong with one command of the robot page, `None` when it is covered.
+fn robot_command_problem(program: &str, args: &[String]) -> Option<String> {
+    let base = program.rsplit('/').next().unwrap_or(program);
+    let operands: Vec<&String> = args.iter().filter(|a| !a.starts_with('-')).collect();
+    match base {
+        "op3dsg" | "op3dsgd" | "cargo" => None,
+        _ if program.ends_with(".sh") || base.starts_with("python") => None,
+        "systemctl" => {
+            let verb = operands.first()?;
+            if !SYSTEMCTL_VERBS.contains(&verb.as_str()) {
+                return Some(format!("systemctl {verb}: not a verb the page may use ({SYSTEMCTL_VERBS:?})"));
+            }
+            let units = known_units();
+            operands[1..]
+                .iter()
+                .find(|u| !units.contains(u.trim_end_matches(".service")))
+                .map(|u| format!("systemctl {verb} {u}: no such unit in systemd/ ({units:?})"))
+        }
+        "journalctl" => {
+            let unit = args.iter().position(|a| a == "-u").and_then(|i| args.get(i + 1));
+            match unit {
+                Some(u) if known_units().contains(u.trim_end_matches(".service")) => None,
+                Some(u) => Some(format!("journalctl -u {u}: no such unit in systemd/")),
+                None => Some("journalctl without -u <unit>".to_owned()),
+            }
+        }
+        "apt" | "apt-get" => {
+            let deb = operands.iter().find(|a| a.ends_with(".deb"))?;
+            let expected = format!("./target/debian/{}", deb_file_name("amd64"));
+            (deb.as_str() != expected).then(|| format!("{deb}: cargo-deb writes {expected}"))
+        }
+        "op3dsg-service-user" => {
+            let script = root().join("systemd/op3dsg-service-user");
+            let help = Command::new("sh").arg(&script).arg("--help").output().expect("run op3dsg-service-user --help");
+            let help = String::from_utf8_lossy(&help.stdout).into_owned();
+            args.iter()
+                .filter(|a| a.starts_with('-'))
+                .find(|flag| !help.contains(flag.split('=').next().unwrap_or(flag)))
+                .map(|flag| format!("op3dsg-service-user {flag}: not an option of systemd/op3dsg-service-user"))
+        }
+        _ if SYSTEM_TOOLS.contains(&base) => None,
+        _ => Some(format!("{base}: not checked; give it a check in docs_commands.rs or a place in SYSTEM_TOOLS")),
+    }
+}
+
+#[test]
+fn every_command_of_the_robot_page_is_checked() {
+    let text = std::fs::read_to_string(root().join(ROBOT_PAGE)).expect("read the robot page");
+    let lines = sh_lines(ROBOT_PAGE, &text);
+    assert!(lines.len() > 10, "only {} command lines in {ROBOT_PAGE}: is the extraction broken?", lines.len());
+    let mut failures = Vec::new();
+    for line in &lines {
+        for words in split_commands(&line.text) {
+            let command = strip_wrappers(&words);
+            let Some(program) = command.first() else { continue };
+            if let Some(problem) = robot_command_problem(program, &command[1..]) {
+                failures.push(format!("{}: {problem}\n    {}", line.at(), line.text));
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{} commands of {ROBOT_PAGE}:\n{}", failures.len(), failures.join("\n"));
+}
+
+#[test]
+fn the_robot_page_check_refuses_what_it_does_not_know() {
+    let words = |s: &str| s.split(' ').map(str::to_owned).collect::<Vec<_>>();
+    assert!(robot_command_problem("curl", &words("-fsSL https://example.org")).is_some());
+    assert!(robot_command_problem("systemctl", &words("restart op3dsg")).is_some(), "a unit of another name");
+    assert!(robot_command_problem("systemctl", &words("restart op3dsgd")).is_none());
+    assert!(robot_command_problem("journalctl", &words("-u nothing -f")).is_some());
+    assert!(robot_command_problem("apt", &words("install ./target/debian/op3dsg_0.0.1-1_amd64.deb")).is_some());
+    assert!(
+        robot_command_problem("apt", &words(&format!("install ./target/debian/{}", deb_file_name("amd64")))).is_none()
+    );
+    assert!(robot_command_problem("op3dsg-service-user", &words("--no-such-flag hello-robot")).is_some());
+    assert!(robot_command_problem("op3dsg-service-user", &words("--reset")).is_none());
 }

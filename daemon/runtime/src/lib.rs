@@ -15,6 +15,7 @@
 //! | leaf | [`embedding`] | embeddings, normalise / cosine, the [`embedding::PhraseEmbedder`] trait |
 //! | leaf | [`queue`] | bounded queues with named overflow policies, the latest-wins [`queue::Latest`] |
 //! | leaf | [`stats`] | stage latency figures, the watchdog's heartbeats, the pose input's counters, the health traits |
+//! | leaf | [`install`] | where the model store and the profiles are: a checkout's `.models/`, or installed beside the binary |
 //! | leaf | [`persist`] | atomic writes, the directory lock, moving a bad file aside |
 //! | leaf | [`graph`] | the in-memory scene graph, node points |
 //! | leaf | [`knowledge`] | object → part tables, label resolution and its fallbacks |
@@ -58,6 +59,7 @@ pub mod embedding;
 pub mod flow;
 pub mod fusion;
 pub mod graph;
+pub mod install;
 pub mod ipc;
 pub mod keyframe;
 pub mod knowledge;

@@ -19,7 +19,11 @@ use op3dsg_runtime::pipeline::{Pipeline, RunSummary};
 use tracing::{error, info};
 
 #[derive(Debug, Parser)]
-#[command(name = "op3dsgd", version, about = "op3dsg daemon: live part-aware 3D scene graph served over iceoryx2")]
+#[command(
+    name = "op3dsgd",
+    version = version(),
+    about = "op3dsg daemon: live part-aware 3D scene graph served over iceoryx2"
+)]
 struct Args {
     /// Profile (TOML) overriding the built-in base (the synthetic kitchen). See profiles/.
     #[arg(long, short = 'p', env = "OP3DSG_PROFILE")]
@@ -47,7 +51,8 @@ struct Args {
     #[arg(long, value_name = "DIR")]
     record: Option<PathBuf>,
 
-    /// Print the effective profile (all layers merged) and exit.
+    /// Print the effective profile (all layers merged, paths resolved: model and library files
+    /// as the daemon will open them, or a note saying where it looked) and exit.
     #[arg(long)]
     print_config: bool,
 
@@ -144,11 +149,37 @@ fn profile_overrides(args: &Args) -> Vec<String> {
     overrides
 }
 
-/// `--print-config`: the effective profile, after the layers it came from.
+/// The cargo features this binary was built with, as `--version` shows them
+/// (`op3dsgd 0.1.0 (features: realsense)`): `systemd/install.sh` refuses a binary without the
+/// camera.
+const FEATURES: &[(&str, bool)] = &[
+    ("realsense", cfg!(feature = "realsense")),
+    ("cuda", cfg!(feature = "cuda")),
+    ("openvino", cfg!(feature = "openvino")),
+    ("fault-hooks", cfg!(feature = "fault-hooks")),
+];
+
+/// `--version`: the package version and the features built in.
+fn version() -> &'static str {
+    static VERSION: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    VERSION.get_or_init(|| {
+        let on: Vec<&str> = FEATURES.iter().filter(|(_, built)| *built).map(|(name, _)| *name).collect();
+        let features = if on.is_empty() { "none".to_owned() } else { on.join(", ") };
+        format!("{} (features: {features})", env!("CARGO_PKG_VERSION"))
+    })
+}
+
+/// `--print-config`: the effective profile, after the layers it came from, with the model and
+/// library files the daemon will open (a note for each it cannot find).
 fn print_config(loaded: &config::LoadedProfile) -> ExitCode {
-    match toml::to_string_pretty(&loaded.effective) {
+    let (effective, notes) = loaded.effective_with_files();
+    match toml::to_string_pretty(&effective) {
         Ok(text) => {
-            println!("# layers: {}\n{text}", loaded.layers.join(" <- "));
+            println!("# layers: {}", loaded.layers.join(" <- "));
+            for note in notes {
+                println!("# {note}");
+            }
+            println!("{text}");
             ExitCode::SUCCESS
         }
         Err(e) => {

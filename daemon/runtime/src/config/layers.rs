@@ -200,12 +200,43 @@ fn collect_chain(path: &Path, chain: &mut Vec<(String, toml::Table)>, depth: usi
             ));
         }
     };
-    chain.push((name, table));
+    chain.push((name.clone(), table));
     if let Some(parent) = parent {
         let base_dir = path.parent().map(Path::to_path_buf).unwrap_or_else(|| PathBuf::from("."));
-        collect_chain(&base_dir.join(parent), chain, depth + 1)?;
+        let parent_path = find_extended(&base_dir, Path::new(&parent), crate::install::installed_profiles_dir())
+            .map_err(|looked_for| {
+                ProfileError::new(
+                    &name,
+                    format!(
+                        "extends: no profile {parent:?}: looked for {}",
+                        looked_for.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
+                    ),
+                )
+            })?;
+        collect_chain(&parent_path, chain, depth + 1)?;
     }
     Ok(())
+}
+
+/// The file an `extends = "<parent>"` names: beside the profile that names it (`base_dir`);
+/// failing that, a relative name among the installed profiles (`installed`:
+/// `/usr/share/op3dsg/profiles` for `/usr/bin/op3dsgd`), so a robot's `/etc/op3dsg/op3dsgd.toml`
+/// says `extends = "stretch3-d435i.toml"`. Every place looked at when none has it.
+pub(super) fn find_extended(
+    base_dir: &Path,
+    parent: &Path,
+    installed: Option<PathBuf>,
+) -> Result<PathBuf, Vec<PathBuf>> {
+    let mut candidates = vec![base_dir.join(parent)];
+    if parent.is_relative()
+        && let Some(dir) = installed
+    {
+        candidates.push(dir.join(parent));
+    }
+    match candidates.iter().find(|p| p.is_file()) {
+        Some(found) => Ok(found.clone()),
+        None => Err(candidates),
+    }
 }
 
 fn parse_value(text: &str) -> Result<toml::Value, String> {
@@ -259,7 +290,8 @@ fn record_origins(table: &toml::Table, prefix: &str, file: &str, origins: &mut B
     }
 }
 
-/// Joins each relative path of [`PATH_KEYS`] to the folder of the profile file that set it.
+/// Joins each relative path of [`PATH_KEYS`] to the folder of the profile file that set it; a path
+/// in the model store (`.models/...`, [`crate::install`]) stays as it is, found where the store is.
 fn resolve_paths(merged: &mut toml::Table, origin_of: &dyn Fn(&str) -> String) {
     for key in PATH_KEYS {
         let origin = origin_of(key);
@@ -275,6 +307,7 @@ fn resolve_paths(merged: &mut toml::Table, origin_of: &dyn Fn(&str) -> String) {
                 if let Some(toml::Value::String(path)) = entry
                     && !path.is_empty()
                     && Path::new(path.as_str()).is_relative()
+                    && crate::install::in_model_store(Path::new(path.as_str())).is_none()
                 {
                     let dir = Path::new(&origin).parent().unwrap_or(Path::new(""));
                     *path = dir.join(path.as_str()).display().to_string();

@@ -28,7 +28,12 @@
 //! `source.realsense.bag`, `detector.yolox.model_path`, `reasoner.knowledge_dir`,
 //! `reasoner.llm.api_key_file`, `snapshot.dir`) are
 //! relative to the folder of the file that sets them; a path given with `--set` is relative to
-//! the working directory. `--print-config` shows them resolved.
+//! the working directory. Two exceptions find op3dsg's own files wherever it is installed
+//! (`crate::install`): a path that starts with `.models/` names a file of the model store (a
+//! checkout's `.models/`, an installed `/usr/lib/op3dsg/`), and an `extends` that names no file
+//! beside its profile is looked up among the installed profiles (`/usr/share/op3dsg/profiles`).
+//! `--print-config` shows them resolved, model and library files included
+//! ([`LoadedProfile::effective_with_files`]).
 
 use std::collections::BTreeMap;
 
@@ -50,10 +55,12 @@ use crate::reasoner::ReasonerConfig;
 use crate::record::RecordConfig;
 use crate::world::WorldConfig;
 
+mod files;
 mod layers;
 #[cfg(test)]
 mod tests;
 
+pub use files::LOOKUP_KEYS;
 pub use layers::{LoadedProfile, SectionError, SectionRegistry, load, load_with, merge};
 
 /// The built-in base profile.

@@ -1,4 +1,4 @@
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use op3dsg_drivers::replay::PlaybackMode;
 
@@ -100,6 +100,46 @@ fn extends_chain_and_set_overrides_layer_in_order() {
     assert_eq!(loaded.layers.len(), 4);
     let err = load(Some(&path), &["detector.workers=99".to_owned()]).unwrap_err();
     assert_eq!(err.file, "--set");
+}
+
+#[test]
+fn extends_falls_back_to_the_installed_profiles() {
+    let dir = tempfile::tempdir().unwrap();
+    let etc = dir.path().join("etc");
+    let installed = dir.path().join("usr/share/op3dsg/profiles");
+    std::fs::create_dir_all(&etc).unwrap();
+    std::fs::create_dir_all(&installed).unwrap();
+    std::fs::write(installed.join("robot.toml"), "").unwrap();
+    // Beside the naming profile first, then the installed profiles.
+    let found = layers::find_extended(&etc, Path::new("robot.toml"), Some(installed.clone())).unwrap();
+    assert_eq!(found, installed.join("robot.toml"));
+    std::fs::write(etc.join("robot.toml"), "").unwrap();
+    assert_eq!(
+        layers::find_extended(&etc, Path::new("robot.toml"), Some(installed.clone())).unwrap(),
+        etc.join("robot.toml")
+    );
+    // Absolute names are not looked for elsewhere; a missing one lists every place looked at.
+    let missing = layers::find_extended(&etc, Path::new("other.toml"), Some(installed.clone())).unwrap_err();
+    assert_eq!(missing, vec![etc.join("other.toml"), installed.join("other.toml")]);
+    let missing = layers::find_extended(&etc, Path::new("/no/such.toml"), Some(installed)).unwrap_err();
+    assert_eq!(missing, vec![PathBuf::from("/no/such.toml")]);
+    // Through the loader: the error names the profile and every place.
+    let path = write(&dir, "robot.toml", "extends = \"nowhere.toml\"\n");
+    let err = load(Some(&path), &[]).unwrap_err().to_string();
+    assert!(err.contains("robot.toml") && err.contains("extends: no profile \"nowhere.toml\": looked for "), "{err}");
+}
+
+#[test]
+fn model_store_paths_are_not_relative_to_the_profile() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write(
+        &dir,
+        "robot.toml",
+        "[detector]\nkind = \"yolox\"\n[detector.yolox]\nmodel_path = \".models/yolox_nano/yolox_nano.onnx\"\n\
+         [detector.yolox.class_map]\nchair = \"chair\"\n",
+    );
+    let profile = load(Some(&path), &[]).unwrap().profile;
+    assert_eq!(profile.detector.yolox.model_path, PathBuf::from(".models/yolox_nano/yolox_nano.onnx"));
 }
 
 const REPLAY: &str = "[source]\nkind = \"replay\"\nrate_hz = 0.0\n[source.replay]\npath = \"rec/icl\"\n";

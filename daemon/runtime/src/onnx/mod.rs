@@ -17,9 +17,11 @@
 //! [`OnnxError`] that names the path looked for and says what to run; nothing here panics (a
 //! bare `ort` load through `ORT_DYLIB_PATH` would).
 //!
-//! Relative paths (library, models) are looked up in the working directory first, then in the
-//! source tree the binary was built from, so `cargo test`, `cargo bench` and a daemon started
-//! from the repository root all find `.models/` (see [`resolve_path`]).
+//! Relative paths (library, models) are looked up in the working directory first, then (for a
+//! path in `.models/`) in the model store of an installed op3dsg (`/usr/lib/op3dsg` beside
+//! `/usr/bin/op3dsgd`, [`crate::install`]), then in the source tree the binary was built from,
+//! so `cargo test`, `cargo bench`, a daemon started from the repository root and the installed
+//! service all find them (see [`resolve_path`]).
 //!
 //! Models on top of it:
 //! - [`text_encoder`]: label → 384-d sentence embedding (all-MiniLM-L6-v2), batched and cached.
@@ -52,7 +54,8 @@ pub const ORT_LIB_ENV: &str = "OP3DSG_ORT_LIB";
 /// The ONNX Runtime library `scripts/setup-models.sh` installs (relative to the repository).
 pub const DEFAULT_LIBRARY_PATH: &str = ".models/onnxruntime/libonnxruntime.so.1.31.1";
 /// What to do when a library or model file is missing.
-pub const SETUP_HINT: &str = "run ./scripts/setup-models.sh in the repository root to fetch it";
+pub const SETUP_HINT: &str = "in a checkout, run ./scripts/setup-models.sh in the repository root to fetch it; \
+     the op3dsg package installs it in /usr/lib/op3dsg";
 
 /// The source tree this crate was built from: the second place relative paths are looked up.
 const SOURCE_ROOT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../..");
@@ -193,27 +196,38 @@ fn list_paths(paths: &[PathBuf]) -> String {
 }
 
 /// Resolves a configured path: absolute paths as they are; relative ones in the working
-/// directory first, then in the source tree this binary was built from. Returns the first
+/// directory first, then, for a path in `.models/`, in the installed model store of this binary
+/// (`.models/minilm/model.onnx` → `/usr/lib/op3dsg/minilm/model.onnx` for `/usr/bin/op3dsgd`,
+/// [`crate::install`]), then in the source tree this binary was built from. Returns the first
 /// existing file, or [`OnnxError::FileMissing`] listing every place looked at.
 pub fn resolve_path(configured: &Path, what: &'static str, setting: &str) -> Result<PathBuf, OnnxError> {
-    let mut candidates = Vec::with_capacity(2);
-    if configured.is_absolute() {
-        candidates.push(configured.to_path_buf());
-    } else {
-        match std::env::current_dir() {
-            Ok(cwd) => candidates.push(cwd.join(configured)),
-            Err(_) => candidates.push(configured.to_path_buf()),
-        }
-        let source_root = Path::new(SOURCE_ROOT).canonicalize().unwrap_or_else(|_| PathBuf::from(SOURCE_ROOT));
-        let in_source = source_root.join(configured);
-        if !candidates.contains(&in_source) {
-            candidates.push(in_source);
-        }
-    }
+    let candidates = candidate_paths(configured, crate::install::installed_model_store().as_deref());
     match candidates.iter().find(|p| p.is_file()) {
         Some(found) => Ok(found.clone()),
         None => Err(OnnxError::FileMissing { what, looked_for: candidates, setting: setting.to_owned() }),
     }
+}
+
+/// The places [`resolve_path`] looks, in order, with `installed_store` the installed model store
+/// (none for a binary that is not installed).
+fn candidate_paths(configured: &Path, installed_store: Option<&Path>) -> Vec<PathBuf> {
+    if configured.is_absolute() {
+        return vec![configured.to_path_buf()];
+    }
+    let mut candidates = Vec::with_capacity(3);
+    match std::env::current_dir() {
+        Ok(cwd) => candidates.push(cwd.join(configured)),
+        Err(_) => candidates.push(configured.to_path_buf()),
+    }
+    if let (Some(store), Some(inside)) = (installed_store, crate::install::in_model_store(configured)) {
+        candidates.push(store.join(inside));
+    }
+    let source_root = Path::new(SOURCE_ROOT).canonicalize().unwrap_or_else(|_| PathBuf::from(SOURCE_ROOT));
+    let in_source = source_root.join(configured);
+    if !candidates.contains(&in_source) {
+        candidates.push(in_source);
+    }
+    candidates
 }
 
 /// The process's ONNX Runtime: the loaded library and the one `ort` environment. Cheap to clone
@@ -511,6 +525,20 @@ mod tests {
         assert!(found.is_file());
         let found = resolve_path(Path::new("profiles/base.toml"), "file", "x").unwrap();
         assert!(found.ends_with("profiles/base.toml"), "{}", found.display());
+    }
+
+    #[test]
+    fn model_store_paths_look_in_the_installed_store_before_the_source_tree() {
+        let store = Path::new("/opt/robot/lib/op3dsg");
+        let candidates = candidate_paths(Path::new(".models/minilm/model.onnx"), Some(store));
+        let cwd = std::env::current_dir().unwrap();
+        assert_eq!(candidates[0], cwd.join(".models/minilm/model.onnx"), "the working directory first");
+        assert_eq!(candidates[1], store.join("minilm/model.onnx"), "then the installed store, without `.models/`");
+        assert!(candidates[2].ends_with(".models/minilm/model.onnx") && candidates[2] != candidates[0]);
+        assert_eq!(candidates.len(), 3);
+        // Other relative paths never look in the store; a binary that is not installed has none.
+        assert!(!candidate_paths(Path::new("models/x.onnx"), Some(store)).iter().any(|p| p.starts_with(store)));
+        assert_eq!(candidate_paths(Path::new(".models/minilm/model.onnx"), None).len(), 2);
     }
 
     #[test]

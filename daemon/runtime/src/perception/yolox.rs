@@ -61,10 +61,13 @@ pub const STRIDES: [u32; 3] = [8, 16, 32];
 /// Letterbox padding value.
 pub const PAD_VALUE: f32 = 114.0;
 
-/// Where a missing YOLOX model comes from (`setup-models.sh` does not fetch it).
-pub const MODEL_HINT: &str = "point detector.yolox.model_path at a YOLOX ONNX export (YOLOX-nano: model/yolox_nano.onnx of \
-     github.com/Kazuhito00/YOLOX-ONNX-TFLite-Sample; in the development setup \
-     ../shared/data/models/yolox_nano/yolox_nano.onnx beside the checkout)";
+/// Where a missing YOLOX model comes from: no package registry distributes one, so neither
+/// `setup-models.sh` nor the op3dsg package has it; the operator places it.
+pub const MODEL_HINT: &str = "no package registry distributes YOLOX weights: place a YOLOX ONNX export there yourself \
+     (YOLOX-nano, Apache-2.0: model/yolox_nano.onnx of github.com/Kazuhito00/YOLOX-ONNX-TFLite-Sample). \
+     Installed op3dsg (/etc/op3dsg/op3dsgd.toml): sudo install -D -m 0644 yolox_nano.onnx /etc/op3dsg/models/yolox_nano.onnx; \
+     a checkout (profiles/stretch3-d435i.toml): install -D -m 0644 yolox_nano.onnx .models/yolox_nano/yolox_nano.onnx \
+     (the development setup has it in ../shared/data/models/yolox_nano/); or point detector.yolox.model_path at it";
 
 const INPUT_NAME: &str = "images";
 const OUTPUT_NAME: &str = "output";

@@ -172,7 +172,9 @@ pub struct RecordConfig {
     /// Whether the daemon records (`op3dsgd --record DIR` sets it and `dir`).
     pub enabled: bool,
     /// Folder for the files (created if missing). Relative: to the profile file that sets it
-    /// (to the working directory with `--set` or `--record`).
+    /// (to the working directory with `--set` or `--record`). Empty (the default): under systemd
+    /// `$LOGS_DIRECTORY` (`LogsDirectory=op3dsg`: /var/log/op3dsg), else `recordings` in the
+    /// working directory ([`Self::resolve_dir`]).
     pub dir: PathBuf,
     /// Chunk compression: `zstd`, `lz4` or `none`.
     pub compression: RecordCompression,
@@ -209,7 +211,7 @@ impl Default for RecordConfig {
     fn default() -> Self {
         Self {
             enabled: false,
-            dir: PathBuf::from("recordings"),
+            dir: PathBuf::new(),
             compression: RecordCompression::Zstd,
             colour: ColourEncoding::Raw,
             jpeg_quality: default_jpeg_quality(),
@@ -229,12 +231,30 @@ fn default_jpeg_quality() -> u8 {
     90
 }
 
+/// Where recordings go when `record.dir` is empty and systemd gave no logs directory.
+pub const DEFAULT_RECORD_DIR: &str = "recordings";
+
 impl RecordConfig {
+    /// The folder recordings go to (see [`Self::dir`]).
+    pub fn resolve_dir(&self) -> PathBuf {
+        self.resolve_dir_with(std::env::var_os("LOGS_DIRECTORY").map(PathBuf::from))
+    }
+
+    /// [`Self::resolve_dir`] with `$LOGS_DIRECTORY` given (systemd may list several,
+    /// `:`-separated: the first is ours).
+    pub fn resolve_dir_with(&self, logs_directory: Option<PathBuf>) -> PathBuf {
+        if !self.dir.as_os_str().is_empty() {
+            return self.dir.clone();
+        }
+        let first = logs_directory.map(|d| d.to_string_lossy().split(':').next().unwrap_or("").to_owned());
+        match first {
+            Some(first) if !first.is_empty() => PathBuf::from(first),
+            _ => PathBuf::from(DEFAULT_RECORD_DIR),
+        }
+    }
+
     /// Checks ranges; errors name the field prefixed with `path` (`record.max_file_mib: ...`).
     pub fn validate(&self, path: &str) -> Result<(), String> {
-        if self.enabled && self.dir.as_os_str().is_empty() {
-            return Err(format!("{path}.dir: must name the folder for the recordings"));
-        }
         if !(16..=1 << 20).contains(&self.chunk_size_kib) {
             return Err(format!("{path}.chunk_size_kib: must be within [16, 1048576], got {}", self.chunk_size_kib));
         }
@@ -293,6 +313,20 @@ mod tests {
         let config = RecordConfig { max_file_mib: 0, ..RecordConfig::default() };
         assert!(config.validate("record").unwrap_err().starts_with("record.max_file_mib: "));
         let config = RecordConfig { enabled: true, dir: PathBuf::new(), ..RecordConfig::default() };
-        assert!(config.validate("record").unwrap_err().starts_with("record.dir: "));
+        assert_eq!(config.validate("record"), Ok(()), "an empty dir has a meaning");
+    }
+
+    #[test]
+    fn an_empty_dir_is_the_logs_directory_under_systemd() {
+        let unset = RecordConfig::default();
+        assert_eq!(unset.resolve_dir_with(None), PathBuf::from("recordings"), "by hand: the working directory's");
+        assert_eq!(unset.resolve_dir_with(Some("/var/log/op3dsg".into())), PathBuf::from("/var/log/op3dsg"));
+        assert_eq!(
+            unset.resolve_dir_with(Some("/var/log/op3dsg:/var/log/other".into())),
+            PathBuf::from("/var/log/op3dsg")
+        );
+        assert_eq!(unset.resolve_dir_with(Some("".into())), PathBuf::from("recordings"));
+        let set = RecordConfig { dir: PathBuf::from("/data/runs"), ..RecordConfig::default() };
+        assert_eq!(set.resolve_dir_with(Some("/var/log/op3dsg".into())), PathBuf::from("/data/runs"));
     }
 }

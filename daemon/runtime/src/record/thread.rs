@@ -58,8 +58,9 @@ impl RecordThread {
         side_topics: Vec<String>,
         stats: Arc<RecorderStats>,
     ) -> Result<(RecordSender, Self), RecordStartError> {
-        std::fs::create_dir_all(&config.dir)
-            .map_err(|e| RecordStartError { dir: config.dir.clone(), reason: format!("cannot create: {e}") })?;
+        let dir = config.resolve_dir();
+        std::fs::create_dir_all(&dir)
+            .map_err(|e| RecordStartError { dir: dir.clone(), reason: format!("cannot create: {e}") })?;
         // Frames are bounded by the pool (`frame_queue` + 1 buffers); the queue also carries the
         // input poses between them, which get the event queue's room.
         let (frames_tx, frames_rx) = crossbeam_channel::bounded(config.frame_queue + config.event_queue);
@@ -107,7 +108,7 @@ impl RecordThread {
             node_points_per_node: config.node_points_per_node,
         };
         let thread = RecordThread {
-            config: config.clone(),
+            config: RecordConfig { dir, ..config.clone() },
             up_axis: world.up_axis,
             world_frame: world.frame_id.clone(),
             profile_toml,
@@ -141,8 +142,8 @@ impl std::fmt::Debug for Recorder {
 }
 
 impl Recorder {
-    /// Starts thread `op3dsg-record` writing into `config.dir`; `world` is the profile's
-    /// `[world]` (see [`RecordThread::prepare`]).
+    /// Starts thread `op3dsg-record` writing into `config.dir` ([`RecordConfig::resolve_dir`]);
+    /// `world` is the profile's `[world]` (see [`RecordThread::prepare`]).
     pub fn start(
         config: &RecordConfig,
         profile_toml: String,
@@ -155,7 +156,7 @@ impl Recorder {
         let thread = std::thread::Builder::new()
             .name("op3dsg-record".to_owned())
             .spawn(move || thread.run())
-            .map_err(|e| RecordStartError { dir: config.dir.clone(), reason: format!("thread: {e}") })?;
+            .map_err(|e| RecordStartError { dir: config.resolve_dir(), reason: format!("thread: {e}") })?;
         Ok(Self { sender: Some(sender), thread: Some(thread), stats })
     }
 
