@@ -278,6 +278,11 @@ fn record_bag(dir: &Path) -> PathBuf {
             "72",
             "--fps",
             &FPS.to_string(),
+            // As the head camera records it: the Stretch profile plays only a D435I's recording.
+            "--name",
+            "Intel RealSense D435I",
+            "--serial",
+            "135322062222",
         ]),
     );
     bag
