@@ -37,7 +37,9 @@ fn iceoryx2_nodes_of(pid: u32) -> usize {
     let mut found = 0;
     let of_pid =
         |id: &iceoryx2::identifiers::UniqueNodeId| id.pid::<ipc::Service>().is_ok_and(|p| p.value() as u32 == pid);
-    let listed = Node::<ipc::Service>::list(Config::global_config(), |state| {
+    // The daemon's iceoryx2 files are in this user's IPC root, not iceoryx2's default.
+    let config = op3dsg_ipc_types::IpcRoot::resolve().config().expect("the IPC root's iceoryx2 config");
+    let listed = Node::<ipc::Service>::list(&config, |state| {
         let matches = match &state {
             NodeState::Alive(view) => of_pid(view.id()),
             NodeState::Dead(view) => of_pid(view.id()),
