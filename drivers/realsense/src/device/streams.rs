@@ -61,8 +61,12 @@ impl RealsenseSource {
         }
         let pipeline = pipeline.start(Some(cfg)).map_err(|e| self.open_error(&name, e.to_string()))?;
         let profile = pipeline.profile();
-        if self.bag.is_some() {
-            self.check_recorded_camera(profile.device(), &name)?;
+        if self.bag.is_some()
+            && let Err(refused) = self.check_recorded_camera(profile.device(), &name)
+        {
+            // Stopped before it is dropped: the playback thread must not outlive the pipeline.
+            let _ = pipeline.stop();
+            return Err(refused);
         }
         let colour_stream = profile.streams().iter().find(|s| s.kind() == Rs2StreamKind::Color);
         let depth_stream = profile.streams().iter().find(|s| s.kind() == Rs2StreamKind::Depth);
