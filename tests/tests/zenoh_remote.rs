@@ -2,8 +2,9 @@
 //! scene) listens on a loopback port; `tests/python/zenoh_consumer.py`, written from
 //! docs/remote.md with only PyPI `eclipse-zenoh` and numpy, connects as a client with scouting
 //! off, fetches the full graph from the queryable, follows the deltas, and must hold exactly what
-//! `op3dsg dump --json` prints for the same version. A consumer that joins late converges too,
-//! and a daemon killed and started again is seen as a new instance.
+//! `op3dsg dump --json` prints for the same version; so must `op3dsg dump --zenoh` (the Rust
+//! client). A consumer that joins late converges too, and a daemon killed and started again is
+//! seen as a new instance.
 
 use std::io::{BufRead, BufReader, Write};
 use std::net::TcpListener;
@@ -90,10 +91,17 @@ fn instance_of(daemon: &Daemon) -> u64 {
 }
 
 fn dump(prefix: &str) -> Value {
-    let output = Command::new(binary("op3dsg"))
-        .args(["--prefix", prefix, "dump", "--json", "--timeout-s", "30"])
-        .output()
-        .expect("run op3dsg dump");
+    dump_with(&["--prefix", prefix, "dump", "--json", "--timeout-s", "30"])
+}
+
+/// `op3dsg dump --json --zenoh`: the Rust client's view over Zenoh.
+fn dump_zenoh(port: u16, key_prefix: &str) -> Value {
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    dump_with(&["dump", "--json", "--timeout-s", "30", "--zenoh", &endpoint, "--key-prefix", key_prefix])
+}
+
+fn dump_with(args: &[&str]) -> Value {
+    let output = Command::new(binary("op3dsg")).args(args).output().expect("run op3dsg dump");
     assert!(output.status.success(), "op3dsg dump: {}", String::from_utf8_lossy(&output.stderr));
     serde_json::from_slice(&output.stdout).expect("dump JSON")
 }
@@ -191,6 +199,19 @@ fn a_python_consumer_follows_the_graph_over_zenoh_joins_late_and_sees_a_restart(
         40 + 112 + 144 * node_count + 64 * edge_count,
         stats["delta_bytes"].as_u64().unwrap_or(0) / deltas,
     );
+
+    // The Rust client: `op3dsg dump --zenoh` from "another computer" prints what `op3dsg dump`
+    // prints over iceoryx2.
+    let deadline = Instant::now() + Duration::from_secs(300);
+    loop {
+        let local = dump(&daemon.prefix);
+        let remote = dump_zenoh(port, &key_prefix);
+        if local["graph_version"] == remote["graph_version"] {
+            assert_same_graph(&local, &remote);
+            break;
+        }
+        assert!(Instant::now() < deadline, "op3dsg dump and op3dsg dump --zenoh never met at one version");
+    }
 
     let mut late = Consumer::start(port, &key_prefix);
     let (dumped, held) = same_version(&daemon, &mut late, instance);

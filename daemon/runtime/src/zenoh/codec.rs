@@ -1,108 +1,16 @@
 //! The bytes of every Zenoh message: a fixed envelope, then the body — a full graph (the
 //! iceoryx2 graph sample's header and records, unchanged), a delta against an earlier version, or
 //! the health record as JSON. Little-endian throughout; `docs/remote.md` lays it out field by
-//! field for readers in other languages.
+//! field for readers in other languages; the constants, the envelope and the header's bytes are
+//! the client library's (`op3dsg_ipc_types::remote`).
 
-use op3dsg_ipc_types::{EDGE_BYTES, GraphHeader, NAME_CAPACITY_BYTES, NODE_BYTES};
+use op3dsg_ipc_types::{EDGE_BYTES, GraphHeader, NODE_BYTES};
 
-/// First four bytes of every message.
-pub const MAGIC: [u8; 4] = *b"O3DZ";
-/// The envelope's format version; a reader refuses other values.
-pub const FORMAT_VERSION: u16 = 1;
-/// Bytes of the envelope.
-pub const ENVELOPE_BYTES: usize = 40;
-/// Bytes of a graph header (the iceoryx2 sample's [`GraphHeader`], same layout).
-pub const HEADER_BYTES: usize = 112;
-/// Bytes of a delta's counts (four `u32`).
-pub const DELTA_COUNTS_BYTES: usize = 16;
-
-/// What a message's body is (the envelope's `kind`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-#[repr(u16)]
-pub enum MessageKind {
-    /// A whole graph version: header, nodes, edges.
-    Graph = 1,
-    /// The changes from `base_version` to `version`.
-    Delta = 2,
-    /// The health record, JSON.
-    Health = 3,
-}
-
-/// The envelope in front of every body.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Envelope {
-    /// What follows.
-    pub kind: MessageKind,
-    /// The publishing daemon's instance id (drawn at start; a new one means a restart).
-    pub instance_id: u64,
-    /// The graph version this message brings the reader to (health: the newest version).
-    pub version: u64,
-    /// A delta applies to exactly this version; 0 for other kinds.
-    pub base_version: u64,
-    /// Wall-clock time of the send, nanoseconds since the Unix epoch.
-    pub publish_time_ns: u64,
-}
-
-impl Envelope {
-    /// Appends the envelope's [`ENVELOPE_BYTES`] bytes to `out`.
-    pub fn append_to(&self, out: &mut Vec<u8>) {
-        out.extend_from_slice(&MAGIC);
-        out.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-        out.extend_from_slice(&(self.kind as u16).to_le_bytes());
-        for v in [self.instance_id, self.version, self.base_version, self.publish_time_ns] {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-    }
-}
-
-/// Appends `header` in its [`HEADER_BYTES`] wire layout (the `#[repr(C)]` struct's offsets).
-pub fn append_header(h: &GraphHeader, out: &mut Vec<u8>) {
-    let start = out.len();
-    out.extend_from_slice(&h.schema_version.to_le_bytes());
-    out.extend_from_slice(&h.node_count.to_le_bytes());
-    for v in [h.graph_version, h.instance_id, h.stamp_ns, h.publish_time_ns] {
-        out.extend_from_slice(&v.to_le_bytes());
-    }
-    for v in [h.edge_count, h.object_count, h.part_count] {
-        out.extend_from_slice(&v.to_le_bytes());
-    }
-    out.extend_from_slice(&[h.capacity_exceeded, h.source_kind]);
-    out.extend_from_slice(&h.reserved);
-    for v in [h.total_node_count, h.total_edge_count, h.node_capacity, h.edge_capacity] {
-        out.extend_from_slice(&v.to_le_bytes());
-    }
-    out.extend_from_slice(&h.world_frame);
-    out.extend_from_slice(&h.reserved2.to_le_bytes());
-    debug_assert_eq!(out.len() - start, HEADER_BYTES);
-}
-
-/// Reads a header written by [`append_header`].
-pub fn read_header(b: &[u8; HEADER_BYTES]) -> GraphHeader {
-    let u32_at = |o: usize| u32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]);
-    let u64_at = |o: usize| u64::from(u32_at(o)) | (u64::from(u32_at(o + 4)) << 32);
-    let mut world_frame = [0u8; NAME_CAPACITY_BYTES];
-    world_frame.copy_from_slice(&b[72..72 + NAME_CAPACITY_BYTES]);
-    GraphHeader {
-        schema_version: u32_at(0),
-        node_count: u32_at(4),
-        graph_version: u64_at(8),
-        instance_id: u64_at(16),
-        stamp_ns: u64_at(24),
-        publish_time_ns: u64_at(32),
-        edge_count: u32_at(40),
-        object_count: u32_at(44),
-        part_count: u32_at(48),
-        capacity_exceeded: b[52],
-        source_kind: b[53],
-        reserved: [b[54], b[55]],
-        total_node_count: u32_at(56),
-        total_edge_count: u32_at(60),
-        node_capacity: u32_at(64),
-        edge_capacity: u32_at(68),
-        world_frame,
-        reserved2: u64_at(104),
-    }
-}
+// The format itself belongs to the client library (its `RemoteFollower` reads it back).
+pub use op3dsg_ipc_types::remote::{
+    DELTA_COUNTS_BYTES, ENVELOPE_BYTES, Envelope, FORMAT_VERSION, HEADER_BYTES, MAGIC, MessageKind, append_header,
+    node_id, read_header,
+};
 
 /// A full graph message: envelope, header, then the sample's payload (nodes sorted by id, then
 /// edges), into `out` (cleared first).
@@ -240,9 +148,4 @@ fn write_only_in(a: &[[u8; EDGE_BYTES]], b: &[[u8; EDGE_BYTES]], out: &mut Vec<u
         }
     }
     written
-}
-
-/// The id of a node record (its first four bytes).
-pub fn node_id(record: &[u8; NODE_BYTES]) -> u32 {
-    u32::from_le_bytes([record[0], record[1], record[2], record[3]])
 }

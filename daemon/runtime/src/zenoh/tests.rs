@@ -218,3 +218,43 @@ fn a_health_message_is_the_envelope_and_json() {
     assert_eq!((u64_at(&out, 8), u64_at(&out, 16)), (9, 4));
     assert_eq!(&out[ENVELOPE_BYTES..], br#"{"uptime_s":1.0}"#);
 }
+
+#[test]
+fn the_client_librarys_follower_reads_what_the_stage_writes() {
+    use op3dsg_ipc_types::client::{Applied, RemoteFollower};
+    let mut encoder = GraphEncoder::new(GraphCapacity::default(), 77);
+    let mut deltas = DeltaEncoder::default();
+    let (mut full, mut delta) = (Vec::new(), Vec::new());
+    let mut follower = RemoteFollower::new();
+    let mut missed = RemoteFollower::new();
+    for (i, graph) in versions().iter().enumerate() {
+        encoder.encode(graph);
+        let header = *encoder.header();
+        encode_full(&header, encoder.payload(), 5, &mut full);
+        deltas.next(&header, encoder.payload(), 5, &mut delta);
+        let applied = if i == 0 { follower.apply(&full) } else { follower.apply(&delta) };
+        assert_eq!(applied.unwrap(), if i == 0 { Applied::Full } else { Applied::Delta });
+        assert_eq!(follower.held(), Some((77, graph.version)));
+        let held = follower.graph().unwrap().unwrap();
+        let ids: Vec<u32> = held.nodes().map(|n| n.id()).collect();
+        assert_eq!(ids, graph.nodes.iter().map(|n| n.id).collect::<Vec<_>>());
+        assert_eq!(held.edge_count(), graph.edges.len());
+        assert_eq!(follower.apply(&full).unwrap(), Applied::Stale, "a full graph of the version held");
+        if i == 0 {
+            missed.apply(&full).unwrap();
+        }
+    }
+    // Version 2 was lost on the way: version 3's delta asks for a full graph.
+    assert_eq!(missed.apply(&delta).unwrap(), Applied::NeedFull);
+    assert_eq!(missed.held(), None);
+    assert_eq!(missed.apply(&full).unwrap(), Applied::Full);
+    // A restarted daemon: its first full graph replaces the old instance's graph.
+    let mut restarted = GraphEncoder::new(GraphCapacity::default(), 78);
+    restarted.encode(&versions()[0]);
+    encode_full(restarted.header(), restarted.payload(), 5, &mut full);
+    assert_eq!(follower.apply(&full).unwrap(), Applied::Full);
+    assert_eq!(follower.instances(), [77, 78]);
+    let mut bad = full.clone();
+    bad[4] = 9;
+    assert!(follower.apply(&bad).unwrap_err().to_string().contains("format"));
+}
