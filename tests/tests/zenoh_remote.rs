@@ -228,3 +228,28 @@ fn a_python_consumer_follows_the_graph_over_zenoh_joins_late_and_sees_a_restart(
     assert_same_graph(&dumped, &held);
     assert_eq!(held["stats"]["restarts"].as_u64(), Some(1), "the consumer saw the new instance: {held}");
 }
+
+#[test]
+fn bad_zenoh_settings_stop_the_daemon_at_start_naming_the_key() {
+    let run = |args: &[&str]| {
+        let output = Command::new(binary("op3dsgd"))
+            .arg("--prefix")
+            .arg(unique_prefix("zenoh-bad"))
+            .args(["--set", "zenoh.enabled=true"])
+            .args(args)
+            .stdin(Stdio::null())
+            .output()
+            .expect("run op3dsgd");
+        assert!(!output.status.success(), "op3dsgd {args:?} started");
+        String::from_utf8_lossy(&output.stderr).into_owned()
+    };
+    let stderr = run(&["--set", "zenoh.listen=[\"127.0.0.1:7447\"]"]);
+    assert!(stderr.contains("zenoh.listen: \"127.0.0.1:7447\" is not a Zenoh endpoint"), "{stderr}");
+    let stderr = run(&["--set", "zenoh.key_prefix=\"op3dsg/**\""]);
+    assert!(stderr.contains("zenoh.key_prefix:"), "{stderr}");
+    // A port another process holds: the session does not open, and the daemon says where to look.
+    let taken = TcpListener::bind("127.0.0.1:0").expect("bind a port");
+    let port = taken.local_addr().expect("port").port();
+    let stderr = run(&["--set", &format!("zenoh.listen=[\"tcp/127.0.0.1:{port}\"]")]);
+    assert!(stderr.contains("zenoh.listen") && stderr.contains(&port.to_string()), "{stderr}");
+}
