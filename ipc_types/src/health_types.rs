@@ -17,7 +17,7 @@ use crate::{NAME_CAPACITY_BYTES, SCHEMA_VERSION};
 /// `detect/<i>` stage entry.
 pub const MAX_WORKERS: usize = 64;
 /// Stage entries that are not detection workers: `capture`, `keyframe`, `fusion`, `prior`,
-/// `publish`, `end_to_end`, and two spare.
+/// `publish`, `end_to_end`, `zenoh` (with the daemon's `[zenoh]` stage on), and one spare.
 pub const FIXED_STAGES: usize = 8;
 /// The most pipeline stages reported in one [`Health`] record: every worker plus the fixed
 /// stages, so every stage of any valid profile has an entry.

@@ -125,6 +125,7 @@ pub mod occupancy_types;
 mod pose_types;
 pub mod publish;
 pub mod query_types;
+pub mod remote;
 pub mod services;
 mod text;
 

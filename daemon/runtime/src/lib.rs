@@ -32,6 +32,7 @@
 //! | stage | [`capture`] | the capture thread |
 //! | stage | [`keyframe`] | the keyframe gate and its thread |
 //! | stage | [`publish`] | the publisher thread |
+//! | stage | [`zenoh`] | the graph, its deltas and health for consumers off the robot, over Zenoh |
 //! | composition | [`config`] | the profile: the stages' sections and the checks across them |
 //! | composition | [`backend`] | source, detector and fusion registries |
 //! | composition | [`pipeline`] | the wiring of named stage threads and bounded queues, health, the shutdown ladder |
@@ -77,3 +78,4 @@ pub mod record;
 pub mod service;
 pub mod stats;
 pub mod world;
+pub mod zenoh;

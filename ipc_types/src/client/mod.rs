@@ -15,10 +15,13 @@
 
 mod check;
 mod error;
+mod follower;
 mod graph;
 mod health;
 mod pose;
 mod query;
+#[cfg(feature = "zenoh")]
+mod remote;
 mod view;
 
 use std::time::{Duration, Instant};
@@ -29,10 +32,13 @@ use iceoryx2::prelude::{NodeBuilder, NodeName, SignalHandlingMode};
 
 pub use check::{SnapshotError, check_message};
 pub use error::{ClientError, ErrorCause, Operation};
+pub use follower::{Applied, RemoteFollower};
 pub use graph::GraphSubscriber;
 pub use health::HealthSubscriber;
 pub use pose::{Pose, PosePublisher, PoseService, open_or_create_pose_service};
 pub use query::{QueryClient, QueryClientError};
+#[cfg(feature = "zenoh")]
+pub use remote::{RemoteClientError, RemoteGraphSubscriber};
 pub use view::{EdgeView, Graph, NodeView, UnknownAffordance};
 
 use crate::access::{IpcRoot, RootError};

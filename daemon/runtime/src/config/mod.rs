@@ -54,6 +54,7 @@ use crate::queue::QueueConfig;
 use crate::reasoner::ReasonerConfig;
 use crate::record::RecordConfig;
 use crate::world::WorldConfig;
+use crate::zenoh::ZenohConfig;
 
 mod files;
 mod layers;
@@ -89,6 +90,7 @@ pub const PATH_KEYS: &[&str] = &[
     "snapshot.dir",
     "record.dir",
     "source.mcap.path",
+    "zenoh.config_file",
 ];
 
 /// The whole daemon configuration.
@@ -139,6 +141,9 @@ pub struct Profile {
     /// Approach poses on the occupancy map (`crate::occupancy::nav`).
     #[serde(default)]
     pub navigation: NavigationConfig,
+    /// The graph for consumers off the robot over Zenoh (`crate::zenoh`); off unless `enabled`.
+    #[serde(default)]
+    pub zenoh: ZenohConfig,
     /// The sections of registered backends, by dotted path (`source.synthetic`,
     /// `detector.oracle`, `fusion.conceptgraphs`), as their backend checked and completed them
     /// at load time.
@@ -235,6 +240,7 @@ impl Profile {
             self.query.validate("query"),
             self.occupancy.validate("occupancy"),
             self.navigation.validate("navigation"),
+            self.zenoh.validate("zenoh"),
             self.reasoner.validate("reasoner"),
             self.health.validate("health"),
             self.run.validate("run"),

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::Sender;
 use op3dsg_drivers::frame::PooledFrame;
 use op3dsg_drivers::pose::Isometry;
-use op3dsg_ipc_types::PoseStamped;
+use op3dsg_ipc_types::{Health, PoseStamped};
 use tracing::warn;
 
 mod detection;
@@ -20,7 +20,7 @@ mod detection;
 pub use detection::{Detection, Mask};
 
 use crate::graph::SceneGraph;
-use crate::queue::Latest;
+use crate::queue::{Latest, QueueSender};
 use crate::stats::PoseStats;
 
 /// How long a stage waits on an empty queue before it checks the stop flag again.
@@ -65,6 +65,18 @@ pub struct DetectionBatch {
 /// The newest graph the publisher sent, with the sending daemon's instance id: the query
 /// worker's input (latest wins; a copy per version, made on the publisher thread).
 pub type LatestGraph = Latest<(Arc<SceneGraph>, u64)>;
+
+/// The publisher's hand-over to the off-robot stage (`crate::zenoh`): every graph version it
+/// sent, with the daemon's instance id, on a bounded latest-wins queue (a slow network drops
+/// versions there, counted, and never holds the publisher), and the newest health record with
+/// the instance id in a slot.
+#[derive(Debug, Clone)]
+pub struct RemoteFeed {
+    /// Graph versions as sent, with the instance id.
+    pub graphs: QueueSender<(Arc<SceneGraph>, u64)>,
+    /// The newest health record and the instance id.
+    pub health: Arc<Latest<(Health, u64)>>,
+}
 
 /// A graph version for the publisher, with the capture moment of the newest keyframe fused into
 /// it (`None` before the first keyframe).

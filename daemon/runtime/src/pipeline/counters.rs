@@ -15,6 +15,7 @@ use crate::queue::QueueStats;
 use crate::reasoner::llm::RefinerStats;
 use crate::record::RecorderStats;
 use crate::stats::{HealthSource, Liveness, ReportHealth, StageStats};
+use crate::zenoh::ZenohCounters;
 
 /// Every stage's counters of one pipeline.
 #[derive(Debug)]
@@ -38,6 +39,8 @@ pub struct Counters {
     pub recorder: Arc<RecorderStats>,
     /// Heartbeats of the stages the systemd watchdog watches (`crate::service::notify`).
     pub liveness: Arc<Liveness>,
+    /// The Zenoh stage (`None` without `[zenoh] enabled`).
+    pub zenoh: Option<Arc<ZenohCounters>>,
 }
 
 impl Counters {
@@ -55,12 +58,14 @@ impl Counters {
             refiner,
             recorder: Arc::default(),
             liveness: Arc::default(),
+            zenoh: None,
         }
     }
 
     /// One entry per stage, in pipeline order: `capture`, `keyframe`, `detect/0..N-1`, `fusion`,
     /// `prior` (prior graph + reasoner, on the fusion thread), `publish`, and `end_to_end` (not a
-    /// thread: from a keyframe's capture to the send of the first graph holding it).
+    /// thread: from a keyframe's capture to the send of the first graph holding it), then
+    /// `zenoh` when that stage is on.
     pub fn stages(&self) -> Vec<Arc<StageStats>> {
         let mut stages = vec![self.capture.stage.clone(), self.keyframe.stage.clone()];
         stages.extend(self.detect.iter().cloned());
@@ -70,6 +75,7 @@ impl Counters {
             self.publish.stage.clone(),
             self.publish.end_to_end.clone(),
         ]);
+        stages.extend(self.zenoh.as_ref().map(|z| z.stage.clone()));
         stages
     }
 

@@ -133,7 +133,9 @@ impl Pipeline {
         // Before the counters: the LLM refiner (if any) owns its own.
         let enricher = make_enricher(profile)?;
         let refiner = enricher.as_ref().and_then(GraphEnricher::refiner_stats).unwrap_or_default();
-        let counters = Arc::new(Counters::new(profile.detector.workers, q.stats.clone(), refiner));
+        let mut counters = Counters::new(profile.detector.workers, q.stats.clone(), refiner);
+        counters.zenoh = profile.zenoh.enabled.then(Arc::default);
+        let counters = Arc::new(counters);
         let stages::RestoredMap { fusion, resume, snapshots } = stages::restored_map(profile, backends, &counters)?;
         let (snapshot_sink, snapshot_writer) = snapshots.unzip();
         let mut s = Stages::new();
@@ -144,6 +146,11 @@ impl Pipeline {
         let recorder = recorder.transpose()?;
         // The query service's view of the graph: the publisher fills it.
         let query_graph = profile.query.enabled.then(|| Arc::new(Latest::new()));
+        // The Zenoh stage before the publisher that feeds it.
+        let remote = match (q.remote, counters.zenoh.as_ref()) {
+            (Some(queue), Some(zenoh)) => Some(stages::zenoh(&mut s, profile, source.kind(), queue, zenoh)?),
+            _ => None,
+        };
         let (publisher, ready) = stages::publisher(
             profile,
             source.kind(),
@@ -151,7 +158,7 @@ impl Pipeline {
             &counters,
             &stop,
             recorder.clone(),
-            query_graph.clone(),
+            (query_graph.clone(), remote),
         );
         s.spawn_serving("publish", &ready, move || publisher.run())?;
         // The occupancy map, fed by the keyframe gate; its copy for the query worker.

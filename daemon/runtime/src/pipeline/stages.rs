@@ -13,10 +13,11 @@ use super::Counters;
 use crate::backend::{Backends, StartError};
 use crate::capture::CaptureThread;
 use crate::config::{Profile, effective_toml};
-use crate::flow::{CapturedFrame, DetectionBatch, GraphItem, KeyframeItem, LatestGraph};
+use crate::flow::{CapturedFrame, DetectionBatch, GraphItem, KeyframeItem, LatestGraph, RemoteFeed};
 use crate::fusion::snapshot::{SnapshotSink, SnapshotStore, SnapshotWriter};
 use crate::fusion::{Fusion, FusionThread, Resume};
-use crate::ipc::GraphOrigin;
+use crate::graph::SceneGraph;
+use crate::ipc::{GraphCapacity, GraphOrigin};
 use crate::keyframe::{KeyframeGate, KeyframeRecorder, KeyframeThread, PoseSourceKind};
 use crate::occupancy::persist::OccupancyStore;
 use crate::occupancy::{
@@ -25,10 +26,11 @@ use crate::occupancy::{
 use crate::perception::{DetectThread, Tickets};
 use crate::publish::PublishThread;
 use crate::query::{EncoderSetup, NavigationSetup, QueryCounters, query_threads};
-use crate::queue::{QueueReceiver, QueueSender, QueueStats, queue};
+use crate::queue::{Latest, OverflowPolicy, QueueConfig, QueueReceiver, QueueSender, QueueStats, queue};
 use crate::reasoner::GraphEnricher;
 use crate::record::{RecordSender, RecordThread, SideChannelTap};
 use crate::stats::StageStats;
+use crate::zenoh::{ZenohCounters, ZenohThread};
 
 /// The stage threads of one pipeline: each spawned by name, each reporting its end.
 pub(super) struct Stages {
@@ -84,8 +86,13 @@ pub(super) struct Queues {
     pub(super) graph: (QueueSender<GraphItem>, QueueReceiver<GraphItem>),
     /// Received and replayed poses for the keyframe gate.
     pub(super) poses: (Sender<PoseStamped>, Receiver<PoseStamped>),
+    /// Publisher → Zenoh stage, latest wins (`[zenoh] enabled`).
+    pub(super) remote: Option<RemoteQueue>,
     pub(super) stats: Vec<Arc<QueueStats>>,
 }
+
+/// The publisher → Zenoh stage queue.
+pub(super) type RemoteQueue = (QueueSender<(Arc<SceneGraph>, u64)>, QueueReceiver<(Arc<SceneGraph>, u64)>);
 
 impl Queues {
     pub(super) fn new(profile: &Profile, stop: &Arc<std::sync::atomic::AtomicBool>) -> Self {
@@ -94,13 +101,21 @@ impl Queues {
         let (kf_tx, kf_rx, keyframes) = queue::<KeyframeItem>("keyframes", q.keyframes, stop.clone());
         let (det_tx, det_rx, detections) = queue::<DetectionBatch>("detections", q.detections, stop.clone());
         let (graph_tx, graph_rx, graph) = queue::<GraphItem>("graph", q.graph, stop.clone());
+        let mut stats = vec![frames, keyframes, detections, graph];
+        let remote = profile.zenoh.enabled.then(|| {
+            let config = QueueConfig { capacity: profile.zenoh.queue_capacity, policy: OverflowPolicy::LatestWins };
+            let (tx, rx, remote) = queue("zenoh", config, stop.clone());
+            stats.push(remote);
+            (tx, rx)
+        });
         Self {
             frames: (frames_tx, frames_rx),
             keyframes: (kf_tx, kf_rx),
             detections: (det_tx, det_rx),
             graph: (graph_tx, graph_rx),
             poses: crossbeam_channel::bounded(profile.pose.buffer_len),
-            stats: vec![frames, keyframes, detections, graph],
+            remote,
+            stats,
         }
     }
 }
@@ -177,8 +192,9 @@ pub(super) fn publisher(
     counters: &Arc<Counters>,
     stop: &Arc<std::sync::atomic::AtomicBool>,
     recorder: Option<RecordSender>,
-    query_graph: Option<Arc<LatestGraph>>,
+    feeds: (Option<Arc<LatestGraph>>, Option<RemoteFeed>),
 ) -> (PublishThread, Receiver<Result<(), String>>) {
+    let (query_graph, remote) = feeds;
     let (ready, ready_rx) = crossbeam_channel::bounded(1);
     let (graph_rx, pose_tx) = queues;
     let thread = PublishThread {
@@ -196,8 +212,38 @@ pub(super) fn publisher(
         exit_at_end: profile.run.exit_at_end,
         recorder,
         query_graph,
+        remote,
     };
     (thread, ready_rx)
+}
+
+/// The Zenoh stage (`[zenoh] enabled`), started once its session is open; returns the
+/// publisher's end of its hand-over.
+pub(super) fn zenoh(
+    stages: &mut Stages,
+    profile: &Profile,
+    source_kind: SourceKind,
+    queue: RemoteQueue,
+    counters: &Arc<ZenohCounters>,
+) -> Result<RemoteFeed, StartError> {
+    let (ready, ready_rx) = crossbeam_channel::bounded(1);
+    let (graphs_tx, graphs_rx) = queue;
+    let health = Arc::new(Latest::new());
+    let thread = ZenohThread {
+        config: profile.zenoh.clone(),
+        capacity: GraphCapacity { max_nodes: profile.ipc.max_nodes, max_edges: profile.ipc.max_edges },
+        origin: GraphOrigin::new(source_kind, &profile.world.frame_id),
+        graphs: graphs_rx,
+        health: health.clone(),
+        counters: counters.clone(),
+        ready,
+    };
+    stages.spawn("zenoh", move || thread.run())?;
+    match ready_rx.recv() {
+        Ok(Ok(())) => Ok(RemoteFeed { graphs: graphs_tx, health }),
+        Ok(Err(reason)) => Err(StartError::Zenoh(reason)),
+        Err(_) => Err(StartError::Zenoh("zenoh: the thread ended during start-up".to_owned())),
+    }
 }
 
 /// The occupancy map (allocated now, restored beside the map snapshot), its publisher, and the

@@ -10,7 +10,7 @@ use crossbeam_channel::Sender;
 use op3dsg_ipc_types::{Health, PoseStamped};
 use tracing::{debug, info, warn};
 
-use crate::flow::{GraphItem, LatestGraph, POLL, hand_over_pose};
+use crate::flow::{GraphItem, LatestGraph, POLL, RemoteFeed, hand_over_pose};
 use crate::ipc::{GraphOrigin, GraphServer, IpcConfig, PoseCheckCounts};
 use crate::queue::{Popped, QueueReceiver};
 use crate::record::RecordSender;
@@ -65,6 +65,8 @@ pub struct PublishThread {
     pub recorder: Option<RecordSender>,
     /// The query service's copy of the newest graph, when queries are on.
     pub query_graph: Option<Arc<LatestGraph>>,
+    /// The off-robot stage's hand-over (`[zenoh] enabled`).
+    pub remote: Option<RemoteFeed>,
 }
 
 impl std::fmt::Debug for PublishThread {
@@ -143,9 +145,16 @@ impl PublishThread {
                         "graph exceeds the sample capacity (ipc.max_nodes / ipc.max_edges); truncated"
                     );
                 }
-                // The query worker reads its own copy, taken here, off the fusion thread.
-                if let Some(latest) = self.query_graph.as_ref() {
-                    latest.set((Arc::new(graph.clone()), server.instance_id()));
+                // The query worker and the off-robot stage read one copy, taken here, off the
+                // fusion thread; neither can hold the publisher (a slot, a latest-wins queue).
+                if self.query_graph.is_some() || self.remote.is_some() {
+                    let copy = (Arc::new(graph.clone()), server.instance_id());
+                    if let Some(remote) = self.remote.as_ref() {
+                        remote.graphs.push(copy.clone());
+                    }
+                    if let Some(latest) = self.query_graph.as_ref() {
+                        latest.set(copy);
+                    }
                 }
                 // Sent already: the recorder takes the graph itself, no copy.
                 if let Some(recorder) = self.recorder.as_mut() {
@@ -191,6 +200,9 @@ impl PublishThread {
         }
         if let Some(recorder) = self.recorder.as_mut() {
             recorder.offer_health(&health);
+        }
+        if let Some(remote) = self.remote.as_ref() {
+            remote.health.set((health, server.instance_id()));
         }
         *periods += 1;
         if self.log_every > 0 && periods.is_multiple_of(self.log_every) {

@@ -1,4 +1,5 @@
-//! `op3dsg dump`: the current graph once, read with the client library's [`GraphSubscriber`], as
+//! `op3dsg dump`: the current graph once, read with the client library's [`GraphSubscriber`] (or,
+//! with `--zenoh`, its [`RemoteGraphSubscriber`] from another computer), as
 //! a table, as graph JSON (`op3dsg.graph/1`), or in the compact form for LLM prompts
 //! (`op3dsg.llm/1`, see `docs/llm-graph.md`).
 
@@ -7,6 +8,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
+use op3dsg_ipc_types::client::RemoteGraphSubscriber;
 use op3dsg_ipc_types::{EdgeKind, Graph, GraphSubscriber, NodeView};
 use op3dsg_runtime::ipc::graph_to_scene_graph;
 use serde_json::{Value, json};
@@ -24,20 +26,32 @@ pub(super) enum DumpFormat {
     Llm,
 }
 
+/// Where `op3dsg dump` reads the graph.
+#[derive(Debug, Clone, Copy)]
+pub(super) enum From<'a> {
+    /// The daemon's iceoryx2 services on this computer.
+    Iceoryx2 {
+        /// Their prefix.
+        prefix: &'a str,
+    },
+    /// A daemon's Zenoh keys, from another computer.
+    Zenoh {
+        /// The endpoint to connect to as a client.
+        endpoint: &'a str,
+        /// The daemon's `zenoh.key_prefix`.
+        key_prefix: &'a str,
+    },
+}
+
 /// `op3dsg dump`: waits up to `timeout` for the daemon and its first graph, then writes it to
 /// `out` (or standard output).
-pub(super) fn dump(prefix: &str, format: DumpFormat, timeout: Duration, out: Option<&Path>) -> Result<()> {
-    let deadline = Instant::now() + timeout;
-    let mut graphs =
-        GraphSubscriber::open_wait(prefix, &node_name(), timeout).map_err(|e| connect_error(prefix, timeout, e))?;
-    let remaining = deadline.saturating_duration_since(Instant::now());
-    let Some(graph) = poll_until(remaining, || graphs.latest().map(|graph| graph.cloned()))
-        .with_context(|| format!("reading service {prefix}/graph"))?
-    else {
-        bail!(
-            "no graph received on service {prefix}/graph within {:.1} s (op3dsgd is up but has not published yet?)",
-            timeout.as_secs_f64()
-        );
+pub(super) fn dump(from: From<'_>, format: DumpFormat, timeout: Duration, out: Option<&Path>) -> Result<()> {
+    let graph = match from {
+        From::Iceoryx2 { prefix } => local_graph(prefix, timeout)?,
+        From::Zenoh { endpoint, key_prefix } => {
+            let mut remote = RemoteGraphSubscriber::connect(endpoint, key_prefix)?;
+            remote.wait_graph(timeout)?
+        }
     };
     let text = match format {
         DumpFormat::Json => {
@@ -52,6 +66,23 @@ pub(super) fn dump(prefix: &str, format: DumpFormat, timeout: Duration, out: Opt
         DumpFormat::Table => graph_table(&graph),
     };
     write_output(out, &text)
+}
+
+/// The first graph of the daemon's iceoryx2 services under `prefix`, waiting up to `timeout`.
+fn local_graph(prefix: &str, timeout: Duration) -> Result<Graph> {
+    let deadline = Instant::now() + timeout;
+    let mut graphs =
+        GraphSubscriber::open_wait(prefix, &node_name(), timeout).map_err(|e| connect_error(prefix, timeout, e))?;
+    let remaining = deadline.saturating_duration_since(Instant::now());
+    let Some(graph) = poll_until(remaining, || graphs.latest().map(|graph| graph.cloned()))
+        .with_context(|| format!("reading service {prefix}/graph"))?
+    else {
+        bail!(
+            "no graph received on service {prefix}/graph within {:.1} s (op3dsgd is up but has not published yet?)",
+            timeout.as_secs_f64()
+        );
+    };
+    Ok(graph)
 }
 
 fn fmt3(v: [f32; 3]) -> String {

@@ -94,6 +94,14 @@ enum Command {
         /// Write to this file instead of standard output.
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Read the graph over Zenoh from a daemon on another computer instead of iceoryx2: a
+        /// Zenoh endpoint to connect to as a client (its `zenoh.listen`, or a router), e.g.
+        /// tcp/192.168.1.20:7447. Needs --key-prefix.
+        #[arg(long, value_name = "ENDPOINT", requires = "key_prefix")]
+        zenoh: Option<String>,
+        /// With --zenoh: the daemon's `zenoh.key_prefix` (op3dsg/<its hostname> by default).
+        #[arg(long, value_name = "PREFIX", requires = "zenoh")]
+        key_prefix: Option<String>,
     },
     /// Print the daemon's latest health record (frames, keyframes, stage rates and latencies,
     /// queue depths and drops, and with reasoner.kind = "llm" the LLM refiner: state, calls,
@@ -331,9 +339,13 @@ fn run(cli: Cli) -> Result<()> {
     op3dsg_ipc_types::validate_prefix(&prefix).map_err(|e| anyhow::anyhow!("--prefix / {PREFIX_ENV}: {e}"))?;
     match cli.command {
         Command::Watch { interval_ms } => watch::watch(&prefix, Duration::from_millis(interval_ms)),
-        Command::Dump { format, json, timeout_s, out } => {
+        Command::Dump { format, json, timeout_s, out, zenoh, key_prefix } => {
             let format = if json { dump::DumpFormat::Json } else { format };
-            dump::dump(&prefix, format, seconds(timeout_s)?, out.as_deref())
+            let from = match (zenoh.as_deref(), key_prefix.as_deref()) {
+                (Some(endpoint), Some(key_prefix)) => dump::From::Zenoh { endpoint, key_prefix },
+                _ => dump::From::Iceoryx2 { prefix: &prefix },
+            };
+            dump::dump(from, format, seconds(timeout_s)?, out.as_deref())
         }
         Command::Health { json, timeout_s } => health::health(&prefix, json, seconds(timeout_s)?),
         Command::Query { text, k, json, timeout_s } => query::query(&prefix, &text, k, json, seconds(timeout_s)?),

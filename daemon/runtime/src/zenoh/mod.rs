@@ -1,0 +1,34 @@
+//! # Zenoh: the graph, its changes and its health for consumers off the robot's computer
+//!
+//! Inside the computer planners read the graph over iceoryx2 (`crate::publish`); everything that
+//! leaves it goes through the one Zenoh session of this stage (`[zenoh]`, off by default). The
+//! publisher hands each graph version it sent to this stage's thread on a bounded latest-wins
+//! queue (`crate::flow::RemoteFeed`) and never waits for it; puts use congestion control
+//! `drop`, so a slow or absent network loses messages here, not time on the hot path.
+//!
+//! Keys under the prefix (`zenoh.key_prefix`, `op3dsg/<hostname>` by default):
+//!
+//! | key | what |
+//! |---|---|
+//! | `<prefix>/graph` | the full graph: the first version, then every `full_period_s` |
+//! | `<prefix>/graph/delta` | per version sent: the changes from the version before ([`codec::DeltaEncoder`]) |
+//! | `<prefix>/health` | the health record (JSON) at the health rate |
+//! | `<prefix>/graph` (queryable) | the newest full graph, for a consumer that joins |
+//!
+//! The bytes are [`codec`]'s; `docs/remote.md` describes them field by field.
+//!
+//! | file | what |
+//! |---|---|
+//! | `config.rs` | `[zenoh]` ([`ZenohConfig`]), the session's Zenoh configuration |
+//! | `codec.rs` | the envelope, full graphs, deltas, health messages |
+//! | `thread.rs` | [`ZenohThread`] and its [`ZenohCounters`] |
+
+pub mod codec;
+mod config;
+mod thread;
+
+#[cfg(test)]
+mod tests;
+
+pub use config::{ZenohConfig, ZenohMode, check_prefix};
+pub use thread::{ZenohCounters, ZenohThread};

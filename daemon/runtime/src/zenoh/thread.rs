@@ -1,0 +1,273 @@
+//! The thread `op3dsg-zenoh`: owns the Zenoh session, publishes `<prefix>/graph`,
+//! `<prefix>/graph/delta` and `<prefix>/health`, and answers the queryable `<prefix>/graph` with
+//! the newest full graph.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::{Duration, Instant};
+
+use ::zenoh::Wait;
+use ::zenoh::pubsub::Publisher;
+use ::zenoh::qos::CongestionControl;
+use ::zenoh::query::Queryable;
+use crossbeam_channel::Sender;
+use op3dsg_ipc_types::Health;
+use tracing::{debug, info, warn};
+
+use super::codec::{DeltaEncoder, encode_full, encode_health};
+use super::config::ZenohConfig;
+use crate::graph::SceneGraph;
+use crate::ipc::{GraphCapacity, GraphEncoder, GraphOrigin, HealthReport};
+use crate::queue::{Latest, Popped, QueueReceiver};
+use crate::stats::StageStats;
+
+/// How long the thread waits for a graph before it looks at the health slot and the full
+/// graph's period again.
+const TICK: Duration = Duration::from_millis(50);
+
+/// The Zenoh stage's figures.
+#[derive(Debug)]
+pub struct ZenohCounters {
+    /// The `zenoh` stage: one graph version encoded and put (full and delta); a failed put is an
+    /// error.
+    pub stage: Arc<StageStats>,
+    /// Full graphs put on `<prefix>/graph` (periodic and first of an instance).
+    pub fulls: AtomicU64,
+    /// Deltas put on `<prefix>/graph/delta`.
+    pub deltas: AtomicU64,
+    /// Health records put on `<prefix>/health`.
+    pub healths: AtomicU64,
+    /// Queries on `<prefix>/graph` answered with a graph.
+    pub queries: AtomicU64,
+    /// Bytes of the last full graph message.
+    pub last_full_bytes: AtomicU64,
+    /// Bytes of the last delta message.
+    pub last_delta_bytes: AtomicU64,
+}
+
+impl Default for ZenohCounters {
+    fn default() -> Self {
+        Self {
+            stage: Arc::new(StageStats::new("zenoh")),
+            fulls: AtomicU64::new(0),
+            deltas: AtomicU64::new(0),
+            healths: AtomicU64::new(0),
+            queries: AtomicU64::new(0),
+            last_full_bytes: AtomicU64::new(0),
+            last_delta_bytes: AtomicU64::new(0),
+        }
+    }
+}
+
+/// The Zenoh thread, built by the composition; [`ZenohThread::run`] is its body. It opens the
+/// session itself and says on `ready` whether it could.
+pub struct ZenohThread {
+    /// `[zenoh]`.
+    pub config: ZenohConfig,
+    /// The most nodes and edges a graph holds (`ipc.max_nodes`, `ipc.max_edges`: the same
+    /// selection as the iceoryx2 graph).
+    pub capacity: GraphCapacity,
+    /// Source kind and world frame, stamped into every graph header.
+    pub origin: GraphOrigin,
+    /// Graph versions from the publisher (latest wins); ends when the publisher does.
+    pub graphs: QueueReceiver<(Arc<SceneGraph>, u64)>,
+    /// The publisher's newest health record.
+    pub health: Arc<Latest<(Health, u64)>>,
+    /// This stage's figures.
+    pub counters: Arc<ZenohCounters>,
+    /// Told once the session and its publishers exist, or why they could not be made.
+    pub ready: Sender<Result<(), String>>,
+}
+
+impl std::fmt::Debug for ZenohThread {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ZenohThread").field("prefix", &self.config.prefix()).finish_non_exhaustive()
+    }
+}
+
+/// The open session and what was declared on it.
+struct Session {
+    session: ::zenoh::Session,
+    graph: Publisher<'static>,
+    delta: Publisher<'static>,
+    health: Publisher<'static>,
+    _queryable: Queryable<()>,
+}
+
+impl ZenohThread {
+    /// Opens the session, then publishes until the publisher has ended.
+    pub fn run(self) {
+        let latest_full: Arc<Latest<Arc<Vec<u8>>>> = Arc::new(Latest::new());
+        let session = match self.open(&latest_full) {
+            Ok(session) => {
+                let _ = self.ready.send(Ok(()));
+                session
+            }
+            Err(e) => {
+                let _ = self.ready.send(Err(e));
+                return;
+            }
+        };
+        let full_period = Duration::from_secs_f64(self.config.full_period_s);
+        let mut state = State::default();
+        loop {
+            match self.graphs.pop_timeout(TICK) {
+                Popped::Item((graph, instance_id)) => {
+                    self.send_graph(&session, &latest_full, &mut state, &graph, instance_id)
+                }
+                Popped::Empty => {}
+                Popped::Finished => break,
+            }
+            if state.last_full.is_some_and(|at| at.elapsed() >= full_period)
+                && let Some(full) = latest_full.get()
+            {
+                self.put(&session.graph, full.as_slice(), &self.counters.fulls, Some(&self.counters.last_full_bytes));
+                state.last_full = Some(Instant::now());
+            }
+            self.send_health(&session, &mut state);
+        }
+        info!(
+            fulls = self.counters.fulls.load(Ordering::Relaxed),
+            deltas = self.counters.deltas.load(Ordering::Relaxed),
+            queries = self.counters.queries.load(Ordering::Relaxed),
+            "zenoh session closing"
+        );
+        if let Err(e) = session.session.close().wait() {
+            debug!(error = %e, "zenoh session close failed");
+        }
+    }
+
+    fn open(&self, latest_full: &Arc<Latest<Arc<Vec<u8>>>>) -> Result<Session, String> {
+        let config = self.config.session_config().map_err(|(key, e)| format!("{key}: {e}"))?;
+        let session = ::zenoh::open(config).wait().map_err(|e| {
+            format!("zenoh: the session did not open (zenoh.listen, zenoh.connect, zenoh.config_file): {e}")
+        })?;
+        let prefix = self.config.prefix();
+        let publisher = |suffix: &str| {
+            session
+                .declare_publisher(format!("{prefix}/{suffix}"))
+                .congestion_control(CongestionControl::Drop)
+                .wait()
+                .map_err(|e| format!("zenoh.key_prefix: declaring {prefix}/{suffix}: {e}"))
+        };
+        let (graph, delta, health) = (publisher("graph")?, publisher("graph/delta")?, publisher("health")?);
+        let latest = latest_full.clone();
+        let counters = self.counters.clone();
+        let key = format!("{prefix}/graph");
+        let reply_key = key.clone();
+        let queryable = session
+            .declare_queryable(key)
+            .callback(move |query| {
+                // Before the first version there is nothing to answer: the query ends empty.
+                if let Some(full) = latest.get() {
+                    match query.reply(reply_key.as_str(), full.as_slice()).wait() {
+                        Ok(()) => {
+                            counters.queries.fetch_add(1, Ordering::Relaxed);
+                        }
+                        Err(e) => debug!(error = %e, "graph query reply failed"),
+                    }
+                }
+            })
+            .wait()
+            .map_err(|e| format!("zenoh.key_prefix: declaring the queryable {prefix}/graph: {e}"))?;
+        let open = self.config.open_listeners();
+        if !open.is_empty() {
+            warn!(endpoints = ?open, "zenoh listens beyond loopback: anyone who reaches these endpoints reads the graph");
+        }
+        info!(prefix = %prefix, mode = self.config.mode.as_str(), zid = %session.zid(), "zenoh session open");
+        Ok(Session { session, graph, delta, health, _queryable: queryable })
+    }
+
+    fn send_graph(
+        &self,
+        session: &Session,
+        latest_full: &Latest<Arc<Vec<u8>>>,
+        state: &mut State,
+        graph: &SceneGraph,
+        instance_id: u64,
+    ) {
+        let started = Instant::now();
+        let encoder = match &mut state.encoder {
+            Some(encoder) if encoder.instance_id() == instance_id => encoder,
+            slot => {
+                let mut encoder = GraphEncoder::new(self.capacity, instance_id);
+                encoder.set_origin(self.origin);
+                slot.insert(encoder)
+            }
+        };
+        encoder.encode(graph);
+        let now_ns = crate::world::clock::wall_clock_ns();
+        encoder.set_publish_time_ns(now_ns);
+        let (header, payload) = (*encoder.header(), encoder.payload());
+        let mut full = Vec::with_capacity(state.full_capacity);
+        encode_full(&header, payload, now_ns, &mut full);
+        state.full_capacity = full.len();
+        let delta = state.deltas.next(&header, payload, now_ns, &mut state.delta_buf);
+        let full = Arc::new(full);
+        latest_full.set(full.clone());
+        let mut ok = true;
+        if delta.is_some() {
+            ok &= self.put(
+                &session.delta,
+                &state.delta_buf,
+                &self.counters.deltas,
+                Some(&self.counters.last_delta_bytes),
+            );
+        }
+        // The first version of an instance goes out whole at once; then every full period.
+        if delta.is_none() || state.last_full.is_none() {
+            ok &= self.put(&session.graph, full.as_slice(), &self.counters.fulls, Some(&self.counters.last_full_bytes));
+            state.last_full = Some(Instant::now());
+        }
+        if ok {
+            self.counters.stage.record(started);
+        }
+    }
+
+    fn send_health(&self, session: &Session, state: &mut State) {
+        let Some((health, instance_id)) = self.health.get() else { return };
+        if health.stamp_ns == state.health_stamp_ns {
+            return;
+        }
+        state.health_stamp_ns = health.stamp_ns;
+        let json = serde_json::to_vec(&HealthReport::from(&health)).unwrap_or_default();
+        let mut message = Vec::with_capacity(json.len() + super::codec::ENVELOPE_BYTES);
+        encode_health(instance_id, health.graph_version, crate::world::clock::wall_clock_ns(), &json, &mut message);
+        self.put(&session.health, &message, &self.counters.healths, None);
+    }
+
+    /// Puts `bytes`; counts it in `count` and its size in `bytes_of_last`, or a stage error.
+    fn put(
+        &self,
+        publisher: &Publisher<'_>,
+        bytes: &[u8],
+        count: &AtomicU64,
+        bytes_of_last: Option<&AtomicU64>,
+    ) -> bool {
+        match publisher.put(bytes).wait() {
+            Ok(()) => {
+                count.fetch_add(1, Ordering::Relaxed);
+                if let Some(last) = bytes_of_last {
+                    last.store(bytes.len() as u64, Ordering::Relaxed);
+                }
+                true
+            }
+            Err(e) => {
+                self.counters.stage.record_error();
+                debug!(error = %e, key = %publisher.key_expr(), "zenoh put failed");
+                false
+            }
+        }
+    }
+}
+
+/// What the thread keeps between versions.
+#[derive(Default)]
+struct State {
+    encoder: Option<GraphEncoder>,
+    deltas: DeltaEncoder,
+    delta_buf: Vec<u8>,
+    full_capacity: usize,
+    last_full: Option<Instant>,
+    health_stamp_ns: u64,
+}
