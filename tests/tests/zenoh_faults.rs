@@ -355,3 +355,116 @@ fn stopped_and_killed_consumers_do_not_hold_the_daemon_back_and_a_fresh_one_conv
     assert_same_graph(&dumped, &held);
     eprintln!("zenoh stalled consumers: resumed consumer {}; {:.1} s", held["stats"], started.elapsed().as_secs_f64());
 }
+
+/// Runs `program args`, panicking with its stderr when it fails.
+fn run(program: &str, args: &[&str]) {
+    let output = Command::new(program).args(args).output().unwrap_or_else(|e| panic!("run {program}: {e}"));
+    assert!(
+        output.status.success(),
+        "{program} {}: {}",
+        args.join(" "),
+        String::from_utf8_lossy(&output.stderr).trim()
+    );
+}
+
+/// A network namespace of this test with its own loopback limited to 10 Mbit/s by `tc tbf`;
+/// deleted on drop.
+#[derive(Debug)]
+struct Netns {
+    name: String,
+}
+
+impl Netns {
+    fn create() -> Self {
+        let name = format!("op3dsg-zt-{}", std::process::id());
+        let _ = Command::new("ip").args(["netns", "del", &name]).output(); // a leftover of a killed run
+        run("ip", &["netns", "add", &name]);
+        let netns = Self { name };
+        netns.run("ip", &["link", "set", "lo", "up"]);
+        // An Ethernet-sized MTU: with loopback's 64 KiB, TCP segments outgrow the 4 KiB burst
+        // and tbf drops every one of them.
+        netns.run("ip", &["link", "set", "lo", "mtu", "1500"]);
+        netns.run(
+            "tc",
+            &["qdisc", "add", "dev", "lo", "root", "tbf", "rate", "10mbit", "burst", "32kbit", "latency", "400ms"],
+        );
+        netns
+    }
+
+    /// The command prefix that runs a program inside the namespace.
+    fn exec(&self) -> [&str; 4] {
+        ["ip", "netns", "exec", &self.name]
+    }
+
+    fn run(&self, program: &str, args: &[&str]) {
+        let mut all = self.exec()[1..].to_vec();
+        all.push(program);
+        all.extend_from_slice(args);
+        run("ip", &all);
+    }
+
+    /// The `overlimits` count of the tbf qdisc: packets it had to hold back for the rate.
+    fn overlimits(&self) -> u64 {
+        let output = Command::new("ip")
+            .args(["netns", "exec", &self.name, "tc", "-s", "qdisc", "show", "dev", "lo"])
+            .output()
+            .expect("run tc -s qdisc show");
+        let text = String::from_utf8_lossy(&output.stdout);
+        let count = text.split("overlimits ").nth(1).and_then(|rest| rest.split_whitespace().next());
+        count.and_then(|n| n.parse().ok()).unwrap_or_else(|| panic!("no overlimits in tc's statistics: {text}"))
+    }
+}
+
+impl Drop for Netns {
+    fn drop(&mut self) {
+        let _ = Command::new("ip").args(["netns", "del", &self.name]).output();
+    }
+}
+
+/// Whether this process runs as root (network namespaces and `tc` need it).
+fn is_root() -> bool {
+    Command::new("id").arg("-u").output().is_ok_and(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
+}
+
+#[test]
+fn a_consumer_behind_a_10_mbit_link_converges() {
+    if !is_root() {
+        let why = "this test makes a network namespace with a 10 Mbit/s `tc tbf` link, which needs root";
+        assert!(std::env::var("CI").as_deref() != Ok("true"), "{why}; CI runs the tests as root");
+        eprintln!("not run: {why}");
+        return;
+    }
+    let netns = Netns::create();
+    let port = free_port();
+    let key_prefix = format!("op3dsg/tbf-{}", std::process::id());
+    let prefix = unique_prefix("zenoh-tbf");
+    let started = Instant::now();
+    let listen = format!("zenoh.listen=[\"tcp/127.0.0.1:{port}\"]");
+    let key = format!("zenoh.key_prefix=\"{key_prefix}\"");
+    let frames = format!("run.max_frames={FRAMES}");
+    // The daemon and the consumer on the namespace's loopback; iceoryx2 (shared memory) still
+    // reaches the daemon from here. Full graphs every 50 ms: bursts above the rate.
+    let child = Command::new("ip")
+        .args(["netns", "exec", &netns.name])
+        .arg(binary("op3dsgd"))
+        .args(["--prefix", &prefix, "--set", "zenoh.enabled=true", "--set", &listen, "--set", &key])
+        .args(["--set", &frames, "--set", "zenoh.full_period_s=0.05"])
+        .env("OP3DSG_LOG", std::env::var("OP3DSG_LOG").unwrap_or_else(|_| "warn".into()))
+        .stdin(std::process::Stdio::null())
+        .spawn()
+        .expect("run op3dsgd in the namespace");
+    let daemon = Daemon { child, prefix };
+    let mut consumer = Consumer::start_in(&netns.exec(), port, &key_prefix);
+    let instance = instance_of(&daemon);
+    consumer.state(instance, 1);
+    wait_run_end(&daemon.prefix);
+    let (dumped, held) = same_version(&daemon, &mut consumer, instance);
+    assert_same_graph(&dumped, &held);
+    let overlimits = netns.overlimits();
+    eprintln!(
+        "zenoh over 10 Mbit/s: tbf held back {overlimits} packets; consumer {}; {:.1} s",
+        held["stats"],
+        started.elapsed().as_secs_f64()
+    );
+    assert!(overlimits > 0, "the 10 Mbit/s limit never held a packet back: the link was not the one tested");
+}

@@ -29,8 +29,22 @@ pub struct Consumer {
 
 impl Consumer {
     pub fn start(port: u16, key_prefix: &str) -> Self {
+        Self::start_in(&[], port, key_prefix)
+    }
+
+    /// [`Self::start`] under `wrapper`, a command that runs the one after it (`ip netns exec
+    /// NAME`); none: directly.
+    pub fn start_in(wrapper: &[&str], port: u16, key_prefix: &str) -> Self {
         let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/zenoh_consumer.py");
-        let mut child = Command::new(python())
+        let mut command = match wrapper.split_first() {
+            Some((program, args)) => {
+                let mut command = Command::new(program);
+                command.args(args).arg(python());
+                command
+            }
+            None => Command::new(python()),
+        };
+        let mut child = command
             .arg(script)
             .args(["--connect", &format!("tcp/127.0.0.1:{port}"), "--prefix", key_prefix])
             .stdin(Stdio::piped())
