@@ -289,12 +289,20 @@ fn a_consumer_behind_latency_stalls_an_outage_and_resets_converges_and_the_daemo
         thread::sleep(Duration::from_secs(1));
         proxy.reset();
     }
+    let cleared = Instant::now();
     let after_resets = health(&prefix);
     assert_advanced(&after, &after_resets, "through the resets");
     let faults_over = before["frames_captured"].as_u64().unwrap_or(0);
     assert!(faults_over < FRAMES, "the run ended before the faults did; nothing was tested under load");
 
-    // The link stays slow (50 ms) but up: the consumer converges on the daemon's last version.
+    // The link stays slow (50 ms) but up: the consumer catches up with the daemon while it
+    // runs, and converges on its last version.
+    let version = after_resets["graph_version"].as_u64().expect("graph_version");
+    consumer.state(instance, version);
+    eprintln!(
+        "after the last reset the consumer held version {version} within {:.1} s",
+        cleared.elapsed().as_secs_f64()
+    );
     wait_run_end(&prefix);
     let (dumped, held) = same_version(&daemon, &mut consumer, instance);
     assert_same_graph(&dumped, &held);
