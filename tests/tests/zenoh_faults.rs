@@ -366,7 +366,10 @@ fn stopped_and_killed_consumers_do_not_hold_the_daemon_back_and_a_fresh_one_conv
 
 /// Runs `program args`, panicking with its stderr when it fails.
 fn run(program: &str, args: &[&str]) {
-    let output = Command::new(program).args(args).output().unwrap_or_else(|e| panic!("run {program}: {e}"));
+    let output = Command::new(program)
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("run {program}: {e} (ip and tc: Debian's iproute2)"));
     assert!(
         output.status.success(),
         "{program} {}: {}",
