@@ -140,6 +140,7 @@ impl ZenohThread {
             fulls = self.counters.fulls.load(Ordering::Relaxed),
             deltas = self.counters.deltas.load(Ordering::Relaxed),
             queries = self.counters.queries.load(Ordering::Relaxed),
+            language_queries = self.counters.language_queries.load(Ordering::Relaxed),
             "zenoh session closing"
         );
         if let Err(e) = session.session.close().wait() {
