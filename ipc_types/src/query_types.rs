@@ -31,7 +31,11 @@
 //! One request gets exactly one response. A request the daemon cannot take now (its bounded
 //! request queue is full) gets a [`QueryStatus::Busy`] response at once, never silence.
 
+mod bytes;
+
 use iceoryx2::prelude::ZeroCopySend;
+
+pub use bytes::{QUERY_HIT_BYTES, QUERY_REQUEST_BYTES, QUERY_RESPONSE_BYTES};
 
 use crate::text::{fixed_str, write_fixed_str};
 use crate::{LABEL_CAPACITY_BYTES, NO_NODE, NodeKind};

@@ -7,14 +7,15 @@
 //! seen as a new instance.
 
 use std::net::TcpListener;
-use std::process::{Command, Stdio};
+use std::path::Path;
+use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use op3dsg_tests::{Daemon, binary, health_where, unique_prefix};
 use serde_json::Value;
 
 mod zenoh_common;
-use zenoh_common::{Consumer, assert_same_graph, dump, dump_with, free_port, instance_of, same_version};
+use zenoh_common::{Consumer, assert_same_graph, dump, dump_with, free_port, instance_of, python, same_version};
 
 fn start_daemon(prefix: &str, port: u16, key_prefix: &str) -> Daemon {
     let listen = format!("zenoh.listen=[\"tcp/127.0.0.1:{port}\"]");
@@ -111,4 +112,168 @@ fn bad_zenoh_settings_stop_the_daemon_at_start_naming_the_key() {
     let port = taken.local_addr().expect("port").port();
     let stderr = run(&["--set", &format!("zenoh.listen=[\"tcp/127.0.0.1:{port}\"]")]);
     assert!(stderr.contains("zenoh.listen") && stderr.contains(&port.to_string()), "{stderr}");
+}
+
+// The daemon's requests over Zenoh: once its graph has settled, `op3dsg query --zenoh`,
+// `op3dsg goal --zenoh` and `op3dsg health --zenoh` must give what the same commands give over
+// iceoryx2 (real MiniLM from `.models/`), and `tests/python/zenoh_query.py` (PyPI
+// `eclipse-zenoh` and the standard library, written from docs/remote.md) the same hits. Without
+// a daemon, or under another key prefix, the commands fail in time naming the endpoint and key.
+
+/// Frames of the daemon in the request tests (5 s at the camera rate).
+const REQUEST_FRAMES: u64 = 150;
+
+fn op3dsg(args: &[&str]) -> Output {
+    Command::new(binary("op3dsg")).args(args).output().expect("run op3dsg")
+}
+
+fn json_of(args: &[&str]) -> Value {
+    let output = op3dsg(args);
+    assert!(output.status.success(), "op3dsg {args:?}: {}", String::from_utf8_lossy(&output.stderr));
+    serde_json::from_slice(&output.stdout).expect("JSON")
+}
+
+/// The reply without what differs between two answers of the same graph (timings).
+fn without_timings(mut reply: Value) -> Value {
+    if let Some(object) = reply.as_object_mut() {
+        object.remove("encode_us");
+        object.remove("score_us");
+    }
+    reply
+}
+
+#[test]
+fn query_goal_and_health_over_zenoh_answer_as_over_iceoryx2() {
+    let port = free_port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let key_prefix = format!("op3dsg/query-test-{}", std::process::id());
+    let prefix = unique_prefix("zenoh-query");
+    let listen = format!("zenoh.listen=[\"{endpoint}\"]");
+    let key = format!("zenoh.key_prefix=\"{key_prefix}\"");
+    let frames = format!("run.max_frames={REQUEST_FRAMES}");
+    let daemon = Daemon::start(
+        &prefix,
+        &[
+            "--set",
+            "zenoh.enabled=true",
+            "--set",
+            &listen,
+            "--set",
+            &key,
+            "--set",
+            &frames,
+            "--set",
+            "text_encoder.enabled=true",
+        ],
+    );
+    let mut health = daemon.health_subscriber("zenoh-query-health");
+    health_where(&mut health, "every frame captured", Duration::from_secs(300), |h| {
+        h.frames_captured >= REQUEST_FRAMES
+    });
+    let zenoh = ["--zenoh", endpoint.as_str(), "--key-prefix", key_prefix.as_str()];
+    let local = |args: &[&str]| json_of(&[&["--prefix", &prefix], args].concat());
+    let remote = |args: &[&str]| json_of(&[args, &zenoh[..]].concat());
+
+    // The graph and the occupancy map settle once the last frame is fused: both transports then
+    // answer alike (hits, scores and approach poses).
+    let text = "somewhere to wash my hands";
+    let query = ["query", "--json", "--k", "5", "--timeout-s", "20", text];
+    let started = Instant::now();
+    let (here, there) = loop {
+        let (here, there) = (without_timings(local(&query)), without_timings(remote(&query)));
+        if here == there || started.elapsed() > Duration::from_secs(120) {
+            break (here, there);
+        }
+        std::thread::sleep(Duration::from_millis(500));
+    };
+    assert_eq!(here, there, "op3dsg query over iceoryx2 and over Zenoh");
+    let hits = here["hits"].as_array().expect("hits");
+    assert!(!hits.is_empty(), "the query found nodes: {here}");
+    eprintln!("query over Zenoh: {} hits at graph version {}, top {}", hits.len(), here["graph_version"], hits[0]);
+
+    // A goal by node id: the same request on the same service.
+    let node = hits[0]["node_id"].as_u64().expect("node id").to_string();
+    let goal = ["goal", "--json", "--timeout-s", "20", node.as_str()];
+    let goal_of = |args: &[&str]| {
+        let output = op3dsg(args);
+        (output.status.code(), serde_json::from_slice::<Value>(&output.stdout).expect("goal JSON"))
+    };
+    let started = Instant::now();
+    let (goal_here, goal_there) = loop {
+        let here = goal_of(&[&["--prefix", prefix.as_str()], &goal[..]].concat());
+        let there = goal_of(&[&goal[..], &zenoh[..]].concat());
+        if here == there || started.elapsed() > Duration::from_secs(60) {
+            break (here, there);
+        }
+        std::thread::sleep(Duration::from_millis(500));
+    };
+    assert_eq!(goal_here, goal_there, "op3dsg goal over iceoryx2 and over Zenoh (exit code, JSON)");
+
+    // Health: the same record form, the same source, frame and graph.
+    let health_here = local(&["health", "--json"]);
+    let health_there = remote(&["health", "--json", "--timeout-s", "10"]);
+    let keys = |v: &Value| v.as_object().map(|o| o.keys().cloned().collect::<Vec<_>>()).unwrap_or_default();
+    assert_eq!(keys(&health_here), keys(&health_there));
+    for field in ["source_kind", "world_frame", "graph_version"] {
+        assert_eq!(health_here[field], health_there[field], "health field {field}");
+    }
+    assert_eq!(health_there["source_kind"], "synthetic");
+    let text_form = op3dsg(&[&["health"][..], &zenoh[..]].concat());
+    assert!(text_form.status.success() && String::from_utf8_lossy(&text_form.stdout).contains("world frame"));
+
+    // A consumer in Python from the documented bytes alone.
+    python_agrees(&endpoint, &key_prefix, text, &here, &health_here);
+
+    // Another key prefix: no daemon answers, and the error says which key on which endpoint.
+    let wrong = format!("{key_prefix}-not-there");
+    let started = Instant::now();
+    let output = op3dsg(&["query", "--timeout-s", "1", text, "--zenoh", &endpoint, "--key-prefix", &wrong]);
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success(), "a query under a prefix nobody serves succeeded");
+    assert!(stderr.contains(&format!("{wrong}/query")) && stderr.contains(&endpoint), "{stderr}");
+    assert!(started.elapsed() < Duration::from_secs(10), "gave up in time: {:?}", started.elapsed());
+    drop(daemon);
+}
+
+#[test]
+fn without_a_daemon_the_zenoh_commands_name_the_endpoint() {
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    for args in [&["health", "--timeout-s", "1"][..], &["query", "--timeout-s", "1", "sink"][..], &["goal", "3"][..]] {
+        let started = Instant::now();
+        let output = op3dsg(&[args, &["--zenoh", &endpoint, "--key-prefix", "op3dsg/nobody"][..]].concat());
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(!output.status.success(), "op3dsg {args:?} without a daemon succeeded");
+        assert!(stderr.contains(&endpoint), "op3dsg {args:?}: {stderr}");
+        assert!(started.elapsed() < Duration::from_secs(30), "op3dsg {args:?} took {:?}", started.elapsed());
+    }
+}
+
+/// `tests/python/zenoh_query.py` gets the hits of `here` (an `op3dsg query --json` reply for
+/// `text`) and a health record of the form of `health_here`.
+fn python_agrees(endpoint: &str, key_prefix: &str, text: &str, here: &Value, health_here: &Value) {
+    let keys = |v: &Value| v.as_object().map(|o| o.keys().cloned().collect::<Vec<_>>()).unwrap_or_default();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/zenoh_query.py");
+    let output = Command::new(python())
+        .arg(&script)
+        .args(["--connect", endpoint, "--prefix", key_prefix, "--text", text, "--k", "5"])
+        .output()
+        .expect("run zenoh_query.py");
+    assert!(output.status.success(), "zenoh_query.py: {}", String::from_utf8_lossy(&output.stderr));
+    let py: Value = serde_json::from_slice(&output.stdout).expect("zenoh_query.py JSON");
+    assert_eq!(py["status"], "ok", "{py}");
+    assert_eq!(py["graph_version"], here["graph_version"]);
+    let ids = |hits: &Value| -> Vec<(u64, String)> {
+        hits.as_array()
+            .map(|h| h.iter().map(|h| (h["node_id"].as_u64().unwrap_or(0), h["label"].to_string())).collect())
+            .unwrap_or_default()
+    };
+    assert_eq!(ids(&py["hits"]), ids(&here["hits"]), "python hits {py}");
+    let output = Command::new(python())
+        .arg(&script)
+        .args(["--connect", endpoint, "--prefix", key_prefix, "--health"])
+        .output()
+        .expect("run zenoh_query.py --health");
+    assert!(output.status.success(), "zenoh_query.py --health: {}", String::from_utf8_lossy(&output.stderr));
+    let py: Value = serde_json::from_slice(&output.stdout).expect("health JSON");
+    assert_eq!(keys(&py), keys(health_here));
 }

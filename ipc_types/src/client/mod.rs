@@ -22,6 +22,8 @@ mod pose;
 mod query;
 #[cfg(feature = "zenoh")]
 mod remote;
+#[cfg(feature = "zenoh")]
+mod remote_request;
 mod view;
 
 use std::time::{Duration, Instant};
@@ -39,6 +41,8 @@ pub use pose::{Pose, PosePublisher, PoseService, open_or_create_pose_service};
 pub use query::{QueryClient, QueryClientError};
 #[cfg(feature = "zenoh")]
 pub use remote::{RemoteClientError, RemoteGraphSubscriber};
+#[cfg(feature = "zenoh")]
+pub use remote_request::RemoteRequester;
 pub use view::{EdgeView, Graph, NodeView, UnknownAffordance};
 
 use crate::access::{IpcRoot, RootError};

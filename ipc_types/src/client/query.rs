@@ -215,6 +215,11 @@ impl QueryClient {
         self.send(QueryRequest::for_node(node_id), timeout)
     }
 
+    /// Sends `request` as it is (a text or a node) and waits up to `timeout` for its response.
+    pub fn request(&self, request: &QueryRequest, timeout: Duration) -> Result<QueryResponse, QueryClientError> {
+        self.send(*request, timeout)
+    }
+
     fn send(&self, request: QueryRequest, timeout: Duration) -> Result<QueryResponse, QueryClientError> {
         let service = || self.service.clone();
         let pending = self

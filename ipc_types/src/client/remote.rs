@@ -23,6 +23,19 @@ impl std::fmt::Display for RemoteClientError {
 
 impl std::error::Error for RemoteClientError {}
 
+/// A Zenoh session in client mode to `endpoint` alone, multicast scouting off.
+pub(super) fn open_client_session(endpoint: &str) -> Result<zenoh::Session, RemoteClientError> {
+    let fail = |what: &str, e: &dyn std::fmt::Display| RemoteClientError(format!("{what}: {e}"));
+    let mut config = zenoh::Config::default();
+    let endpoints = format!("[{endpoint:?}]");
+    for (key, value) in
+        [("mode", "\"client\""), ("connect/endpoints", endpoints.as_str()), ("scouting/multicast/enabled", "false")]
+    {
+        config.insert_json5(key, value).map_err(|e| fail(&format!("zenoh endpoint {endpoint:?}"), &e))?;
+    }
+    zenoh::open(config).wait().map_err(|e| fail(&format!("connecting to zenoh endpoint {endpoint}"), &e))
+}
+
 /// The graph of a daemon on another computer, kept up to date from full graphs and deltas.
 ///
 /// ```no_run
@@ -52,15 +65,7 @@ impl RemoteGraphSubscriber {
     /// (the daemon's `zenoh.key_prefix`).
     pub fn connect(endpoint: &str, key_prefix: &str) -> Result<Self, RemoteClientError> {
         let fail = |what: &str, e: &dyn std::fmt::Display| RemoteClientError(format!("{what}: {e}"));
-        let mut config = zenoh::Config::default();
-        let endpoints = format!("[{endpoint:?}]");
-        for (key, value) in
-            [("mode", "\"client\""), ("connect/endpoints", endpoints.as_str()), ("scouting/multicast/enabled", "false")]
-        {
-            config.insert_json5(key, value).map_err(|e| fail(&format!("zenoh endpoint {endpoint:?}"), &e))?;
-        }
-        let session =
-            zenoh::open(config).wait().map_err(|e| fail(&format!("connecting to zenoh endpoint {endpoint}"), &e))?;
+        let session = open_client_session(endpoint)?;
         let key = format!("{key_prefix}/graph");
         let subscribe = |key: String| {
             session.declare_subscriber(key.clone()).wait().map_err(|e| fail(&format!("subscribing to {key}"), &e))

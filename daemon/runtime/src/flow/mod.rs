@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::Sender;
 use op3dsg_drivers::frame::PooledFrame;
 use op3dsg_drivers::pose::Isometry;
-use op3dsg_ipc_types::{Health, PoseStamped};
+use op3dsg_ipc_types::{Health, PoseStamped, QueryRequest, QueryResponse};
 use tracing::warn;
 
 mod detection;
@@ -77,6 +77,19 @@ pub struct RemoteFeed {
     /// The newest health record and the instance id.
     pub health: Arc<Latest<(Health, u64)>>,
 }
+
+/// Where the answer to a query from off the computer goes: called once, on the query worker's
+/// thread (or at once, by whoever refuses the request); it must not block.
+pub type RemoteReply = Box<dyn FnOnce(&QueryResponse) + Send>;
+
+/// How the off-robot stage hands a query to the language query service (`crate::query`): the
+/// request and where its answer goes. Never blocks: a request the service cannot take now is
+/// answered at once (busy, bad request, encoder off).
+pub type RemoteQuerySubmit = Box<dyn Fn(QueryRequest, RemoteReply) + Send + Sync>;
+
+/// The query service's intake for the off-robot stage, filled once the service has started
+/// (the off-robot stage starts first); empty for good with `query.enabled = false`.
+pub type RemoteQueries = Arc<std::sync::OnceLock<RemoteQuerySubmit>>;
 
 /// A graph version for the publisher, with the capture moment of the newest keyframe fused into
 /// it (`None` before the first keyframe).

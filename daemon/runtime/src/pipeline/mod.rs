@@ -146,9 +146,13 @@ impl Pipeline {
         let recorder = recorder.transpose()?;
         // The query service's view of the graph: the publisher fills it.
         let query_graph = profile.query.enabled.then(|| Arc::new(Latest::new()));
-        // The Zenoh stage before the publisher that feeds it.
+        // The Zenoh stage before the publisher that feeds it; the query service, started
+        // below, fills in its intake for `<prefix>/query`.
+        let remote_queries = crate::flow::RemoteQueries::default();
         let remote = match (q.remote, counters.zenoh.as_ref()) {
-            (Some(queue), Some(zenoh)) => Some(stages::zenoh(&mut s, profile, source.kind(), queue, zenoh)?),
+            (Some(queue), Some(zenoh)) => {
+                Some(stages::zenoh(&mut s, profile, source.kind(), queue, zenoh, remote_queries.clone())?)
+            }
             _ => None,
         };
         let (publisher, ready) = stages::publisher(
@@ -171,7 +175,7 @@ impl Pipeline {
             None
         };
         let query_counters = match query_graph {
-            Some(latest) => Some(stages::query(&mut s, profile, latest, latest_occupancy, &stop)?),
+            Some(latest) => Some(stages::query(&mut s, profile, latest, latest_occupancy, &stop, &remote_queries)?),
             None => None,
         };
         if let Some(writer) = snapshot_writer {

@@ -13,7 +13,7 @@ use super::Counters;
 use crate::backend::{Backends, StartError};
 use crate::capture::CaptureThread;
 use crate::config::{Profile, effective_toml};
-use crate::flow::{CapturedFrame, DetectionBatch, GraphItem, KeyframeItem, LatestGraph, RemoteFeed};
+use crate::flow::{CapturedFrame, DetectionBatch, GraphItem, KeyframeItem, LatestGraph, RemoteFeed, RemoteQueries};
 use crate::fusion::snapshot::{SnapshotSink, SnapshotStore, SnapshotWriter};
 use crate::fusion::{Fusion, FusionThread, Resume};
 use crate::graph::SceneGraph;
@@ -225,6 +225,7 @@ pub(super) fn zenoh(
     source_kind: SourceKind,
     queue: RemoteQueue,
     counters: &Arc<ZenohCounters>,
+    queries: RemoteQueries,
 ) -> Result<RemoteFeed, StartError> {
     let (ready, ready_rx) = crossbeam_channel::bounded(1);
     let (graphs_tx, graphs_rx) = queue;
@@ -235,6 +236,7 @@ pub(super) fn zenoh(
         origin: GraphOrigin::new(source_kind, &profile.world.frame_id),
         graphs: graphs_rx,
         health: health.clone(),
+        queries,
         counters: counters.clone(),
         ready,
     };
@@ -293,6 +295,7 @@ pub(super) fn query(
     latest: Arc<LatestGraph>,
     occupancy: Option<Arc<LatestOccupancy>>,
     stop: &Arc<std::sync::atomic::AtomicBool>,
+    remote: &RemoteQueries,
 ) -> Result<Arc<QueryCounters>, StartError> {
     let encoder = profile
         .text_encoder
@@ -302,6 +305,8 @@ pub(super) fn query(
     let (receiver, worker, ready) =
         query_threads(&profile.ipc, &profile.query, encoder, navigation, latest, stop.clone());
     let counters = worker.counters().clone();
+    // Queries over Zenoh go through the same checks and queue to the same worker.
+    let _ = remote.set(receiver.remote_intake());
     stages.spawn_serving("query-rx", &ready, move || receiver.run())?;
     stages.spawn("query", move || worker.run())?;
     Ok(counters)

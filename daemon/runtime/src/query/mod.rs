@@ -18,7 +18,10 @@
 //! ```
 //!
 //! - The receiver never blocks: a request finds room in the bounded job queue or is refused at
-//!   once with [`QueryStatus::Busy`] (counted; the count travels in every reply). Malformed
+//!   once with [`QueryStatus::Busy`] (counted; the count travels in every reply).
+//! - Requests from off the computer (the Zenoh queryable `<prefix>/query`, `crate::zenoh`) enter
+//!   through [`QueryReceiverThread::remote_intake`]: the same checks, the same job queue and
+//!   worker; the worker replies to them from its thread as it does over iceoryx2. Malformed
 //!   requests and, without the text encoder, every request get their error reply here.
 //! - Every reply's hits carry approach poses ([`Navigator`]: the newest occupancy map the
 //!   occupancy thread handed over, inflated and flooded once per map version, A* per hit; see

@@ -16,7 +16,7 @@ use op3dsg_ipc_types::services::{
 use op3dsg_ipc_types::{QUERY_MAX_K, QUERY_SCHEMA_VERSION, QueryRequest, QueryResponse, QueryStatus};
 use tracing::{info, warn};
 
-use crate::flow::LatestGraph;
+use crate::flow::{LatestGraph, RemoteQuerySubmit, RemoteReply};
 use crate::ipc::{IpcConfig, IpcError, IpcService, create_node, service_err, service_name};
 
 /// A request taken off the service, with its reply port.
@@ -67,7 +67,64 @@ impl QueryReceiver {
     }
 }
 
-pub(super) fn reply(request: &Request, response: &QueryResponse) {
+/// A request for the worker: from iceoryx2, with its reply port, or from off the computer
+/// (`crate::zenoh`), with where its answer goes.
+pub(super) enum Job {
+    /// Taken off `<prefix>/query` (iceoryx2).
+    Local(Request),
+    /// Handed over by the off-robot stage.
+    Remote(QueryRequest, RemoteReply),
+}
+
+impl Job {
+    pub(super) fn request(&self) -> &QueryRequest {
+        match self {
+            Self::Local(request) => request.payload(),
+            Self::Remote(request, _) => request,
+        }
+    }
+
+    /// Sends the one answer this request gets.
+    pub(super) fn answer(self, response: &QueryResponse) {
+        match self {
+            Self::Local(request) => reply(&request, response),
+            Self::Remote(_, reply) => reply(response),
+        }
+    }
+}
+
+/// Answers what can be answered at once (bad request, encoder off), else queues `job` for the
+/// worker without waiting: a full queue is a busy answer, never a wait.
+fn submit(job: Job, jobs: &Sender<Job>, encoder_on: bool, capacity: usize, counters: &QueryCounters) {
+    if let Err(message) = check_request(job.request()) {
+        counters.failed.fetch_add(1, Ordering::Relaxed);
+        job.answer(&failure(QueryStatus::BadRequest, &message, capacity, counters));
+        return;
+    }
+    if !encoder_on && job.request().asked_node().is_none() {
+        counters.failed.fetch_add(1, Ordering::Relaxed);
+        let message = "the daemon runs without the text encoder: set text_encoder.enabled = true \
+                       (and run scripts/setup-models.sh) to serve queries";
+        job.answer(&failure(QueryStatus::EncoderOff, message, capacity, counters));
+        return;
+    }
+    match jobs.try_send(job) {
+        Ok(()) => {}
+        Err(TrySendError::Full(job)) => {
+            let refused = counters.refused.fetch_add(1, Ordering::Relaxed) + 1;
+            if refused.is_power_of_two() {
+                warn!(refused, queue_capacity = capacity, "query queue full; request refused");
+            }
+            let message = format!("busy: {capacity} queries already wait (query.queue_capacity); retry later");
+            job.answer(&failure(QueryStatus::Busy, &message, capacity, counters));
+        }
+        Err(TrySendError::Disconnected(job)) => {
+            job.answer(&failure(QueryStatus::ShuttingDown, "the query worker has ended", capacity, counters));
+        }
+    }
+}
+
+fn reply(request: &Request, response: &QueryResponse) {
     if let Err(e) = request.send_copy(*response) {
         // The client gave up (dropped its pending response) or died: nothing to tell anyone.
         tracing::debug!(error = ?e, "query reply not delivered");
@@ -105,7 +162,7 @@ fn check_request(request: &QueryRequest) -> Result<(), String> {
 pub struct QueryReceiverThread {
     pub(super) ipc: IpcConfig,
     pub(super) ready: Sender<Result<(), String>>,
-    pub(super) jobs: Sender<Request>,
+    pub(super) jobs: Sender<Job>,
     pub(super) encoder_on: bool,
     pub(super) capacity: usize,
     pub(super) counters: Arc<QueryCounters>,
@@ -120,6 +177,16 @@ impl std::fmt::Debug for QueryReceiverThread {
 }
 
 impl QueryReceiverThread {
+    /// The intake for queries from off the computer (`crate::zenoh`): the same checks and the
+    /// same bounded queue to the same worker as requests over iceoryx2.
+    pub fn remote_intake(&self) -> RemoteQuerySubmit {
+        let (jobs, encoder_on, capacity, counters) =
+            (self.jobs.clone(), self.encoder_on, self.capacity, self.counters.clone());
+        Box::new(move |request, reply| {
+            submit(Job::Remote(request, reply), &jobs, encoder_on, capacity, &counters);
+        })
+    }
+
     /// Creates the service, then takes requests until the stop flag or the publisher's end.
     pub fn run(self) {
         let receiver = match QueryReceiver::open(&self.ipc) {
@@ -153,36 +220,7 @@ impl QueryReceiverThread {
                     }
                 };
                 got_any = true;
-                if let Err(message) = check_request(request.payload()) {
-                    counters.failed.fetch_add(1, Ordering::Relaxed);
-                    reply(&request, &failure(QueryStatus::BadRequest, &message, capacity, counters));
-                    continue;
-                }
-                if !encoder_on && request.payload().asked_node().is_none() {
-                    counters.failed.fetch_add(1, Ordering::Relaxed);
-                    let message = "the daemon runs without the text encoder: set text_encoder.enabled = true \
-                                   (and run scripts/setup-models.sh) to serve queries";
-                    reply(&request, &failure(QueryStatus::EncoderOff, message, capacity, counters));
-                    continue;
-                }
-                match jobs.try_send(request) {
-                    Ok(()) => {}
-                    Err(TrySendError::Full(request)) => {
-                        let refused = counters.refused.fetch_add(1, Ordering::Relaxed) + 1;
-                        if refused.is_power_of_two() {
-                            warn!(refused, queue_capacity = capacity, "query queue full; request refused");
-                        }
-                        let message =
-                            format!("busy: {capacity} queries already wait (query.queue_capacity); retry later");
-                        reply(&request, &failure(QueryStatus::Busy, &message, capacity, counters));
-                    }
-                    Err(TrySendError::Disconnected(request)) => {
-                        reply(
-                            &request,
-                            &failure(QueryStatus::ShuttingDown, "the query worker has ended", capacity, counters),
-                        );
-                    }
-                }
+                submit(Job::Local(request), jobs, encoder_on, capacity, counters);
             }
             if !got_any {
                 std::thread::sleep(RECEIVE_POLL);

@@ -11,7 +11,7 @@ use op3dsg_ipc_types::{
 };
 use tracing::warn;
 
-use super::receiver::{QueryCounters, Request, failure, reply};
+use super::receiver::{Job, QueryCounters, failure};
 use super::{Hit, QueryConfig, QueryIndex, ScoringOptions};
 use crate::flow::LatestGraph;
 use crate::graph::SceneGraph;
@@ -108,7 +108,7 @@ impl Navigator {
 pub struct QueryWorkerThread {
     pub(super) encoder_setup: Option<EncoderSetup>,
     pub(super) navigation: NavigationSetup,
-    pub(super) jobs: Receiver<Request>,
+    pub(super) jobs: Receiver<Job>,
     pub(super) config: QueryConfig,
     pub(super) counters: Arc<QueryCounters>,
     pub(super) latest: Arc<LatestGraph>,
@@ -156,7 +156,9 @@ impl QueryWorkerThread {
             let request = match self.jobs.recv_timeout(WORKER_POLL) {
                 Ok(request) => request,
                 Err(RecvTimeoutError::Timeout) => {
-                    if self.stop.load(Ordering::Relaxed) {
+                    // The off-robot stage may hold a sender until it ends; the publisher's end
+                    // ends the service as it ends the receiver.
+                    if self.stop.load(Ordering::Relaxed) || self.latest.is_closed() {
                         break;
                     }
                     continue;
@@ -164,21 +166,18 @@ impl QueryWorkerThread {
                 Err(RecvTimeoutError::Disconnected) => break,
             };
             if self.stop.load(Ordering::Relaxed) {
-                reply(
-                    &request,
-                    &failure(QueryStatus::ShuttingDown, "the daemon is stopping", capacity, &self.counters),
-                );
+                request.answer(&failure(QueryStatus::ShuttingDown, "the daemon is stopping", capacity, &self.counters));
                 continue;
             }
-            let (mut response, graph) = answers.answer(request.payload());
+            let (mut response, graph) = answers.answer(request.request());
             if let Some(graph) = graph {
                 navigator.fill(&graph, &mut response);
             }
-            reply(&request, &response);
+            request.answer(&response);
         }
         // Whatever is still queued learns why it gets no hits.
         while let Ok(request) = self.jobs.try_recv() {
-            reply(&request, &failure(QueryStatus::ShuttingDown, "the daemon is stopping", capacity, &self.counters));
+            request.answer(&failure(QueryStatus::ShuttingDown, "the daemon is stopping", capacity, &self.counters));
         }
     }
 }

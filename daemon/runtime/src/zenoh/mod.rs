@@ -14,6 +14,8 @@
 //! | `<prefix>/graph/delta` | per version sent: the changes from the version before ([`codec::DeltaEncoder`]) |
 //! | `<prefix>/health` | the health record (JSON) at the health rate |
 //! | `<prefix>/graph` (queryable) | the newest full graph, for a consumer that joins |
+//! | `<prefix>/health` (queryable) | the newest health record, as published |
+//! | `<prefix>/query` (queryable) | the language query service: the iceoryx2 request and response bytes, answered by the query worker ([`crate::flow::RemoteQueries`]) |
 //!
 //! The bytes are [`codec`]'s; `docs/remote.md` describes them field by field.
 //!

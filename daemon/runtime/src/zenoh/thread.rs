@@ -1,6 +1,7 @@
 //! The thread `op3dsg-zenoh`: owns the Zenoh session, publishes `<prefix>/graph`,
-//! `<prefix>/graph/delta` and `<prefix>/health`, and answers the queryable `<prefix>/graph` with
-//! the newest full graph.
+//! `<prefix>/graph/delta` and `<prefix>/health`, and answers the queryables `<prefix>/graph` (the
+//! newest full graph), `<prefix>/health` (the newest health record) and `<prefix>/query` (handed
+//! to the language query service's worker, which replies from its own thread).
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -9,13 +10,14 @@ use std::time::{Duration, Instant};
 use ::zenoh::Wait;
 use ::zenoh::pubsub::Publisher;
 use ::zenoh::qos::CongestionControl;
-use ::zenoh::query::Queryable;
+use ::zenoh::query::{Query, Queryable};
 use crossbeam_channel::Sender;
-use op3dsg_ipc_types::Health;
+use op3dsg_ipc_types::{Health, QueryRequest, QueryResponse, QueryStatus};
 use tracing::{debug, info, warn};
 
 use super::codec::{DeltaEncoder, encode_full, encode_health};
 use super::config::ZenohConfig;
+use crate::flow::RemoteQueries;
 use crate::graph::SceneGraph;
 use crate::ipc::{GraphCapacity, GraphEncoder, GraphOrigin, HealthReport};
 use crate::queue::{Latest, Popped, QueueReceiver};
@@ -39,6 +41,8 @@ pub struct ZenohCounters {
     pub healths: AtomicU64,
     /// Queries on `<prefix>/graph` answered with a graph.
     pub queries: AtomicU64,
+    /// Queries on `<prefix>/query` handed to the query service (answered by it, busy included).
+    pub language_queries: AtomicU64,
     /// Bytes of the last full graph message.
     pub last_full_bytes: AtomicU64,
     /// Bytes of the last delta message.
@@ -53,6 +57,7 @@ impl Default for ZenohCounters {
             deltas: AtomicU64::new(0),
             healths: AtomicU64::new(0),
             queries: AtomicU64::new(0),
+            language_queries: AtomicU64::new(0),
             last_full_bytes: AtomicU64::new(0),
             last_delta_bytes: AtomicU64::new(0),
         }
@@ -73,6 +78,8 @@ pub struct ZenohThread {
     pub graphs: QueueReceiver<(Arc<SceneGraph>, u64)>,
     /// The publisher's newest health record.
     pub health: Arc<Latest<(Health, u64)>>,
+    /// The language query service's intake, for `<prefix>/query` (set once it has started).
+    pub queries: RemoteQueries,
     /// This stage's figures.
     pub counters: Arc<ZenohCounters>,
     /// Told once the session and its publishers exist, or why they could not be made.
@@ -85,13 +92,16 @@ impl std::fmt::Debug for ZenohThread {
     }
 }
 
+/// How a queryable answers a query: the key to reply on, and the query.
+type Answer = Box<dyn Fn(&str, Query) + Send + Sync>;
+
 /// The open session and what was declared on it.
 struct Session {
     session: ::zenoh::Session,
     graph: Publisher<'static>,
     delta: Publisher<'static>,
     health: Publisher<'static>,
-    _queryable: Queryable<()>,
+    _queryables: [Queryable<()>; 3],
 }
 
 impl ZenohThread {
@@ -130,6 +140,7 @@ impl ZenohThread {
             fulls = self.counters.fulls.load(Ordering::Relaxed),
             deltas = self.counters.deltas.load(Ordering::Relaxed),
             queries = self.counters.queries.load(Ordering::Relaxed),
+            language_queries = self.counters.language_queries.load(Ordering::Relaxed),
             "zenoh session closing"
         );
         if let Err(e) = session.session.close().wait() {
@@ -151,31 +162,49 @@ impl ZenohThread {
                 .map_err(|e| format!("zenoh.key_prefix: declaring {prefix}/{suffix}: {e}"))
         };
         let (graph, delta, health) = (publisher("graph")?, publisher("graph/delta")?, publisher("health")?);
-        let latest = latest_full.clone();
-        let counters = self.counters.clone();
-        let key = format!("{prefix}/graph");
-        let reply_key = key.clone();
-        let queryable = session
-            .declare_queryable(key)
-            .callback(move |query| {
+        let queryable = |suffix: &str, answer: Answer| {
+            let key = format!("{prefix}/{suffix}");
+            let reply_key = key.clone();
+            session
+                .declare_queryable(key)
+                .callback(move |query| answer(&reply_key, query))
+                .wait()
+                .map_err(|e| format!("zenoh.key_prefix: declaring the queryable {prefix}/{suffix}: {e}"))
+        };
+        let (latest, counters) = (latest_full.clone(), self.counters.clone());
+        let graph_queryable = queryable(
+            "graph",
+            Box::new(move |key, query| {
                 // Before the first version there is nothing to answer: the query ends empty.
-                if let Some(full) = latest.get() {
-                    match query.reply(reply_key.as_str(), full.as_slice()).wait() {
-                        Ok(()) => {
-                            counters.queries.fetch_add(1, Ordering::Relaxed);
-                        }
-                        Err(e) => debug!(error = %e, "graph query reply failed"),
-                    }
+                if let Some(full) = latest.get()
+                    && reply(&query, key, full.to_vec())
+                {
+                    counters.queries.fetch_add(1, Ordering::Relaxed);
                 }
-            })
-            .wait()
-            .map_err(|e| format!("zenoh.key_prefix: declaring the queryable {prefix}/graph: {e}"))?;
+            }),
+        )?;
+        let latest_health = self.health.clone();
+        let health_queryable = queryable(
+            "health",
+            Box::new(move |key, query| {
+                if let Some((health, instance_id)) = latest_health.get() {
+                    reply(&query, key, health_message(&health, instance_id));
+                }
+            }),
+        )?;
+        let (queries, counters) = (self.queries.clone(), self.counters.clone());
+        let query_queryable = queryable(
+            "query",
+            Box::new(move |key, query| {
+                answer_query(&queries, key.to_owned(), query, &counters);
+            }),
+        )?;
         let open = self.config.open_listeners();
         if !open.is_empty() {
             warn!(endpoints = ?open, "zenoh listens beyond loopback: anyone who reaches these endpoints reads the graph");
         }
         info!(prefix = %prefix, mode = self.config.mode.as_str(), zid = %session.zid(), "zenoh session open");
-        Ok(Session { session, graph, delta, health, _queryable: queryable })
+        Ok(Session { session, graph, delta, health, _queryables: [graph_queryable, health_queryable, query_queryable] })
     }
 
     fn send_graph(
@@ -230,10 +259,7 @@ impl ZenohThread {
             return;
         }
         state.health_stamp_ns = health.stamp_ns;
-        let json = serde_json::to_vec(&HealthReport::from(&health)).unwrap_or_default();
-        let mut message = Vec::with_capacity(json.len() + super::codec::ENVELOPE_BYTES);
-        encode_health(instance_id, health.graph_version, crate::world::clock::wall_clock_ns(), &json, &mut message);
-        self.put(&session.health, &message, &self.counters.healths, None);
+        self.put(&session.health, &health_message(&health, instance_id), &self.counters.healths, None);
     }
 
     /// Puts `bytes`; counts it in `count` and its size in `bytes_of_last`, or a stage error.
@@ -259,6 +285,55 @@ impl ZenohThread {
             }
         }
     }
+}
+
+/// The health message (envelope and the record's JSON) of `health`.
+fn health_message(health: &Health, instance_id: u64) -> Vec<u8> {
+    let json = serde_json::to_vec(&HealthReport::from(health)).unwrap_or_default();
+    let mut message = Vec::with_capacity(json.len() + super::codec::ENVELOPE_BYTES);
+    encode_health(instance_id, health.graph_version, crate::world::clock::wall_clock_ns(), &json, &mut message);
+    message
+}
+
+/// Replies `bytes` to `query` on `key`; whether it went out. Zenoh replies take the querier's
+/// congestion control (the op3dsg clients ask with `drop`).
+fn reply(query: &Query, key: &str, bytes: Vec<u8>) -> bool {
+    match query.reply(key, bytes).wait() {
+        Ok(()) => true,
+        Err(e) => {
+            debug!(error = %e, key, "zenoh reply failed");
+            false
+        }
+    }
+}
+
+/// A query on `<prefix>/query`: its payload is a query request's bytes (the iceoryx2 layout);
+/// the query service's worker replies with the response's bytes from its own thread, so this
+/// callback (on a Zenoh thread) never waits for the text encoder. A payload that is no request
+/// gets a bad-request response at once.
+fn answer_query(queries: &RemoteQueries, key: String, query: Query, counters: &ZenohCounters) {
+    let bytes = query.payload().map(|p| p.to_bytes().into_owned()).unwrap_or_default();
+    let Some(request) = QueryRequest::from_bytes(&bytes) else {
+        let message = format!(
+            "payload: {} bytes, a query request is {} (op3dsg_ipc_types::QueryRequest, docs/remote.md)",
+            bytes.len(),
+            op3dsg_ipc_types::query_types::QUERY_REQUEST_BYTES
+        );
+        reply(&query, &key, QueryResponse::failure(QueryStatus::BadRequest, &message).to_bytes());
+        return;
+    };
+    let Some(submit) = queries.get() else {
+        let message = "the daemon runs with query.enabled = false: no language queries";
+        reply(&query, &key, QueryResponse::failure(QueryStatus::BadRequest, message).to_bytes());
+        return;
+    };
+    counters.language_queries.fetch_add(1, Ordering::Relaxed);
+    submit(
+        request,
+        Box::new(move |response: &QueryResponse| {
+            reply(&query, &key, response.to_bytes());
+        }),
+    );
 }
 
 /// What the thread keeps between versions.

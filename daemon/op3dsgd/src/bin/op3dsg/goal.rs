@@ -6,9 +6,10 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use op3dsg_ipc_types::{ApproachStatus, QueryStatus};
+use op3dsg_ipc_types::{ApproachStatus, QueryRequest};
 use serde::Serialize;
 
+use super::query::{From, ask, check_status};
 use super::write_output;
 
 #[derive(Serialize)]
@@ -34,26 +35,19 @@ struct GoalJson<'a> {
 /// `op3dsg goal TARGET`: TARGET all digits is a node id, anything else a query whose top hit is
 /// the node. Prints the approach pose (or JSON); exits 1 with the reason when there is none
 /// (no free cell within the standoff band, unreachable, no map) or the daemon cannot answer.
-pub(super) fn goal(prefix: &str, target: &str, json: bool, timeout: Duration) -> Result<()> {
-    let (client, left) = super::query::open_client(prefix, timeout)?;
+pub(super) fn goal(from: From<'_>, target: &str, json: bool, timeout: Duration) -> Result<()> {
     let target = target.trim();
     let node_id = target.parse::<u32>().ok();
-    let response = match node_id {
-        Some(id) => client.query_node(id, left)?,
+    let request = match node_id {
+        Some(id) => QueryRequest::for_node(id),
         None if target.is_empty() => bail!("TARGET: empty; give a node id or a need in words"),
-        None => client.query(target, 1, left)?,
+        None => QueryRequest::new(target, 1)
+            .with_context(|| format!("TARGET: longer than {} bytes", op3dsg_ipc_types::QUERY_TEXT_CAPACITY_BYTES))?,
     };
-    match response.query_status() {
-        Some(QueryStatus::Ok) => {}
-        Some(status) => bail!("{}: {} ({})", client.service_name(), response.message_str(), status.as_str()),
-        None => bail!("{}: unknown status {} in the reply", client.service_name(), response.status),
-    }
+    let (response, service) = ask(&from, &request, timeout)?;
+    check_status(&response, &service)?;
     let Some(hit) = response.hits().first() else {
-        bail!(
-            "{}: the graph (version {}) has no node to answer {target:?}",
-            client.service_name(),
-            response.graph_version
-        );
+        bail!("{service}: the graph (version {}) has no node to answer {target:?}", response.graph_version);
     };
     let status = hit.approach();
     let ok = status == Some(ApproachStatus::Ok);

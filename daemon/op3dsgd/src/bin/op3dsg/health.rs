@@ -34,6 +34,24 @@ pub(super) fn health(prefix: &str, json: bool, timeout: Duration) -> Result<()> 
     write_output(None, &text)
 }
 
+/// `op3dsg health --zenoh`: the newest record from the queryable `<key_prefix>/health` of a
+/// daemon on another computer, printed as `op3dsg health` prints it.
+pub(super) fn remote(endpoint: &str, key_prefix: &str, json: bool, timeout: Duration) -> Result<()> {
+    let remote = op3dsg_ipc_types::client::RemoteRequester::connect(endpoint, key_prefix)?;
+    let (_, record) = remote.health(timeout)?;
+    let report: HealthReport = serde_json::from_str(&record).with_context(|| {
+        format!("{} on {endpoint}: the health record is not the expected JSON", remote.key("health"))
+    })?;
+    let text = if json {
+        let mut text = serde_json::to_string_pretty(&report).context("serialising the health JSON")?;
+        text.push('\n');
+        text
+    } else {
+        health_text(&report)
+    };
+    write_output(None, &text)
+}
+
 fn health_text(h: &HealthReport) -> String {
     let mut s = String::new();
     write_counters(&mut s, h);

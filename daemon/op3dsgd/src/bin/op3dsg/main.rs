@@ -113,6 +113,14 @@ enum Command {
         /// Give up (exit code 1) if no record arrives within this many seconds.
         #[arg(long, default_value_t = 5.0)]
         timeout_s: f64,
+        /// Read the health record over Zenoh from a daemon on another computer instead of
+        /// iceoryx2 (its queryable <key-prefix>/health): a Zenoh endpoint to connect to as a
+        /// client (its `zenoh.listen`, or a router), e.g. tcp/192.168.1.20:7447. Needs --key-prefix.
+        #[arg(long, value_name = "ENDPOINT", requires = "key_prefix")]
+        zenoh: Option<String>,
+        /// With --zenoh: the daemon's `zenoh.key_prefix` (op3dsg/<its hostname> by default).
+        #[arg(long, value_name = "PREFIX", requires = "zenoh")]
+        key_prefix: Option<String>,
     },
     /// Ask the daemon which nodes serve a need in words ("somewhere to wash my hands", "what
     /// controls the ceiling light"): the top-k objects and parts with their score and the text
@@ -133,6 +141,14 @@ enum Command {
         /// Give up after this many seconds (waiting for the daemon included).
         #[arg(long, default_value_t = 5.0)]
         timeout_s: f64,
+        /// Ask over Zenoh a daemon on another computer instead of iceoryx2 (its queryable
+        /// <key-prefix>/query, the same request and reply): a Zenoh endpoint to connect to as a
+        /// client (its `zenoh.listen`, or a router), e.g. tcp/192.168.1.20:7447. Needs --key-prefix.
+        #[arg(long, value_name = "ENDPOINT", requires = "key_prefix")]
+        zenoh: Option<String>,
+        /// With --zenoh: the daemon's `zenoh.key_prefix` (op3dsg/<its hostname> by default).
+        #[arg(long, value_name = "PREFIX", requires = "zenoh")]
+        key_prefix: Option<String>,
     },
     /// Where to stand to reach a node: an approach pose on the daemon's occupancy map (a free
     /// cell at the profile's standoff from the node, facing it; for a part, on the side it
@@ -155,6 +171,14 @@ enum Command {
         /// Give up after this many seconds (waiting for the daemon included).
         #[arg(long, default_value_t = 5.0)]
         timeout_s: f64,
+        /// Ask over Zenoh a daemon on another computer instead of iceoryx2 (its queryable
+        /// <key-prefix>/query, the same request and reply): a Zenoh endpoint to connect to as a
+        /// client (its `zenoh.listen`, or a router), e.g. tcp/192.168.1.20:7447. Needs --key-prefix.
+        #[arg(long, value_name = "ENDPOINT", requires = "key_prefix")]
+        zenoh: Option<String>,
+        /// With --zenoh: the daemon's `zenoh.key_prefix` (op3dsg/<its hostname> by default).
+        #[arg(long, value_name = "PREFIX", requires = "zenoh")]
+        key_prefix: Option<String>,
     },
     /// Write the ground-truth scene graph (JSON, schema op3dsg.graph/1) of a synthetic room.
     Gt {
@@ -347,12 +371,27 @@ fn run(cli: Cli) -> Result<()> {
             };
             dump::dump(from, format, seconds(timeout_s)?, out.as_deref())
         }
-        Command::Health { json, timeout_s } => health::health(&prefix, json, seconds(timeout_s)?),
-        Command::Query { text, k, json, timeout_s } => query::query(&prefix, &text, k, json, seconds(timeout_s)?),
+        Command::Health { json, timeout_s, zenoh, key_prefix } => match (zenoh.as_deref(), key_prefix.as_deref()) {
+            (Some(endpoint), Some(key_prefix)) => health::remote(endpoint, key_prefix, json, seconds(timeout_s)?),
+            _ => health::health(&prefix, json, seconds(timeout_s)?),
+        },
+        Command::Query { text, k, json, timeout_s, zenoh, key_prefix } => {
+            let from = match (zenoh.as_deref(), key_prefix.as_deref()) {
+                (Some(endpoint), Some(key_prefix)) => query::From::Zenoh { endpoint, key_prefix },
+                _ => query::From::Iceoryx2 { prefix: &prefix },
+            };
+            query::query(from, &text, k, json, seconds(timeout_s)?)
+        }
         Command::Bench { command: BenchCommand::Query { rooms, json } } => {
             query::bench(rooms.profile.as_deref(), &rooms.sets(), rooms.seed, json.as_deref())
         }
-        Command::Goal { target, json, timeout_s } => goal::goal(&prefix, &target, json, seconds(timeout_s)?),
+        Command::Goal { target, json, timeout_s, zenoh, key_prefix } => {
+            let from = match (zenoh.as_deref(), key_prefix.as_deref()) {
+                (Some(endpoint), Some(key_prefix)) => query::From::Zenoh { endpoint, key_prefix },
+                _ => query::From::Iceoryx2 { prefix: &prefix },
+            };
+            goal::goal(from, &target, json, seconds(timeout_s)?)
+        }
         Command::Bench { command: BenchCommand::Nav { rooms, json } } => {
             goal::bench(rooms.profile.as_deref(), &rooms.sets(), rooms.seed, json.as_deref())
         }

@@ -5,7 +5,8 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
-use op3dsg_ipc_types::{QueryClient, QueryStatus};
+use op3dsg_ipc_types::client::RemoteRequester;
+use op3dsg_ipc_types::{QueryClient, QueryRequest, QueryResponse, QueryStatus};
 use serde::Serialize;
 
 use super::{node_name, write_output};
@@ -60,16 +61,54 @@ pub(super) fn open_client(prefix: &str, timeout: Duration) -> Result<(QueryClien
     Ok((client, timeout.saturating_sub(started.elapsed()).max(Duration::from_millis(100))))
 }
 
+/// Where the query service is.
+pub(super) enum From<'a> {
+    /// The daemon on this computer, over iceoryx2.
+    Iceoryx2 {
+        /// `--prefix`.
+        prefix: &'a str,
+    },
+    /// A daemon's Zenoh queryable `<key_prefix>/query`, from another computer.
+    Zenoh {
+        /// The endpoint to connect to as a client.
+        endpoint: &'a str,
+        /// The daemon's `zenoh.key_prefix`.
+        key_prefix: &'a str,
+    },
+}
+
+/// Sends `request` to the service of `from`; the response and the service's name (for errors).
+pub(super) fn ask(from: &From<'_>, request: &QueryRequest, timeout: Duration) -> Result<(QueryResponse, String)> {
+    match *from {
+        From::Iceoryx2 { prefix } => {
+            let (client, left) = open_client(prefix, timeout)?;
+            Ok((client.request(request, left)?, client.service_name().to_owned()))
+        }
+        From::Zenoh { endpoint, key_prefix } => {
+            let remote = RemoteRequester::connect(endpoint, key_prefix)?;
+            let response = remote.query(request, timeout)?;
+            Ok((response, format!("{} on {endpoint}", remote.key("query"))))
+        }
+    }
+}
+
+/// The response when its status is `Ok`, else an error with the daemon's message.
+pub(super) fn check_status(response: &QueryResponse, service: &str) -> Result<()> {
+    match response.query_status() {
+        Some(QueryStatus::Ok) => Ok(()),
+        Some(status) => bail!("{service}: {} ({})", response.message_str(), status.as_str()),
+        None => bail!("{service}: unknown status {} in the reply", response.status),
+    }
+}
+
 /// `op3dsg query TEXT`: prints the top-k nodes (a table, or JSON); exits with an error naming
 /// the cause when the daemon is not running, has no text encoder, refuses (busy) or times out.
-pub(super) fn query(prefix: &str, text: &str, k: u32, json: bool, timeout: Duration) -> Result<()> {
-    let (client, left) = open_client(prefix, timeout)?;
-    let response = client.query(text, k, left)?;
-    match response.query_status() {
-        Some(QueryStatus::Ok) => {}
-        Some(status) => bail!("{}: {} ({})", client.service_name(), response.message_str(), status.as_str()),
-        None => bail!("{}: unknown status {} in the reply", client.service_name(), response.status),
-    }
+pub(super) fn query(from: From<'_>, text: &str, k: u32, json: bool, timeout: Duration) -> Result<()> {
+    let Some(request) = QueryRequest::new(text, k) else {
+        bail!("TEXT: longer than {} bytes", op3dsg_ipc_types::QUERY_TEXT_CAPACITY_BYTES);
+    };
+    let (response, service) = ask(&from, &request, timeout)?;
+    check_status(&response, &service)?;
     let hits: Vec<HitJson<'_>> = response
         .hits()
         .iter()
