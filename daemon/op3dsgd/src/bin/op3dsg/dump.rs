@@ -13,6 +13,7 @@ use op3dsg_ipc_types::{EdgeKind, Graph, GraphSubscriber, NodeView};
 use op3dsg_runtime::ipc::graph_to_scene_graph;
 use serde_json::{Value, json};
 
+use super::DaemonAt;
 use super::{connect_error, node_name, poll_until, write_output};
 
 /// What `op3dsg dump` prints.
@@ -26,29 +27,12 @@ pub(super) enum DumpFormat {
     Llm,
 }
 
-/// Where `op3dsg dump` reads the graph.
-#[derive(Debug, Clone, Copy)]
-pub(super) enum From<'a> {
-    /// The daemon's iceoryx2 services on this computer.
-    Iceoryx2 {
-        /// Their prefix.
-        prefix: &'a str,
-    },
-    /// A daemon's Zenoh keys, from another computer.
-    Zenoh {
-        /// The endpoint to connect to as a client.
-        endpoint: &'a str,
-        /// The daemon's `zenoh.key_prefix`.
-        key_prefix: &'a str,
-    },
-}
-
 /// `op3dsg dump`: waits up to `timeout` for the daemon and its first graph, then writes it to
 /// `out` (or standard output).
-pub(super) fn dump(from: From<'_>, format: DumpFormat, timeout: Duration, out: Option<&Path>) -> Result<()> {
+pub(super) fn dump(from: DaemonAt<'_>, format: DumpFormat, timeout: Duration, out: Option<&Path>) -> Result<()> {
     let graph = match from {
-        From::Iceoryx2 { prefix } => local_graph(prefix, timeout)?,
-        From::Zenoh { endpoint, key_prefix } => {
+        DaemonAt::Iceoryx2 { prefix } => local_graph(prefix, timeout)?,
+        DaemonAt::Zenoh { endpoint, key_prefix } => {
             let mut remote = RemoteGraphSubscriber::connect(endpoint, key_prefix)?;
             remote.wait_graph(timeout)?
         }

@@ -9,7 +9,8 @@ use anyhow::{Context, Result, bail};
 use op3dsg_ipc_types::{ApproachStatus, QueryRequest};
 use serde::Serialize;
 
-use super::query::{From, ask, check_status};
+use super::DaemonAt;
+use super::query::{ask, check_status};
 use super::write_output;
 
 #[derive(Serialize)]
@@ -35,7 +36,7 @@ struct GoalJson<'a> {
 /// `op3dsg goal TARGET`: TARGET all digits is a node id, anything else a query whose top hit is
 /// the node. Prints the approach pose (or JSON); exits 1 with the reason when there is none
 /// (no free cell within the standoff band, unreachable, no map) or the daemon cannot answer.
-pub(super) fn goal(from: From<'_>, target: &str, json: bool, timeout: Duration) -> Result<()> {
+pub(super) fn goal(from: DaemonAt<'_>, target: &str, json: bool, timeout: Duration) -> Result<()> {
     let target = target.trim();
     let node_id = target.parse::<u32>().ok();
     let request = match node_id {

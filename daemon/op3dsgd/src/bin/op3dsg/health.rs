@@ -23,15 +23,7 @@ pub(super) fn health(prefix: &str, json: bool, timeout: Duration) -> Result<()> 
     else {
         bail!("no health record received on service {prefix}/health within {:.1} s", timeout.as_secs_f64());
     };
-    let report = HealthReport::from(&record);
-    let text = if json {
-        let mut text = serde_json::to_string_pretty(&report).context("serialising the health JSON")?;
-        text.push('\n');
-        text
-    } else {
-        health_text(&report)
-    };
-    write_output(None, &text)
+    print_report(&HealthReport::from(&record), json)
 }
 
 /// `op3dsg health --zenoh`: the newest record from the queryable `<key_prefix>/health` of a
@@ -42,12 +34,17 @@ pub(super) fn remote(endpoint: &str, key_prefix: &str, json: bool, timeout: Dura
     let report: HealthReport = serde_json::from_str(&record).with_context(|| {
         format!("{} on {endpoint}: the health record is not the expected JSON", remote.key("health"))
     })?;
+    print_report(&report, json)
+}
+
+/// Prints a health report as `op3dsg health` does: pretty JSON or the text form.
+fn print_report(report: &HealthReport, json: bool) -> Result<()> {
     let text = if json {
-        let mut text = serde_json::to_string_pretty(&report).context("serialising the health JSON")?;
+        let mut text = serde_json::to_string_pretty(report).context("serialising the health JSON")?;
         text.push('\n');
         text
     } else {
-        health_text(&report)
+        health_text(report)
     };
     write_output(None, &text)
 }

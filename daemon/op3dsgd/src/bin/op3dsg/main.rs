@@ -358,6 +358,33 @@ fn main() -> std::process::ExitCode {
     }
 }
 
+/// Where a subcommand finds the daemon: on this computer over iceoryx2, or on another computer
+/// through its Zenoh keys (`--zenoh ENDPOINT --key-prefix P`, which clap makes go together).
+#[derive(Debug, Clone, Copy)]
+enum DaemonAt<'a> {
+    /// The daemon's iceoryx2 services on this computer.
+    Iceoryx2 {
+        /// Their prefix.
+        prefix: &'a str,
+    },
+    /// A daemon's Zenoh keys, from another computer.
+    Zenoh {
+        /// The endpoint to connect to as a client.
+        endpoint: &'a str,
+        /// The daemon's `zenoh.key_prefix`.
+        key_prefix: &'a str,
+    },
+}
+
+impl<'a> DaemonAt<'a> {
+    fn new(prefix: &'a str, zenoh: Option<&'a str>, key_prefix: Option<&'a str>) -> Self {
+        match (zenoh, key_prefix) {
+            (Some(endpoint), Some(key_prefix)) => Self::Zenoh { endpoint, key_prefix },
+            _ => Self::Iceoryx2 { prefix },
+        }
+    }
+}
+
 fn run(cli: Cli) -> Result<()> {
     let prefix = cli.prefix;
     op3dsg_ipc_types::validate_prefix(&prefix).map_err(|e| anyhow::anyhow!("--prefix / {PREFIX_ENV}: {e}"))?;
@@ -365,31 +392,26 @@ fn run(cli: Cli) -> Result<()> {
         Command::Watch { interval_ms } => watch::watch(&prefix, Duration::from_millis(interval_ms)),
         Command::Dump { format, json, timeout_s, out, zenoh, key_prefix } => {
             let format = if json { dump::DumpFormat::Json } else { format };
-            let from = match (zenoh.as_deref(), key_prefix.as_deref()) {
-                (Some(endpoint), Some(key_prefix)) => dump::From::Zenoh { endpoint, key_prefix },
-                _ => dump::From::Iceoryx2 { prefix: &prefix },
-            };
+            let from = DaemonAt::new(&prefix, zenoh.as_deref(), key_prefix.as_deref());
             dump::dump(from, format, seconds(timeout_s)?, out.as_deref())
         }
-        Command::Health { json, timeout_s, zenoh, key_prefix } => match (zenoh.as_deref(), key_prefix.as_deref()) {
-            (Some(endpoint), Some(key_prefix)) => health::remote(endpoint, key_prefix, json, seconds(timeout_s)?),
-            _ => health::health(&prefix, json, seconds(timeout_s)?),
-        },
+        Command::Health { json, timeout_s, zenoh, key_prefix } => {
+            match DaemonAt::new(&prefix, zenoh.as_deref(), key_prefix.as_deref()) {
+                DaemonAt::Zenoh { endpoint, key_prefix } => {
+                    health::remote(endpoint, key_prefix, json, seconds(timeout_s)?)
+                }
+                DaemonAt::Iceoryx2 { prefix } => health::health(prefix, json, seconds(timeout_s)?),
+            }
+        }
         Command::Query { text, k, json, timeout_s, zenoh, key_prefix } => {
-            let from = match (zenoh.as_deref(), key_prefix.as_deref()) {
-                (Some(endpoint), Some(key_prefix)) => query::From::Zenoh { endpoint, key_prefix },
-                _ => query::From::Iceoryx2 { prefix: &prefix },
-            };
+            let from = DaemonAt::new(&prefix, zenoh.as_deref(), key_prefix.as_deref());
             query::query(from, &text, k, json, seconds(timeout_s)?)
         }
         Command::Bench { command: BenchCommand::Query { rooms, json } } => {
             query::bench(rooms.profile.as_deref(), &rooms.sets(), rooms.seed, json.as_deref())
         }
         Command::Goal { target, json, timeout_s, zenoh, key_prefix } => {
-            let from = match (zenoh.as_deref(), key_prefix.as_deref()) {
-                (Some(endpoint), Some(key_prefix)) => query::From::Zenoh { endpoint, key_prefix },
-                _ => query::From::Iceoryx2 { prefix: &prefix },
-            };
+            let from = DaemonAt::new(&prefix, zenoh.as_deref(), key_prefix.as_deref());
             goal::goal(from, &target, json, seconds(timeout_s)?)
         }
         Command::Bench { command: BenchCommand::Nav { rooms, json } } => {

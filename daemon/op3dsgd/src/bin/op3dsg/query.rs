@@ -9,6 +9,7 @@ use op3dsg_ipc_types::client::RemoteRequester;
 use op3dsg_ipc_types::{QueryClient, QueryRequest, QueryResponse, QueryStatus};
 use serde::Serialize;
 
+use super::DaemonAt;
 use super::{node_name, write_output};
 
 #[derive(Serialize)]
@@ -61,30 +62,14 @@ pub(super) fn open_client(prefix: &str, timeout: Duration) -> Result<(QueryClien
     Ok((client, timeout.saturating_sub(started.elapsed()).max(Duration::from_millis(100))))
 }
 
-/// Where the query service is.
-pub(super) enum From<'a> {
-    /// The daemon on this computer, over iceoryx2.
-    Iceoryx2 {
-        /// `--prefix`.
-        prefix: &'a str,
-    },
-    /// A daemon's Zenoh queryable `<key_prefix>/query`, from another computer.
-    Zenoh {
-        /// The endpoint to connect to as a client.
-        endpoint: &'a str,
-        /// The daemon's `zenoh.key_prefix`.
-        key_prefix: &'a str,
-    },
-}
-
 /// Sends `request` to the service of `from`; the response and the service's name (for errors).
-pub(super) fn ask(from: &From<'_>, request: &QueryRequest, timeout: Duration) -> Result<(QueryResponse, String)> {
+pub(super) fn ask(from: &DaemonAt<'_>, request: &QueryRequest, timeout: Duration) -> Result<(QueryResponse, String)> {
     match *from {
-        From::Iceoryx2 { prefix } => {
+        DaemonAt::Iceoryx2 { prefix } => {
             let (client, left) = open_client(prefix, timeout)?;
             Ok((client.request(request, left)?, client.service_name().to_owned()))
         }
-        From::Zenoh { endpoint, key_prefix } => {
+        DaemonAt::Zenoh { endpoint, key_prefix } => {
             let remote = RemoteRequester::connect(endpoint, key_prefix)?;
             let response = remote.query(request, timeout)?;
             Ok((response, format!("{} on {endpoint}", remote.key("query"))))
@@ -103,7 +88,7 @@ pub(super) fn check_status(response: &QueryResponse, service: &str) -> Result<()
 
 /// `op3dsg query TEXT`: prints the top-k nodes (a table, or JSON); exits with an error naming
 /// the cause when the daemon is not running, has no text encoder, refuses (busy) or times out.
-pub(super) fn query(from: From<'_>, text: &str, k: u32, json: bool, timeout: Duration) -> Result<()> {
+pub(super) fn query(from: DaemonAt<'_>, text: &str, k: u32, json: bool, timeout: Duration) -> Result<()> {
     let Some(request) = QueryRequest::new(text, k) else {
         bail!("TEXT: longer than {} bytes", op3dsg_ipc_types::QUERY_TEXT_CAPACITY_BYTES);
     };
