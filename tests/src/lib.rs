@@ -21,6 +21,12 @@ use op3dsg_ipc_types::{GraphSubscriber, Health, HealthSubscriber};
 
 static NEXT: AtomicUsize = AtomicUsize::new(0);
 
+/// Whether this process runs as root (the tests that switch users, install into a scratch root or
+/// make a network namespace need it; CI runs as root).
+pub fn is_root() -> bool {
+    op3dsg_ipc_types::access::effective_uid() == 0
+}
+
 /// A prefix no other test or test run uses.
 pub fn unique_prefix(name: &str) -> String {
     iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);

@@ -26,7 +26,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use op3dsg_tests::{binary, unique_prefix, wait_for};
+use op3dsg_tests::{binary, is_root, unique_prefix, wait_for};
 
 /// The PATH dpkg and the maintainer scripts run with (useradd, ldconfig are in sbin).
 const SYSTEM_PATH: &str = "/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin";
@@ -131,10 +131,6 @@ fn dpkg(root: &Path, args: &[&str]) -> Output {
             .args(["--force-script-chrootless", "--force-not-root", "--force-depends", "--log=/dev/null"])
             .args(args),
     )
-}
-
-fn is_root() -> bool {
-    run("id -u", Command::new("id").arg("-u")).stdout.trim_ascii() == b"0"
 }
 
 fn check_installed_files(root: &Path, postinst: &str) {

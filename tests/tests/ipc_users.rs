@@ -25,7 +25,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use op3dsg_tests::{binary, unique_prefix};
+use op3dsg_tests::{binary, is_root, unique_prefix};
 
 /// The daemon's user, a member of its group, an outsider (no accounts: bare ids).
 const A: u32 = 47_101;
@@ -37,7 +37,7 @@ const REPO: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
 #[test]
 fn only_the_daemons_user_attaches_and_nothing_is_open_to_others() {
     assert!(
-        nix_euid_is_root(),
+        is_root(),
         "this test starts processes as other users with setpriv and must run as root (CI does); \
          run it with sudo, or leave it out with --skip ipc_users"
     );
@@ -142,10 +142,6 @@ impl Drop for Killed {
     fn drop(&mut self) {
         self.kill_9();
     }
-}
-
-fn nix_euid_is_root() -> bool {
-    op3dsg_ipc_types::access::effective_uid() == 0
 }
 
 /// Every entry under the root, and every `/dev/shm/op3dsg_*` of uid A, has no permission bit for

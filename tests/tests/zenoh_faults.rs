@@ -16,7 +16,7 @@ use std::sync::{Arc, Mutex};
 use std::thread;
 use std::time::{Duration, Instant};
 
-use op3dsg_tests::{Daemon, binary, unique_prefix, wait_for};
+use op3dsg_tests::{Daemon, binary, is_root, unique_prefix, wait_for};
 use serde_json::Value;
 
 mod zenoh_common;
@@ -433,10 +433,6 @@ impl Drop for Netns {
 }
 
 /// Whether this process runs as root (network namespaces and `tc` need it).
-fn is_root() -> bool {
-    Command::new("id").arg("-u").output().is_ok_and(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
-}
-
 #[test]
 fn a_consumer_behind_a_10_mbit_link_converges() {
     if !is_root() {
