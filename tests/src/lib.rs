@@ -17,7 +17,12 @@ use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
-use op3dsg_ipc_types::{GraphSubscriber, Health, HealthSubscriber};
+use op3dsg_ipc_types::iceoryx2::node::Node;
+use op3dsg_ipc_types::iceoryx2::port::subscriber::Subscriber;
+use op3dsg_ipc_types::iceoryx2::prelude::ServiceName;
+use op3dsg_ipc_types::iceoryx2::service::port_factory::publish_subscribe::PortFactory;
+use op3dsg_ipc_types::services::{IpcService, occupancy_service_name};
+use op3dsg_ipc_types::{GraphSubscriber, Health, HealthSubscriber, OccupancyHeader};
 
 static NEXT: AtomicUsize = AtomicUsize::new(0);
 
@@ -157,4 +162,22 @@ pub fn health_with_frames_above(health: &mut HealthSubscriber, above: u64, timeo
     wait_for(&format!("health with frames_captured > {above}"), timeout, || {
         health.latest().ok().flatten().filter(|h| h.frames_captured > above)
     })
+}
+
+/// `<prefix>/occupancy`, opened as any client opens it, once the daemon has created it.
+pub fn open_occupancy_service(node: &Node<IpcService>, prefix: &str) -> PortFactory<IpcService, [i8], OccupancyHeader> {
+    let name = ServiceName::new(&occupancy_service_name(prefix)).expect("service name");
+    wait_for("the occupancy service", Duration::from_secs(60), || {
+        node.service_builder(&name).publish_subscribe::<[i8]>().user_header::<OccupancyHeader>().open().ok()
+    })
+}
+
+/// Takes every occupancy sample `subscriber` holds; the newest (header and cells) lands in `last`.
+pub fn latest_map(
+    subscriber: &Subscriber<IpcService, [i8], OccupancyHeader>,
+    last: &mut Option<(OccupancyHeader, Vec<i8>)>,
+) {
+    while let Ok(Some(sample)) = subscriber.receive() {
+        *last = Some((*sample.user_header(), sample.payload().to_vec()));
+    }
 }

@@ -30,17 +30,7 @@ use op3dsg_ipc_types::{
     ApproachStatus, Graph, NodeView, OCCUPANCY_FREE_MAX_PERCENT, OCCUPANCY_OCCUPIED_MIN_PERCENT,
     OCCUPANCY_SCHEMA_VERSION, OccupancyHeader, QueryClient, QueryHit, QueryStatus,
 };
-use op3dsg_tests::{Daemon, binary, unique_prefix, wait_for};
-
-/// The newest occupancy sample: header and cells.
-fn latest_map(
-    subscriber: &op3dsg_ipc_types::iceoryx2::port::subscriber::Subscriber<IpcService, [i8], OccupancyHeader>,
-    last: &mut Option<(OccupancyHeader, Vec<i8>)>,
-) {
-    while let Ok(Some(sample)) = subscriber.receive() {
-        *last = Some((*sample.user_header(), sample.payload().to_vec()));
-    }
-}
+use op3dsg_tests::{Daemon, binary, latest_map, open_occupancy_service, unique_prefix};
 
 #[test]
 fn a_planner_gets_approach_poses_on_free_cells_of_the_published_map() {
@@ -103,14 +93,6 @@ fn a_planner_gets_approach_poses_on_free_cells_of_the_published_map() {
     assert_cli_prints_a_goal(&prefix, graph);
     assert_cli_goal_from_text_needs_the_encoder(&prefix);
     drop(daemon);
-}
-
-/// `<prefix>/occupancy`, opened as any client opens it, once the daemon has created it.
-fn open_occupancy_service(node: &Node<IpcService>, prefix: &str) -> PortFactory<IpcService, [i8], OccupancyHeader> {
-    let name = ServiceName::new(&occupancy_service_name(prefix)).expect("service name");
-    wait_for("the occupancy service", Duration::from_secs(60), || {
-        node.service_builder(&name).publish_subscribe::<[i8]>().user_header::<OccupancyHeader>().open().ok()
-    })
 }
 
 /// What the query of one node gave.

@@ -11,7 +11,11 @@ use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use op3dsg_tests::{Daemon, binary, health_where, unique_prefix};
+use op3dsg_ipc_types::OccupancyHeader;
+use op3dsg_ipc_types::client::RemoteRequester;
+use op3dsg_ipc_types::iceoryx2::prelude::NodeBuilder;
+use op3dsg_ipc_types::services::IpcService;
+use op3dsg_tests::{Daemon, binary, health_where, latest_map, open_occupancy_service, unique_prefix};
 use serde_json::Value;
 
 mod zenoh_common;
@@ -224,6 +228,9 @@ fn query_goal_and_health_over_zenoh_answer_as_over_iceoryx2() {
     // A consumer in Python from the documented bytes alone.
     python_agrees(&endpoint, &key_prefix, text, &here, &health_here);
 
+    // The occupancy map: what iceoryx2 carries, over Zenoh.
+    occupancy_agrees(&prefix, &endpoint, &key_prefix);
+
     // Another key prefix: no daemon answers, and the error says which key on which endpoint.
     let wrong = format!("{key_prefix}-not-there");
     let started = Instant::now();
@@ -245,6 +252,44 @@ fn without_a_daemon_the_zenoh_commands_name_the_endpoint() {
         assert!(!output.status.success(), "op3dsg {args:?} without a daemon succeeded");
         assert!(stderr.contains(&endpoint), "op3dsg {args:?}: {stderr}");
         assert!(started.elapsed() < Duration::from_secs(30), "op3dsg {args:?} took {:?}", started.elapsed());
+    }
+}
+
+/// `<key_prefix>/occupancy` (the Rust client's `RemoteRequester::occupancy`) answers the map the
+/// daemon publishes on `<prefix>/occupancy` over iceoryx2: the same cells and the same header,
+/// but for the figures of each send (its time, the integration cost of the period before it).
+fn occupancy_agrees(prefix: &str, endpoint: &str, key_prefix: &str) {
+    let node = NodeBuilder::new()
+        .config(&op3dsg_ipc_types::access::creator_config().expect("IPC root"))
+        .create::<IpcService>()
+        .expect("a plain iceoryx2 node");
+    let subscriber = open_occupancy_service(&node, prefix).subscriber_builder().create().expect("occupancy subscriber");
+    let remote = RemoteRequester::connect(endpoint, key_prefix).expect("zenoh client");
+    let sent_alike = |h: &OccupancyHeader| OccupancyHeader { publish_time_ns: 0, integrate_p50_us: 0, integrate_p99_us: 0, ..*h };
+    let mut local = None;
+    let started = Instant::now();
+    loop {
+        latest_map(&subscriber, &mut local);
+        let (envelope, header, cells) = remote.occupancy(Duration::from_secs(10)).expect("the map over Zenoh");
+        assert_eq!(envelope.instance_id, header.instance_id, "the envelope names the map's daemon instance");
+        assert_eq!(cells.len(), header.cell_count());
+        if let Some((here, here_cells)) = &local
+            && sent_alike(here) == sent_alike(&header)
+            && *here_cells == cells
+        {
+            assert!(header.keyframes_integrated > 0 && header.free_cells > 0, "a map that was built: {header:?}");
+            eprintln!(
+                "occupancy over Zenoh: map {} of {}x{} cells, {} free, {} occupied, {} keyframes",
+                envelope.version, header.width_cells, header.height_cells, header.free_cells, header.occupied_cells,
+                header.keyframes_integrated
+            );
+            return;
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(60),
+            "the occupancy maps over iceoryx2 and Zenoh never agreed: {local:?} vs {header:?}"
+        );
+        std::thread::sleep(Duration::from_millis(500));
     }
 }
 

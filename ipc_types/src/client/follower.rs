@@ -55,6 +55,9 @@ impl RemoteFollower {
     /// Applies one message.
     pub fn apply(&mut self, message: &[u8]) -> Result<Applied, RemoteError> {
         let envelope = Envelope::read(message)?;
+        if envelope.kind == MessageKind::Occupancy {
+            return Err(RemoteError::WrongKind { found: envelope.kind, expected: "a graph, a delta or health" });
+        }
         if !self.instances.contains(&envelope.instance_id) {
             self.instances.push(envelope.instance_id);
         }

@@ -48,8 +48,9 @@ pub(super) fn open_client_session(endpoint: &str) -> Result<zenoh::Session, Remo
 pub struct RemoteGraphSubscriber {
     session: zenoh::Session,
     key: String,
-    subscribers: [Subscriber<FifoChannelHandler<Sample>>; 2],
+    subscribers: [Subscriber<FifoChannelHandler<Sample>>; 3],
     follower: RemoteFollower,
+    health: Option<String>,
     errors: u64,
 }
 
@@ -62,7 +63,7 @@ impl std::fmt::Debug for RemoteGraphSubscriber {
 impl RemoteGraphSubscriber {
     /// Connects as a Zenoh client to `endpoint` (e.g. `tcp/192.168.1.20:7447`, the daemon's
     /// `zenoh.listen` or a router), multicast scouting off, and subscribes under `key_prefix`
-    /// (the daemon's `zenoh.key_prefix`).
+    /// (the daemon's `zenoh.key_prefix`) to the graph, its deltas and the health record.
     pub fn connect(endpoint: &str, key_prefix: &str) -> Result<Self, RemoteClientError> {
         let fail = |what: &str, e: &dyn std::fmt::Display| RemoteClientError(format!("{what}: {e}"));
         let session = open_client_session(endpoint)?;
@@ -70,26 +71,50 @@ impl RemoteGraphSubscriber {
         let subscribe = |key: String| {
             session.declare_subscriber(key.clone()).wait().map_err(|e| fail(&format!("subscribing to {key}"), &e))
         };
-        let subscribers = [subscribe(format!("{key}/delta"))?, subscribe(key.clone())?];
-        Ok(Self { session, key, subscribers, follower: RemoteFollower::new(), errors: 0 })
+        let subscribers = [
+            subscribe(format!("{key}/delta"))?,
+            subscribe(key.clone())?,
+            subscribe(format!("{key_prefix}/health"))?,
+        ];
+        Ok(Self { session, key, subscribers, follower: RemoteFollower::new(), health: None, errors: 0 })
     }
 
     /// Applies what arrived since the last call (asking the queryable for a full graph when
     /// none is held) and returns the graph held, if any.
     pub fn latest(&mut self) -> Result<Option<Graph>, RemoteClientError> {
-        if self.follower.held().is_none() {
+        self.poll()?;
+        self.graph()
+    }
+
+    /// Applies what arrived since the last call (asking the queryable for a full graph when
+    /// none is held); whether the graph held is now another version than before.
+    pub fn poll(&mut self) -> Result<bool, RemoteClientError> {
+        let before = self.follower.held();
+        if before.is_none() {
             self.fetch_full()?;
         }
         for i in 0..self.subscribers.len() {
             while let Ok(Some(sample)) = self.subscribers[i].try_recv() {
                 match self.follower.apply(&sample.payload().to_bytes()) {
                     Ok(Applied::NeedFull) => self.fetch_full()?,
+                    Ok(Applied::Health(json)) => self.health = Some(json),
                     Ok(_) => {}
                     Err(_) => self.errors += 1,
                 }
             }
         }
+        Ok(self.follower.held() != before)
+    }
+
+    /// The graph held, if any (built from the records held; [`Self::poll`] brings it on).
+    pub fn graph(&self) -> Result<Option<Graph>, RemoteClientError> {
         self.follower.graph().transpose().map_err(|e: SnapshotError| RemoteClientError(format!("{}: {e}", self.key)))
+    }
+
+    /// The newest health record received on `<prefix>/health` (JSON, the object
+    /// `op3dsg health --json` prints), if one came since the subscriber connected.
+    pub fn health_json(&self) -> Option<&str> {
+        self.health.as_deref()
     }
 
     /// [`Self::latest`] until a graph is held, at most `timeout`.

@@ -1,7 +1,7 @@
 //! [`RemoteRequester`]: one-shot requests to a daemon's Zenoh queryables from another computer
 //! (cargo feature `zenoh`): a language query or a node's approach pose on `<prefix>/query` (the
 //! bytes of the iceoryx2 [`QueryRequest`] and [`QueryResponse`]), the newest health record on
-//! `<prefix>/health`.
+//! `<prefix>/health`, the newest occupancy map on `<prefix>/occupancy`.
 
 use std::time::Duration;
 
@@ -10,7 +10,7 @@ use zenoh::qos::CongestionControl;
 
 use super::remote::{RemoteClientError, open_client_session};
 use crate::remote::{Envelope, MessageKind};
-use crate::{QueryRequest, QueryResponse};
+use crate::{OccupancyHeader, QueryRequest, QueryResponse};
 
 /// A client session to one daemon's Zenoh endpoint and key prefix, for requests.
 ///
@@ -89,6 +89,26 @@ impl RemoteRequester {
         let json = std::str::from_utf8(&bytes[crate::remote::ENVELOPE_BYTES..])
             .map_err(|e| bad(format!("health JSON is not UTF-8: {e}")))?;
         Ok((envelope, json.to_owned()))
+    }
+
+    /// The newest occupancy map from `<prefix>/occupancy`: its envelope (`version` counts the
+    /// maps the daemon published), header and cells (row-major, as [`OccupancyHeader`]
+    /// documents them). A daemon with `occupancy.enabled = false` answers nothing: the error
+    /// says no daemon answered.
+    pub fn occupancy(&self, timeout: Duration) -> Result<(Envelope, OccupancyHeader, Vec<i8>), RemoteClientError> {
+        let key = self.key("occupancy");
+        let bytes = self.first_reply(&key, None, timeout)?;
+        let (envelope, header, cells) = crate::remote::read_occupancy(&bytes)
+            .map_err(|e| RemoteClientError(format!("{key} on {}: {e}", self.endpoint)))?;
+        if header.schema_version != crate::OCCUPANCY_SCHEMA_VERSION {
+            return Err(RemoteClientError(format!(
+                "{key} on {}: the daemon sends occupancy schema {}, this client reads {}",
+                self.endpoint,
+                header.schema_version,
+                crate::OCCUPANCY_SCHEMA_VERSION
+            )));
+        }
+        Ok((envelope, header, cells.to_vec()))
     }
 
     /// The payload of the first reply to a query on `key`, asked with congestion control `drop`

@@ -11,7 +11,6 @@ use tracing::info;
 
 use super::OccupancyGrid;
 use crate::ipc::{IpcConfig, IpcError, IpcService, create_node, new_instance_id, service_err, service_name};
-use crate::world::clock::wall_clock_ns;
 
 /// The occupancy publisher: its own iceoryx2 node, service and publisher.
 #[derive(Debug)]
@@ -52,15 +51,19 @@ impl OccupancyPublisher {
         Ok(Self { publisher, service: full, instance_id: new_instance_id(), _node: node })
     }
 
-    /// Publishes `grid` with the period's figures in `header`'s `integrate_*` fields.
+    /// The instance id stamped into every header (drawn at start).
+    pub fn instance_id(&self) -> u64 {
+        self.instance_id
+    }
+
+    /// Publishes `grid` with `header` as the caller made it (instance id, send time, the period's
+    /// `integrate_*` figures); the free and occupied counts are those of the cells written.
     pub fn publish(&self, grid: &OccupancyGrid, mut header: OccupancyHeader) -> Result<(), IpcError> {
         let cells = grid.geometry().cell_count();
         let mut sample = self.publisher.loan_slice(cells).map_err(|e| service_err(&self.service, "loan", e))?;
         let (free, occupied) = grid.write_cells(sample.payload_mut());
         header.free_cells = free;
         header.occupied_cells = occupied;
-        header.instance_id = self.instance_id;
-        header.publish_time_ns = wall_clock_ns();
         *sample.user_header_mut() = header;
         sample.send().map(|_| ()).map_err(|e| service_err(&self.service, "send", e))
     }

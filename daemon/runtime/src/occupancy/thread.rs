@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! keyframe gate ──[scans: bounded, occupancy.queue_capacity, drop when full]──► occupancy ──► <prefix>/occupancy (1 Hz)
-//!        ▲                                                                          │  └───► LatestOccupancy (query worker)
+//!        ▲                                                                          │  └───► LatestOccupancy (query worker, Zenoh)
 //!        └──────────────────[free scan buffers: the same capacity]─────────────────┘
 //! ```
 //!
@@ -26,11 +26,13 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::{Receiver, RecvTimeoutError, Sender};
 use op3dsg_drivers::frame::Frame;
 use op3dsg_drivers::pose::Isometry;
+use op3dsg_ipc_types::OccupancyHeader;
 use tracing::warn;
 
 use super::persist::OccupancyStore;
 use super::{DepthScan, GridGeometry, OccupancyGrid, OccupancyPublisher, RobotPose};
 use crate::queue::Latest;
+use crate::world::clock::wall_clock_ns;
 use crate::stats::StageStats;
 
 /// How long the thread waits for a scan before it checks the clock and the stop flag.
@@ -99,26 +101,31 @@ pub struct MapCopy {
     pub cells: Vec<i8>,
     /// The robot's latest pose.
     pub robot: Option<RobotPose>,
+    /// The header the map was published with (`<prefix>/occupancy`; its free and occupied counts
+    /// are those of `cells`).
+    pub header: OccupancyHeader,
 }
 
-/// The newest published map, for the query worker (copied in place; no allocation after the
-/// first copy).
+/// The newest published map, for the query worker and the Zenoh stage (copied in place; no
+/// allocation after the first copy).
 pub type LatestOccupancy = Latest<MapCopy>;
 
-/// Replaces the map in `latest` with `grid`'s cells.
-fn share(latest: &LatestOccupancy, grid: &OccupancyGrid) {
+/// Replaces the map in `latest` with `grid`'s cells and the `header` they are published with.
+fn share(latest: &LatestOccupancy, grid: &OccupancyGrid, header: OccupancyHeader) {
     latest.update(|slot| {
         let copy = slot.get_or_insert_with(|| MapCopy {
             version: 0,
             geometry: grid.geometry(),
             cells: vec![0; grid.geometry().cell_count()],
             robot: None,
+            header,
         });
         copy.version += 1;
         copy.geometry = grid.geometry();
         copy.cells.resize(grid.geometry().cell_count(), 0);
-        grid.write_cells(&mut copy.cells);
+        let (free, occupied) = grid.write_cells(&mut copy.cells);
         copy.robot = grid.robot();
+        copy.header = OccupancyHeader { free_cells: free, occupied_cells: occupied, ..header };
     });
 }
 
@@ -135,6 +142,7 @@ pub fn copy_if_newer(latest: &LatestOccupancy, out: &mut Option<MapCopy>) -> boo
                 copy.cells.clear();
                 copy.cells.extend_from_slice(&map.cells);
                 copy.robot = map.robot;
+                copy.header = map.header;
             }
             None => *out = Some(map.clone()),
         }
@@ -233,14 +241,16 @@ fn save(thread: &mut OccupancyThread, errors: &mut u64) {
 }
 
 fn publish(thread: &mut OccupancyThread, errors: &mut u64, changed: bool) {
-    if changed && let Some(latest) = &thread.latest {
-        share(latest, &thread.grid);
-    }
     let figures = thread.cost.take_figures();
     let mut header = thread.grid.header();
     header.keyframes_dropped = thread.intake.dropped.load(Ordering::Relaxed);
     header.integrate_p50_us = figures.p50_us as u32;
     header.integrate_p99_us = figures.p99_us as u32;
+    header.instance_id = thread.publisher.instance_id();
+    header.publish_time_ns = wall_clock_ns();
+    if changed && let Some(latest) = &thread.latest {
+        share(latest, &thread.grid, header);
+    }
     if let Err(e) = thread.publisher.publish(&thread.grid, header) {
         *errors += 1;
         if errors.is_power_of_two() {

@@ -149,9 +149,13 @@ impl Pipeline {
         // The Zenoh stage before the publisher that feeds it; the query service, started
         // below, fills in its intake for `<prefix>/query`.
         let remote_queries = crate::flow::RemoteQueries::default();
+        // The occupancy thread's copy of its map, for the query worker and the Zenoh stage.
+        let latest_occupancy = (profile.occupancy.enabled && (query_graph.is_some() || profile.zenoh.enabled))
+            .then(|| Arc::new(Latest::new()));
         let remote = match (q.remote, counters.zenoh.as_ref()) {
             (Some(queue), Some(zenoh)) => {
-                Some(stages::zenoh(&mut s, profile, source.kind(), queue, zenoh, remote_queries.clone())?)
+                let shared = (remote_queries.clone(), latest_occupancy.clone());
+                Some(stages::zenoh(&mut s, profile, source.kind(), queue, zenoh, shared)?)
             }
             _ => None,
         };
@@ -165,8 +169,7 @@ impl Pipeline {
             (query_graph.clone(), remote),
         );
         s.spawn_serving("publish", &ready, move || publisher.run())?;
-        // The occupancy map, fed by the keyframe gate; its copy for the query worker.
-        let latest_occupancy = (profile.occupancy.enabled && query_graph.is_some()).then(|| Arc::new(Latest::new()));
+        // The occupancy map, fed by the keyframe gate.
         let occupancy_feed = if profile.occupancy.enabled {
             let (thread, feed) = stages::occupancy(profile, &source.intrinsics(), latest_occupancy.clone(), &stop)?;
             s.spawn("occupancy", move || thread.run())?;

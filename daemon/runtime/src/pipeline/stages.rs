@@ -225,7 +225,7 @@ pub(super) fn zenoh(
     source_kind: SourceKind,
     queue: RemoteQueue,
     counters: &Arc<ZenohCounters>,
-    queries: RemoteQueries,
+    (queries, occupancy): (RemoteQueries, Option<Arc<LatestOccupancy>>),
 ) -> Result<RemoteFeed, StartError> {
     let (ready, ready_rx) = crossbeam_channel::bounded(1);
     let (graphs_tx, graphs_rx) = queue;
@@ -236,6 +236,7 @@ pub(super) fn zenoh(
         origin: GraphOrigin::new(source_kind, &profile.world.frame_id),
         graphs: graphs_rx,
         health: health.clone(),
+        occupancy,
         queries,
         counters: counters.clone(),
         ready,

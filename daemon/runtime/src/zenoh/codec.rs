@@ -1,15 +1,16 @@
 //! The bytes of every Zenoh message: a fixed envelope, then the body — a full graph (the
-//! iceoryx2 graph sample's header and records, unchanged), a delta against an earlier version, or
-//! the health record as JSON. Little-endian throughout; `docs/remote.md` lays it out field by
-//! field for readers in other languages; the constants, the envelope and the header's bytes are
+//! iceoryx2 graph sample's header and records, unchanged), a delta against an earlier version,
+//! the health record as JSON, or the occupancy map (the iceoryx2 sample's header and cells).
+//! Little-endian throughout; `docs/remote.md` lays it out field by field for readers in other
+//! languages; the constants, the envelope and the header's bytes are
 //! the client library's (`op3dsg_ipc_types::remote`).
 
 use op3dsg_ipc_types::{EDGE_BYTES, GraphHeader, NODE_BYTES};
 
 // The format itself belongs to the client library (its `RemoteFollower` reads it back).
 pub use op3dsg_ipc_types::remote::{
-    DELTA_COUNTS_BYTES, ENVELOPE_BYTES, Envelope, FORMAT_VERSION, HEADER_BYTES, MAGIC, MessageKind, append_header,
-    node_id, read_header,
+    DELTA_COUNTS_BYTES, ENVELOPE_BYTES, Envelope, FORMAT_VERSION, HEADER_BYTES, MAGIC, MessageKind,
+    OCCUPANCY_HEADER_BYTES, append_header, encode_occupancy, node_id, read_header, read_occupancy,
 };
 
 /// A full graph message: envelope, header, then the sample's payload (nodes sorted by id, then

@@ -13,8 +13,10 @@
 //! | `<prefix>/graph` | the full graph: the first version, then every `full_period_s` |
 //! | `<prefix>/graph/delta` | per version sent: the changes from the version before ([`codec::DeltaEncoder`]) |
 //! | `<prefix>/health` | the health record (JSON) at the health rate |
+//! | `<prefix>/occupancy` | the occupancy map, when it changed, at its publish period (`occupancy.enabled`) |
 //! | `<prefix>/graph` (queryable) | the newest full graph, for a consumer that joins |
 //! | `<prefix>/health` (queryable) | the newest health record, as published |
+//! | `<prefix>/occupancy` (queryable) | the newest occupancy map, as published |
 //! | `<prefix>/query` (queryable) | the language query service: the iceoryx2 request and response bytes, answered by the query worker ([`crate::flow::RemoteQueries`]) |
 //!
 //! The bytes are [`codec`]'s; `docs/remote.md` describes them field by field.
@@ -22,7 +24,7 @@
 //! | file | what |
 //! |---|---|
 //! | `config.rs` | `[zenoh]` ([`ZenohConfig`]), the session's Zenoh configuration |
-//! | `codec.rs` | the envelope, full graphs, deltas, health messages |
+//! | `codec.rs` | the envelope, full graphs, deltas, health and occupancy messages |
 //! | `thread.rs` | [`ZenohThread`] and its [`ZenohCounters`] |
 
 pub mod codec;

@@ -1,7 +1,8 @@
 //! The thread `op3dsg-zenoh`: owns the Zenoh session, publishes `<prefix>/graph`,
-//! `<prefix>/graph/delta` and `<prefix>/health`, and answers the queryables `<prefix>/graph` (the
-//! newest full graph), `<prefix>/health` (the newest health record) and `<prefix>/query` (handed
-//! to the language query service's worker, which replies from its own thread).
+//! `<prefix>/graph/delta`, `<prefix>/health` and `<prefix>/occupancy`, and answers the
+//! queryables `<prefix>/graph` (the newest full graph), `<prefix>/health` (the newest health
+//! record), `<prefix>/occupancy` (the newest map) and `<prefix>/query` (handed to the language
+//! query service's worker, which replies from its own thread).
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -15,11 +16,12 @@ use crossbeam_channel::Sender;
 use op3dsg_ipc_types::{Health, QueryRequest, QueryResponse, QueryStatus};
 use tracing::{debug, info, warn};
 
-use super::codec::{DeltaEncoder, encode_full, encode_health};
+use super::codec::{DeltaEncoder, encode_full, encode_health, encode_occupancy};
 use super::config::ZenohConfig;
 use crate::flow::RemoteQueries;
 use crate::graph::SceneGraph;
 use crate::ipc::{GraphCapacity, GraphEncoder, GraphOrigin, HealthReport};
+use crate::occupancy::LatestOccupancy;
 use crate::queue::{Latest, Popped, QueueReceiver};
 use crate::stats::StageStats;
 
@@ -39,6 +41,8 @@ pub struct ZenohCounters {
     pub deltas: AtomicU64,
     /// Health records put on `<prefix>/health`.
     pub healths: AtomicU64,
+    /// Occupancy maps put on `<prefix>/occupancy`.
+    pub occupancies: AtomicU64,
     /// Queries on `<prefix>/graph` answered with a graph.
     pub queries: AtomicU64,
     /// Queries on `<prefix>/query` handed to the query service (answered by it, busy included).
@@ -47,6 +51,10 @@ pub struct ZenohCounters {
     pub last_full_bytes: AtomicU64,
     /// Bytes of the last delta message.
     pub last_delta_bytes: AtomicU64,
+    /// Bytes of every full graph message put.
+    pub full_bytes: AtomicU64,
+    /// Bytes of every delta message put.
+    pub delta_bytes: AtomicU64,
 }
 
 impl Default for ZenohCounters {
@@ -56,10 +64,13 @@ impl Default for ZenohCounters {
             fulls: AtomicU64::new(0),
             deltas: AtomicU64::new(0),
             healths: AtomicU64::new(0),
+            occupancies: AtomicU64::new(0),
             queries: AtomicU64::new(0),
             language_queries: AtomicU64::new(0),
             last_full_bytes: AtomicU64::new(0),
             last_delta_bytes: AtomicU64::new(0),
+            full_bytes: AtomicU64::new(0),
+            delta_bytes: AtomicU64::new(0),
         }
     }
 }
@@ -78,6 +89,8 @@ pub struct ZenohThread {
     pub graphs: QueueReceiver<(Arc<SceneGraph>, u64)>,
     /// The publisher's newest health record.
     pub health: Arc<Latest<(Health, u64)>>,
+    /// The occupancy thread's newest map (`occupancy.enabled`), for `<prefix>/occupancy`.
+    pub occupancy: Option<Arc<LatestOccupancy>>,
     /// The language query service's intake, for `<prefix>/query` (set once it has started).
     pub queries: RemoteQueries,
     /// This stage's figures.
@@ -101,14 +114,15 @@ struct Session {
     graph: Publisher<'static>,
     delta: Publisher<'static>,
     health: Publisher<'static>,
-    _queryables: [Queryable<()>; 3],
+    occupancy: Option<Publisher<'static>>,
+    _queryables: Vec<Queryable<()>>,
 }
 
 impl ZenohThread {
     /// Opens the session, then publishes until the publisher has ended.
     pub fn run(self) {
-        let latest_full: Arc<Latest<Arc<Vec<u8>>>> = Arc::new(Latest::new());
-        let session = match self.open(&latest_full) {
+        let latest = Encoded::default();
+        let session = match self.open(&latest) {
             Ok(session) => {
                 let _ = self.ready.send(Ok(()));
                 session
@@ -123,22 +137,26 @@ impl ZenohThread {
         loop {
             match self.graphs.pop_timeout(TICK) {
                 Popped::Item((graph, instance_id)) => {
-                    self.send_graph(&session, &latest_full, &mut state, &graph, instance_id)
+                    self.send_graph(&session, &latest.full, &mut state, &graph, instance_id)
                 }
                 Popped::Empty => {}
                 Popped::Finished => break,
             }
             if state.last_full.is_some_and(|at| at.elapsed() >= full_period)
-                && let Some(full) = latest_full.get()
+                && let Some(full) = latest.full.get()
             {
-                self.put(&session.graph, full.as_slice(), &self.counters.fulls, Some(&self.counters.last_full_bytes));
+                self.put_full(&session, &full);
                 state.last_full = Some(Instant::now());
             }
             self.send_health(&session, &mut state);
+            self.send_occupancy(&session, &latest.occupancy, &mut state);
         }
         info!(
             fulls = self.counters.fulls.load(Ordering::Relaxed),
             deltas = self.counters.deltas.load(Ordering::Relaxed),
+            full_bytes = self.counters.full_bytes.load(Ordering::Relaxed),
+            delta_bytes = self.counters.delta_bytes.load(Ordering::Relaxed),
+            occupancy_maps = self.counters.occupancies.load(Ordering::Relaxed),
             queries = self.counters.queries.load(Ordering::Relaxed),
             language_queries = self.counters.language_queries.load(Ordering::Relaxed),
             "zenoh session closing"
@@ -148,7 +166,7 @@ impl ZenohThread {
         }
     }
 
-    fn open(&self, latest_full: &Arc<Latest<Arc<Vec<u8>>>>) -> Result<Session, String> {
+    fn open(&self, latest: &Encoded) -> Result<Session, String> {
         let config = self.config.session_config().map_err(|(key, e)| format!("{key}: {e}"))?;
         let session = ::zenoh::open(config).wait().map_err(|e| {
             format!("zenoh: the session did not open (zenoh.listen, zenoh.connect, zenoh.config_file): {e}")
@@ -162,6 +180,7 @@ impl ZenohThread {
                 .map_err(|e| format!("zenoh.key_prefix: declaring {prefix}/{suffix}: {e}"))
         };
         let (graph, delta, health) = (publisher("graph")?, publisher("graph/delta")?, publisher("health")?);
+        let occupancy = self.occupancy.as_ref().map(|_| publisher("occupancy")).transpose()?;
         let queryable = |suffix: &str, answer: Answer| {
             let key = format!("{prefix}/{suffix}");
             let reply_key = key.clone();
@@ -171,12 +190,12 @@ impl ZenohThread {
                 .wait()
                 .map_err(|e| format!("zenoh.key_prefix: declaring the queryable {prefix}/{suffix}: {e}"))
         };
-        let (latest, counters) = (latest_full.clone(), self.counters.clone());
+        let (full, counters) = (latest.full.clone(), self.counters.clone());
         let graph_queryable = queryable(
             "graph",
             Box::new(move |key, query| {
                 // Before the first version there is nothing to answer: the query ends empty.
-                if let Some(full) = latest.get()
+                if let Some(full) = full.get()
                     && reply(&query, key, full.to_vec())
                 {
                     counters.queries.fetch_add(1, Ordering::Relaxed);
@@ -199,12 +218,25 @@ impl ZenohThread {
                 answer_query(&queries, key.to_owned(), query, &counters);
             }),
         )?;
+        let mut queryables = vec![graph_queryable, health_queryable, query_queryable];
+        if self.occupancy.is_some() {
+            let map = latest.occupancy.clone();
+            queryables.push(queryable(
+                "occupancy",
+                Box::new(move |key, query| {
+                    // Before the first map there is nothing to answer: the query ends empty.
+                    if let Some(map) = map.get() {
+                        reply(&query, key, map.to_vec());
+                    }
+                }),
+            )?);
+        }
         let open = self.config.open_listeners();
         if !open.is_empty() {
             warn!(endpoints = ?open, "zenoh listens beyond loopback: anyone who reaches these endpoints reads the graph");
         }
         info!(prefix = %prefix, mode = self.config.mode.as_str(), zid = %session.zid(), "zenoh session open");
-        Ok(Session { session, graph, delta, health, _queryables: [graph_queryable, health_queryable, query_queryable] })
+        Ok(Session { session, graph, delta, health, occupancy, _queryables: queryables })
     }
 
     fn send_graph(
@@ -236,16 +268,12 @@ impl ZenohThread {
         latest_full.set(full.clone());
         let mut ok = true;
         if delta.is_some() {
-            ok &= self.put(
-                &session.delta,
-                &state.delta_buf,
-                &self.counters.deltas,
-                Some(&self.counters.last_delta_bytes),
-            );
+            let c = &self.counters;
+            ok &= self.put(&session.delta, &state.delta_buf, &c.deltas, Some((&c.last_delta_bytes, &c.delta_bytes)));
         }
         // The first version of an instance goes out whole at once; then every full period.
         if delta.is_none() || state.last_full.is_none() {
-            ok &= self.put(&session.graph, full.as_slice(), &self.counters.fulls, Some(&self.counters.last_full_bytes));
+            ok &= self.put_full(session, &full);
             state.last_full = Some(Instant::now());
         }
         if ok {
@@ -262,19 +290,46 @@ impl ZenohThread {
         self.put(&session.health, &health_message(&health, instance_id), &self.counters.healths, None);
     }
 
-    /// Puts `bytes`; counts it in `count` and its size in `bytes_of_last`, or a stage error.
+    /// Sends the newest map when the occupancy thread has shared a newer one than the last sent
+    /// (about every `occupancy.publish_period_ms` while the map changes), and keeps it for the
+    /// queryable.
+    fn send_occupancy(&self, session: &Session, encoded: &Latest<Arc<Vec<u8>>>, state: &mut State) {
+        let (Some(latest), Some(publisher)) = (&self.occupancy, &session.occupancy) else { return };
+        let sent = state.occupancy_version;
+        let mut message = Vec::new();
+        let version = latest.read(|map| {
+            let map = map.filter(|map| map.version != sent)?;
+            encode_occupancy(&map.header, &map.cells, map.version, crate::world::clock::wall_clock_ns(), &mut message);
+            Some(map.version)
+        });
+        let Some(version) = version else { return };
+        state.occupancy_version = version;
+        let message = Arc::new(message);
+        encoded.set(message.clone());
+        self.put(publisher, &message, &self.counters.occupancies, None);
+    }
+
+    /// Puts a full graph message on `<prefix>/graph`.
+    fn put_full(&self, session: &Session, full: &[u8]) -> bool {
+        let c = &self.counters;
+        self.put(&session.graph, full, &c.fulls, Some((&c.last_full_bytes, &c.full_bytes)))
+    }
+
+    /// Puts `bytes`; counts it in `count` and its size in `sizes` (the last, the total), or a
+    /// stage error.
     fn put(
         &self,
         publisher: &Publisher<'_>,
         bytes: &[u8],
         count: &AtomicU64,
-        bytes_of_last: Option<&AtomicU64>,
+        sizes: Option<(&AtomicU64, &AtomicU64)>,
     ) -> bool {
         match publisher.put(bytes).wait() {
             Ok(()) => {
                 count.fetch_add(1, Ordering::Relaxed);
-                if let Some(last) = bytes_of_last {
+                if let Some((last, total)) = sizes {
                     last.store(bytes.len() as u64, Ordering::Relaxed);
+                    total.fetch_add(bytes.len() as u64, Ordering::Relaxed);
                 }
                 true
             }
@@ -345,4 +400,12 @@ struct State {
     full_capacity: usize,
     last_full: Option<Instant>,
     health_stamp_ns: u64,
+    occupancy_version: u64,
+}
+
+/// The newest messages the queryables answer with (shared with their callbacks).
+#[derive(Default)]
+struct Encoded {
+    full: Arc<Latest<Arc<Vec<u8>>>>,
+    occupancy: Arc<Latest<Arc<Vec<u8>>>>,
 }

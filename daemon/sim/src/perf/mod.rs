@@ -1,6 +1,6 @@
 //! # `op3dsg bench perf`: the daemon's performance figures
 //!
-//! Four measurements, each a section of [`PerfReport`] (written as JSON) and of its Markdown
+//! Five measurements, each a section of [`PerfReport`] (written as JSON) and of its Markdown
 //! ([`PerfReport::to_markdown`]):
 //!
 //! 1. **Pipeline** ([`pipeline_run`]): the real pipeline of `op3dsgd` (named threads, bounded
@@ -23,6 +23,10 @@
 //!    path's keyframes into OP3DSG's fusion and ConceptGraphs' (the `bench quality` peer row's),
 //!    each call timed on one thread with the same input; skipped with the fusion curve.
 //!
+//! 5. **Zenoh** ([`zenoh_link`]): a full graph message over Zenoh (TCP loopback) next to a raw
+//!    put of the same bytes, and the camera-rate pipeline without and with the Zenoh stage
+//!    (fusion and publish latency, delta and full sizes, the stage's CPU).
+//!
 //! `op3dsg bench soak` ([`soak`]) runs the same pipeline for a long time with map snapshots on
 //! and off: RSS slope, snapshot write and copy cost, and the fusion stage's latency.
 //!
@@ -39,6 +43,7 @@ pub mod llm_hot_path;
 pub mod peer_fusion;
 pub mod pipeline_run;
 pub mod soak;
+pub mod zenoh_link;
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -51,6 +56,7 @@ pub use ipc_latency::{IpcLatency, IpcRow, ipc_latency, ipc_peer};
 pub use llm_hot_path::{LlmHotPath, SlowChatServer, StageComparison, llm_hot_path};
 pub use peer_fusion::{FusionCost, PeerFusionCost, peer_fusion_cost};
 pub use pipeline_run::{PipelineRun, RssSample, StageRow, pipeline_run};
+pub use zenoh_link::{ZenohOptions, ZenohSection};
 
 use op3dsg_runtime::stats::LatencyHistogram;
 
@@ -84,6 +90,8 @@ pub struct PerfOptions {
     pub fusion_steps: usize,
     /// Keyframes of the kitchen path the fusion maps are built from.
     pub fusion_keyframes: usize,
+    /// The Zenoh section.
+    pub zenoh: ZenohOptions,
     /// The command line, recorded in the report.
     pub command: String,
 }
@@ -129,6 +137,9 @@ pub struct PerfReport {
     /// same keyframes (`None` when skipped, with the fusion curve).
     #[serde(default)]
     pub peer_fusion: Option<PeerFusionCost>,
+    /// The graph over Zenoh and the Zenoh stage's cost (`None` when skipped).
+    #[serde(default)]
+    pub zenoh: Option<ZenohSection>,
 }
 
 /// Runs every measurement `options` asks for, printing progress to standard error.
@@ -172,6 +183,11 @@ pub fn run(options: &PerfOptions) -> anyhow::Result<PerfReport> {
         );
         Some(peer_fusion_cost(options).context("peer fusion cost")?)
     };
+    let zenoh = if options.zenoh.nodes.is_empty() && !options.zenoh.stage {
+        None
+    } else {
+        Some(zenoh_link::zenoh_section(options).context("Zenoh")?)
+    };
     Ok(PerfReport {
         schema: REPORT_SCHEMA.to_owned(),
         machine: Machine::current(),
@@ -180,6 +196,7 @@ pub fn run(options: &PerfOptions) -> anyhow::Result<PerfReport> {
         ipc,
         fusion,
         peer_fusion,
+        zenoh,
     })
 }
 
@@ -262,6 +279,9 @@ impl PerfReport {
         }
         if let Some(peer) = &self.peer_fusion {
             peer_fusion_markdown(&mut s, peer);
+        }
+        if let Some(zenoh) = &self.zenoh {
+            zenoh.markdown(&mut s);
         }
         s
     }

@@ -200,6 +200,18 @@ pub(crate) fn pipeline_run_with(
     tag: &str,
     extra: &[String],
 ) -> anyhow::Result<(PipelineRun, Arc<Counters>)> {
+    pipeline_run_observed(options, mode, tag, extra, |_, _| ()).map(|(run, counters, ())| (run, counters))
+}
+
+/// [`pipeline_run_with`], and `observe` on a thread of its own while the pipeline runs: it gets
+/// the pipeline's counters and a flag set once every stage has ended; its result is returned.
+pub(crate) fn pipeline_run_observed<T: Send + 'static>(
+    options: &PerfOptions,
+    mode: Mode,
+    tag: &str,
+    extra: &[String],
+    observe: impl FnOnce(Arc<Counters>, Arc<AtomicBool>) -> T + Send + 'static,
+) -> anyhow::Result<(PipelineRun, Arc<Counters>, T)> {
     let mut overrides = vec![
         format!("run.max_frames={}", options.frames),
         "run.exit_at_end=true".to_owned(),
@@ -217,8 +229,19 @@ pub(crate) fn pipeline_run_with(
     let stop = Arc::new(AtomicBool::new(false));
     let pipeline = Pipeline::start(&profile, &crate::backends(), stop).context("starting the pipeline")?;
     let stats = pipeline.counters().clone();
+    let ended = Arc::new(AtomicBool::new(false));
+    let observer = {
+        let (stats, ended) = (stats.clone(), ended.clone());
+        std::thread::Builder::new()
+            .name("op3dsg-bench-observe".to_owned())
+            .spawn(move || observe(stats, ended))
+            .context("starting the observer thread")?
+    };
     let stage_stats = stats.stages();
-    let summary = pipeline.wait().map_err(|stuck| anyhow!("stages did not end: {}", stuck.join(", ")))?;
+    let summary = pipeline.wait().map_err(|stuck| anyhow!("stages did not end: {}", stuck.join(", ")));
+    ended.store(true, Ordering::Relaxed);
+    let observed = observer.join().map_err(|_| anyhow!("the observer thread panicked"))?;
+    let summary = summary?;
     let rss = sampler.finish();
     if summary.source_failed {
         return Err(anyhow!("the frame source failed (see the log)"));
@@ -254,7 +277,7 @@ pub(crate) fn pipeline_run_with(
         stages,
         rss,
     };
-    Ok((run, stats))
+    Ok((run, stats, observed))
 }
 
 #[cfg(test)]

@@ -199,6 +199,7 @@ fn run_one(options: &SoakOptions, frames: u64, snapshot_dir: Option<&Path>) -> a
         fusion_sizes: Vec::new(),
         fusion_steps: 0,
         fusion_keyframes: 0,
+        zenoh: Default::default(),
         command: options.command.clone(),
     };
     let extra = match snapshot_dir {

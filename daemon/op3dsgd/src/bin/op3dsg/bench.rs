@@ -39,6 +39,7 @@ pub(super) fn llm(args: LlmBenchArgs) -> Result<()> {
         fusion_sizes: Vec::new(),
         fusion_steps: 0,
         fusion_keyframes: 0,
+        zenoh: Default::default(),
         command: command_line(),
     };
     let report = perf::llm_hot_path(&options, delay)?;
@@ -55,9 +56,11 @@ pub(super) fn perf(args: PerfArgs) -> Result<()> {
     if !(args.live_rate_hz.is_finite() && args.live_rate_hz >= 0.0) {
         bail!("--live-rate-hz {}: must be 0 or a positive rate", args.live_rate_hz);
     }
-    let (ipc_nodes, fusion_sizes) = (args.ipc_nodes.0, args.fusion_sizes.0);
-    if let Some(&n) = ipc_nodes.iter().find(|&&n| n == 0 || n > op3dsg_ipc_types::MAX_NODES) {
-        bail!("--ipc-nodes {n}: each size must be between 1 and {}", op3dsg_ipc_types::MAX_NODES);
+    let (ipc_nodes, fusion_sizes, zenoh_nodes) = (args.ipc_nodes.0, args.fusion_sizes.0, args.zenoh_nodes.0);
+    for (flag, sizes) in [("--ipc-nodes", &ipc_nodes), ("--zenoh-nodes", &zenoh_nodes)] {
+        if let Some(&n) = sizes.iter().find(|&&n| n == 0 || n > op3dsg_ipc_types::MAX_NODES) {
+            bail!("{flag} {n}: each size must be between 1 and {}", op3dsg_ipc_types::MAX_NODES);
+        }
     }
     if let Some(&n) = fusion_sizes.iter().find(|&&n| n == 0) {
         bail!("--fusion-sizes {n}: each size must be at least 1");
@@ -78,6 +81,12 @@ pub(super) fn perf(args: PerfArgs) -> Result<()> {
         fusion_sizes,
         fusion_steps: args.fusion_steps as usize,
         fusion_keyframes: args.fusion_keyframes as usize,
+        zenoh: perf::ZenohOptions {
+            nodes: zenoh_nodes,
+            messages: args.zenoh_messages as usize,
+            warmup: args.zenoh_warmup,
+            stage: args.zenoh_stage,
+        },
         command: command_line(),
     };
     let report = perf::run(&options)?;

@@ -214,6 +214,21 @@ pub(super) struct PerfArgs {
     /// Untimed messages per IPC size and kind before the timed ones.
     #[arg(long, default_value_t = 20)]
     pub(super) ipc_warmup: usize,
+    /// Graph sizes (nodes) of the Zenoh latency rows (a full graph message over TCP loopback next
+    /// to a raw Zenoh put of the same bytes), comma-separated ("none": skip them).
+    #[arg(long, default_value = "100,2000,10000", value_parser = parse_sizes)]
+    pub(super) zenoh_nodes: Sizes,
+    /// Timed messages per Zenoh size, each for the graph and for the raw put.
+    #[arg(long, default_value_t = 200, value_parser = clap::value_parser!(u64).range(1..))]
+    pub(super) zenoh_messages: u64,
+    /// Untimed messages per Zenoh size and kind before the timed ones.
+    #[arg(long, default_value_t = 20)]
+    pub(super) zenoh_warmup: usize,
+    /// Run the camera-rate pipeline twice more, without and with the Zenoh stage (one consumer
+    /// following the graph over loopback): fusion and publish latency, delta and full sizes,
+    /// the stage's CPU (skipped with --live-rate-hz 0).
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set, value_name = "true|false")]
+    pub(super) zenoh_stage: bool,
     /// Map sizes (nodes) of the fusion curve, comma-separated ("none": skip it).
     #[arg(long, default_value = "100,500,1000,2000,5000,10000,20000", value_parser = parse_sizes)]
     pub(super) fusion_sizes: Sizes,

@@ -76,6 +76,8 @@ enum Command {
         /// Print at least this often even without a graph update, milliseconds.
         #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(10..=60_000))]
         interval_ms: u64,
+        #[command(flatten)]
+        remote: Remote,
     },
     /// Print the current graph once: a table (nodes, then edges), the graph JSON form (schema
     /// op3dsg.graph/1, the same as `op3dsg gt` writes), or the compact form for LLM prompts
@@ -94,14 +96,8 @@ enum Command {
         /// Write to this file instead of standard output.
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Read the graph over Zenoh from a daemon on another computer instead of iceoryx2: a
-        /// Zenoh endpoint to connect to as a client (its `zenoh.listen`, or a router), e.g.
-        /// tcp/192.168.1.20:7447. Needs --key-prefix.
-        #[arg(long, value_name = "ENDPOINT", requires = "key_prefix")]
-        zenoh: Option<String>,
-        /// With --zenoh: the daemon's `zenoh.key_prefix` (op3dsg/<its hostname> by default).
-        #[arg(long, value_name = "PREFIX", requires = "zenoh")]
-        key_prefix: Option<String>,
+        #[command(flatten)]
+        remote: Remote,
     },
     /// Print the daemon's latest health record (frames, keyframes, stage rates and latencies,
     /// queue depths and drops, and with reasoner.kind = "llm" the LLM refiner: state, calls,
@@ -113,14 +109,8 @@ enum Command {
         /// Give up (exit code 1) if no record arrives within this many seconds.
         #[arg(long, default_value_t = 5.0)]
         timeout_s: f64,
-        /// Read the health record over Zenoh from a daemon on another computer instead of
-        /// iceoryx2 (its queryable <key-prefix>/health): a Zenoh endpoint to connect to as a
-        /// client (its `zenoh.listen`, or a router), e.g. tcp/192.168.1.20:7447. Needs --key-prefix.
-        #[arg(long, value_name = "ENDPOINT", requires = "key_prefix")]
-        zenoh: Option<String>,
-        /// With --zenoh: the daemon's `zenoh.key_prefix` (op3dsg/<its hostname> by default).
-        #[arg(long, value_name = "PREFIX", requires = "zenoh")]
-        key_prefix: Option<String>,
+        #[command(flatten)]
+        remote: Remote,
     },
     /// Ask the daemon which nodes serve a need in words ("somewhere to wash my hands", "what
     /// controls the ceiling light"): the top-k objects and parts with their score and the text
@@ -141,14 +131,8 @@ enum Command {
         /// Give up after this many seconds (waiting for the daemon included).
         #[arg(long, default_value_t = 5.0)]
         timeout_s: f64,
-        /// Ask over Zenoh a daemon on another computer instead of iceoryx2 (its queryable
-        /// <key-prefix>/query, the same request and reply): a Zenoh endpoint to connect to as a
-        /// client (its `zenoh.listen`, or a router), e.g. tcp/192.168.1.20:7447. Needs --key-prefix.
-        #[arg(long, value_name = "ENDPOINT", requires = "key_prefix")]
-        zenoh: Option<String>,
-        /// With --zenoh: the daemon's `zenoh.key_prefix` (op3dsg/<its hostname> by default).
-        #[arg(long, value_name = "PREFIX", requires = "zenoh")]
-        key_prefix: Option<String>,
+        #[command(flatten)]
+        remote: Remote,
     },
     /// Where to stand to reach a node: an approach pose on the daemon's occupancy map (a free
     /// cell at the profile's standoff from the node, facing it; for a part, on the side it
@@ -171,14 +155,8 @@ enum Command {
         /// Give up after this many seconds (waiting for the daemon included).
         #[arg(long, default_value_t = 5.0)]
         timeout_s: f64,
-        /// Ask over Zenoh a daemon on another computer instead of iceoryx2 (its queryable
-        /// <key-prefix>/query, the same request and reply): a Zenoh endpoint to connect to as a
-        /// client (its `zenoh.listen`, or a router), e.g. tcp/192.168.1.20:7447. Needs --key-prefix.
-        #[arg(long, value_name = "ENDPOINT", requires = "key_prefix")]
-        zenoh: Option<String>,
-        /// With --zenoh: the daemon's `zenoh.key_prefix` (op3dsg/<its hostname> by default).
-        #[arg(long, value_name = "PREFIX", requires = "zenoh")]
-        key_prefix: Option<String>,
+        #[command(flatten)]
+        remote: Remote,
     },
     /// Write the ground-truth scene graph (JSON, schema op3dsg.graph/1) of a synthetic room.
     Gt {
@@ -361,6 +339,20 @@ fn main() -> std::process::ExitCode {
 /// Where a subcommand finds the daemon: on this computer over iceoryx2, or on another computer
 /// through its Zenoh keys (`--zenoh ENDPOINT --key-prefix P`, which clap makes go together).
 #[derive(Debug, Clone, Copy)]
+/// Where a daemon on another computer is: `--zenoh ENDPOINT --key-prefix PREFIX`.
+#[derive(Debug, clap::Args)]
+struct Remote {
+    /// Reach a daemon on another computer over Zenoh instead of iceoryx2 (its keys under
+    /// --key-prefix: the graph and its deltas, health, the query service): a Zenoh endpoint to
+    /// connect to as a client (its `zenoh.listen`, or a router), e.g. tcp/192.168.1.20:7447.
+    /// Needs --key-prefix.
+    #[arg(long, value_name = "ENDPOINT", requires = "key_prefix")]
+    zenoh: Option<String>,
+    /// With --zenoh: the daemon's `zenoh.key_prefix` (op3dsg/<its hostname> by default).
+    #[arg(long, value_name = "PREFIX", requires = "zenoh")]
+    key_prefix: Option<String>,
+}
+
 enum DaemonAt<'a> {
     /// The daemon's iceoryx2 services on this computer.
     Iceoryx2 {
@@ -377,8 +369,8 @@ enum DaemonAt<'a> {
 }
 
 impl<'a> DaemonAt<'a> {
-    fn new(prefix: &'a str, zenoh: Option<&'a str>, key_prefix: Option<&'a str>) -> Self {
-        match (zenoh, key_prefix) {
+    fn new(prefix: &'a str, remote: &'a Remote) -> Self {
+        match (&remote.zenoh, &remote.key_prefix) {
             (Some(endpoint), Some(key_prefix)) => Self::Zenoh { endpoint, key_prefix },
             _ => Self::Iceoryx2 { prefix },
         }
@@ -389,29 +381,31 @@ fn run(cli: Cli) -> Result<()> {
     let prefix = cli.prefix;
     op3dsg_ipc_types::validate_prefix(&prefix).map_err(|e| anyhow::anyhow!("--prefix / {PREFIX_ENV}: {e}"))?;
     match cli.command {
-        Command::Watch { interval_ms } => watch::watch(&prefix, Duration::from_millis(interval_ms)),
-        Command::Dump { format, json, timeout_s, out, zenoh, key_prefix } => {
+        Command::Watch { interval_ms, remote } => {
+            watch::watch(DaemonAt::new(&prefix, &remote), Duration::from_millis(interval_ms))
+        }
+        Command::Dump { format, json, timeout_s, out, remote } => {
             let format = if json { dump::DumpFormat::Json } else { format };
-            let from = DaemonAt::new(&prefix, zenoh.as_deref(), key_prefix.as_deref());
+            let from = DaemonAt::new(&prefix, &remote);
             dump::dump(from, format, seconds(timeout_s)?, out.as_deref())
         }
-        Command::Health { json, timeout_s, zenoh, key_prefix } => {
-            match DaemonAt::new(&prefix, zenoh.as_deref(), key_prefix.as_deref()) {
+        Command::Health { json, timeout_s, remote } => {
+            match DaemonAt::new(&prefix, &remote) {
                 DaemonAt::Zenoh { endpoint, key_prefix } => {
                     health::remote(endpoint, key_prefix, json, seconds(timeout_s)?)
                 }
                 DaemonAt::Iceoryx2 { prefix } => health::health(prefix, json, seconds(timeout_s)?),
             }
         }
-        Command::Query { text, k, json, timeout_s, zenoh, key_prefix } => {
-            let from = DaemonAt::new(&prefix, zenoh.as_deref(), key_prefix.as_deref());
+        Command::Query { text, k, json, timeout_s, remote } => {
+            let from = DaemonAt::new(&prefix, &remote);
             query::query(from, &text, k, json, seconds(timeout_s)?)
         }
         Command::Bench { command: BenchCommand::Query { rooms, json } } => {
             query::bench(rooms.profile.as_deref(), &rooms.sets(), rooms.seed, json.as_deref())
         }
-        Command::Goal { target, json, timeout_s, zenoh, key_prefix } => {
-            let from = DaemonAt::new(&prefix, zenoh.as_deref(), key_prefix.as_deref());
+        Command::Goal { target, json, timeout_s, remote } => {
+            let from = DaemonAt::new(&prefix, &remote);
             goal::goal(from, &target, json, seconds(timeout_s)?)
         }
         Command::Bench { command: BenchCommand::Nav { rooms, json } } => {

@@ -1,5 +1,6 @@
 //! `op3dsg watch`: a live text view of the daemon, one line per graph update or per interval,
-//! read with the client library's [`GraphSubscriber`] and [`HealthSubscriber`].
+//! read with the client library's [`GraphSubscriber`] and [`HealthSubscriber`] on the daemon's
+//! computer, or its [`RemoteGraphSubscriber`] over Zenoh from another.
 
 use std::fmt::Write as _;
 use std::sync::Arc;
@@ -7,12 +8,14 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use op3dsg_ipc_types::{ClientError, Graph, GraphSubscriber, Health, HealthSubscriber};
+use op3dsg_ipc_types::client::RemoteGraphSubscriber;
+use op3dsg_ipc_types::{ClientError, Graph, GraphSubscriber, HealthSubscriber};
+use op3dsg_runtime::ipc::HealthReport;
 
-use super::node_name;
+use super::{DaemonAt, node_name};
 
 /// One line for `watch`.
-fn watch_line(graph: Option<&Graph>, health: Option<&Health>) -> String {
+fn watch_line(graph: Option<&Graph>, health: Option<&HealthReport>) -> String {
     let mut s = String::new();
     match graph {
         Some(g) => {
@@ -34,37 +37,23 @@ fn watch_line(graph: Option<&Graph>, health: Option<&Health>) -> String {
     if let Some(h) = health {
         let _ =
             write!(s, " | frames {} keyframes {} no pose {}", h.frames_captured, h.keyframes, h.frames_without_pose);
-        let p = &h.pose;
-        let refused = p.unknown_kind
-            + p.non_finite
-            + p.non_unit_quaternion
-            + p.no_base_from_camera
-            + p.out_of_order
-            + p.stale
-            + p.future
-            + p.queue_full;
-        if p.accepted + refused > 0 {
-            let _ = write!(s, " | poses ok {} refused {refused}", p.accepted);
+        let accepted = h.poses.get("accepted").copied().unwrap_or(0);
+        let refused: u64 = h.poses.iter().filter(|(outcome, _)| *outcome != "accepted").map(|(_, n)| n).sum();
+        if accepted + refused > 0 {
+            let _ = write!(s, " | poses ok {accepted} refused {refused}");
         }
-        for st in h.valid_stages() {
+        for st in &h.stages {
             let _ = write!(
                 s,
                 " | {} {:.1}Hz p50 {:.1}ms p99 {:.1}ms",
-                op3dsg_ipc_types::fixed_str(&st.name),
+                st.name,
                 st.rate_hz,
                 st.latency_p50_us / 1000.0,
                 st.latency_p99_us / 1000.0
             );
         }
-        for q in h.valid_queues() {
-            let _ = write!(
-                s,
-                " | q {} {}/{} drop {}",
-                op3dsg_ipc_types::fixed_str(&q.name),
-                q.depth,
-                q.capacity,
-                q.dropped
-            );
+        for q in &h.queues {
+            let _ = write!(s, " | q {} {}/{} drop {}", q.name, q.depth, q.capacity, q.dropped);
         }
     }
     s
@@ -79,12 +68,20 @@ fn open_subscribers(prefix: &str, wait: Duration) -> Result<(GraphSubscriber, He
 }
 
 /// `op3dsg watch`: waits for the daemon (saying so once), then prints until Ctrl-C.
-pub(super) fn watch(prefix: &str, interval: Duration) -> Result<()> {
+pub(super) fn watch(from: DaemonAt<'_>, interval: Duration) -> Result<()> {
     let stop = Arc::new(AtomicBool::new(false));
     {
         let stop = Arc::clone(&stop);
         ctrlc::set_handler(move || stop.store(true, Ordering::SeqCst)).context("installing the Ctrl-C handler")?;
     }
+    match from {
+        DaemonAt::Iceoryx2 { prefix } => watch_local(prefix, interval, &stop),
+        DaemonAt::Zenoh { endpoint, key_prefix } => watch_remote(endpoint, key_prefix, interval, &stop),
+    }
+}
+
+/// `watch` over iceoryx2, on the daemon's computer.
+fn watch_local(prefix: &str, interval: Duration, stop: &AtomicBool) -> Result<()> {
     let mut announced = false;
     // Try once at once, so the "waiting" line appears immediately when the daemon is not up.
     let mut attempt = open_subscribers(prefix, Duration::ZERO);
@@ -110,9 +107,31 @@ pub(super) fn watch(prefix: &str, interval: Duration) -> Result<()> {
         let changed = graphs.poll().with_context(|| format!("reading service {prefix}/graph"))?;
         let health = healths.latest().with_context(|| format!("reading service {prefix}/health"))?;
         if changed || woken || last_print.elapsed() >= interval {
-            println!("{}", watch_line(graphs.graph(), health.as_ref()));
+            println!("{}", watch_line(graphs.graph(), health.as_ref().map(HealthReport::from).as_ref()));
             last_print = Instant::now();
         }
+    }
+    Ok(())
+}
+
+/// `watch` over Zenoh, from another computer: the graph followed from full graphs and deltas,
+/// the health record as the daemon publishes it. A daemon not up yet shows as "no graph yet".
+fn watch_remote(endpoint: &str, key_prefix: &str, interval: Duration, stop: &AtomicBool) -> Result<()> {
+    let mut remote = RemoteGraphSubscriber::connect(endpoint, key_prefix)?;
+    eprintln!("following {key_prefix}/graph on zenoh endpoint {endpoint} (Ctrl-C to quit)");
+    let mut graph = None;
+    let mut last_print = Instant::now() - interval;
+    while !stop.load(Ordering::SeqCst) {
+        let changed = remote.poll()?;
+        if changed {
+            graph = remote.graph()?;
+        }
+        if changed || last_print.elapsed() >= interval {
+            let health = remote.health_json().and_then(|json| serde_json::from_str::<HealthReport>(json).ok());
+            println!("{}", watch_line(graph.as_ref(), health.as_ref()));
+            last_print = Instant::now();
+        }
+        std::thread::sleep(Duration::from_millis(50));
     }
     Ok(())
 }
