@@ -253,8 +253,14 @@ pub fn read_occupancy_header(b: &[u8; OCCUPANCY_HEADER_BYTES]) -> OccupancyHeade
 pub fn encode_occupancy(header: &OccupancyHeader, cells: &[i8], version: u64, publish_time_ns: u64, out: &mut Vec<u8>) {
     out.clear();
     out.reserve(ENVELOPE_BYTES + OCCUPANCY_HEADER_BYTES + cells.len());
-    Envelope { kind: MessageKind::Occupancy, instance_id: header.instance_id, version, base_version: 0, publish_time_ns }
-        .append_to(out);
+    Envelope {
+        kind: MessageKind::Occupancy,
+        instance_id: header.instance_id,
+        version,
+        base_version: 0,
+        publish_time_ns,
+    }
+    .append_to(out);
     append_occupancy_header(header, out);
     out.extend(cells.iter().map(|&c| c as u8));
 }

@@ -19,18 +19,16 @@
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use op3dsg_ipc_types::iceoryx2::node::Node;
-use op3dsg_ipc_types::iceoryx2::prelude::{NodeBuilder, PortFactory as _, ServiceName};
-use op3dsg_ipc_types::iceoryx2::service::port_factory::publish_subscribe::PortFactory;
+use op3dsg_ipc_types::iceoryx2::prelude::{NodeBuilder, PortFactory as _};
 use op3dsg_ipc_types::services::{
     IpcService, OCCUPANCY_HISTORY_SIZE, OCCUPANCY_MAX_NODES, OCCUPANCY_MAX_PUBLISHERS, OCCUPANCY_MAX_SUBSCRIBERS,
-    OCCUPANCY_SUBSCRIBER_BUFFER, occupancy_service_name,
+    OCCUPANCY_SUBSCRIBER_BUFFER,
 };
 use op3dsg_ipc_types::{
     ApproachStatus, Graph, NodeView, OCCUPANCY_FREE_MAX_PERCENT, OCCUPANCY_OCCUPIED_MIN_PERCENT,
     OCCUPANCY_SCHEMA_VERSION, OccupancyHeader, QueryClient, QueryHit, QueryStatus,
 };
-use op3dsg_tests::{Daemon, binary, latest_map, open_occupancy_service, unique_prefix};
+use op3dsg_tests::{Daemon, binary, latest_map, open_occupancy_service, unique_prefix, wait_for};
 
 #[test]
 fn a_planner_gets_approach_poses_on_free_cells_of_the_published_map() {

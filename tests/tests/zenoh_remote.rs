@@ -43,9 +43,18 @@ fn a_python_consumer_follows_the_graph_over_zenoh_joins_late_and_sees_a_restart(
     let mut daemon = start_daemon(&prefix, port, &key_prefix);
     let mut early = Consumer::start(port, &key_prefix);
     let instance = instance_of(&daemon);
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let watch = Command::new(binary("op3dsg"))
+        .args(["watch", "--interval-ms", "200", "--zenoh", &endpoint, "--key-prefix", &key_prefix])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start op3dsg watch --zenoh");
     // Compared once every frame is fused: the richest graph of the run, reached through deltas.
     let mut health = daemon.health_subscriber("zenoh-test-health");
     health_where(&mut health, "all 300 frames captured", Duration::from_secs(300), |h| h.frames_captured >= 300);
+    std::thread::sleep(Duration::from_secs(2));
+    watch_followed(watch);
 
     let (dumped, held) = same_version(&daemon, &mut early, instance);
     assert_same_graph(&dumped, &held);
@@ -255,6 +264,21 @@ fn without_a_daemon_the_zenoh_commands_name_the_endpoint() {
     }
 }
 
+/// `op3dsg watch --zenoh` printed the graph's versions as they came (a line per version or per
+/// interval, the versions never going back) with the health record the daemon publishes.
+fn watch_followed(mut watch: std::process::Child) {
+    let _ = watch.kill();
+    let output = watch.wait_with_output().expect("op3dsg watch output");
+    let text = String::from_utf8_lossy(&output.stdout);
+    let versions: Vec<u64> =
+        text.lines().filter_map(|line| line.strip_prefix('v')?.split(' ').next()?.parse().ok()).collect();
+    assert!(versions.len() >= 5, "op3dsg watch --zenoh printed {} graph lines:\n{text}", versions.len());
+    assert!(versions.windows(2).all(|w| w[0] <= w[1]), "versions went back: {versions:?}");
+    assert!(versions.last() > versions.first(), "the graph moved on: {versions:?}");
+    let last = text.lines().last().unwrap_or_default();
+    assert!(last.contains("synthetic in") && last.contains("| frames ") && last.contains("| fusion "), "{last}");
+}
+
 /// `<key_prefix>/occupancy` (the Rust client's `RemoteRequester::occupancy`) answers the map the
 /// daemon publishes on `<prefix>/occupancy` over iceoryx2: the same cells and the same header,
 /// but for the figures of each send (its time, the integration cost of the period before it).
@@ -265,7 +289,8 @@ fn occupancy_agrees(prefix: &str, endpoint: &str, key_prefix: &str) {
         .expect("a plain iceoryx2 node");
     let subscriber = open_occupancy_service(&node, prefix).subscriber_builder().create().expect("occupancy subscriber");
     let remote = RemoteRequester::connect(endpoint, key_prefix).expect("zenoh client");
-    let sent_alike = |h: &OccupancyHeader| OccupancyHeader { publish_time_ns: 0, integrate_p50_us: 0, integrate_p99_us: 0, ..*h };
+    let sent_alike =
+        |h: &OccupancyHeader| OccupancyHeader { publish_time_ns: 0, integrate_p50_us: 0, integrate_p99_us: 0, ..*h };
     let mut local = None;
     let started = Instant::now();
     loop {
@@ -280,7 +305,11 @@ fn occupancy_agrees(prefix: &str, endpoint: &str, key_prefix: &str) {
             assert!(header.keyframes_integrated > 0 && header.free_cells > 0, "a map that was built: {header:?}");
             eprintln!(
                 "occupancy over Zenoh: map {} of {}x{} cells, {} free, {} occupied, {} keyframes",
-                envelope.version, header.width_cells, header.height_cells, header.free_cells, header.occupied_cells,
+                envelope.version,
+                header.width_cells,
+                header.height_cells,
+                header.free_cells,
+                header.occupied_cells,
                 header.keyframes_integrated
             );
             return;

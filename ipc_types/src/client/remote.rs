@@ -71,11 +71,8 @@ impl RemoteGraphSubscriber {
         let subscribe = |key: String| {
             session.declare_subscriber(key.clone()).wait().map_err(|e| fail(&format!("subscribing to {key}"), &e))
         };
-        let subscribers = [
-            subscribe(format!("{key}/delta"))?,
-            subscribe(key.clone())?,
-            subscribe(format!("{key_prefix}/health"))?,
-        ];
+        let subscribers =
+            [subscribe(format!("{key}/delta"))?, subscribe(key.clone())?, subscribe(format!("{key_prefix}/health"))?];
         Ok(Self { session, key, subscribers, follower: RemoteFollower::new(), health: None, errors: 0 })
     }
 

@@ -32,8 +32,8 @@ use tracing::warn;
 use super::persist::OccupancyStore;
 use super::{DepthScan, GridGeometry, OccupancyGrid, OccupancyPublisher, RobotPose};
 use crate::queue::Latest;
-use crate::world::clock::wall_clock_ns;
 use crate::stats::StageStats;
+use crate::world::clock::wall_clock_ns;
 
 /// How long the thread waits for a scan before it checks the clock and the stop flag.
 const POLL: Duration = Duration::from_millis(20);

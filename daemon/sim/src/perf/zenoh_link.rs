@@ -19,7 +19,6 @@
 
 use std::collections::BTreeMap;
 use std::process::{Child, Command, Stdio};
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
@@ -37,8 +36,8 @@ use zenoh::Wait as _;
 use zenoh::qos::CongestionControl;
 
 use super::ipc_latency::synthetic_graph;
-use super::pipeline_run::{Mode, pipeline_run_observed, pipeline_run_with};
 use super::pipeline_run::PipelineRun;
+use super::pipeline_run::{Mode, pipeline_run_observed, pipeline_run_with};
 use super::{Percentiles, PerfOptions};
 
 /// How long the sender waits for a message to arrive before counting it lost.
@@ -519,14 +518,21 @@ pub fn zenoh_stage(options: &PerfOptions) -> anyhow::Result<ZenohStage> {
 /// The observer of the run with Zenoh: starts the consumer, samples the threads' CPU every
 /// 100 ms (a thread's last sample before it ends is what counts) and the message counters at
 /// `half_after`, until the run has ended.
-fn observe(counters: &Counters, ended: &AtomicBool, exe: &std::path::Path, args: &[String], half_after: Duration) -> Observed {
+fn observe(
+    counters: &Counters,
+    ended: &AtomicBool,
+    exe: &std::path::Path,
+    args: &[String],
+    half_after: Duration,
+) -> Observed {
     let started = Instant::now();
     let process_start = std::fs::read_to_string("/proc/self/stat").ok().and_then(|s| parse_stat(&s)).map_or(0, |p| p.1);
     let first = thread_ticks();
     let mut last = first.clone();
     let mut half = None;
     let child = Command::new(exe).args(args).stdin(Stdio::null()).stdout(Stdio::null()).stderr(Stdio::null()).spawn();
-    let mut child: Result<Child, String> = child.map_err(|e| format!("starting {} {}: {e}", exe.display(), args.join(" ")));
+    let mut child: Result<Child, String> =
+        child.map_err(|e| format!("starting {} {}: {e}", exe.display(), args.join(" ")));
     while !ended.load(Ordering::Relaxed) {
         std::thread::sleep(Duration::from_millis(100));
         last.extend(thread_ticks());
@@ -570,7 +576,10 @@ pub fn zenoh_section(options: &PerfOptions) -> anyhow::Result<ZenohSection> {
         Some(zenoh_latency(options).context("Zenoh latency")?)
     };
     let stage = if options.zenoh.stage && options.live_rate_hz > 0.0 {
-        eprintln!("bench perf: the Zenoh stage at {} Hz, without and with it, {} frames each ...", options.live_rate_hz, options.frames);
+        eprintln!(
+            "bench perf: the Zenoh stage at {} Hz, without and with it, {} frames each ...",
+            options.live_rate_hz, options.frames
+        );
         Some(zenoh_stage(options).context("the Zenoh stage")?)
     } else {
         None
@@ -586,10 +595,13 @@ impl ZenohSection {
         if let Some(l) = &self.latency {
             let _ = writeln!(
                 s,
-                "**Zenoh** (graph publish → receive, {}; {} timed messages per size and kind after {} untimed;                  the graph: encoded as the Zenoh stage encodes it and put, until the client library's follower                  holds the owned `Graph`; raw: a put of as many bytes, copied out on arrival):\n",
+                "**Zenoh** (graph publish → receive, {}; {} timed messages per size and kind after {} untimed; the graph: encoded as the Zenoh stage encodes it and put, until the client library's follower holds the owned `Graph`; raw: a put of as many bytes, copied out on arrival):\n",
                 l.link, l.messages, l.warmup
             );
-            let _ = writeln!(s, "| nodes | edges | message bytes | graph p50 / p99 ms | raw p50 / p99 ms | ratio p50 / p99 | lost graph / raw |");
+            let _ = writeln!(
+                s,
+                "| nodes | edges | message bytes | graph p50 / p99 ms | raw p50 / p99 ms | ratio p50 / p99 | lost graph / raw |"
+            );
             let _ = writeln!(s, "|---|---|---|---|---|---|---|");
             for r in &l.rows {
                 let _ = writeln!(
@@ -613,7 +625,7 @@ impl ZenohSection {
         if let Some(st) = &self.stage {
             let _ = writeln!(
                 s,
-                "**The Zenoh stage in the pipeline** (camera rate {} Hz, {} frames per run, without and with                  `[zenoh]`; consumer: {}):\n",
+                "**The Zenoh stage in the pipeline** (camera rate {} Hz, {} frames per run, without and with `[zenoh]`; consumer: {}):\n",
                 st.rate_hz, st.frames, st.consumer
             );
             let _ = writeln!(s, "| stage | without p50 / p99 ms | with p50 / p99 ms | p99 with / without |");
@@ -630,7 +642,8 @@ impl ZenohSection {
                     r.p99_ratio
                 );
             }
-            let _ = writeln!(s, "\n| messages | fulls | full bytes (mean) | deltas | delta bytes (mean) | delta / full |");
+            let _ =
+                writeln!(s, "\n| messages | fulls | full bytes (mean) | deltas | delta bytes (mean) | delta / full |");
             let _ = writeln!(s, "|---|---|---|---|---|---|");
             for (name, m) in [("whole run", &st.whole_run), ("second half (steady state)", &st.second_half)] {
                 let _ = writeln!(
@@ -642,7 +655,7 @@ impl ZenohSection {
             let c = &st.cpu;
             let _ = writeln!(
                 s,
-                "\nCPU of the Zenoh stage over the {:.1} s run: its thread {:.2} s, Zenoh's runtime threads {:.2} s                  ({}): **{:.1} % of one core**, {:.1} % of the daemon's {:.2} CPU s; {} graph versions sent, {} keyframes.\n",
+                "\nCPU of the Zenoh stage over the {:.1} s run: its thread {:.2} s, Zenoh's runtime threads {:.2} s ({}): **{:.1} % of one core**, {:.1} % of the daemon's {:.2} CPU s; {} graph versions sent, {} keyframes.\n",
                 c.elapsed_s,
                 c.stage_thread_s,
                 c.runtime_threads_s,

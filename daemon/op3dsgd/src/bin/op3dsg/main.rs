@@ -336,9 +336,6 @@ fn main() -> std::process::ExitCode {
     }
 }
 
-/// Where a subcommand finds the daemon: on this computer over iceoryx2, or on another computer
-/// through its Zenoh keys (`--zenoh ENDPOINT --key-prefix P`, which clap makes go together).
-#[derive(Debug, Clone, Copy)]
 /// Where a daemon on another computer is: `--zenoh ENDPOINT --key-prefix PREFIX`.
 #[derive(Debug, clap::Args)]
 struct Remote {
@@ -353,6 +350,9 @@ struct Remote {
     key_prefix: Option<String>,
 }
 
+/// Where a subcommand finds the daemon: on this computer over iceoryx2, or on another computer
+/// through its Zenoh keys (`--zenoh ENDPOINT --key-prefix P`, which clap makes go together).
+#[derive(Debug, Clone, Copy)]
 enum DaemonAt<'a> {
     /// The daemon's iceoryx2 services on this computer.
     Iceoryx2 {
@@ -389,14 +389,10 @@ fn run(cli: Cli) -> Result<()> {
             let from = DaemonAt::new(&prefix, &remote);
             dump::dump(from, format, seconds(timeout_s)?, out.as_deref())
         }
-        Command::Health { json, timeout_s, remote } => {
-            match DaemonAt::new(&prefix, &remote) {
-                DaemonAt::Zenoh { endpoint, key_prefix } => {
-                    health::remote(endpoint, key_prefix, json, seconds(timeout_s)?)
-                }
-                DaemonAt::Iceoryx2 { prefix } => health::health(prefix, json, seconds(timeout_s)?),
-            }
-        }
+        Command::Health { json, timeout_s, remote } => match DaemonAt::new(&prefix, &remote) {
+            DaemonAt::Zenoh { endpoint, key_prefix } => health::remote(endpoint, key_prefix, json, seconds(timeout_s)?),
+            DaemonAt::Iceoryx2 { prefix } => health::health(prefix, json, seconds(timeout_s)?),
+        },
         Command::Query { text, k, json, timeout_s, remote } => {
             let from = DaemonAt::new(&prefix, &remote);
             query::query(from, &text, k, json, seconds(timeout_s)?)
