@@ -8,7 +8,7 @@
 //! [`MessageType::rihs01`] are Jazzy's (Kilted's are the same).
 //!
 //! Field names follow ROS, except `visualization_msgs/Marker.type`, which is [`Marker::kind`]
-//! here (`type` is a Rust keyword).
+//! here (`type` is a Rust keyword; serde still names it `type`, e.g. in JSON).
 //!
 //! [`MessageType::rihs01`]: crate::cdr::MessageType::rihs01
 //! [`Marker::kind`]: visualization_msgs::Marker::kind
@@ -269,6 +269,7 @@ pub mod visualization_msgs {
         /// Id within the namespace.
         pub id: i32,
         /// The shape (`type` in ROS): [`Marker::CUBE`], [`Marker::TEXT_VIEW_FACING`], ...
+        #[serde(rename = "type")]
         pub kind: i32,
         /// [`Marker::ADD`], [`Marker::DELETE`] or [`Marker::DELETEALL`].
         pub action: i32,
