@@ -116,7 +116,10 @@ STATIC_EDGES = [("link_head_tilt", "camera_link", HEAD_TILT_FROM_CAMERA_LINK),
 def read_trajectory(source):
     text = sys.stdin.read() if source == "-" else open(source, encoding="utf-8").read()
     text = text.strip()
-    items = json.loads(text) if text.startswith("[") else [json.loads(line) for line in text.splitlines() if line.strip()]
+    if text.startswith("["):
+        items = json.loads(text)
+    else:
+        items = [json.loads(line) for line in text.splitlines() if line.strip()]
     poses = []
     for i, item in enumerate(items):
         q = tuple(float(c) for c in item["rotation_xyzw"])

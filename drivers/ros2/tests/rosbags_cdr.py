@@ -83,7 +83,9 @@ def golden_marker(store):
         points=[point(x=0.0, y=0.0, z=0.0), point(x=1.0, y=-1.0, z=2.0)],
         colors=[color(r=0.0, g=1.0, b=0.0, a=1.0)],
         texture_resource="package://op3dsg/texture.png",
-        texture=t["sensor_msgs/msg/CompressedImage"](header=header, format="png", data=np.array([137, 80, 78, 71], dtype=np.uint8)),
+        texture=t["sensor_msgs/msg/CompressedImage"](
+            header=header, format="png", data=np.array([137, 80, 78, 71], dtype=np.uint8)
+        ),
         uv_coordinates=[t["visualization_msgs/msg/UVCoordinate"](u=0.5, v=0.25)],
         text="chair (part of: table)",
         mesh_resource="",
@@ -112,7 +114,8 @@ def golden(directory):
 
 def decode(typename, path):
     raw = Path(path).read_bytes()
-    plain = {name: to_plain(store, store.deserialize_cdr(raw, typename)) for name, store in (("humble", HUMBLE), ("jazzy", JAZZY))}
+    stores = (("humble", HUMBLE), ("jazzy", JAZZY))
+    plain = {name: to_plain(store, store.deserialize_cdr(raw, typename)) for name, store in stores}
     # Check what was decoded re-encodes to the same bytes (nothing left over, nothing skipped).
     reencoded = bytes(JAZZY.serialize_cdr(JAZZY.deserialize_cdr(raw, typename), typename))
     plain["reencoded_equal"] = reencoded == raw
