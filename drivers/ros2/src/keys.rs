@@ -19,8 +19,9 @@
 //!
 //! **`bridge`** (`eclipse-zenoh/zenoh-plugin-ros2dds`, `ros2_utils.rs` `ros2_name_to_key_expr`):
 //! the ROS name without its leading `/`, under the bridge's `namespace` setting when it has one:
-//! `/tf` is `tf`, or `robot1/tf` with `namespace: "/robot1"`. No type in the key, no attachment,
-//! no tokens of ours (the bridges announce routes among themselves).
+//! `/tf` is `tf`, or `robot1/tf` with `namespace: "/robot1"`. No type in the key and no
+//! attachment; the bridges announce routes among themselves with tokens of their own
+//! ([`bridge_publisher_token`]).
 
 use std::fmt;
 use std::str::FromStr;
@@ -184,6 +185,36 @@ pub fn bridge_key(bridge_namespace: &str, fq_topic: &str) -> Result<String, Name
     check_absolute("topic", fq_topic, false)?;
     let ns = normalize_namespace(bridge_namespace)?;
     Ok(format!("{}/{}", ns.trim_start_matches('/'), &fq_topic[1..]).trim_start_matches('/').to_string())
+}
+
+/// The liveliness token by which a zenoh-bridge-ros2dds announces a publisher route to the other
+/// bridges (`liveliness_mgt.rs`, `new_ke_liveliness_pub`): a bridge that sees it makes a DDS
+/// writer for the topic, so ROS nodes behind it see the topic before anything subscribes. It is
+/// `@/<zid>/@ros2_lv/MP/<key>/<ROS type>/<qos>`, `/` written `§` in key and type, and `<qos>`
+/// `<keyless>:<reliability>:<durability>:<history>,<depth>[:<USER_DATA>]` with DDS's numbers
+/// (reliable 1, volatile 0, transient local 1, keep last 0); ROS messages are keyless (empty), and
+/// from Iron on USER_DATA carries `typehash=<RIHS01>;`.
+///
+/// Not needed for data: a bridge with a ROS subscriber of the topic subscribes to its key anyway.
+pub fn bridge_publisher_token(zid: &str, key: &str, ty: &MessageType, distro: Distro, qos: &Qos) -> String {
+    let reliability = match qos.reliability {
+        Reliability::Reliable => 1,
+        Reliability::BestEffort => 0,
+    };
+    let durability = match qos.durability {
+        Durability::Volatile => 0,
+        Durability::TransientLocal => 1,
+    };
+    let user_data = match distro {
+        Distro::Humble => String::new(),
+        Distro::JazzyOrLater => format!(":typehash={};", ty.rihs01),
+    };
+    format!(
+        "@/{zid}/@ros2_lv/MP/{}/{}/:{reliability}:{durability}:0,{}{user_data}",
+        key.replace('/', "§"),
+        ty.ros_name.replace('/', "§"),
+        qos.depth
+    )
 }
 
 /// The keys of one topic.

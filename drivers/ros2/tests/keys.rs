@@ -73,6 +73,23 @@ fn bridge_keys_drop_the_slash_under_the_bridge_namespace() {
 }
 
 #[test]
+fn bridge_route_tokens_follow_the_bridge_format() {
+    use op3dsg_ros2::msg::visualization_msgs::MarkerArray;
+    let ty = MarkerArray::TYPE;
+    assert_eq!(
+        bridge_publisher_token("1f2e", "robot1/op3dsg/markers", &ty, Distro::JazzyOrLater, &Qos::DEFAULT),
+        format!(
+            "@/1f2e/@ros2_lv/MP/robot1§op3dsg§markers/visualization_msgs§msg§MarkerArray/:1:0:0,10:typehash={};",
+            ty.rihs01
+        )
+    );
+    assert_eq!(
+        bridge_publisher_token("1f2e", "tf_static", &tf2_msgs::TFMessage::TYPE, Distro::Humble, &Qos::TF_STATIC),
+        "@/1f2e/@ros2_lv/MP/tf_static/tf2_msgs§msg§TFMessage/:1:1:0,1"
+    );
+}
+
+#[test]
 fn liveliness_tokens_match_the_design_examples() {
     let listener = NodeIdentity::new(2, "aac3178e146ba6f1fc6e6a4085e77f21", 0, "/", "listener").unwrap();
     assert_eq!(listener.node_token(), "@ros2_lv/2/aac3178e146ba6f1fc6e6a4085e77f21/0/0/NN/%/%/listener");
