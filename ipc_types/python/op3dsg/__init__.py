@@ -15,6 +15,8 @@ Two lines read the graph as numpy views of the daemon's shared memory (no copy):
 - :func:`goal` — where to stand to reach a node (by id, or the top hit of a need in words): an
   approach pose on the daemon's occupancy map, reachable from the robot's pose.
 - :func:`health` / :class:`HealthClient` — the daemon's health record, without a graph subscriber.
+- :class:`OccupancyClient` — the daemon's 2D occupancy map (:class:`OccupancyMap`: header and
+  ``int8`` cells ``[row, col]``).
 - :mod:`op3dsg.wire` — the ctypes mirror of the Rust wire types, numpy dtypes, constants.
 
 Same iceoryx2 as the daemon: PyPI ``iceoryx2==0.10.0``.
@@ -34,6 +36,7 @@ from .errors import (
 )
 from .graph import Graph, GraphClient, GraphView, wait_for_graph
 from .health import HealthClient, health
+from .occupancy import OccupancyClient, OccupancyHeader, OccupancyMap
 from .query import Approach, Goal, GoalError, Hit, QueryClient, QueryError, QueryResult, goal, query
 from .pose import PosePublisher, PoseService, check_pose, make_pose, open_or_create_pose_service
 from .wire import (
@@ -87,6 +90,9 @@ __all__ = [
     "NODE_DTYPE",
     "NO_NODE",
     "NotServingError",
+    "OccupancyClient",
+    "OccupancyHeader",
+    "OccupancyMap",
     "Op3dsgError",
     "POSE_WORLD_FROM_BASE",
     "POSE_WORLD_FROM_CAMERA",
