@@ -508,7 +508,7 @@ class RemoteGraphClient(_RemoteSession):
         repeated = self.last_error is not None and str(self.last_error) == str(error)
         self.last_error = error
         if not repeated:
-            _log.warning("%s (zenoh endpoint %s): %s", self.key, self.endpoint, error)
+            _log.warning("zenoh endpoint %s: %s", self.endpoint, error)
 
     # -- reading ----------------------------------------------------------------------------
     def latest(self) -> Optional[Graph]:
