@@ -26,8 +26,8 @@ import op3dsg
 
 from conftest import FAST, REPO, op3dsg_path, wait_for
 
-#: Frames of a daemon whose graph must settle (2.5 s at FAST's 60 per second).
-FRAMES = 150
+#: Frames of a daemon whose graph must settle (1 s at FAST's 60 per second; a few seconds on a debug build).
+FRAMES = 60
 DOC = REPO / "docs" / "remote.md"
 
 
