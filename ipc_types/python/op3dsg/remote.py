@@ -30,7 +30,6 @@ from __future__ import annotations
 import ctypes
 import json
 import logging
-import queue
 import struct
 import threading
 import time
@@ -78,9 +77,9 @@ MESSAGE_KINDS = {KIND_GRAPH: "graph", KIND_DELTA: "delta", KIND_HEALTH: "health"
 FULL_QUERY_TIMEOUT_S = 5.0
 #: How often the follower asks the queryable again while it holds no graph, seconds.
 FULL_RETRY_S = 0.5
-#: Messages waiting for the follower thread; more are dropped (and counted), which the next
-#: delta shows as a gap.
-INBOX_CAPACITY = 1024
+#: Messages waiting for the follower thread; when it falls further behind the oldest give way,
+#: and the next delta shows the gap.
+RING_CAPACITY = 256
 #: How often a client started before the daemon retries connecting, seconds.
 CONNECT_RETRY_S = 0.1
 
@@ -436,30 +435,26 @@ class RemoteGraphClient(_RemoteSession):
         self.service = self.key
         self._follower = RemoteFollower(self.key)
         self._changed = threading.Condition()
-        self._inbox: "queue.Queue[bytes]" = queue.Queue(INBOX_CAPACITY)
         self._stop = threading.Event()
-        self._counters = {"queries": 0, "errors": 0, "dropped": 0}
+        self._counters = {"queries": 0, "errors": 0}
         self.last_error: Optional[Exception] = None
         self._graph: Optional[Graph] = None
         self._next_fetch = 0.0
         self._last_instance = 0
         self._if_newer_instance = 0
-        self._subscribers = []
+        self._keys = (self.key, f"{self.key}/delta")
+        zenoh = _zenoh()
         try:
-            for key in (self.key, f"{self.key}/delta"):
-                self._subscribers.append(self._session.declare_subscriber(key, self._received))
-        except Exception as e:
+            # One subscriber for full graphs and deltas, so they arrive in the order they were
+            # sent, into a ring channel: no Python callback runs on Zenoh's threads (one there
+            # keeps the interpreter from exiting while a session is open), and when the follower
+            # falls behind the oldest messages give way, which the next delta shows as a gap.
+            self._subscriber = self._session.declare_subscriber(f"{self.key}/**", zenoh.handlers.RingChannel(RING_CAPACITY))
+        except zenoh.ZError as e:
             self.close()
             raise RemoteError(self.key, "subscribe", str(e).split(" at /")[0], endpoint) from None
         self._thread = threading.Thread(target=self._run, name=f"op3dsg-remote {self.key}", daemon=True)
         self._thread.start()
-
-    # Zenoh's thread: hand over, never wait.
-    def _received(self, sample) -> None:
-        try:
-            self._inbox.put_nowait(sample.payload.to_bytes())
-        except queue.Full:
-            self._counters["dropped"] += 1
 
     def _run(self) -> None:
         while not self._stop.is_set():
@@ -468,13 +463,18 @@ class RemoteGraphClient(_RemoteSession):
                     self._next_fetch = time.monotonic() + FULL_RETRY_S
                     self._fetch_full()
                 try:
-                    message = self._inbox.get(timeout=0.05)
-                except queue.Empty:
-                    continue
-                self._apply(message)
+                    sample = self._subscriber.recv()  # ends with an error when the session closes
+                except Exception:
+                    if self._stop.is_set():
+                        return
+                    raise
+                if str(sample.key_expr) in self._keys:
+                    self._apply(sample.payload.to_bytes())
             except Exception as e:  # the thread must outlive anything a message or Zenoh does
-                if not self._stop.is_set():
-                    self._error(e)
+                if self._stop.is_set():
+                    return
+                self._error(e)
+                time.sleep(0.05)
 
     def _fetch_full(self) -> None:
         zenoh = _zenoh()
@@ -490,18 +490,13 @@ class RemoteGraphClient(_RemoteSession):
 
     def _apply(self, message: bytes) -> None:
         with self._changed:
-            held = self._follower.held()
             try:
                 applied = self._follower.apply(message)
             except Op3dsgError as e:
                 self._error(e)
-                if held is not None and self._follower.held() is None:
-                    self._next_fetch = 0.0  # a delta that did not fit dropped the graph held
                 return
             if applied in (APPLIED_FULL, APPLIED_DELTA):
                 self._changed.notify_all()
-            elif applied == APPLIED_NEED_FULL:
-                self._next_fetch = 0.0  # ask the queryable at once (the periodic full comes too)
 
     def _error(self, error: Exception) -> None:
         self._counters["errors"] += 1
@@ -562,7 +557,8 @@ class RemoteGraphClient(_RemoteSession):
                 return graph
             left = deadline - time.monotonic()
             if left <= 0:
-                cause = f"no graph with at least {min_nodes} nodes within {timeout:.1f} s"
+                wanted = f"no graph with at least {min_nodes} nodes" if min_nodes else "no graph"
+                cause = f"{wanted} within {timeout:.1f} s"
                 if self.last_error is not None:
                     cause += f" (last error: {self.last_error})"
                 elif self._counters["queries"] and not self._follower.counters["fulls"]:
@@ -580,7 +576,7 @@ class RemoteGraphClient(_RemoteSession):
         """``fulls`` (full graphs taken), ``deltas_applied``, ``stale`` (messages older than the
         graph held), ``gaps`` (deltas that showed lost versions), ``restarts`` (new daemon
         instances), ``queries`` (full graphs asked for), ``errors`` (messages that could not be
-        read, failed queries), ``dropped`` (messages the follower thread was too slow for)."""
+        read, failed queries)."""
         with self._changed:
             return dict(self._follower.counters, **self._counters)
 
@@ -595,13 +591,7 @@ class RemoteGraphClient(_RemoteSession):
         stop = getattr(self, "_stop", None)
         if stop is not None:
             stop.set()
-        for subscriber in getattr(self, "_subscribers", []):
-            try:
-                subscriber.undeclare()
-            except Exception:
-                pass
-        self._subscribers = []
-        super().close()
+        super().close()  # undeclares the subscriber, which ends the follower's wait
         thread = getattr(self, "_thread", None)
         if thread is not None and thread is not threading.current_thread():
             thread.join(timeout=FULL_QUERY_TIMEOUT_S + 1)
@@ -744,26 +734,26 @@ class RemoteOccupancyClient(_RemoteSession):
     def __init__(self, endpoint: str, key_prefix: str, timeout: float = 0.0):
         super().__init__(endpoint, key_prefix, timeout, "occupancy")
         self.service = self.key
-        self._lock = threading.Lock()
-        self._pending: Optional[bytes] = None
         self._latest: Optional[OccupancyMap] = None
         self._last_fetch = -FULL_RETRY_S
+        zenoh = _zenoh()
         try:
-            self._subscriber = self._session.declare_subscriber(self.key, self._received)
-        except Exception as e:
+            # The newest map only (a ring of one), no Python callback on Zenoh's threads.
+            self._subscriber = self._session.declare_subscriber(self.key, zenoh.handlers.RingChannel(1))
+        except zenoh.ZError as e:
             self.close()
             raise RemoteError(self.key, "subscribe", str(e).split(" at /")[0], endpoint) from None
-
-    def _received(self, sample) -> None:
-        with self._lock:
-            self._pending = sample.payload.to_bytes()
 
     def latest(self) -> Optional[OccupancyMap]:
         """The newest map received (``None`` while none came); asks the queryable while none
         did (at most every half second). A message that breaks the format raises
         :class:`~op3dsg.errors.InvalidRemoteMessageError`."""
-        with self._lock:
-            message, self._pending = self._pending, None
+        message = None
+        while True:
+            sample = self._subscriber.try_recv()
+            if sample is None:
+                break
+            message = sample.payload.to_bytes()
         if message is None and self._latest is None and time.monotonic() - self._last_fetch >= FULL_RETRY_S:
             self._last_fetch = time.monotonic()
             try:
@@ -798,15 +788,6 @@ class RemoteOccupancyClient(_RemoteSession):
                     self.endpoint,
                 )
             time.sleep(0.02)
-
-    def close(self) -> None:
-        subscriber, self._subscriber = getattr(self, "_subscriber", None), None
-        if subscriber is not None:
-            try:
-                subscriber.undeclare()
-            except Exception:
-                pass
-        super().close()
 
     def __enter__(self) -> "RemoteOccupancyClient":
         return self

@@ -259,6 +259,20 @@ def test_a_malformed_message_is_counted_and_the_client_goes_on(prefix, daemons, 
     client.close()
 
 
+def test_a_program_that_never_closes_its_clients_still_exits(prefix, daemons, remote):
+    daemons(prefix, remote.args(frames=None))
+    code = (
+        "import op3dsg\n"
+        f"graphs = op3dsg.RemoteGraphClient({remote.endpoint!r}, {remote.key_prefix!r}, timeout=60)\n"
+        f"maps = op3dsg.RemoteOccupancyClient({remote.endpoint!r}, {remote.key_prefix!r}, timeout=60)\n"
+        "print(graphs.wait_for_graph(60).version, maps.wait(60).version)\n"
+    )
+    package = str(Path(op3dsg.__file__).resolve().parents[1])
+    env = dict(os.environ, PYTHONPATH=package)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=90, env=env)
+    assert out.returncode == 0 and len(out.stdout.split()) == 2, out.stderr
+
+
 def test_the_occupancy_map_over_zenoh_is_the_iceoryx2_one(prefix, daemons, remote):
     daemons(prefix, remote.args())
     settled(prefix)
