@@ -27,12 +27,14 @@ for messages however they came. This module needs the Zenoh Python binding, PyPI
 
 from __future__ import annotations
 
+import atexit
 import ctypes
 import json
 import logging
 import struct
 import threading
 import time
+import weakref
 from dataclasses import dataclass
 from typing import Dict, List, Optional, Tuple
 
@@ -357,6 +359,17 @@ def open_session(endpoint: str, key: str, timeout: float):
             time.sleep(min(CONNECT_RETRY_S, left))
 
 
+#: Clients not closed yet: closed at interpreter exit, before Python stops its threads (a
+#: follower thread that Python stops while it waits in Zenoh aborts the process).
+_open_clients: "weakref.WeakSet[_RemoteSession]" = weakref.WeakSet()
+
+
+@atexit.register
+def _close_open_clients() -> None:
+    for client in list(_open_clients):
+        client.close()
+
+
 class _RemoteSession:
     """A client session to one daemon's endpoint under its key prefix."""
 
@@ -366,6 +379,7 @@ class _RemoteSession:
         self.key = f"{key_prefix}/{key_suffix}"
         check_key_prefix(key_prefix, self.key)
         self._session = open_session(endpoint, self.key, timeout)
+        _open_clients.add(self)
 
     def _first_reply(self, key: str, payload: Optional[bytes], timeout: float) -> bytes:
         """The payload of the first reply to a query on ``key``, asked with congestion control
@@ -390,6 +404,7 @@ class _RemoteSession:
         )
 
     def close(self) -> None:
+        _open_clients.discard(self)
         session, self._session = getattr(self, "_session", None), None
         if session is not None:
             try:

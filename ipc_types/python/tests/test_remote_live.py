@@ -269,8 +269,11 @@ def test_a_program_that_never_closes_its_clients_still_exits(prefix, daemons, re
     )
     package = str(Path(op3dsg.__file__).resolve().parents[1])
     env = dict(os.environ, PYTHONPATH=package)
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=90, env=env)
-    assert out.returncode == 0 and len(out.stdout.split()) == 2, out.stderr
+    # Three times: the exit that went wrong (a hang, or an abort when Python stopped the
+    # follower thread inside Zenoh) depended on what arrived while the interpreter finished.
+    for _ in range(3):
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=90, env=env)
+        assert out.returncode == 0 and len(out.stdout.split()) == 2, out.stderr
 
 
 def test_the_occupancy_map_over_zenoh_is_the_iceoryx2_one(prefix, daemons, remote):
