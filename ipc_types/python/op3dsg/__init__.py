@@ -15,26 +15,53 @@ Two lines read the graph as numpy views of the daemon's shared memory (no copy):
 - :func:`goal` — where to stand to reach a node (by id, or the top hit of a need in words): an
   approach pose on the daemon's occupancy map, reachable from the robot's pose.
 - :func:`health` / :class:`HealthClient` — the daemon's health record, without a graph subscriber.
+- :class:`OccupancyClient` — the daemon's 2D occupancy map (:class:`OccupancyMap`: header and
+  ``int8`` cells ``[row, col]``).
 - :mod:`op3dsg.wire` — the ctypes mirror of the Rust wire types, numpy dtypes, constants.
+- :mod:`op3dsg.remote` — the same from another computer, over Zenoh (``pip install
+  "op3dsg[zenoh]"``): :class:`RemoteGraphClient` follows the graph (full graphs and deltas) and
+  hands out :class:`Graph`; :class:`RemoteQueryClient` / :func:`remote_query` /
+  :func:`remote_goal`, :func:`remote_health`, :class:`RemoteOccupancyClient` /
+  :func:`remote_occupancy`::
 
-Same iceoryx2 as the daemon: PyPI ``iceoryx2==0.10.0``.
+      remote = op3dsg.RemoteGraphClient("tcp/192.168.1.20:7447", "op3dsg/stretch-1", timeout=30)
+      graph = remote.wait_for_graph(30)
+
+Same iceoryx2 as the daemon: PyPI ``iceoryx2==0.10.0``. Zenoh (PyPI ``eclipse-zenoh``) is
+imported only when a remote client is made.
 """
 
 from .errors import (
     AccessDeniedError,
     Iceoryx2Error,
+    InvalidEndpointError,
     InvalidGraphError,
     InvalidPoseError,
     InvalidPrefixError,
+    InvalidRemoteMessageError,
     NotServingError,
     Op3dsgError,
+    RemoteError,
+    RemoteTimeoutError,
     SampleReleasedError,
     SchemaVersionError,
     SubscriberSlotsFullError,
 )
 from .graph import Graph, GraphClient, GraphView, wait_for_graph
 from .health import HealthClient, health
+from .occupancy import OccupancyClient, OccupancyHeader, OccupancyMap
 from .query import Approach, Goal, GoalError, Hit, QueryClient, QueryError, QueryResult, goal, query
+from .remote import (
+    RemoteFollower,
+    RemoteGraphClient,
+    RemoteHealth,
+    RemoteOccupancyClient,
+    RemoteQueryClient,
+    remote_goal,
+    remote_health,
+    remote_occupancy,
+    remote_query,
+)
 from .pose import PosePublisher, PoseService, check_pose, make_pose, open_or_create_pose_service
 from .wire import (
     AFFORDANCES,
@@ -81,18 +108,30 @@ __all__ = [
     "Health",
     "HealthClient",
     "Iceoryx2Error",
+    "InvalidEndpointError",
     "InvalidGraphError",
     "InvalidPoseError",
     "InvalidPrefixError",
+    "InvalidRemoteMessageError",
     "NODE_DTYPE",
     "NO_NODE",
     "NotServingError",
+    "OccupancyClient",
+    "OccupancyHeader",
+    "OccupancyMap",
     "Op3dsgError",
     "POSE_WORLD_FROM_BASE",
     "POSE_WORLD_FROM_CAMERA",
     "PosePublisher",
     "PoseService",
     "PoseStamped",
+    "RemoteError",
+    "RemoteFollower",
+    "RemoteGraphClient",
+    "RemoteHealth",
+    "RemoteOccupancyClient",
+    "RemoteQueryClient",
+    "RemoteTimeoutError",
     "SCHEMA_VERSION",
     "SOURCE_KINDS",
     "SPATIAL_RELATIONS",
@@ -108,5 +147,9 @@ __all__ = [
     "make_pose",
     "open_or_create_pose_service",
     "relation_phrase",
+    "remote_goal",
+    "remote_health",
+    "remote_occupancy",
+    "remote_query",
     "wait_for_graph",
 ]

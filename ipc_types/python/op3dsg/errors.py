@@ -76,3 +76,27 @@ class InvalidPoseError(Op3dsgError, ValueError):
 
 class Iceoryx2Error(Op3dsgError):
     """iceoryx2 refused an operation; ``cause`` holds its reason (``ExceedsMaxSupportedPublishers``, ...)."""
+
+
+class RemoteError(Op3dsgError):
+    """A request over Zenoh failed: no connection to the endpoint, an error reply, or a message
+    that cannot be read. ``service`` is the Zenoh key (``<key_prefix>/graph``, ...) and
+    ``endpoint`` the Zenoh endpoint (``tcp/192.168.1.20:7447``); the message names both."""
+
+    def __init__(self, service: str, operation: str, cause: str, endpoint: str = ""):
+        super().__init__(service, operation, f"{cause} (zenoh endpoint {endpoint})" if endpoint else cause)
+        self.endpoint = endpoint
+
+
+class RemoteTimeoutError(RemoteError, TimeoutError):
+    """Nothing answered a Zenoh request in time (no daemon there, or another key prefix)."""
+
+
+class InvalidRemoteMessageError(RemoteError, ValueError):
+    """A message on a Zenoh key breaks the format of docs/remote.md (magic, format version, kind,
+    a length, a delta that does not fit the graph held)."""
+
+
+class InvalidEndpointError(RemoteError, ValueError):
+    """A Zenoh endpoint or key prefix that cannot be used (``tcp/<host>:<port>`` expected; a key
+    prefix without wildcards)."""

@@ -275,21 +275,12 @@ class QueryClient:
         the reply. Raises :class:`QueryError` when the daemon answers without hits (busy, encoder
         off, ...), ``TimeoutError`` when it does not answer, ``ValueError`` for a text over 256
         bytes or a bad ``k``."""
-        if not 1 <= int(k) <= QUERY_MAX_K:
-            raise ValueError(f"k: must be within [1, {QUERY_MAX_K}], got {k}")
-        request = QueryRequest(schema_version=QUERY_SCHEMA_VERSION, k=int(k), node_id=NO_NODE_REQUEST)
-        raw = write_fixed_str(text, QUERY_TEXT_CAPACITY_BYTES)
-        ctypes.memmove(request.text, raw, len(raw))
-        return self._send(request, timeout)
+        return self._send(text_request(text, k), timeout)
 
     def query_node(self, node_id: int, timeout: float = 5.0) -> QueryResult:
         """Asks for node ``node_id`` alone (with its approach pose); needs no text encoder.
         Raises :class:`QueryError` (``bad_request``) when the current graph has no such node."""
-        node_id = int(node_id)
-        if not 0 <= node_id < NO_NODE_REQUEST:
-            raise ValueError(f"node_id: must be within [0, {NO_NODE_REQUEST - 1}], got {node_id}")
-        request = QueryRequest(schema_version=QUERY_SCHEMA_VERSION, k=1, node_id=node_id)
-        return self._send(request, timeout)
+        return self._send(node_request(node_id), timeout)
 
     def goal(self, target, timeout: float = 5.0) -> Goal:
         """The approach pose of ``target``: a node id (``int``) or a need in words (``str``,
@@ -300,14 +291,7 @@ class QueryClient:
             result = self.query_node(target, timeout)
         else:
             result = self.query(str(target), 1, timeout)
-        if not result.hits:
-            raise QueryError(self.service, "no_hit", f"graph version {result.graph_version} has no node for {target!r}")
-        hit = result.hits[0]
-        if hit.approach is None:
-            raise GoalError(self.service, hit.node_id, hit.label, hit.approach_status)
-        return Goal(
-            node_id=hit.node_id, kind=hit.kind, label=hit.label, graph_version=result.graph_version, approach=hit.approach
-        )
+        return goal_of(self.service, target, result)
 
     def _send(self, request: QueryRequest, timeout: float) -> QueryResult:
         try:
@@ -325,43 +309,78 @@ class QueryClient:
                     reply = QueryResponse()
                     ctypes.memmove(ctypes.addressof(reply), response.payload_ptr, ctypes.sizeof(QueryResponse))
                     response.delete()
-                    return self._result(reply)
+                    return decode_response(self.service, reply)
                 if time.monotonic() >= deadline:
                     raise TimeoutError(f"{self.service}: query: no reply within {timeout} s (daemon stopped or stuck?)")
                 time.sleep(0.0005)
         finally:
             pending.delete()
 
-    def _result(self, reply: QueryResponse) -> QueryResult:
-        if reply.schema_version != QUERY_SCHEMA_VERSION:
-            raise QueryError(
-                self.service, "schema", f"reply has query schema {reply.schema_version}, this package reads {QUERY_SCHEMA_VERSION}"
-            )
-        status = _name(QUERY_STATUSES, reply.status)
-        if status != "ok":
-            raise QueryError(self.service, status, fixed_str(bytes(reply.message)))
-        hits = [
-            Hit(
-                node_id=h.node_id,
-                parent_id=None if h.parent_id == NO_NODE else h.parent_id,
-                kind=_name(NODE_KINDS, h.kind),
-                label=fixed_str(bytes(h.label)),
-                score=float(h.score),
-                matched=_name(QUERY_MATCHES, h.matched),
-                matched_text=fixed_str(bytes(h.matched_text)),
-                approach_status=_name(APPROACH_STATUSES, h.approach_status),
-                approach=_approach(h),
-            )
-            for h in reply.hits[: min(reply.hit_count, QUERY_MAX_K)]
-        ]
-        return QueryResult(
-            hits=hits,
-            graph_version=reply.graph_version,
-            instance_id=reply.instance_id,
-            scored_node_count=reply.scored_node_count,
-            encode_us=reply.encode_us,
-            score_us=reply.score_us,
+
+# The request and response bytes are the same over iceoryx2 and over Zenoh (``<prefix>/query``,
+# docs/remote.md): the functions below serve both transports.
+
+
+def text_request(text: str, k: int) -> QueryRequest:
+    """The request of a text query for ``k`` nodes; ``ValueError`` for a bad ``k`` or a text
+    over 256 bytes."""
+    if not 1 <= int(k) <= QUERY_MAX_K:
+        raise ValueError(f"k: must be within [1, {QUERY_MAX_K}], got {k}")
+    request = QueryRequest(schema_version=QUERY_SCHEMA_VERSION, k=int(k), node_id=NO_NODE_REQUEST)
+    raw = write_fixed_str(text, QUERY_TEXT_CAPACITY_BYTES)
+    ctypes.memmove(request.text, raw, len(raw))
+    return request
+
+
+def node_request(node_id: int) -> QueryRequest:
+    """The request for node ``node_id`` alone (its approach pose)."""
+    node_id = int(node_id)
+    if not 0 <= node_id < NO_NODE_REQUEST:
+        raise ValueError(f"node_id: must be within [0, {NO_NODE_REQUEST - 1}], got {node_id}")
+    return QueryRequest(schema_version=QUERY_SCHEMA_VERSION, k=1, node_id=node_id)
+
+
+def decode_response(service: str, reply: QueryResponse) -> QueryResult:
+    """The :class:`QueryResult` of a response; :class:`QueryError` when it has another schema or
+    a status other than ``ok``."""
+    if reply.schema_version != QUERY_SCHEMA_VERSION:
+        raise QueryError(service, "schema", f"reply has query schema {reply.schema_version}, this package reads {QUERY_SCHEMA_VERSION}")
+    status = _name(QUERY_STATUSES, reply.status)
+    if status != "ok":
+        raise QueryError(service, status, fixed_str(bytes(reply.message)))
+    hits = [
+        Hit(
+            node_id=h.node_id,
+            parent_id=None if h.parent_id == NO_NODE else h.parent_id,
+            kind=_name(NODE_KINDS, h.kind),
+            label=fixed_str(bytes(h.label)),
+            score=float(h.score),
+            matched=_name(QUERY_MATCHES, h.matched),
+            matched_text=fixed_str(bytes(h.matched_text)),
+            approach_status=_name(APPROACH_STATUSES, h.approach_status),
+            approach=_approach(h),
         )
+        for h in reply.hits[: min(reply.hit_count, QUERY_MAX_K)]
+    ]
+    return QueryResult(
+        hits=hits,
+        graph_version=reply.graph_version,
+        instance_id=reply.instance_id,
+        scored_node_count=reply.scored_node_count,
+        encode_us=reply.encode_us,
+        score_us=reply.score_us,
+    )
+
+
+def goal_of(service: str, target, result: QueryResult) -> Goal:
+    """The :class:`Goal` of the top hit of ``result`` (the answer about ``target``);
+    :class:`GoalError` when that node has no approach pose."""
+    if not result.hits:
+        raise QueryError(service, "no_hit", f"graph version {result.graph_version} has no node for {target!r}")
+    hit = result.hits[0]
+    if hit.approach is None:
+        raise GoalError(service, hit.node_id, hit.label, hit.approach_status)
+    return Goal(node_id=hit.node_id, kind=hit.kind, label=hit.label, graph_version=result.graph_version, approach=hit.approach)
 
 
 def query(text: str, k: int = 5, prefix: str = DEFAULT_PREFIX, timeout: float = 5.0) -> QueryResult:

@@ -220,3 +220,27 @@ def test_the_example_planner_prints_live_graph_versions_with_parts_and_parents(p
     assert len(versions) == 6, out.stdout
     assert versions == sorted(set(versions)), f"each version newer than the last: {versions}"
     assert any(line.strip().startswith("part ") and "of '(none)'" not in line for line in out.stdout.splitlines()), out.stdout
+
+
+def test_the_occupancy_map_is_a_grid_of_the_daemon_with_its_counts_and_the_robot_on_it(prefix, daemons):
+    daemons(prefix, FAST + ["--set", "run.max_frames=150"])
+    with op3dsg.OccupancyClient(prefix, timeout=30) as client:
+
+        def integrated():
+            grid = client.latest()
+            return grid if grid is not None and grid.keyframes_integrated > 0 and grid.robot_pose is not None else None
+
+        grid = wait_for("an occupancy map with keyframes integrated", 60, integrated)
+    h = grid.header
+    assert h.schema_version == op3dsg.occupancy.OCCUPANCY_SCHEMA_VERSION and h.instance_id != 0
+    assert grid.cells.dtype == np.int8 and grid.cells.shape == (h.height_cells, h.width_cells)
+    assert 0 < h.width_cells <= 2048 and 0 < h.height_cells <= 2048 and h.cell_size_m > 0
+    assert not grid.cells.flags.writeable
+    values = np.unique(grid.cells)
+    assert values.min() >= -1 and values.max() <= 100, values
+    assert grid.free().sum() == h.free_cells > 0 and grid.occupied().sum() == h.occupied_cells > 0
+    assert grid.unknown().sum() + grid.free().sum() + grid.occupied().sum() <= grid.cells.size
+    x, y, _ = grid.robot_pose
+    row, col = grid.cell_of(x, y)
+    assert np.allclose(grid.centre_of(row, col), (x, y), atol=h.cell_size_m)
+    assert grid.up_axis == "z" and h.obstacle_max_height_m > h.obstacle_min_height_m
