@@ -59,7 +59,8 @@ pub struct OccupancyHeader {
     pub robot_pose_valid: u8,
     /// Reserved, zero.
     pub reserved: [u8; 2],
-    /// The daemon instance ([`GraphHeader::instance_id`](crate::GraphHeader::instance_id)).
+    /// The occupancy publisher's instance, drawn when the daemon starts (not the graph's
+    /// [`GraphHeader::instance_id`](crate::GraphHeader::instance_id)): a new value means a restart.
     pub instance_id: u64,
     /// Stamp of the newest keyframe integrated, on the frames' clock, nanoseconds.
     pub stamp_ns: u64,
