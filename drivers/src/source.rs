@@ -127,6 +127,13 @@ pub trait FrameSource: Send {
         false
     }
 
+    /// `camera_from_upright`: the physical camera's optical frame from the frames' camera, when
+    /// the source turns its images upright (a camera turned in its mount); identity otherwise.
+    /// A pose of the physical camera (tf's camera frame) composed with it is the frames' pose.
+    fn camera_from_upright(&self) -> crate::pose::Isometry {
+        crate::pose::Isometry::IDENTITY
+    }
+
     /// Whether the device behind the source is there (a camera that was unplugged and is being
     /// reconnected says `false`); the pipeline reports it as health's `source_connected`.
     fn connected(&self) -> bool {

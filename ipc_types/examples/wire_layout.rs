@@ -160,7 +160,9 @@ fn health_layouts() -> Vec<String> {
             stale,
             future,
             queue_full,
-            reserved,
+            no_transform_path,
+            frame_not_found,
+            extrapolation,
         }
     );
     layout!(types, ModelHealth { name, sessions, provider, requested_provider, reserved });

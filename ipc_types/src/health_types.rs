@@ -177,8 +177,14 @@ pub struct PoseHealth {
     /// Dropped between the receiving thread and the gate because the hand-over queue (capacity
     /// `pose.buffer_len`) was full.
     pub queue_full: u64,
-    /// Reserved, zero.
-    pub reserved: [u64; 3],
+    /// `pose.source = "ros2"`: no chain of transforms joins the world and camera frames (a link
+    /// of the tf tree is missing; the daemon's log names it).
+    pub no_transform_path: u64,
+    /// `pose.source = "ros2"`: no transform names the world or camera frame.
+    pub frame_not_found: u64,
+    /// `pose.source = "ros2"`: a link of the chain has no transforms around the stamp (before
+    /// its oldest, after its newest, or too far apart to interpolate).
+    pub extrapolation: u64,
 }
 
 /// The default of the profile's `pose.future_tolerance_ms`, nanoseconds: a pose stamped further

@@ -195,7 +195,9 @@ fn every_pose_rejection_reason_is_counted_in_health() {
         stale: 1,
         future: 1,
         queue_full: 0,
-        reserved: [0; 3],
+        no_transform_path: 0,
+        frame_not_found: 0,
+        extrapolation: 0,
     };
     let counted = wait_for("every reason counted once", Duration::from_secs(30), || {
         health.latest().ok().flatten().map(|h| h.pose).filter(|pose| *pose == expected)

@@ -75,6 +75,7 @@ pub mod query;
 pub mod queue;
 pub mod reasoner;
 pub mod record;
+pub mod ros2;
 pub mod service;
 pub mod stats;
 pub mod world;

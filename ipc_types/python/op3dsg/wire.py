@@ -341,7 +341,9 @@ class PoseHealth(_Wire):
         ("stale", _u64),
         ("future", _u64),
         ("queue_full", _u64),
-        ("reserved", _u64 * 3),
+        ("no_transform_path", _u64),
+        ("frame_not_found", _u64),
+        ("extrapolation", _u64),
     ]
 
     @staticmethod

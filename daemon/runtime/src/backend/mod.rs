@@ -59,7 +59,7 @@ pub enum StartError {
     /// The snapshot directory could not be used (or another daemon holds it).
     #[error("snapshot.dir: {0}")]
     Snapshot(#[from] SnapshotError),
-    /// The Zenoh session could not be opened (the message names the `[zenoh]` key).
+    /// A Zenoh session could not be opened (the message names the `[zenoh]` or `[ros2]` key).
     #[error("{0}")]
     Zenoh(String),
     /// A thread could not be started.

@@ -43,7 +43,7 @@ use crate::capture::SourceConfig;
 use crate::fusion::FusionConfig;
 use crate::fusion::snapshot::SnapshotConfig;
 use crate::ipc::IpcConfig;
-use crate::keyframe::{KeyframeConfig, MAX_PENDING_FRAMES, PoseConfig, PoseSourceKind};
+use crate::keyframe::{KeyframeConfig, MAX_PENDING_FRAMES, PoseConfig};
 use crate::occupancy::{NavigationConfig, OccupancyConfig};
 use crate::onnx::OnnxConfig;
 use crate::onnx::text_encoder::TextEncoderConfig;
@@ -53,6 +53,7 @@ use crate::query::QueryConfig;
 use crate::queue::QueueConfig;
 use crate::reasoner::ReasonerConfig;
 use crate::record::RecordConfig;
+use crate::ros2::Ros2Config;
 use crate::world::WorldConfig;
 use crate::zenoh::ZenohConfig;
 
@@ -144,6 +145,10 @@ pub struct Profile {
     /// The graph for consumers off the robot over Zenoh (`crate::zenoh`); off unless `enabled`.
     #[serde(default)]
     pub zenoh: ZenohConfig,
+    /// The robot's ROS 2 software through Zenoh (`crate::ros2`): poses from tf with
+    /// `pose.source = "ros2"`.
+    #[serde(default)]
+    pub ros2: Ros2Config,
     /// The sections of registered backends, by dotted path (`source.synthetic`,
     /// `detector.oracle`, `fusion.conceptgraphs`), as their backend checked and completed them
     /// at load time.
@@ -241,6 +246,7 @@ impl Profile {
             self.occupancy.validate("occupancy"),
             self.navigation.validate("navigation"),
             self.zenoh.validate("zenoh"),
+            self.ros2.validate("ros2"),
             self.reasoner.validate("reasoner"),
             self.health.validate("health"),
             self.run.validate("run"),
@@ -271,7 +277,7 @@ impl Profile {
             + self.detector.workers
             + 3
             + self.source.pool_headroom
-            + if self.pose.source == PoseSourceKind::Ipc { MAX_PENDING_FRAMES } else { 0 }
+            + if self.pose.source.is_received() { MAX_PENDING_FRAMES } else { 0 }
     }
 }
 

@@ -152,7 +152,7 @@ pub struct ModelReport {
 }
 
 /// The names and values of a [`PoseHealth`](op3dsg_ipc_types::PoseHealth), in its field order.
-pub fn pose_counters(p: &op3dsg_ipc_types::PoseHealth) -> [(&'static str, u64); 9] {
+pub fn pose_counters(p: &op3dsg_ipc_types::PoseHealth) -> [(&'static str, u64); 12] {
     [
         ("accepted", p.accepted),
         ("unknown_kind", p.unknown_kind),
@@ -163,6 +163,9 @@ pub fn pose_counters(p: &op3dsg_ipc_types::PoseHealth) -> [(&'static str, u64); 
         ("stale", p.stale),
         ("future", p.future),
         ("queue_full", p.queue_full),
+        ("no_transform_path", p.no_transform_path),
+        ("frame_not_found", p.frame_not_found),
+        ("extrapolation", p.extrapolation),
     ]
 }
 
@@ -354,7 +357,7 @@ mod tests {
         op3dsg_ipc_types::write_fixed_str(&mut health.models[0].name, "YOLOX model");
         (health.models[0].sessions, health.models[0].provider, health.models[0].requested_provider) = (2, 1, 2);
         let report = HealthReport::from(&health);
-        assert_eq!((report.poses.get("future"), report.poses.len()), (Some(&3), 9));
+        assert_eq!((report.poses.get("future"), report.poses.len()), (Some(&3), 12));
         assert_eq!(
             report.models,
             [ModelReport {

@@ -11,6 +11,16 @@ pub enum PoseSourceKind {
     Frame,
     /// The navigation stack publishes [`op3dsg_ipc_types::PoseStamped`] on `<prefix>/pose`.
     Ipc,
+    /// The robot's ROS 2 tf tree, through Zenoh (`[ros2]`, `crate::ros2`).
+    Ros2,
+}
+
+impl PoseSourceKind {
+    /// Poses arrive apart from the frames (over iceoryx2 or from tf) and the keyframe gate
+    /// matches them to frames by stamp.
+    pub fn is_received(self) -> bool {
+        matches!(self, Self::Ipc | Self::Ros2)
+    }
 }
 
 /// A fixed transform in the profile.

@@ -165,7 +165,7 @@ impl KeyframeGate {
     /// calls it). Discards poses that this frame shows to lie beyond the future tolerance, and
     /// empties the buffer when frame stamps jump back by more than it.
     pub fn note_frame(&mut self, stamp_ns: u64) {
-        if self.pose_source != PoseSourceKind::Ipc {
+        if !self.pose_source.is_received() {
             return;
         }
         if let Some(newest_ns) = self.newest_frame_ns
@@ -208,7 +208,7 @@ impl KeyframeGate {
             PoseSourceKind::Frame => {
                 frame.world_from_camera.map_or(PoseAt::Missing(PoseMiss::Empty), PoseAt::Interpolated)
             }
-            PoseSourceKind::Ipc => self.poses.pose_at(frame.stamp_ns, may_wait),
+            PoseSourceKind::Ipc | PoseSourceKind::Ros2 => self.poses.pose_at(frame.stamp_ns, may_wait),
         }
     }
 

@@ -14,6 +14,7 @@ use crate::publish::PublishCounters;
 use crate::queue::QueueStats;
 use crate::reasoner::llm::RefinerStats;
 use crate::record::RecorderStats;
+use crate::ros2::TfInputCounters;
 use crate::stats::{HealthSource, Liveness, ReportHealth, StageStats};
 use crate::zenoh::ZenohCounters;
 
@@ -41,6 +42,8 @@ pub struct Counters {
     pub liveness: Arc<Liveness>,
     /// The Zenoh stage (`None` without `[zenoh] enabled`).
     pub zenoh: Option<Arc<ZenohCounters>>,
+    /// The tf input (`None` unless `pose.source = "ros2"`).
+    pub ros2_tf: Option<Arc<TfInputCounters>>,
 }
 
 impl Counters {
@@ -59,13 +62,14 @@ impl Counters {
             recorder: Arc::default(),
             liveness: Arc::default(),
             zenoh: None,
+            ros2_tf: None,
         }
     }
 
     /// One entry per stage, in pipeline order: `capture`, `keyframe`, `detect/0..N-1`, `fusion`,
     /// `prior` (prior graph + reasoner, on the fusion thread), `publish`, and `end_to_end` (not a
     /// thread: from a keyframe's capture to the send of the first graph holding it), then
-    /// `zenoh` when that stage is on.
+    /// `zenoh` and `ros2_tf` when those stages are on.
     pub fn stages(&self) -> Vec<Arc<StageStats>> {
         let mut stages = vec![self.capture.stage.clone(), self.keyframe.stage.clone()];
         stages.extend(self.detect.iter().cloned());
@@ -76,6 +80,7 @@ impl Counters {
             self.publish.end_to_end.clone(),
         ]);
         stages.extend(self.zenoh.as_ref().map(|z| z.stage.clone()));
+        stages.extend(self.ros2_tf.as_ref().map(|t| t.stage.clone()));
         stages
     }
 

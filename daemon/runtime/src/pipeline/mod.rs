@@ -135,6 +135,7 @@ impl Pipeline {
         let refiner = enricher.as_ref().and_then(GraphEnricher::refiner_stats).unwrap_or_default();
         let mut counters = Counters::new(profile.detector.workers, q.stats.clone(), refiner);
         counters.zenoh = profile.zenoh.enabled.then(Arc::default);
+        counters.ros2_tf = (profile.pose.source == PoseSourceKind::Ros2).then(Arc::default);
         let counters = Arc::new(counters);
         let stages::RestoredMap { fusion, resume, snapshots } = stages::restored_map(profile, backends, &counters)?;
         let (snapshot_sink, snapshot_writer) = snapshots.unzip();
@@ -191,8 +192,18 @@ impl Pipeline {
         drop(q.detections.0);
         let recorder = recorder.map(|sender| (sender, side_taps));
         let gate = (q.frames.1, q.keyframes.0, q.poses.1);
+        // The tf input hands poses to the gate and ends with it.
+        let gate_alive = if profile.pose.source == PoseSourceKind::Ros2 {
+            let upright = source.camera_from_upright();
+            Some(stages::ros2_tf(&mut s, profile, upright, q.poses.0.clone(), &counters, &stop)?)
+        } else {
+            None
+        };
         let keyframe = stages::keyframe(profile, source.as_ref(), gate, &counters, &stop, recorder, occupancy_feed);
-        s.spawn("keyframe", move || keyframe.run())?;
+        s.spawn("keyframe", move || {
+            let _alive = gate_alive;
+            keyframe.run();
+        })?;
         // Capture last, so every consumer is ready.
         let capture = stages::capture(profile, source, q.frames.0, q.poses.0, &counters, &stop);
         s.spawn("capture", move || capture.run())?;

@@ -29,8 +29,10 @@ use crate::query::{EncoderSetup, NavigationSetup, QueryCounters, query_threads};
 use crate::queue::{Latest, OverflowPolicy, QueueConfig, QueueReceiver, QueueSender, QueueStats, queue};
 use crate::reasoner::GraphEnricher;
 use crate::record::{RecordSender, RecordThread, SideChannelTap};
+use crate::ros2::TfInputThread;
 use crate::stats::StageStats;
 use crate::zenoh::{ZenohCounters, ZenohThread};
+use op3dsg_ros2::TfConfig;
 
 /// The stage threads of one pipeline: each spawned by name, each reporting its end.
 pub(super) struct Stages {
@@ -246,6 +248,52 @@ pub(super) fn zenoh(
         Ok(Ok(())) => Ok(RemoteFeed { graphs: graphs_tx, health }),
         Ok(Err(reason)) => Err(StartError::Zenoh(reason)),
         Err(_) => Err(StartError::Zenoh("zenoh: the thread ended during start-up".to_owned())),
+    }
+}
+
+/// The tf input (`pose.source = "ros2"`), started once its session is open and subscribed;
+/// returns the sender the keyframe gate's thread keeps while it runs (the tf thread ends with it).
+pub(super) fn ros2_tf(
+    stages: &mut Stages,
+    profile: &Profile,
+    camera_from_upright: op3dsg_drivers::pose::Isometry,
+    poses: Sender<PoseStamped>,
+    counters: &Counters,
+    stop: &Arc<std::sync::atomic::AtomicBool>,
+) -> Result<Sender<()>, StartError> {
+    let Some(tf_counters) = counters.ros2_tf.clone() else {
+        return Err(StartError::Zenoh("ros2: the tf input has no counters".to_owned()));
+    };
+    let (ready, ready_rx) = crossbeam_channel::bounded(1);
+    let (alive_tx, alive_rx) = crossbeam_channel::bounded(0);
+    let pose = &profile.pose;
+    let ms = |v: f64| (v * 1e6) as u64;
+    let world_frame = match profile.ros2.tf.world_frame.as_str() {
+        "" => profile.world.frame_id.clone(),
+        frame => frame.to_owned(),
+    };
+    let thread = TfInputThread {
+        config: profile.ros2.clone(),
+        world_frame,
+        camera_from_upright,
+        buffer: TfConfig {
+            window_ns: (profile.ros2.tf.window_s * 1e9) as u64,
+            max_interpolation_gap_ns: ms(pose.max_interpolation_gap_ms),
+            hold_tolerance_ns: ms(pose.tolerance_ms),
+            ..TfConfig::default()
+        },
+        poses,
+        pose_stats: counters.keyframe.pose.clone(),
+        counters: tf_counters,
+        stop: stop.clone(),
+        gate_alive: alive_rx,
+        ready,
+    };
+    stages.spawn("ros2-tf", move || thread.run())?;
+    match ready_rx.recv() {
+        Ok(Ok(())) => Ok(alive_tx),
+        Ok(Err(reason)) => Err(StartError::Zenoh(reason)),
+        Err(_) => Err(StartError::Zenoh("ros2: the tf thread ended during start-up".to_owned())),
     }
 }
 

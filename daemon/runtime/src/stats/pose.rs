@@ -27,6 +27,12 @@ pub struct PoseStats {
     pub future: AtomicU64,
     /// Hand-over queue to the gate full.
     pub queue_full: AtomicU64,
+    /// tf: no chain between the world and camera frames.
+    pub no_transform_path: AtomicU64,
+    /// tf: the world or camera frame unknown.
+    pub frame_not_found: AtomicU64,
+    /// tf: a link without transforms around the stamp.
+    pub extrapolation: AtomicU64,
 }
 
 impl PoseStats {
@@ -43,7 +49,9 @@ impl PoseStats {
             stale: load(&self.stale),
             future: load(&self.future),
             queue_full: load(&self.queue_full),
-            reserved: [0; 3],
+            no_transform_path: load(&self.no_transform_path),
+            frame_not_found: load(&self.frame_not_found),
+            extrapolation: load(&self.extrapolation),
         }
     }
 }

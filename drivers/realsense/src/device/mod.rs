@@ -237,6 +237,10 @@ impl FrameSource for RealsenseSource {
         self.intrinsics
     }
 
+    fn camera_from_upright(&self) -> Isometry {
+        self.rotation.camera_from_upright()
+    }
+
     /// A `.bag` is a replay although this source plays it; only a camera is live.
     fn kind(&self) -> SourceKind {
         if self.bag.is_some() { SourceKind::Replay } else { SourceKind::LiveCamera }

@@ -1,0 +1,206 @@
+//! Poses from a ROS 2 robot's tf tree, through Zenoh, without ROS: `tests/python/ros2_tf_publisher.py`
+//! (PyPI `eclipse-zenoh` and `rosbags` only, written from rmw_zenoh's and zenoh-bridge-ros2dds's
+//! published formats) sends `/tf_static` and `/tf` for the ICL-NUIM living room's ground-truth
+//! trajectory, split into a Stretch-like chain `map → odom → base_link → link_head_tilt →
+//! camera_link → camera_color_optical_frame`; a Zenoh router (`tests/python/zenoh_router.py`)
+//! stands in for `rmw_zenohd` or the bridge. The daemon on the replay with `pose.source = "ros2"`
+//! must build the graph it builds with the recording's own poses (same node ids, boxes within
+//! 1 mm); malformed payloads and a missing camera frame are refused and counted by reason.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+use op3dsg_tests::{Daemon, health_where, unique_prefix};
+use serde_json::Value;
+
+mod zenoh_common;
+use zenoh_common::{dump, free_port, python};
+
+/// Frames of the replay in each run.
+const FRAMES: u64 = 90;
+
+fn icl_dir() -> Option<PathBuf> {
+    op3dsg_shared_data::shared_data("rgbd/icl_livingroom1/rgb.txt")?;
+    op3dsg_shared_data::shared_data("rgbd/icl_livingroom1").map(|dir| dir.canonicalize().expect("canonical path"))
+}
+
+/// A child process killed on drop.
+struct Killed(Child);
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn script(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("python").join(name)
+}
+
+/// The router on `port`, once it listens.
+fn router(port: u16) -> Killed {
+    let mut child = Command::new(python())
+        .arg(script("zenoh_router.py"))
+        .arg(port.to_string())
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("start zenoh_router.py");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().expect("stdout")).read_line(&mut line).expect("router output");
+    assert_eq!(line.trim(), "ready", "zenoh_router.py did not start");
+    Killed(child)
+}
+
+/// The ground truth of the recording as the publisher's trajectory (`world_from_camera` per
+/// stamp), written from the TUM `groundtruth.txt` format.
+fn trajectory(icl: &Path, out: &Path) {
+    let text = std::fs::read_to_string(icl.join("groundtruth.txt")).expect("groundtruth.txt");
+    let poses: Vec<Value> = text
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .map(|l| {
+            let v: Vec<&str> = l.split_whitespace().collect();
+            let (sec, frac) = v[0].split_once('.').unwrap_or((v[0], "0"));
+            let stamp_ns = sec.parse::<u64>().expect("seconds") * 1_000_000_000
+                + format!("{frac:0<9}")[..9].parse::<u64>().expect("fraction");
+            let f = |i: usize| v[i].parse::<f64>().expect("number");
+            serde_json::json!({"stamp_ns": stamp_ns, "translation_m": [f(1), f(2), f(3)], "rotation_xyzw": [f(4), f(5), f(6), f(7)]})
+        })
+        .collect();
+    std::fs::write(out, serde_json::to_string(&poses).expect("JSON")).expect("write the trajectory");
+}
+
+fn daemon(prefix: &str, extra: &[&str]) -> Daemon {
+    let profile = Path::new(env!("CARGO_MANIFEST_DIR")).join("../profiles/replay-icl.toml");
+    let frames = format!("run.max_frames={FRAMES}");
+    let mut args = vec![
+        "--profile",
+        profile.to_str().expect("path"),
+        "--set",
+        &frames,
+        "--set",
+        "run.exit_at_end=false",
+        "--set",
+        "world.frame_id=\"map\"",
+    ];
+    args.extend_from_slice(extra);
+    Daemon::start(prefix, &args)
+}
+
+/// Runs the publisher to the end of the trajectory; its last line.
+fn publish(port: u16, style: &str, traj: &Path, faults: &[&str]) -> Value {
+    let output = Command::new(python())
+        .arg(script("ros2_tf_publisher.py"))
+        .args(["--key-style", style, "--distro", "humble", "--rate", "0", "--linger-s", "1"])
+        .args(["--connect", &format!("tcp/127.0.0.1:{port}")])
+        .arg("--trajectory")
+        .arg(traj)
+        .args(faults)
+        .output()
+        .expect("run ros2_tf_publisher.py");
+    assert!(output.status.success(), "ros2_tf_publisher.py: {}", String::from_utf8_lossy(&output.stderr));
+    let text = String::from_utf8_lossy(&output.stdout);
+    serde_json::from_str(text.lines().last().unwrap_or_default()).expect("publisher JSON")
+}
+
+fn ros2_args(port: u16, style: &str) -> Vec<String> {
+    [
+        "pose.source=\"ros2\"".to_owned(),
+        format!("ros2.key_style=\"{style}\""),
+        format!("ros2.connect=[\"tcp/127.0.0.1:{port}\"]"),
+        // The whole trajectory arrives at once, ahead of the replay: the gate keeps it all.
+        "pose.max_wait_ms=5000".to_owned(),
+        "pose.future_tolerance_ms=60000".to_owned(),
+        "pose.buffer_len=1000".to_owned(),
+    ]
+    .into_iter()
+    .flat_map(|kv| ["--set".to_owned(), kv])
+    .collect()
+}
+
+/// Node ids equal, boxes within 1 mm.
+fn assert_same_nodes(with_tf: &Value, with_frames: &Value) {
+    let nodes = |g: &Value| g["nodes"].as_array().cloned().unwrap_or_default();
+    let (a, b) = (nodes(with_tf), nodes(with_frames));
+    let ids = |n: &[Value]| n.iter().map(|n| n["id"].as_u64()).collect::<Vec<_>>();
+    assert_eq!(ids(&a), ids(&b), "node ids with tf poses and with the recording's poses");
+    assert!(!a.is_empty(), "the replay mapped something");
+    for (x, y) in a.iter().zip(&b) {
+        for key in ["box_min_m", "box_max_m", "centre_m"] {
+            let (p, q) = (x[key].as_array().expect(key), y[key].as_array().expect(key));
+            for (u, v) in p.iter().zip(q) {
+                let d = (u.as_f64().unwrap_or(f64::NAN) - v.as_f64().unwrap_or(f64::NAN)).abs();
+                assert!(d <= 1e-3, "node {} {key}: {p:?} vs {q:?}", x["id"]);
+            }
+        }
+    }
+}
+
+#[test]
+fn tf_over_the_bridge_gives_the_graph_of_the_recordings_poses_and_bad_payloads_are_counted() {
+    let Some(icl) = icl_dir() else { return };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let traj = dir.path().join("trajectory.json");
+    trajectory(&icl, &traj);
+    let port = free_port();
+    let _router = router(port);
+
+    let prefix = unique_prefix("ros2-bridge");
+    let args = ros2_args(port, "bridge");
+    let with_tf = daemon(&prefix, &args.iter().map(String::as_str).collect::<Vec<_>>());
+    let done = publish(port, "bridge", &traj, &["--malformed", "3"]);
+    assert_eq!(done["published"].as_u64(), Some(211), "{done}");
+    let mut health = with_tf.health_subscriber("ros2-health");
+    let h = health_where(&mut health, "every frame", Duration::from_secs(240), |h| h.frames_captured >= FRAMES);
+    assert_eq!(h.frames_without_pose, 0, "every frame got its pose from tf: {:?}", h.pose);
+    assert!(h.pose.accepted >= FRAMES, "{:?}", h.pose);
+
+    let reference = daemon(&unique_prefix("ros2-reference"), &[]);
+    let mut ref_health = reference.health_subscriber("ros2-ref-health");
+    health_where(&mut ref_health, "every frame", Duration::from_secs(240), |h| h.frames_captured >= FRAMES);
+    std::thread::sleep(Duration::from_secs(3));
+    assert_same_nodes(&dump(&prefix), &dump(&reference.prefix));
+
+    // The three truncated payloads: errors of the stage ros2_tf, nothing else refused.
+    let report = op3dsg_json(&["--prefix", &prefix, "health", "--json"]);
+    let stage = report["stages"].as_array().and_then(|s| s.iter().find(|s| s["name"] == "ros2_tf")).cloned();
+    assert_eq!(stage.as_ref().map(|s| s["errors"].as_u64()), Some(Some(3)), "{report}");
+    for reason in ["no_transform_path", "frame_not_found", "extrapolation", "non_finite"] {
+        assert_eq!(report["poses"][reason].as_u64(), Some(0), "{reason}: {report}");
+    }
+}
+
+#[test]
+fn rmw_zenoh_keys_are_followed_and_a_missing_camera_frame_is_counted() {
+    let Some(icl) = icl_dir() else { return };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let traj = dir.path().join("trajectory.json");
+    trajectory(&icl, &traj);
+    let port = free_port();
+    let _router = router(port);
+    let prefix = unique_prefix("ros2-rmw");
+    let mut args = ros2_args(port, "rmw_zenoh");
+    args.extend(["--set".to_owned(), "pose.max_wait_ms=500".to_owned()]);
+    let d = daemon(&prefix, &args.iter().map(String::as_str).collect::<Vec<_>>());
+    // The camera's own link never published: no pose at all, each stamp counted once.
+    publish(port, "rmw_zenoh", &traj, &["--omit-frame", "camera_color_optical_frame"]);
+    let mut health = d.health_subscriber("ros2-rmw-health");
+    let h = health_where(&mut health, "missing frames counted", Duration::from_secs(120), |h| {
+        h.pose.frame_not_found >= 200
+    });
+    assert_eq!(h.pose.accepted, 0, "{:?}", h.pose);
+    // Then the whole chain: the input resumes with good transforms. The replay's 90 frames are
+    // over by now (0 to 3 s), so only the poses after its last frame are still of use: adopted.
+    publish(port, "rmw_zenoh", &traj, &[]);
+    let h = health_where(&mut health, "poses accepted", Duration::from_secs(120), |h| h.pose.accepted >= 100);
+    assert!(h.pose.frame_not_found >= 200, "{:?}", h.pose);
+}
+
+fn op3dsg_json(args: &[&str]) -> Value {
+    let output = Command::new(op3dsg_tests::binary("op3dsg")).args(args).output().expect("run op3dsg");
+    assert!(output.status.success(), "op3dsg {args:?}: {}", String::from_utf8_lossy(&output.stderr));
+    serde_json::from_slice(&output.stdout).expect("JSON")
+}
