@@ -74,6 +74,26 @@ fn trajectory(icl: &Path, out: &Path) {
     std::fs::write(out, serde_json::to_string(&poses).expect("JSON")).expect("write the trajectory");
 }
 
+/// What both tests stand on: the recording's trajectory file and a router on a free port.
+struct RosWorld {
+    port: u16,
+    trajectory: PathBuf,
+    _dir: tempfile::TempDir,
+    _router: Killed,
+}
+
+impl RosWorld {
+    /// `None` without the shared ICL sequence (a test that needs it fails with `CI=true`).
+    fn start() -> Option<Self> {
+        let icl = icl_dir()?;
+        let dir = tempfile::tempdir().expect("tempdir");
+        let trajectory = dir.path().join("trajectory.json");
+        self::trajectory(&icl, &trajectory);
+        let port = free_port();
+        Some(Self { port, trajectory, _dir: dir, _router: router(port) })
+    }
+}
+
 fn daemon(prefix: &str, extra: &[&str]) -> Daemon {
     let profile = Path::new(env!("CARGO_MANIFEST_DIR")).join("../profiles/replay-icl.toml");
     let frames = format!("run.max_frames={FRAMES}");
@@ -142,17 +162,13 @@ fn assert_same_nodes(with_tf: &Value, with_frames: &Value) {
 
 #[test]
 fn tf_over_the_bridge_gives_the_graph_of_the_recordings_poses_and_bad_payloads_are_counted() {
-    let Some(icl) = icl_dir() else { return };
-    let dir = tempfile::tempdir().expect("tempdir");
-    let traj = dir.path().join("trajectory.json");
-    trajectory(&icl, &traj);
-    let port = free_port();
-    let _router = router(port);
+    let Some(world) = RosWorld::start() else { return };
+    let (port, traj) = (world.port, world.trajectory.as_path());
 
     let prefix = unique_prefix("ros2-bridge");
     let args = ros2_args(port, "bridge");
     let with_tf = daemon(&prefix, &args.iter().map(String::as_str).collect::<Vec<_>>());
-    let done = publish(port, "bridge", &traj, &["--malformed", "3"]);
+    let done = publish(port, "bridge", traj, &["--malformed", "3"]);
     assert_eq!(done["published"].as_u64(), Some(211), "{done}");
     let mut health = with_tf.health_subscriber("ros2-health");
     let h = health_where(&mut health, "every frame", Duration::from_secs(240), |h| h.frames_captured >= FRAMES);
@@ -176,18 +192,14 @@ fn tf_over_the_bridge_gives_the_graph_of_the_recordings_poses_and_bad_payloads_a
 
 #[test]
 fn rmw_zenoh_keys_are_followed_and_a_missing_camera_frame_is_counted() {
-    let Some(icl) = icl_dir() else { return };
-    let dir = tempfile::tempdir().expect("tempdir");
-    let traj = dir.path().join("trajectory.json");
-    trajectory(&icl, &traj);
-    let port = free_port();
-    let _router = router(port);
+    let Some(world) = RosWorld::start() else { return };
+    let (port, traj) = (world.port, world.trajectory.as_path());
     let prefix = unique_prefix("ros2-rmw");
     let mut args = ros2_args(port, "rmw_zenoh");
     args.extend(["--set".to_owned(), "pose.max_wait_ms=500".to_owned()]);
     let d = daemon(&prefix, &args.iter().map(String::as_str).collect::<Vec<_>>());
     // The camera's own link never published: no pose at all, each stamp counted once.
-    publish(port, "rmw_zenoh", &traj, &["--omit-frame", "camera_color_optical_frame"]);
+    publish(port, "rmw_zenoh", traj, &["--omit-frame", "camera_color_optical_frame"]);
     let mut health = d.health_subscriber("ros2-rmw-health");
     let h = health_where(&mut health, "missing frames counted", Duration::from_secs(120), |h| {
         h.pose.frame_not_found >= 200
@@ -195,7 +207,7 @@ fn rmw_zenoh_keys_are_followed_and_a_missing_camera_frame_is_counted() {
     assert_eq!(h.pose.accepted, 0, "{:?}", h.pose);
     // Then the whole chain: the input resumes with good transforms. The replay's 90 frames are
     // over by now (0 to 3 s), so only the poses after its last frame are still of use: adopted.
-    publish(port, "rmw_zenoh", &traj, &[]);
+    publish(port, "rmw_zenoh", traj, &[]);
     let h = health_where(&mut health, "poses accepted", Duration::from_secs(120), |h| h.pose.accepted >= 100);
     assert!(h.pose.frame_not_found >= 200, "{:?}", h.pose);
 }

@@ -147,7 +147,7 @@ impl CaptureThread {
         let Some(pose_tx) = &self.pose_tx else { return };
         self.source.take_input_poses(buf);
         for recorded in buf.drain(..) {
-            hand_over_pose(pose_tx, wire_pose(&recorded), &self.pose_stats, "recorded pose");
+            let _ = hand_over_pose(pose_tx, wire_pose(&recorded), &self.pose_stats, "recorded pose");
         }
     }
 }

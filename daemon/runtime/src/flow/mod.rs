@@ -104,11 +104,17 @@ pub struct GraphItem {
 /// Hands a pose (`what`: received live, or recorded) to the keyframe gate without waiting. The
 /// gate drains the hand-over every frame; when it is full the pose is dropped and counted in
 /// `pose.queue_full` (losing the newest is acceptable too), with a warning at powers of two.
-pub fn hand_over_pose(tx: &Sender<PoseStamped>, pose: PoseStamped, stats: &PoseStats, what: &str) {
-    if tx.try_send(pose).is_err() {
-        let dropped = stats.queue_full.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-        if dropped.is_power_of_two() {
-            warn!(dropped, "pose hand-over queue to the keyframe gate full; {what} dropped");
+/// Returns false once the gate has ended (nothing is counted then).
+pub fn hand_over_pose(tx: &Sender<PoseStamped>, pose: PoseStamped, stats: &PoseStats, what: &str) -> bool {
+    match tx.try_send(pose) {
+        Ok(()) => true,
+        Err(crossbeam_channel::TrySendError::Full(_)) => {
+            let dropped = stats.queue_full.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+            if dropped.is_power_of_two() {
+                warn!(dropped, "pose hand-over queue to the keyframe gate full; {what} dropped");
+            }
+            true
         }
+        Err(crossbeam_channel::TrySendError::Disconnected(_)) => false,
     }
 }

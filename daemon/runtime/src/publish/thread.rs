@@ -180,7 +180,7 @@ impl PublishThread {
         add_wire_checks(&self.pose_stats, server.pose_checks(), reported);
         if let Some(pose_tx) = &self.pose_tx {
             for pose in poses.drain(..) {
-                hand_over_pose(pose_tx, pose, &self.pose_stats, "pose");
+                let _ = hand_over_pose(pose_tx, pose, &self.pose_stats, "pose");
             }
         }
     }

@@ -18,7 +18,7 @@
 //! unit length under `non_finite` and `non_unit_quaternion`; payloads that are not a TFMessage as
 //! errors of the stage `ros2_tf`. Each reason is logged once (with the count at powers of two).
 
-use std::collections::{BTreeSet, HashMap};
+use std::collections::{BTreeSet, HashSet};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
@@ -59,7 +59,7 @@ pub struct TfInputCounters {
     pub transforms_refused: AtomicU64,
     /// Payloads dropped because the thread was behind.
     pub intake_dropped: AtomicU64,
-    /// Poses handed to the keyframe gate.
+    /// Poses handed to the keyframe gate (a full hand-over counts in `pose.queue_full` too).
     pub poses: AtomicU64,
 }
 
@@ -171,7 +171,7 @@ impl TfInputThread {
             buffer: TfBuffer::new(self.buffer),
             pending: BTreeSet::new(),
             newest_dynamic_ns: 0,
-            logged: HashMap::new(),
+            logged: HashSet::new(),
         };
         while !self.stop.load(Ordering::Relaxed)
             && !matches!(self.gate_alive.try_recv(), Err(crossbeam_channel::TryRecvError::Disconnected))
@@ -285,18 +285,13 @@ impl TfInputThread {
         let q = pose.rotation;
         let t = pose.translation;
         match PoseStamped::new(stamp_ns, kind, [t.x, t.y, t.z], [q.x, q.y, q.z, q.w], frame) {
-            Ok(stamped) => match self.poses.try_send(stamped) {
-                Ok(()) => {
+            Ok(stamped) => {
+                let open = hand_over_pose(&self.poses, stamped, &self.pose_stats, "tf pose");
+                if open {
                     self.counters.poses.fetch_add(1, Ordering::Relaxed);
-                    true
                 }
-                Err(TrySendError::Full(stamped)) => {
-                    // Counted (and warned at powers of two) as any pose input's full hand-over.
-                    hand_over_pose(&self.poses, stamped, &self.pose_stats, "tf pose");
-                    true
-                }
-                Err(TrySendError::Disconnected(_)) => false,
-            },
+                open
+            }
             Err(_) => {
                 self.pose_stats.non_finite.fetch_add(1, Ordering::Relaxed);
                 true
@@ -313,13 +308,13 @@ struct State {
     buffer: TfBuffer,
     pending: BTreeSet<u64>,
     newest_dynamic_ns: u64,
-    logged: HashMap<&'static str, ()>,
+    logged: HashSet<&'static str>,
 }
 
 impl State {
     /// Runs `log` the first time `reason` comes up.
     fn log_once(&mut self, reason: &'static str, log: impl FnOnce()) {
-        if self.logged.insert(reason, ()).is_none() {
+        if self.logged.insert(reason) {
             log();
         }
     }
