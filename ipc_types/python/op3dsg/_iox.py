@@ -150,3 +150,31 @@ def retry_while_not_serving(timeout_s: float, open_fn: Callable[[], T]) -> T:
 
 def duration(seconds: float):
     return iox2.Duration.from_secs_f64(max(0.0, float(seconds)))
+
+
+class LatestClient:
+    """What the clients of one publish-subscribe service share (``self.service``, an iceoryx2
+    ``self._subscriber`` and ``latest()``): waiting for a newer sample, closing, ``with``."""
+
+    def _wait_newer(self, timeout: float, newer_than_ns: int, stamp_of: Callable, missing: str):
+        """``latest()`` until ``stamp_of`` it is after ``newer_than_ns``, at most ``timeout``
+        seconds; ``TimeoutError`` naming the service and ``missing`` otherwise."""
+        deadline = time.monotonic() + timeout
+        while True:
+            sample = self.latest()
+            if sample is not None and stamp_of(sample) > newer_than_ns:
+                return sample
+            if time.monotonic() >= deadline:
+                raise TimeoutError(f"{self.service}: no {missing}")
+            time.sleep(0.02)
+
+    def close(self) -> None:
+        if getattr(self, "_subscriber", None) is not None:
+            self._subscriber.delete()
+            self._subscriber = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -15,7 +15,7 @@ from .errors import SchemaVersionError
 from .wire import DEFAULT_PREFIX, HISTORY_SIZE, SCHEMA_VERSION, Health
 
 
-class HealthClient:
+class HealthClient(_iox.LatestClient):
     """Reads the daemon's :class:`~op3dsg.wire.Health` records.
 
     A client that joins late receives the newest record from the service's history when the
@@ -65,25 +65,9 @@ class HealthClient:
     def wait(self, timeout: float, newer_than_ns: int = 0) -> Health:
         """The newest record stamped after ``newer_than_ns``, waiting up to ``timeout`` seconds;
         ``TimeoutError`` naming the service otherwise."""
-        deadline = time.monotonic() + timeout
-        while True:
-            record = self.latest()
-            if record is not None and record.stamp_ns > newer_than_ns:
-                return record
-            if time.monotonic() >= deadline:
-                raise TimeoutError(f"{self.service}: no health record within {timeout:.1f} s (is op3dsgd running?)")
-            time.sleep(0.02)
-
-    def close(self) -> None:
-        if getattr(self, "_subscriber", None) is not None:
-            self._subscriber.delete()
-            self._subscriber = None
-
-    def __enter__(self) -> "HealthClient":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+        return self._wait_newer(
+            timeout, newer_than_ns, lambda r: r.stamp_ns, f"health record within {timeout:.1f} s (is op3dsgd running?)"
+        )
 
 
 def health(prefix: str = DEFAULT_PREFIX, timeout: float = 5.0) -> Health:

@@ -20,7 +20,6 @@ type name ``op3dsg::OccupancyHeader``); the same header and cells travel over Ze
 from __future__ import annotations
 
 import ctypes
-import time
 from typing import Optional, Tuple
 
 import iceoryx2 as iox2
@@ -181,7 +180,7 @@ def occupancy_map(service: str, header_bytes: bytes, cells, version: Optional[in
     return OccupancyMap(header, grid, version)
 
 
-class OccupancyClient:
+class OccupancyClient(_iox.LatestClient):
     """Reads ``<prefix>/occupancy`` over iceoryx2: :meth:`latest` gives the newest map as an
     :class:`OccupancyMap` with cells of its own (copied out of the shared memory, so it stays
     valid). A client that joins late receives the newest map from the service's history.
@@ -235,25 +234,12 @@ class OccupancyClient:
     def wait(self, timeout: float, newer_than_ns: int = 0) -> OccupancyMap:
         """The newest map published after ``newer_than_ns`` (its ``publish_time_ns``), waiting up
         to ``timeout`` seconds; ``TimeoutError`` naming the service otherwise."""
-        deadline = time.monotonic() + timeout
-        while True:
-            grid = self.latest()
-            if grid is not None and grid.header.publish_time_ns > newer_than_ns:
-                return grid
-            if time.monotonic() >= deadline:
-                raise TimeoutError(f"{self.service}: no occupancy map within {timeout:.1f} s (is op3dsgd running with occupancy.enabled?)")
-            time.sleep(0.02)
-
-    def close(self) -> None:
-        if getattr(self, "_subscriber", None) is not None:
-            self._subscriber.delete()
-            self._subscriber = None
-
-    def __enter__(self) -> "OccupancyClient":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+        return self._wait_newer(
+            timeout,
+            newer_than_ns,
+            lambda grid: grid.header.publish_time_ns,
+            f"occupancy map within {timeout:.1f} s (is op3dsgd running with occupancy.enabled?)",
+        )
 
     def __repr__(self) -> str:
         return f"OccupancyClient(prefix={self.prefix!r})"
