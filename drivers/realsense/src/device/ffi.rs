@@ -104,6 +104,15 @@ impl DeviceHandle {
         take_error(err).map_or(Ok(()), Err)
     }
 
+    /// Pauses a playback device: its reading thread finishes the read in hand and reads no
+    /// further until resumed or stopped.
+    pub(super) fn pause(&self) -> Result<(), String> {
+        let mut err = std::ptr::null_mut::<sys::rs2_error>();
+        // SAFETY: a live device handle; the error is checked and freed.
+        unsafe { sys::rs2_playback_device_pause(self.0.as_ptr(), &mut err) };
+        take_error(err).map_or(Ok(()), Err)
+    }
+
     /// Whether a playback device has read its whole file.
     pub(super) fn stopped(&self) -> bool {
         let mut err = std::ptr::null_mut::<sys::rs2_error>();

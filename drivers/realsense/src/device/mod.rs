@@ -49,9 +49,10 @@ use op3dsg_drivers::frame::{Frame, Intrinsics};
 use op3dsg_drivers::pose::Isometry;
 use op3dsg_drivers::source::{FrameSource, SourceError, SourceKind, SourceStatus, StampClock};
 use realsense_rust::context::Context;
+use realsense_rust::frame::DepthFrame;
 use realsense_rust::kind::Rs2CameraInfo;
 use realsense_rust::pipeline::ActivePipeline;
-use tracing::{info, warn};
+use tracing::{debug, info, warn};
 
 use self::ffi::{AlignBlock, DeviceHandle, MotionSensor};
 pub use self::streams::lens;
@@ -63,6 +64,8 @@ use crate::rotate::{ColourOrder, Rotation};
 
 /// Longest wait for the first frame set after a (re)start.
 const FIRST_FRAME_TIMEOUT: Duration = Duration::from_secs(10);
+/// Longest wait at a stop for the frame set that gives a recording's device handle.
+const HANDLE_WAIT: Duration = Duration::from_secs(1);
 /// Wait for the frame sets still queued once playback has read the whole file.
 const END_DRAIN_TIMEOUT: Duration = Duration::from_millis(250);
 
@@ -216,6 +219,37 @@ impl RealsenseSource {
         source_name(self.bag.as_deref(), &self.serial)
     }
 
+    /// Stops the streams: the motion sensor, then the pipeline, then a recording's playback
+    /// device. librealsense's playback stopped while its reading thread runs on to the end of the
+    /// file can leave that thread spinning there; paused first, it reads nothing more. Dropping a
+    /// started pipeline deletes it without stopping it, and the context keeps a recording's
+    /// device until it is removed: either would leave librealsense's threads running into the
+    /// library's teardown at process exit, where they crash.
+    pub(super) fn stop_streams(&mut self) {
+        self.motion = None;
+        let playback = self.playback.take();
+        if let Some(mut pipeline) = self.pipeline.take() {
+            if self.bag.is_some() {
+                // Before the first frame set there is no handle yet: the next set gives one.
+                let device = playback.or_else(|| {
+                    let set = pipeline.wait(Some(HANDLE_WAIT)).ok()?;
+                    let depth = set.frames_of_type::<DepthFrame>().into_iter().next()?;
+                    DeviceHandle::from_frame(depth).ok()
+                });
+                if let Some(device) = device
+                    && let Err(e) = device.pause()
+                {
+                    debug!(bag = %self.name(), error = %e, "cannot pause playback before stopping it");
+                }
+            }
+            let _ = pipeline.stop();
+        }
+        if let Some(bag) = &self.bag {
+            // Not an error when the context holds no device for the file (never started).
+            let _ = self.context.remove_device(bag);
+        }
+    }
+
     /// The IMU samples (`imu = true`): the buffer this source fills, for other threads to read.
     pub fn imu(&self) -> Option<Arc<ImuBuffer>> {
         self.imu.clone()
@@ -229,6 +263,12 @@ impl RealsenseSource {
     /// The intrinsics of the colour stream as the camera delivers it (before `rotate`).
     pub fn camera_intrinsics(&self) -> Intrinsics {
         self.streams.colour
+    }
+}
+
+impl Drop for RealsenseSource {
+    fn drop(&mut self) {
+        self.stop_streams();
     }
 }
 
@@ -293,7 +333,7 @@ impl FrameSource for RealsenseSource {
                         if !self.delivered_any {
                             warn!(bag = %self.name(), passed_over = self.repeated_sets, "recording ended without a frame set whose depth and colour belong together");
                         }
-                        self.pipeline = None;
+                        self.stop_streams();
                         return Ok(SourceStatus::EndOfStream);
                     }
                     return Err(SourceError::File {

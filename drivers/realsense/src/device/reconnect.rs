@@ -15,10 +15,7 @@ const RETRY_SLICE: Duration = Duration::from_millis(100);
 impl RealsenseSource {
     /// Lost camera: stop, and retry after the backoff.
     pub(super) fn lose(&mut self, reason: &str) {
-        self.motion = None;
-        if let Some(pipeline) = self.pipeline.take() {
-            let _ = pipeline.stop();
-        }
+        self.stop_streams();
         self.connected = false;
         self.backoff = Duration::from_millis(self.config.reconnect.initial_ms);
         self.retry_at = Instant::now() + self.backoff;
@@ -43,7 +40,7 @@ impl RealsenseSource {
                 Ok(SourceStatus::Pending)
             }
             Ok(streams) => {
-                self.pipeline = None;
+                self.stop_streams();
                 self.schedule_retry();
                 Err(device_err(format!(
                     "{}: reconnected camera delivers colour {}x{} (fx {}), not the {}x{} (fx {}) frames were sized for",

@@ -10,7 +10,7 @@ use op3dsg_drivers::source::SourceError;
 use realsense_rust::config::Config;
 use realsense_rust::context::Context;
 use realsense_rust::kind::{Rs2CameraInfo, Rs2Format, Rs2Option, Rs2StreamKind};
-use realsense_rust::pipeline::InactivePipeline;
+use realsense_rust::pipeline::{ActivePipeline, InactivePipeline};
 use realsense_sys as sys;
 use tracing::{info, warn};
 
@@ -59,15 +59,39 @@ impl RealsenseSource {
                 depth.width, depth.height, depth.fps, colour.width, colour.height, colour.fps
             )));
         }
-        let pipeline = pipeline.start(Some(cfg)).map_err(|e| self.open_error(&name, e.to_string()))?;
-        let profile = pipeline.profile();
-        if self.bag.is_some()
-            && let Err(refused) = self.check_recorded_camera(profile.device(), &name)
-        {
-            // Stopped before it is dropped: the playback thread must not outlive the pipeline.
-            let _ = pipeline.stop();
-            return Err(refused);
+        if self.bag.is_some() {
+            // The recording's camera is checked before it plays: a playback stopped right after
+            // it started can leave librealsense's reading thread spinning at the end of the file.
+            let profile = pipeline
+                .resolve(&cfg)
+                .ok_or_else(|| self.open_error(&name, "cannot resolve its streams".to_owned()))?;
+            self.check_recorded_camera(profile.device(), &name)?;
         }
+        let pipeline = pipeline.start(Some(cfg)).map_err(|e| self.open_error(&name, e.to_string()))?;
+        match self.read_streams(&pipeline, &name) {
+            Ok(streams) => {
+                self.pipeline = Some(pipeline);
+                self.motion = None;
+                self.playback = None;
+                self.last_numbers = None;
+                self.delivered_any = false;
+                self.received_any = false;
+                Ok(streams)
+            }
+            Err(refused) => {
+                // Stopped, and a recording's device released, before it is dropped.
+                self.pipeline = Some(pipeline);
+                self.stop_streams();
+                Err(refused)
+            }
+        }
+    }
+
+    /// The started pipeline's streams and calibration, the sensors' options set and our
+    /// alignment made for them.
+    fn read_streams(&mut self, pipeline: &ActivePipeline, name: &str) -> Result<Streams, SourceError> {
+        let name = name.to_owned();
+        let profile = pipeline.profile();
         let colour_stream = profile.streams().iter().find(|s| s.kind() == Rs2StreamKind::Color);
         let depth_stream = profile.streams().iter().find(|s| s.kind() == Rs2StreamKind::Depth);
         let (Some(colour_stream), Some(depth_stream)) = (colour_stream, depth_stream) else {
@@ -105,12 +129,6 @@ impl RealsenseSource {
             rotate = self.rotation.degrees(),
             "realsense streams started (depth aligned to colour)"
         );
-        self.pipeline = Some(pipeline);
-        self.motion = None;
-        self.playback = None;
-        self.last_numbers = None;
-        self.delivered_any = false;
-        self.received_any = false;
         Ok(Streams { colour, depth_units_per_m, colour_order, half_period_ms })
     }
 
