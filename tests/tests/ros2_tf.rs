@@ -7,9 +7,8 @@
 //! must build the graph it builds with the recording's own poses (same node ids, boxes within
 //! 1 mm); malformed payloads and a missing camera frame are refused and counted by reason.
 
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 use std::time::Duration;
 
 use op3dsg_tests::{Daemon, health_where, unique_prefix};
@@ -19,40 +18,15 @@ use serde_json::Value;
 mod zenoh_common;
 use zenoh_common::{dump, free_port, python};
 
+mod ros2_common;
+use ros2_common::{Killed, router, script};
+
 /// Frames of the replay in each run.
 const FRAMES: u64 = 90;
 
 fn icl_dir() -> Option<PathBuf> {
     op3dsg_shared_data::shared_data("rgbd/icl_livingroom1/rgb.txt")?;
     op3dsg_shared_data::shared_data("rgbd/icl_livingroom1").map(|dir| dir.canonicalize().expect("canonical path"))
-}
-
-/// A child process killed on drop.
-struct Killed(Child);
-
-impl Drop for Killed {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn script(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("python").join(name)
-}
-
-/// The router on `port`, once it listens.
-fn router(port: u16) -> Killed {
-    let mut child = Command::new(python())
-        .arg(script("zenoh_router.py"))
-        .arg(port.to_string())
-        .stdout(Stdio::piped())
-        .spawn()
-        .expect("start zenoh_router.py");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().expect("stdout")).read_line(&mut line).expect("router output");
-    assert_eq!(line.trim(), "ready", "zenoh_router.py did not start");
-    Killed(child)
 }
 
 /// The ground truth of the recording as the publisher's trajectory (`world_from_camera` per

@@ -59,6 +59,16 @@ impl GraphNode {
         }
     }
 
+    /// The box viewers draw: its oriented box, or its axis-aligned box (yaw 0) when it has none
+    /// (size all zero: a node restored from a map written before nodes had one).
+    pub fn display_box(&self, up_axis: crate::world::UpAxis) -> OrientedBox {
+        if self.obb.size_m == [0.0; 3] && self.box_max_m != self.box_min_m {
+            OrientedBox::axis_aligned(self.box_min_m, self.box_max_m, up_axis)
+        } else {
+            self.obb
+        }
+    }
+
     /// Each affordance with its origin, in canonical order (see `op3dsg_ipc_types::Node`).
     pub fn affordance_origins(&self) -> impl Iterator<Item = (&'static str, EdgeOrigin)> + use<> {
         op3dsg_ipc_types::affordance_origins(

@@ -72,8 +72,9 @@ pub type LatestGraph = Latest<(Arc<SceneGraph>, u64)>;
 /// the instance id in a slot.
 #[derive(Debug, Clone)]
 pub struct RemoteFeed {
-    /// Graph versions as sent, with the instance id.
-    pub graphs: QueueSender<(Arc<SceneGraph>, u64)>,
+    /// Graph versions as sent, with the instance id: one latest-wins queue per stage that takes
+    /// them (Zenoh, the ROS output).
+    pub graphs: Vec<QueueSender<(Arc<SceneGraph>, u64)>>,
     /// The newest health record and the instance id.
     pub health: Arc<Latest<(Health, u64)>>,
 }

@@ -14,7 +14,7 @@ use crate::publish::PublishCounters;
 use crate::queue::QueueStats;
 use crate::reasoner::llm::RefinerStats;
 use crate::record::RecorderStats;
-use crate::ros2::TfInputCounters;
+use crate::ros2::{Ros2OutputCounters, TfInputCounters};
 use crate::stats::{HealthSource, Liveness, ReportHealth, StageStats};
 use crate::zenoh::ZenohCounters;
 
@@ -44,6 +44,8 @@ pub struct Counters {
     pub zenoh: Option<Arc<ZenohCounters>>,
     /// The tf input (`None` unless `pose.source = "ros2"`).
     pub ros2_tf: Option<Arc<TfInputCounters>>,
+    /// The ROS output (`None` unless a topic of `[ros2.out]` is on).
+    pub ros2_out: Option<Arc<Ros2OutputCounters>>,
 }
 
 impl Counters {
@@ -63,6 +65,7 @@ impl Counters {
             liveness: Arc::default(),
             zenoh: None,
             ros2_tf: None,
+            ros2_out: None,
         }
     }
 
@@ -81,6 +84,7 @@ impl Counters {
         ]);
         stages.extend(self.zenoh.as_ref().map(|z| z.stage.clone()));
         stages.extend(self.ros2_tf.as_ref().map(|t| t.stage.clone()));
+        stages.extend(self.ros2_out.as_ref().map(|o| o.stage.clone()));
         stages
     }
 

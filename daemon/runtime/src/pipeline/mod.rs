@@ -57,6 +57,7 @@ use tracing::{debug, error, info};
 
 use crate::backend::{Backends, OpenedSource, StartError};
 use crate::config::Profile;
+use crate::flow::RemoteFeed;
 use crate::keyframe::PoseSourceKind;
 use crate::query::QueryCounters;
 use crate::queue::Latest;
@@ -136,6 +137,7 @@ impl Pipeline {
         let mut counters = Counters::new(profile.detector.workers, q.stats.clone(), refiner);
         counters.zenoh = profile.zenoh.enabled.then(Arc::default);
         counters.ros2_tf = (profile.pose.source == PoseSourceKind::Ros2).then(Arc::default);
+        counters.ros2_out = profile.ros2.out.any().then(Arc::default);
         let counters = Arc::new(counters);
         let stages::RestoredMap { fusion, resume, snapshots } = stages::restored_map(profile, backends, &counters)?;
         let (snapshot_sink, snapshot_writer) = snapshots.unzip();
@@ -151,15 +153,23 @@ impl Pipeline {
         // below, fills in its intake for `<prefix>/query`.
         let remote_queries = crate::flow::RemoteQueries::default();
         // The occupancy thread's copy of its map, for the query worker and the Zenoh stage.
-        let latest_occupancy = (profile.occupancy.enabled && (query_graph.is_some() || profile.zenoh.enabled))
+        let ros2_map = profile.ros2.out.occupancy;
+        let latest_occupancy = (profile.occupancy.enabled
+            && (query_graph.is_some() || profile.zenoh.enabled || ros2_map))
             .then(|| Arc::new(Latest::new()));
-        let remote = match (q.remote, counters.zenoh.as_ref()) {
+        let mut remote = match (q.remote, counters.zenoh.as_ref()) {
             (Some(queue), Some(zenoh)) => {
                 let shared = (remote_queries.clone(), latest_occupancy.clone());
                 Some(stages::zenoh(&mut s, profile, source.kind(), queue, zenoh, shared)?)
             }
             _ => None,
         };
+        if let Some(queue) = q.ros2_out {
+            let map = if ros2_map { latest_occupancy.clone() } else { None };
+            let graphs = stages::ros2_out(&mut s, profile, queue, &counters, (map, &stop))?;
+            let feed = remote.get_or_insert_with(|| RemoteFeed { graphs: Vec::new(), health: Arc::new(Latest::new()) });
+            feed.graphs.push(graphs);
+        }
         let (publisher, ready) = stages::publisher(
             profile,
             source.kind(),

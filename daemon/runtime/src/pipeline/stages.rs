@@ -29,7 +29,7 @@ use crate::query::{EncoderSetup, NavigationSetup, QueryCounters, query_threads};
 use crate::queue::{Latest, OverflowPolicy, QueueConfig, QueueReceiver, QueueSender, QueueStats, queue};
 use crate::reasoner::GraphEnricher;
 use crate::record::{RecordSender, RecordThread, SideChannelTap};
-use crate::ros2::TfInputThread;
+use crate::ros2::{Ros2OutputThread, TfInputThread};
 use crate::stats::StageStats;
 use crate::zenoh::{ZenohCounters, ZenohThread};
 use op3dsg_ros2::TfConfig;
@@ -90,8 +90,13 @@ pub(super) struct Queues {
     pub(super) poses: (Sender<PoseStamped>, Receiver<PoseStamped>),
     /// Publisher → Zenoh stage, latest wins (`[zenoh] enabled`).
     pub(super) remote: Option<RemoteQueue>,
+    /// Publisher → ROS output, latest wins (a topic of `[ros2.out]` on).
+    pub(super) ros2_out: Option<RemoteQueue>,
     pub(super) stats: Vec<Arc<QueueStats>>,
 }
+
+/// Graph versions waiting for the ROS output (it sends the newest anyway).
+const ROS2_OUT_QUEUE: usize = 2;
 
 /// The publisher → Zenoh stage queue.
 pub(super) type RemoteQueue = (QueueSender<(Arc<SceneGraph>, u64)>, QueueReceiver<(Arc<SceneGraph>, u64)>);
@@ -110,6 +115,12 @@ impl Queues {
             stats.push(remote);
             (tx, rx)
         });
+        let ros2_out = profile.ros2.out.any().then(|| {
+            let config = QueueConfig { capacity: ROS2_OUT_QUEUE, policy: OverflowPolicy::LatestWins };
+            let (tx, rx, ros2_out) = queue("ros2_out", config, stop.clone());
+            stats.push(ros2_out);
+            (tx, rx)
+        });
         Self {
             frames: (frames_tx, frames_rx),
             keyframes: (kf_tx, kf_rx),
@@ -117,6 +128,7 @@ impl Queues {
             graph: (graph_tx, graph_rx),
             poses: crossbeam_channel::bounded(profile.pose.buffer_len),
             remote,
+            ros2_out,
             stats,
         }
     }
@@ -245,9 +257,50 @@ pub(super) fn zenoh(
     };
     stages.spawn("zenoh", move || thread.run())?;
     match ready_rx.recv() {
-        Ok(Ok(())) => Ok(RemoteFeed { graphs: graphs_tx, health }),
+        Ok(Ok(())) => Ok(RemoteFeed { graphs: vec![graphs_tx], health }),
         Ok(Err(reason)) => Err(StartError::Zenoh(reason)),
         Err(_) => Err(StartError::Zenoh("zenoh: the thread ended during start-up".to_owned())),
+    }
+}
+
+/// The ROS output (a topic of `[ros2.out]` on), started once its session is open and its
+/// publishers declared; returns the publisher's end of its hand-over.
+pub(super) fn ros2_out(
+    stages: &mut Stages,
+    profile: &Profile,
+    queue: RemoteQueue,
+    counters: &Counters,
+    (occupancy, stop): (Option<Arc<LatestOccupancy>>, &Arc<std::sync::atomic::AtomicBool>),
+) -> Result<QueueSender<(Arc<SceneGraph>, u64)>, StartError> {
+    let Some(out_counters) = counters.ros2_out.clone() else {
+        return Err(StartError::Zenoh("ros2: the output has no counters".to_owned()));
+    };
+    let (ready, ready_rx) = crossbeam_channel::bounded(1);
+    let (graphs_tx, graphs_rx) = queue;
+    let thread = Ros2OutputThread {
+        config: profile.ros2.clone(),
+        world_frame: ros2_world_frame(profile),
+        up_axis: profile.world.up_axis,
+        source: "op3dsgd".to_owned(),
+        graphs: graphs_rx,
+        occupancy,
+        counters: out_counters,
+        stop: stop.clone(),
+        ready,
+    };
+    stages.spawn("ros2-out", move || thread.run())?;
+    match ready_rx.recv() {
+        Ok(Ok(())) => Ok(graphs_tx),
+        Ok(Err(reason)) => Err(StartError::Zenoh(reason)),
+        Err(_) => Err(StartError::Zenoh("ros2: the output thread ended during start-up".to_owned())),
+    }
+}
+
+/// The frame ROS sees the map in: `ros2.tf.world_frame`, or `world.frame_id`.
+fn ros2_world_frame(profile: &Profile) -> String {
+    match profile.ros2.tf.world_frame.as_str() {
+        "" => profile.world.frame_id.clone(),
+        frame => frame.to_owned(),
     }
 }
 
@@ -268,13 +321,9 @@ pub(super) fn ros2_tf(
     let (alive_tx, alive_rx) = crossbeam_channel::bounded(0);
     let pose = &profile.pose;
     let ms = |v: f64| (v * 1e6) as u64;
-    let world_frame = match profile.ros2.tf.world_frame.as_str() {
-        "" => profile.world.frame_id.clone(),
-        frame => frame.to_owned(),
-    };
     let thread = TfInputThread {
         config: profile.ros2.clone(),
-        world_frame,
+        world_frame: ros2_world_frame(profile),
         camera_from_upright,
         buffer: TfConfig {
             window_ns: (profile.ros2.tf.window_s * 1e9) as u64,

@@ -150,7 +150,9 @@ impl PublishThread {
                 if self.query_graph.is_some() || self.remote.is_some() {
                     let copy = (Arc::new(graph.clone()), server.instance_id());
                     if let Some(remote) = self.remote.as_ref() {
-                        remote.graphs.push(copy.clone());
+                        for graphs in &remote.graphs {
+                            graphs.push(copy.clone());
+                        }
                     }
                     if let Some(latest) = self.query_graph.as_ref() {
                         latest.set(copy);

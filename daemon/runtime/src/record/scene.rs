@@ -13,9 +13,8 @@ use serde::Serialize;
 use op3dsg_drivers::mcap::messages::Time;
 use op3dsg_ipc_types::{EdgeKind, NodeKind};
 
-use crate::graph::{GraphNode, SceneGraph};
+use crate::graph::SceneGraph;
 use crate::world::UpAxis;
-use crate::world::{OrientedBox, horizontal_frame};
 
 /// Object cubes.
 pub const OBJECT_COLOUR: Colour = Colour { r: 0.45, g: 0.58, b: 0.72, a: 0.35 };
@@ -67,25 +66,6 @@ impl Pose {
         let glam::DQuat { x: qx, y: qy, z: qz, w: qw } = rotation;
         Self { position: Vector3 { x, y, z }, orientation: Quaternion { x: qx, y: qy, z: qz, w: qw } }
     }
-}
-
-/// The node's oriented box; its axis-aligned box (yaw 0) when it has none (size all zero: a node
-/// restored from a map written before nodes had one).
-fn node_box(node: &GraphNode, up_axis: UpAxis) -> OrientedBox {
-    if node.obb.size_m == [0.0; 3] && node.box_max_m != node.box_min_m {
-        OrientedBox::axis_aligned(node.box_min_m, node.box_max_m, up_axis)
-    } else {
-        node.obb
-    }
-}
-
-/// The rotation taking the cube's x, y, z to the box's first axis, second axis and up (world).
-fn box_rotation(obb: &OrientedBox, up_axis: UpAxis) -> (glam::DQuat, glam::DVec3) {
-    let [first, second, up] = horizontal_frame(up_axis).map(|v| v.as_dvec3());
-    let (sin, cos) = f64::from(obb.yaw_rad).sin_cos();
-    let axis_a = first * cos + second * sin;
-    let axis_b = up.cross(axis_a);
-    (glam::DQuat::from_mat3(&glam::DMat3::from_cols(axis_a, axis_b, up)).normalize(), up)
 }
 
 #[derive(Debug, Serialize)]
@@ -195,8 +175,8 @@ pub fn write_scene_update(graph: &SceneGraph, up_axis: UpAxis, world_frame: &str
     let timestamp = Time::from_ns(graph.stamp_ns);
     let mut entities = Vec::with_capacity(graph.nodes.len() + 2);
     for node in &graph.nodes {
-        let obb = node_box(node, up_axis);
-        let (rotation, up) = box_rotation(&obb, up_axis);
+        let obb = node.display_box(up_axis);
+        let (rotation, up) = obb.rotation(up_axis);
         let centre = v3(obb.centre_m);
         let [sx, sy, sz] = v3(obb.size_m).map(|v| v.max(0.0));
         let top = glam::DVec3::from_array(centre) + up * (sz / 2.0 + 0.05);
@@ -274,6 +254,7 @@ mod tests {
 
     use super::*;
     use crate::graph::{GraphEdge, GraphNode};
+    use crate::world::OrientedBox;
 
     fn node(id: u32, kind: NodeKind, min: [f32; 3], max: [f32; 3]) -> GraphNode {
         GraphNode {

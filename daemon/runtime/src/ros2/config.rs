@@ -28,6 +28,59 @@ pub struct Ros2Config {
     pub namespace: String,
     /// The camera's pose from tf (`pose.source = "ros2"`).
     pub tf: TfInputConfig,
+    /// The graph and the map out to ROS 2 (each topic off by default).
+    pub out: Ros2OutConfig,
+}
+
+/// `[ros2.out]`: what the daemon publishes to ROS 2 (RViz, ROS planners). Each topic is off
+/// until enabled; with any on, the daemon joins the ROS graph as the node `node_name`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Ros2OutConfig {
+    /// `visualization_msgs/MarkerArray` for RViz: a box and a label per node, parts coloured
+    /// apart, a line per part-of and functional edge; markers of removed nodes deleted.
+    pub markers: bool,
+    /// Its topic.
+    pub markers_topic: String,
+    /// The occupancy map as `nav_msgs/OccupancyGrid` in the world frame.
+    pub occupancy: bool,
+    /// Its topic.
+    pub occupancy_topic: String,
+    /// The graph as JSON (`op3dsg dump --json`'s form) in `std_msgs/String`.
+    pub graph_json: bool,
+    /// Its topic.
+    pub graph_json_topic: String,
+    /// Shortest time between two markers or JSON messages, milliseconds (the newest graph version
+    /// goes out; versions in between are skipped).
+    pub period_ms: u64,
+    /// Longest time between two occupancy grids, milliseconds: an unchanged map is sent again so
+    /// that a late RViz gets it (the topic is volatile).
+    pub occupancy_repeat_ms: u64,
+    /// The ROS node name the publishers hang under (`ros2 node list`).
+    pub node_name: String,
+}
+
+impl Default for Ros2OutConfig {
+    fn default() -> Self {
+        Self {
+            markers: false,
+            markers_topic: "/op3dsg/markers".to_owned(),
+            occupancy: false,
+            occupancy_topic: "/op3dsg/occupancy".to_owned(),
+            graph_json: false,
+            graph_json_topic: "/op3dsg/graph_json".to_owned(),
+            period_ms: 500,
+            occupancy_repeat_ms: 5000,
+            node_name: "op3dsg".to_owned(),
+        }
+    }
+}
+
+impl Ros2OutConfig {
+    /// Whether any topic is on (the stage runs).
+    pub fn any(&self) -> bool {
+        self.markers || self.occupancy || self.graph_json
+    }
 }
 
 /// `[ros2.tf]`: the camera's pose from the tf tree.
@@ -59,6 +112,7 @@ impl Default for Ros2Config {
             domain_id: 0,
             namespace: String::new(),
             tf: TfInputConfig::default(),
+            out: Ros2OutConfig::default(),
         }
     }
 }
@@ -119,6 +173,32 @@ impl Ros2Config {
         }
         if !(tf.window_s > 0.0 && tf.window_s <= 3600.0) {
             return Err(format!("{path}.tf.window_s: must be within (0, 3600] seconds, got {}", tf.window_s));
+        }
+        let out = &self.out;
+        for (field, topic) in [
+            ("markers_topic", &out.markers_topic),
+            ("occupancy_topic", &out.occupancy_topic),
+            ("graph_json_topic", &out.graph_json_topic),
+        ] {
+            fully_qualified_topic("/", topic).map_err(|e| format!("{path}.out.{field}: {topic:?}: {e}"))?;
+        }
+        if !(10..=60_000).contains(&out.period_ms) {
+            return Err(format!("{path}.out.period_ms: must be within [10, 60000] ms, got {}", out.period_ms));
+        }
+        if !(100..=3_600_000).contains(&out.occupancy_repeat_ms) {
+            return Err(format!(
+                "{path}.out.occupancy_repeat_ms: must be within [100, 3600000] ms, got {}",
+                out.occupancy_repeat_ms
+            ));
+        }
+        let ok_name = !out.node_name.is_empty()
+            && out.node_name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+            && !out.node_name.starts_with(|c: char| c.is_ascii_digit());
+        if !ok_name {
+            return Err(format!(
+                "{path}.out.node_name: {:?}: a ROS node name is letters, digits and '_', not starting with a digit",
+                out.node_name
+            ));
         }
         Ok(())
     }

@@ -11,9 +11,22 @@
 //! |---|---|
 //! | `config.rs` | `[ros2]` and `[ros2.tf]` ([`Ros2Config`]) |
 //! | `tf_input.rs` | [`TfInputThread`] and its [`TfInputCounters`] |
+//! | `messages.rs` | the graph as `MarkerArray` and JSON, the map as `OccupancyGrid` |
+//! | `output.rs` | [`Ros2OutputThread`] (`[ros2.out]`) and its [`Ros2OutputCounters`] |
+//!
+//! Out to ROS 2 (`[ros2.out]`, each topic off by default), `op3dsg-ros2-out` publishes the graph
+//! as markers for RViz, the occupancy map as a grid and the graph as JSON, from a latest-wins
+//! hand-over of the publisher's graph versions and the occupancy thread's newest map: a slow or
+//! absent ROS side costs the pipeline nothing. With `rmw_zenoh` keys each message carries the
+//! attachment rmw_zenoh expects and the node and its publishers are announced by liveliness
+//! tokens, so `ros2 topic list` and RViz see them.
 
 mod config;
+mod messages;
+mod output;
 mod tf_input;
 
-pub use config::{MAX_DOMAIN_ID, Ros2Config, TfInputConfig};
+pub use config::{MAX_DOMAIN_ID, Ros2Config, Ros2OutConfig, TfInputConfig};
+pub use messages::{MarkerState, graph_json, marker_array, occupancy_grid};
+pub use output::{Ros2OutputCounters, Ros2OutputThread};
 pub use tf_input::{TfInputCounters, TfInputThread};

@@ -44,6 +44,16 @@ impl OrientedBox {
         }
     }
 
+    /// The rotation taking a unit cube's x, y and z to the box's first axis, second axis and up
+    /// (world), and the up direction: how viewers (Foxglove, RViz) place the box.
+    pub fn rotation(&self, up_axis: UpAxis) -> (glam::DQuat, glam::DVec3) {
+        let [first, second, up] = horizontal_frame(up_axis).map(|v| v.as_dvec3());
+        let (sin, cos) = f64::from(self.yaw_rad).sin_cos();
+        let axis_a = first * cos + second * sin;
+        let axis_b = up.cross(axis_a);
+        (glam::DQuat::from_mat3(&glam::DMat3::from_cols(axis_a, axis_b, up)).normalize(), up)
+    }
+
     /// The box of `points` (module docs); `None` without points or with a non-finite one.
     pub fn fit(points: &[Vec3], up_axis: UpAxis) -> Option<Self> {
         if points.is_empty() || points.iter().any(|p| !p.is_finite()) {
