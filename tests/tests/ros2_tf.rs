@@ -170,7 +170,9 @@ fn rmw_zenoh_keys_are_followed_and_a_missing_camera_frame_is_counted() {
     let (port, traj) = (world.port, world.trajectory.as_path());
     let prefix = unique_prefix("ros2-rmw");
     let mut args = ros2_args(port, "rmw_zenoh");
-    args.extend(["--set".to_owned(), "pose.max_wait_ms=500".to_owned()]);
+    // Poses up to 10 s ahead of the newest frame are adopted (the good trajectory's tail after
+    // the replay's last frame); 600 s ahead is a future stamp.
+    args.extend(["--set", "pose.max_wait_ms=500", "--set", "pose.future_tolerance_ms=10000"].map(str::to_owned));
     let d = daemon(&prefix, &args.iter().map(String::as_str).collect::<Vec<_>>());
     // The camera's own link never published: no pose at all, each stamp counted once.
     publish(port, "rmw_zenoh", traj, &["--omit-frame", "camera_color_optical_frame"]);
@@ -184,6 +186,33 @@ fn rmw_zenoh_keys_are_followed_and_a_missing_camera_frame_is_counted() {
     publish(port, "rmw_zenoh", traj, &[]);
     let h = health_where(&mut health, "poses accepted", Duration::from_secs(120), |h| h.pose.accepted >= 100);
     assert!(h.pose.frame_not_found >= 200, "{:?}", h.pose);
+}
+
+#[test]
+fn a_broken_chain_and_future_stamps_are_counted_by_reason() {
+    let Some(world) = RosWorld::start() else { return };
+    let (port, traj) = (world.port, world.trajectory.as_path());
+    let prefix = unique_prefix("ros2-chain");
+    let mut args = ros2_args(port, "bridge");
+    // The whole recording: frames keep coming through both phases (the gate and the tf input
+    // live as long as they do).
+    args.extend(
+        ["--set", "pose.max_wait_ms=500", "--set", "pose.future_tolerance_ms=10000", "--set", "run.max_frames=0"]
+            .map(str::to_owned),
+    );
+    let d = daemon(&prefix, &args.iter().map(String::as_str).collect::<Vec<_>>());
+    // base_link never hangs under odom: map -> odom and base_link -> ... -> camera are two trees.
+    publish(port, "bridge", traj, &["--omit-frame", "base_link"]);
+    let mut health = d.health_subscriber("ros2-chain-health");
+    let h = health_where(&mut health, "broken chain counted", Duration::from_secs(120), |h| {
+        h.pose.no_transform_path >= 200
+    });
+    assert_eq!((h.pose.accepted, h.pose.frame_not_found), (0, 0), "{:?}", h.pose);
+    // The whole chain, stamped 600 s ahead of every frame: looked up, then refused by the gate
+    // as future poses.
+    publish(port, "bridge", traj, &["--stamp-offset-ns", "600000000000"]);
+    let h = health_where(&mut health, "future stamps counted", Duration::from_secs(120), |h| h.pose.future >= 200);
+    assert_eq!(h.pose.accepted, 0, "{:?}", h.pose);
 }
 
 fn op3dsg_json(args: &[&str]) -> Value {
