@@ -200,7 +200,7 @@ fn one_per_id(records: &mut Vec<[u8; NODE_BYTES]>) {
     if records.is_sorted_by(|a, b| node_id(a) < node_id(b)) {
         return;
     }
-    records.sort_by_key(|r| node_id(r));
+    records.sort_by_key(node_id);
     let mut kept = 0;
     for i in 0..records.len() {
         if i + 1 < records.len() && node_id(&records[i + 1]) == node_id(&records[i]) {
