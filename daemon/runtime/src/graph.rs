@@ -8,6 +8,19 @@ use op3dsg_ipc_types::{EdgeKind, EdgeOrigin, NodeKind};
 
 use crate::world::OrientedBox;
 
+/// The colours viewers draw the graph in (RGBA, each in `0..=1`): the recorder's Foxglove scene
+/// and the ROS markers alike, so both look the same.
+pub mod colours {
+    /// Object boxes: blue-grey, translucent.
+    pub const OBJECT: [f32; 4] = [0.45, 0.58, 0.72, 0.35];
+    /// Part boxes: orange.
+    pub const PART: [f32; 4] = [1.0, 0.55, 0.1, 0.6];
+    /// Spatial edges: grey.
+    pub const SPATIAL_EDGE: [f32; 4] = [0.75, 0.75, 0.75, 0.9];
+    /// Functional edges: green.
+    pub const FUNCTIONAL_EDGE: [f32; 4] = [0.2, 0.85, 0.3, 1.0];
+}
+
 /// One node of the graph.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct GraphNode {

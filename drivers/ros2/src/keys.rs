@@ -350,6 +350,18 @@ impl Qos {
     }
 }
 
+/// Checks a ROS node name: letters, digits and `_`, not starting with a digit.
+pub fn check_node_name(name: &str) -> Result<(), NameError> {
+    let ok = !name.is_empty()
+        && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+        && !name.starts_with(|c: char| c.is_ascii_digit());
+    if ok {
+        Ok(())
+    } else {
+        Err(invalid("node name", name, "it must be letters, digits and '_', not starting with a digit"))
+    }
+}
+
 /// The ROS node the daemon's tokens hang under.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct NodeIdentity {
@@ -371,12 +383,7 @@ impl NodeIdentity {
         if zid.is_empty() || !zid.chars().all(|c| matches!(c, '0'..='9' | 'a'..='f')) {
             return Err(NameError::BadZenohId(zid.to_string()));
         }
-        let ok_name = !name.is_empty()
-            && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
-            && !name.starts_with(|c: char| c.is_ascii_digit());
-        if !ok_name {
-            return Err(invalid("node name", name, "it must be letters, digits and '_', not starting with a digit"));
-        }
+        check_node_name(name)?;
         Ok(Self {
             domain_id,
             zid: zid.to_string(),

@@ -13,17 +13,17 @@ use serde::Serialize;
 use op3dsg_drivers::mcap::messages::Time;
 use op3dsg_ipc_types::{EdgeKind, NodeKind};
 
-use crate::graph::SceneGraph;
+use crate::graph::{SceneGraph, colours};
 use crate::world::UpAxis;
 
 /// Object cubes.
-pub const OBJECT_COLOUR: Colour = Colour { r: 0.45, g: 0.58, b: 0.72, a: 0.35 };
+pub const OBJECT_COLOUR: Colour = Colour::rgba(colours::OBJECT);
 /// Part cubes.
-pub const PART_COLOUR: Colour = Colour { r: 1.0, g: 0.55, b: 0.1, a: 0.6 };
+pub const PART_COLOUR: Colour = Colour::rgba(colours::PART);
 /// Spatial edges.
-pub const SPATIAL_EDGE_COLOUR: Colour = Colour { r: 0.75, g: 0.75, b: 0.75, a: 0.9 };
+pub const SPATIAL_EDGE_COLOUR: Colour = Colour::rgba(colours::SPATIAL_EDGE);
 /// Functional edges.
-pub const FUNCTIONAL_EDGE_COLOUR: Colour = Colour { r: 0.2, g: 0.85, b: 0.3, a: 1.0 };
+pub const FUNCTIONAL_EDGE_COLOUR: Colour = Colour::rgba(colours::FUNCTIONAL_EDGE);
 const TEXT_COLOUR: Colour = Colour { r: 1.0, g: 1.0, b: 1.0, a: 1.0 };
 
 /// `foxglove.Color`.
@@ -33,6 +33,12 @@ pub struct Colour {
     pub(crate) g: f32,
     pub(crate) b: f32,
     pub(crate) a: f32,
+}
+
+impl Colour {
+    const fn rgba([r, g, b, a]: [f32; 4]) -> Self {
+        Self { r, g, b, a }
+    }
 }
 
 #[derive(Debug, Serialize)]

@@ -5,7 +5,7 @@
 use std::str::FromStr;
 
 use ::zenoh::config::{Config, EndPoint};
-use op3dsg_ros2::keys::{Distro, KeyStyle, fully_qualified_topic, normalize_namespace};
+use op3dsg_ros2::keys::{Distro, KeyStyle, check_node_name, fully_qualified_topic, normalize_namespace};
 use serde::{Deserialize, Serialize};
 
 /// `[ros2]`.
@@ -191,15 +191,7 @@ impl Ros2Config {
                 out.occupancy_repeat_ms
             ));
         }
-        let ok_name = !out.node_name.is_empty()
-            && out.node_name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
-            && !out.node_name.starts_with(|c: char| c.is_ascii_digit());
-        if !ok_name {
-            return Err(format!(
-                "{path}.out.node_name: {:?}: a ROS node name is letters, digits and '_', not starting with a digit",
-                out.node_name
-            ));
-        }
+        check_node_name(&out.node_name).map_err(|e| format!("{path}.out.node_name: {e}"))?;
         Ok(())
     }
 

@@ -24,19 +24,23 @@ use op3dsg_ros2::msg::nav_msgs::{MapMetaData, OccupancyGrid};
 use op3dsg_ros2::msg::std_msgs::{self, ColorRGBA, Header};
 use op3dsg_ros2::msg::visualization_msgs::{Marker, MarkerArray};
 
-use crate::graph::SceneGraph;
+use crate::graph::{SceneGraph, colours};
 use crate::occupancy::MapCopy;
 use crate::world::{OrientedBox, UpAxis, horizontal_frame};
 
+const fn rgba([r, g, b, a]: [f32; 4]) -> ColorRGBA {
+    ColorRGBA { r, g, b, a }
+}
+
 /// Object boxes (the recorder's Foxglove colours, so both viewers look alike).
-const OBJECT_COLOUR: ColorRGBA = ColorRGBA { r: 0.45, g: 0.58, b: 0.72, a: 0.35 };
+const OBJECT_COLOUR: ColorRGBA = rgba(colours::OBJECT);
 /// Part boxes.
-const PART_COLOUR: ColorRGBA = ColorRGBA { r: 1.0, g: 0.55, b: 0.1, a: 0.6 };
-/// Part-of lines.
-const PART_OF_COLOUR: ColorRGBA = ColorRGBA { r: 1.0, g: 0.7, b: 0.3, a: 0.9 };
+const PART_COLOUR: ColorRGBA = rgba(colours::PART);
+/// Part-of lines (the Foxglove scene draws none: parts sit on their objects there).
+const PART_OF_COLOUR: ColorRGBA = rgba([1.0, 0.7, 0.3, 0.9]);
 /// Functional edges.
-const FUNCTIONAL_COLOUR: ColorRGBA = ColorRGBA { r: 0.2, g: 0.85, b: 0.3, a: 1.0 };
-const TEXT_COLOUR: ColorRGBA = ColorRGBA { r: 1.0, g: 1.0, b: 1.0, a: 1.0 };
+const FUNCTIONAL_COLOUR: ColorRGBA = rgba(colours::FUNCTIONAL_EDGE);
+const TEXT_COLOUR: ColorRGBA = rgba([1.0; 4]);
 /// Letter heights, metres.
 const OBJECT_TEXT_M: f64 = 0.08;
 const PART_TEXT_M: f64 = 0.05;

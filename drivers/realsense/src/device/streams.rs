@@ -90,14 +90,13 @@ impl RealsenseSource {
     /// The started pipeline's streams and calibration, the sensors' options set and our
     /// alignment made for them.
     fn read_streams(&mut self, pipeline: &ActivePipeline, name: &str) -> Result<Streams, SourceError> {
-        let name = name.to_owned();
         let profile = pipeline.profile();
         let colour_stream = profile.streams().iter().find(|s| s.kind() == Rs2StreamKind::Color);
         let depth_stream = profile.streams().iter().find(|s| s.kind() == Rs2StreamKind::Depth);
         let (Some(colour_stream), Some(depth_stream)) = (colour_stream, depth_stream) else {
             return Err(device_err(format!("{name}: needs a depth and a colour stream")));
         };
-        let colour_order = colour_order(colour_stream.format(), &name)?;
+        let colour_order = colour_order(colour_stream.format(), name)?;
         let k = colour_stream.intrinsics().map_err(|e| device_err(format!("{name}: colour intrinsics: {e}")))?;
         let colour = Intrinsics {
             width: k.width() as u32,
@@ -114,10 +113,10 @@ impl RealsenseSource {
             .map_err(|e| device_err(format!("{name}: depth intrinsics: {e}")))?;
         let colour_lens = lens(&k.0);
         let half_period_ms = 500.0 / f64::from(colour_stream.framerate().max(1));
-        let depth_units_per_m = self.configure_sensors(&mut profile.device().sensors(), &name);
+        let depth_units_per_m = self.configure_sensors(&mut profile.device().sensors(), name);
         let extrinsics_of_depth =
             extrinsics.as_ref().map(|e| Extrinsics { rotation: e.rotation(), translation_m: e.translation() });
-        self.aligner = self.aligner_for(depth_lens, colour_lens, extrinsics_of_depth, depth_units_per_m, &name)?;
+        self.aligner = self.aligner_for(depth_lens, colour_lens, extrinsics_of_depth, depth_units_per_m, name)?;
         info!(
             source = %name,
             align = ?self.config.align,
