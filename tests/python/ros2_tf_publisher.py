@@ -26,6 +26,9 @@ Prints JSON lines on stdout: {"event": "ready", ...keys and tokens} once declare
 {"event": "done", "published": N, "first_stamp_ns": ..., "last_stamp_ns": ...}; then keeps the
 session (and the static cache) for --linger-s and exits.
 
+With --static-only it publishes /tf_static alone and keeps it cached for --linger-s (a robot's
+static broadcaster started before the daemon); with --no-static, /tf alone.
+
 Faults for tests: --omit-frame CHILD (never publish the transform into CHILD; repeatable),
 --stamp-offset-ns N (added to every /tf stamp), --malformed N (N truncated /tf payloads first).
 
@@ -229,6 +232,11 @@ def parse_args(argv):
     parser.add_argument("--omit-frame", action="append", default=[], help="never publish the transform into it")
     parser.add_argument("--stamp-offset-ns", type=int, default=0, help="added to every /tf stamp")
     parser.add_argument("--malformed", type=int, default=0, help="truncated /tf payloads published first")
+    parts = parser.add_mutually_exclusive_group()
+    parts.add_argument("--static-only", action="store_true",
+                       help="publish /tf_static only, then keep it in the cache for --linger-s")
+    parts.add_argument("--no-static", action="store_true",
+                       help="publish /tf only (the static transforms come from another publisher)")
     return parser.parse_args(argv)
 
 
@@ -249,17 +257,22 @@ def main(argv):
         if args.key_style == "rmw_zenoh":
             node_token_key = node_token_prefix(session, args, 0, "NN")
             node_token = session.liveliness().declare_token(node_token_key)
-        tf = Publisher(session, args, typestore, args.tf_topic, 1, static=False)
-        tf_static = Publisher(session, args, typestore, args.tf_static_topic, 2, static=True)
-        tokens = [k for k in (node_token and node_token_key, tf.token_key, tf_static.token_key) if k]
-        print(json.dumps({"event": "ready", "tf_key": tf.key, "tf_static_key": tf_static.key, "tokens": tokens,
-                          "zid": str(session.info.zid())}), flush=True)
+        tf = None if args.static_only else Publisher(session, args, typestore, args.tf_topic, 1, static=False)
+        tf_static = None if args.no_static else Publisher(session, args, typestore, args.tf_static_topic, 2, static=True)
+        tokens = [k for k in (node_token and node_token_key, tf and tf.token_key, tf_static and tf_static.token_key)
+                  if k]
+        print(json.dumps({"event": "ready", "tf_key": tf and tf.key, "tf_static_key": tf_static and tf_static.key,
+                          "tokens": tokens, "zid": str(session.info.zid())}), flush=True)
         time.sleep(args.start_delay_s)
 
         omit = set(args.omit_frame)
         statics = [e for e in STATIC_EDGES if e[1] not in omit]
-        if statics:
+        if statics and tf_static:
             tf_static.put(tf_static.message(poses[0][0], statics))
+        if tf is None:
+            print(json.dumps({"event": "done", "published": 0, "static": len(statics)}), flush=True)
+            time.sleep(args.linger_s)
+            return
         for _ in range(args.malformed):
             good = tf.message(poses[0][0], dynamic_edges(*poses[0]))
             tf.put(good[: len(good) // 2])

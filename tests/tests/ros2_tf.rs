@@ -5,10 +5,13 @@
 //! camera_link → camera_color_optical_frame`; a Zenoh router (`tests/python/zenoh_router.py`)
 //! stands in for `rmw_zenohd` or the bridge. The daemon on the replay with `pose.source = "ros2"`
 //! must build the graph it builds with the recording's own poses (same node ids, boxes within
-//! 1 mm); malformed payloads and a missing camera frame are refused and counted by reason.
+//! 1 mm) with the static transforms sent before it started; malformed payloads, a missing camera
+//! frame, a broken chain and future stamps are refused and counted by reason, and fusion resumes
+//! when good transforms do.
 
+use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use op3dsg_tests::{Daemon, health_where, unique_prefix};
@@ -85,6 +88,24 @@ fn daemon(prefix: &str, extra: &[&str]) -> Daemon {
     Daemon::start(prefix, &args)
 }
 
+/// A static broadcaster started before the daemon: publishes `/tf_static` once and keeps it in
+/// its cache (transient local) until dropped; the daemon must fetch it when it subscribes.
+fn static_publisher(port: u16, style: &str, traj: &Path) -> Killed {
+    let mut child = Command::new(python())
+        .arg(script("ros2_tf_publisher.py"))
+        .args(["--key-style", style, "--distro", "humble", "--static-only", "--linger-s", "600"])
+        .args(["--connect", &format!("tcp/127.0.0.1:{port}")])
+        .arg("--trajectory")
+        .arg(traj)
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("start ros2_tf_publisher.py --static-only");
+    let stdout = BufReader::new(child.stdout.take().expect("stdout"));
+    let done = stdout.lines().map_while(Result::ok).any(|line| line.contains("\"done\""));
+    assert!(done, "ros2_tf_publisher.py --static-only ended before publishing");
+    Killed(child)
+}
+
 /// Runs the publisher to the end of the trajectory; its last line.
 fn publish(port: u16, style: &str, traj: &Path, faults: &[&str]) -> Value {
     let output = Command::new(python())
@@ -139,10 +160,12 @@ fn tf_over_the_bridge_gives_the_graph_of_the_recordings_poses_and_bad_payloads_a
     let Some(world) = RosWorld::start() else { return };
     let (port, traj) = (world.port, world.trajectory.as_path());
 
+    // The robot's static transforms were sent before the daemon started.
+    let _statics = static_publisher(port, "bridge", traj);
     let prefix = unique_prefix("ros2-bridge");
     let args = ros2_args(port, "bridge");
     let with_tf = daemon(&prefix, &args.iter().map(String::as_str).collect::<Vec<_>>());
-    let done = publish(port, "bridge", traj, &["--malformed", "3"]);
+    let done = publish(port, "bridge", traj, &["--malformed", "3", "--no-static"]);
     assert_eq!(done["published"].as_u64(), Some(211), "{done}");
     let mut health = with_tf.health_subscriber("ros2-health");
     let h = health_where(&mut health, "every frame", Duration::from_secs(240), |h| h.frames_captured >= FRAMES);
@@ -162,47 +185,59 @@ fn tf_over_the_bridge_gives_the_graph_of_the_recordings_poses_and_bad_payloads_a
     for reason in ["no_transform_path", "frame_not_found", "extrapolation", "non_finite"] {
         assert_eq!(report["poses"][reason].as_u64(), Some(0), "{reason}: {report}");
     }
+    // The chain of the last lookup, with the static part fetched from the earlier publisher.
+    let tf = &report["tf"];
+    assert_eq!(
+        tf["path"], "map -> odom -> base_link -> link_head_tilt -> camera_link -> camera_color_optical_frame",
+        "{report}"
+    );
+    assert_eq!((tf["static_messages"].as_u64(), tf["dynamic_messages"].as_u64()), (Some(1), Some(211)), "{report}");
+    assert_eq!(tf["newest_data_ns"].as_u64(), done["last_stamp_ns"].as_u64(), "{report}");
+    assert!(tf["data_age_s"].as_f64().is_some(), "{report}");
 }
 
 #[test]
-fn rmw_zenoh_keys_are_followed_and_a_missing_camera_frame_is_counted() {
+fn a_missing_camera_frame_is_counted_and_poses_resume() {
     let Some(world) = RosWorld::start() else { return };
     let (port, traj) = (world.port, world.trajectory.as_path());
-    let prefix = unique_prefix("ros2-rmw");
-    let mut args = ros2_args(port, "rmw_zenoh");
+    let prefix = unique_prefix("ros2-camera");
+    let mut args = ros2_args(port, "bridge");
     // Poses up to 10 s ahead of the newest frame are adopted (the good trajectory's tail after
     // the replay's last frame); 600 s ahead is a future stamp.
     args.extend(["--set", "pose.max_wait_ms=500", "--set", "pose.future_tolerance_ms=10000"].map(str::to_owned));
     let d = daemon(&prefix, &args.iter().map(String::as_str).collect::<Vec<_>>());
     // The camera's own link never published: no pose at all, each stamp counted once.
-    publish(port, "rmw_zenoh", traj, &["--omit-frame", "camera_color_optical_frame"]);
-    let mut health = d.health_subscriber("ros2-rmw-health");
+    publish(port, "bridge", traj, &["--omit-frame", "camera_color_optical_frame"]);
+    let mut health = d.health_subscriber("ros2-camera-health");
     let h = health_where(&mut health, "missing frames counted", Duration::from_secs(120), |h| {
         h.pose.frame_not_found >= 200
     });
     assert_eq!(h.pose.accepted, 0, "{:?}", h.pose);
     // Then the whole chain: the input resumes with good transforms. The replay's 90 frames are
     // over by now (0 to 3 s), so only the poses after its last frame are still of use: adopted.
-    publish(port, "rmw_zenoh", traj, &[]);
+    publish(port, "bridge", traj, &[]);
     let h = health_where(&mut health, "poses accepted", Duration::from_secs(120), |h| h.pose.accepted >= 100);
     assert!(h.pose.frame_not_found >= 200, "{:?}", h.pose);
 }
 
 #[test]
-fn a_broken_chain_and_future_stamps_are_counted_by_reason() {
+fn rmw_zenoh_statics_from_before_a_broken_chain_and_future_stamps_then_fusion_resumes() {
     let Some(world) = RosWorld::start() else { return };
     let (port, traj) = (world.port, world.trajectory.as_path());
+    // rmw_zenoh keys; the static transforms were sent before the daemon started (transient
+    // local): without them every lookup would miss the camera frame (frame_not_found).
+    let _statics = static_publisher(port, "rmw_zenoh", traj);
     let prefix = unique_prefix("ros2-chain");
-    let mut args = ros2_args(port, "bridge");
-    // The whole recording: frames keep coming through both phases (the gate and the tf input
-    // live as long as they do).
+    let mut args = ros2_args(port, "rmw_zenoh");
+    // The whole recording: frames keep coming through the three phases (the gate and the tf
+    // input live as long as they do).
     args.extend(
         ["--set", "pose.max_wait_ms=500", "--set", "pose.future_tolerance_ms=10000", "--set", "run.max_frames=0"]
             .map(str::to_owned),
     );
     let d = daemon(&prefix, &args.iter().map(String::as_str).collect::<Vec<_>>());
     // base_link never hangs under odom: map -> odom and base_link -> ... -> camera are two trees.
-    publish(port, "bridge", traj, &["--omit-frame", "base_link"]);
+    publish(port, "rmw_zenoh", traj, &["--omit-frame", "base_link", "--no-static"]);
     let mut health = d.health_subscriber("ros2-chain-health");
     let h = health_where(&mut health, "broken chain counted", Duration::from_secs(120), |h| {
         h.pose.no_transform_path >= 200
@@ -210,9 +245,17 @@ fn a_broken_chain_and_future_stamps_are_counted_by_reason() {
     assert_eq!((h.pose.accepted, h.pose.frame_not_found), (0, 0), "{:?}", h.pose);
     // The whole chain, stamped 600 s ahead of every frame: looked up, then refused by the gate
     // as future poses.
-    publish(port, "bridge", traj, &["--stamp-offset-ns", "600000000000"]);
+    publish(port, "rmw_zenoh", traj, &["--stamp-offset-ns", "600000000000", "--no-static"]);
     let h = health_where(&mut health, "future stamps counted", Duration::from_secs(120), |h| h.pose.future >= 200);
     assert_eq!(h.pose.accepted, 0, "{:?}", h.pose);
+    let (keyframes, fused) = (h.keyframes, h.detections_fused);
+    assert!(h.frames_captured < 200, "frames left for the good transforms: {}", h.frames_captured);
+    // Good transforms again: the frames still to come get their poses and are fused.
+    publish(port, "rmw_zenoh", traj, &["--no-static"]);
+    let h = health_where(&mut health, "fusion resumed", Duration::from_secs(120), |h| {
+        h.pose.accepted > 0 && h.keyframes > keyframes && h.detections_fused > fused
+    });
+    assert!(h.graph_version > 0, "{h:?}");
 }
 
 fn op3dsg_json(args: &[&str]) -> Value {

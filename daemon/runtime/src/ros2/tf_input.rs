@@ -19,18 +19,19 @@
 //! errors of the stage `ros2_tf`. Each reason is logged once (with the count at powers of two).
 
 use std::collections::{BTreeSet, HashSet};
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
 use ::zenoh::Wait;
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 use op3dsg_drivers::pose::Isometry;
-use op3dsg_ipc_types::{PoseKind, PoseStamped};
+use op3dsg_ipc_types::{PoseKind, PoseStamped, TfHealth, write_fixed_str};
 use op3dsg_ros2::keys::topic_keys;
 use op3dsg_ros2::msg::tf2_msgs::TFMessage;
-use op3dsg_ros2::{RosMessage, TfBuffer, TfConfig, TfError, TfInsertError};
+use op3dsg_ros2::{RosMessage, TfBuffer, TfConfig, TfError, TfInsertError, TfPath};
 use tracing::{debug, info, warn};
+use zenoh_ext::{AdvancedSubscriber, AdvancedSubscriberBuilderExt, HistoryConfig};
 
 use super::config::Ros2Config;
 use crate::flow::hand_over_pose;
@@ -61,6 +62,37 @@ pub struct TfInputCounters {
     pub intake_dropped: AtomicU64,
     /// Poses handed to the keyframe gate (a full hand-over counts in `pose.queue_full` too).
     pub poses: AtomicU64,
+    /// `/tf` messages stamped wholly before the window of what was held: tf's time went back and
+    /// the dynamic transforms were cleared.
+    pub time_jumps: AtomicU64,
+    /// The chain of the last successful lookup.
+    pub last_path: Mutex<Option<TfPath>>,
+}
+
+impl TfInputCounters {
+    /// The health record's `tf` entry.
+    pub fn health(&self) -> TfHealth {
+        let mut h = TfHealth {
+            active: 1,
+            dynamic_messages: self.dynamic_messages.load(Ordering::Relaxed),
+            static_messages: self.static_messages.load(Ordering::Relaxed),
+            transforms_refused: self.transforms_refused.load(Ordering::Relaxed),
+            time_jumps: self.time_jumps.load(Ordering::Relaxed),
+            ..TfHealth::default()
+        };
+        if let Some(path) = self.last_path.lock().unwrap_or_else(PoisonError::into_inner).as_ref() {
+            let text = path.frames.iter().rev().map(String::as_str).collect::<Vec<_>>().join(" -> ");
+            if !write_fixed_str(&mut h.path, &text) {
+                let keep = h.path.len() - 3;
+                write_fixed_str(&mut h.path[..keep], &text);
+                let end = h.path.iter().position(|&b| b == 0).unwrap_or(keep);
+                h.path[end..end + 3].copy_from_slice(b"...");
+            }
+            h.lookup_stamp_ns = path.stamp_ns;
+            h.newest_data_ns = path.newest_data_ns.unwrap_or(0);
+        }
+        h
+    }
 }
 
 impl Default for TfInputCounters {
@@ -72,6 +104,8 @@ impl Default for TfInputCounters {
             transforms_refused: AtomicU64::new(0),
             intake_dropped: AtomicU64::new(0),
             poses: AtomicU64::new(0),
+            time_jumps: AtomicU64::new(0),
+            last_path: Mutex::new(None),
         }
     }
 }
@@ -131,7 +165,7 @@ impl TfInputThread {
         };
         drop(tx);
         self.follow(&rx);
-        if let Err(e) = session.0.close().wait() {
+        if let Err(e) = session.session.close().wait() {
             debug!(error = %e, "ros2 session close failed");
         }
     }
@@ -143,26 +177,39 @@ impl TfInputThread {
             format!("ros2.connect: no Zenoh session to the ROS side at {:?} (is rmw_zenohd or zenoh-bridge-ros2dds running?): {e}", c.connect)
         })?;
         let mut subscribers = Vec::new();
+        let mut late_joining = None;
         for (field, topic, is_static) in
             [("tf_topic", &c.tf.tf_topic, false), ("tf_static_topic", &c.tf.tf_static_topic, true)]
         {
             let keys = topic_keys(style, c.domain_id, &c.namespace, topic, &TFMessage::TYPE, distro)
                 .map_err(|e| format!("ros2.tf.{field}: {topic:?}: {e}"))?;
             let (tx, dropped) = (tx.clone(), self.counters.clone());
-            let subscriber = session
-                .declare_subscriber(keys.subscribe.clone())
-                .callback(move |sample| {
-                    let payload = Payload { is_static, bytes: sample.payload().to_bytes().into_owned() };
-                    if let Err(TrySendError::Full(_)) = tx.try_send(payload) {
-                        dropped.intake_dropped.fetch_add(1, Ordering::Relaxed);
-                    }
-                })
-                .wait()
-                .map_err(|e| format!("ros2.tf.{field}: subscribing to {}: {e}", keys.subscribe))?;
+            let callback = move |sample: ::zenoh::sample::Sample| {
+                let payload = Payload { is_static, bytes: sample.payload().to_bytes().into_owned() };
+                if let Err(TrySendError::Full(_)) = tx.try_send(payload) {
+                    dropped.intake_dropped.fetch_add(1, Ordering::Relaxed);
+                }
+            };
+            let failed = |e| format!("ros2.tf.{field}: subscribing to {}: {e}", keys.subscribe);
+            if is_static {
+                // Transient local: what the static broadcasters sent before the daemon came,
+                // from their publishers' caches, and from any that appear later.
+                let history = HistoryConfig::default().detect_late_publishers();
+                let subscriber = session
+                    .declare_subscriber(keys.subscribe.clone())
+                    .history(history)
+                    .callback(callback)
+                    .wait()
+                    .map_err(failed)?;
+                late_joining = Some(subscriber);
+            } else {
+                subscribers.push(
+                    session.declare_subscriber(keys.subscribe.clone()).callback(callback).wait().map_err(failed)?,
+                );
+            }
             info!(topic = %keys.fq_topic, key = %keys.subscribe, style = style.as_str(), "following tf");
-            subscribers.push(subscriber);
         }
-        Ok(Session(session, subscribers))
+        Ok(Session { session, _subscribers: subscribers, _static_subscriber: late_joining })
     }
 
     /// The loop: payloads in, poses out.
@@ -171,6 +218,7 @@ impl TfInputThread {
             buffer: TfBuffer::new(self.buffer),
             pending: BTreeSet::new(),
             newest_dynamic_ns: 0,
+            reported_stamp_ns: None,
             logged: HashSet::new(),
         };
         while !self.stop.load(Ordering::Relaxed)
@@ -187,6 +235,12 @@ impl TfInputThread {
             }
             if !self.resolve_pending(&mut state) {
                 break;
+            }
+            if let Some(path) = state.buffer.last_path()
+                && state.reported_stamp_ns != Some(path.stamp_ns)
+            {
+                state.reported_stamp_ns = Some(path.stamp_ns);
+                *self.counters.last_path.lock().unwrap_or_else(PoisonError::into_inner) = Some(path.clone());
             }
             self.counters.stage.record(started);
         }
@@ -208,7 +262,24 @@ impl TfInputThread {
         };
         let count = if payload.is_static { &self.counters.static_messages } else { &self.counters.dynamic_messages };
         count.fetch_add(1, Ordering::Relaxed);
-        for error in state.buffer.insert_message(&message, payload.is_static) {
+        let mut errors = state.buffer.insert_message(&message, payload.is_static);
+        if !payload.is_static
+            && !message.transforms.is_empty()
+            && errors.len() == message.transforms.len()
+            && errors.iter().all(|e| matches!(e, TfInsertError::TooOld { .. }))
+        {
+            // Every transform is older than the window before its link's newest: tf's time went
+            // back (a bag started again, a clock corrected after stamps from the future). As
+            // tf2's listener does on a jump back in time, the dynamic transforms are forgotten.
+            self.counters.time_jumps.fetch_add(1, Ordering::Relaxed);
+            let back_s = (state.newest_dynamic_ns.saturating_sub(first_stamp_ns(&message)) as f64) * 1e-9;
+            warn!(topic = %topic, back_s, "tf stamps jumped back in time: dynamic transforms cleared");
+            state.buffer.clear_dynamic();
+            state.pending.clear();
+            state.newest_dynamic_ns = 0;
+            errors = state.buffer.insert_message(&message, payload.is_static);
+        }
+        for error in errors {
             let (counter, reason) = match &error {
                 TfInsertError::NonFinite { .. } => (&self.pose_stats.non_finite, "non_finite"),
                 TfInsertError::NonUnitQuaternion { .. } => {
@@ -301,13 +372,25 @@ impl TfInputThread {
 }
 
 /// The session and its subscribers (undeclared when dropped with it).
-struct Session(::zenoh::Session, #[allow(dead_code)] Vec<::zenoh::pubsub::Subscriber<()>>);
+/// The session with its subscribers (declared as long as they are held).
+struct Session {
+    session: ::zenoh::Session,
+    _subscribers: Vec<::zenoh::pubsub::Subscriber<()>>,
+    _static_subscriber: Option<AdvancedSubscriber<()>>,
+}
+
+/// The oldest stamp of a message's transforms (0 when none has a valid stamp).
+fn first_stamp_ns(message: &TFMessage) -> u64 {
+    message.transforms.iter().filter_map(|t| t.header.stamp.to_ns()).min().unwrap_or(0)
+}
 
 /// What the thread keeps between payloads.
 struct State {
     buffer: TfBuffer,
     pending: BTreeSet<u64>,
     newest_dynamic_ns: u64,
+    /// The stamp of the last path handed to the counters.
+    reported_stamp_ns: Option<u64>,
     logged: HashSet<&'static str>,
 }
 
