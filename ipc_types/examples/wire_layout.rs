@@ -22,7 +22,7 @@ use op3dsg_ipc_types::{
     MAX_STAGES, MAX_WORKERS, ModelHealth, NAME_CAPACITY_BYTES, NO_NODE, NODE_BYTES, Node, PHRASE_CAPACITY_BYTES,
     PoseHealth, PoseStamped, QueueHealth, RECORDER_STATES, REFINER_ERRORS, REFINER_FORMATS, REFINER_REJECTIONS,
     REFINER_STATES, RecorderHealth, RefinerHealth, SCHEMA_VERSION, SNAPSHOT_STATES, SOURCE_KINDS, SPATIAL_RELATIONS,
-    SnapshotHealth, StageHealth, ZeroCopySend,
+    SnapshotHealth, StageHealth, TF_PATH_CAPACITY_BYTES, TfHealth, ZeroCopySend,
 };
 
 /// The JSON object of one type: `"Name": {"type_name", "size", "align", "fields": [...]}`.
@@ -214,6 +214,28 @@ fn health_layouts() -> Vec<String> {
             recorder,
             snapshot,
             world_frame,
+            tf,
+        }
+    );
+    types.extend(tf_layout());
+    types
+}
+
+/// The tf input's part of the health record.
+fn tf_layout() -> Vec<String> {
+    let mut types = Vec::new();
+    layout!(
+        types,
+        TfHealth {
+            path,
+            lookup_stamp_ns,
+            newest_data_ns,
+            dynamic_messages,
+            static_messages,
+            transforms_refused,
+            time_jumps,
+            active,
+            reserved,
         }
     );
     types
@@ -231,6 +253,7 @@ fn constants() -> String {
     constant("LABEL_CAPACITY_BYTES", LABEL_CAPACITY_BYTES.to_string());
     constant("PHRASE_CAPACITY_BYTES", PHRASE_CAPACITY_BYTES.to_string());
     constant("NAME_CAPACITY_BYTES", NAME_CAPACITY_BYTES.to_string());
+    constant("TF_PATH_CAPACITY_BYTES", TF_PATH_CAPACITY_BYTES.to_string());
     constant("MAX_NODES", MAX_NODES.to_string());
     constant("MAX_EDGES", MAX_EDGES.to_string());
     constant("NO_NODE", NO_NODE.to_string());

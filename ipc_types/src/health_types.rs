@@ -273,6 +273,65 @@ pub struct Health {
     /// Name of the frame the graph's coordinates are in (the profile's `world.frame_id`), as in
     /// the graph header, UTF-8, NUL padded; so a monitor that reads health alone sees it.
     pub world_frame: [u8; NAME_CAPACITY_BYTES],
+    /// The tf input (`pose.source = "ros2"`); all zero otherwise.
+    pub tf: TfHealth,
+}
+
+/// Bytes of [`TfHealth::path`].
+pub const TF_PATH_CAPACITY_BYTES: usize = 192;
+
+/// The tf input's state (`pose.source = "ros2"`, the thread `op3dsg-ros2-tf`; size 256 bytes).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ZeroCopySend, PlacementDefault)]
+#[type_name("op3dsg::TfHealth")]
+pub struct TfHealth {
+    /// The chain of the last successful lookup, world frame first, frames joined by ` -> `,
+    /// UTF-8, NUL padded (a chain longer than the field ends in `...`); empty before the first.
+    pub path: [u8; TF_PATH_CAPACITY_BYTES],
+    /// The stamp that lookup was for, ns since the epoch on the frames' clock (0: none yet).
+    pub lookup_stamp_ns: u64,
+    /// The oldest of the newest samples of the chain's `/tf` links at that lookup, ns since the
+    /// epoch (0: every link is static). The health record's `stamp_ns` minus this is the age of
+    /// the chain's data when tf and the daemon share a clock.
+    pub newest_data_ns: u64,
+    /// `/tf` messages received.
+    pub dynamic_messages: u64,
+    /// `/tf_static` messages received (including those fetched from the publishers' caches).
+    pub static_messages: u64,
+    /// Transforms refused by the buffer for other reasons than non-finite values or
+    /// quaternions (an empty frame id, a frame its own parent, a repeated or too old stamp, too
+    /// many frames).
+    pub transforms_refused: u64,
+    /// `/tf` messages stamped wholly before the kept window: tf's time went back and the dynamic
+    /// transforms were cleared.
+    pub time_jumps: u64,
+    /// 1 when the tf input runs.
+    pub active: u8,
+    /// Reserved, zero.
+    pub reserved: [u8; 15],
+}
+
+impl Default for TfHealth {
+    fn default() -> Self {
+        Self {
+            path: [0; TF_PATH_CAPACITY_BYTES],
+            lookup_stamp_ns: 0,
+            newest_data_ns: 0,
+            dynamic_messages: 0,
+            static_messages: 0,
+            transforms_refused: 0,
+            time_jumps: 0,
+            active: 0,
+            reserved: [0; 15],
+        }
+    }
+}
+
+impl TfHealth {
+    /// [`Self::path`] as text.
+    pub fn path_str(&self) -> &str {
+        crate::fixed_str(&self.path)
+    }
 }
 
 impl Default for Health {
@@ -304,6 +363,7 @@ impl Default for Health {
             recorder: RecorderHealth::default(),
             snapshot: SnapshotHealth::default(),
             world_frame: [0; NAME_CAPACITY_BYTES],
+            tf: TfHealth::default(),
         }
     }
 }

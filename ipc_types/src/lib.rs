@@ -144,6 +144,7 @@ pub use health_types::{
     EXECUTION_PROVIDERS, FIXED_STAGES, FUTURE_POSE_LIMIT_NS, Health, MAX_MODELS, MAX_QUEUES, MAX_STAGES, MAX_WORKERS,
     ModelHealth, PoseHealth, QueueHealth, RECORDER_STATES, REFINER_ERRORS, REFINER_FORMATS, REFINER_REJECTIONS,
     REFINER_STATES, RecorderHealth, RefinerHealth, SNAPSHOT_STATES, SnapshotHealth, StageHealth,
+    TF_PATH_CAPACITY_BYTES, TfHealth,
 };
 pub use occupancy_types::{
     OCCUPANCY_FREE_MAX_PERCENT, OCCUPANCY_MAX_SIDE_CELLS, OCCUPANCY_OCCUPIED_MIN_PERCENT, OCCUPANCY_SCHEMA_VERSION,
@@ -186,7 +187,10 @@ pub use text::{fixed_str, write_fixed_str};
 /// `reserved2` at 104 (was 4 bytes at 72); every other offset is unchanged. [`Health`]'s
 /// reserved byte after `source_connected` became `source_kind`, and `world_frame` (32 bytes)
 /// was appended after `snapshot`; every other offset is unchanged.
-pub const SCHEMA_VERSION: u32 = 9;
+///
+/// 10: [`Health`] grew by [`TfHealth`] (256 bytes) after `world_frame`: the tf input's last
+/// chain, its stamp and data age, and its message counters. The graph's layout is unchanged.
+pub const SCHEMA_VERSION: u32 = 10;
 
 /// Bytes in a frame id (`PoseStamped::frame_id`), a stage or a queue name.
 pub const NAME_CAPACITY_BYTES: usize = 32;
@@ -220,10 +224,21 @@ mod tests {
         assert_eq!(MAX_STAGES, 72);
         assert_eq!(
             size_of::<Health>(),
-            88 + MAX_STAGES * 64 + MAX_QUEUES * 56 + 128 + 96 + 8 + MAX_MODELS * 40 + 40 + 64 + NAME_CAPACITY_BYTES
+            88 + MAX_STAGES * 64
+                + MAX_QUEUES * 56
+                + 128
+                + 96
+                + 8
+                + MAX_MODELS * 40
+                + 40
+                + 64
+                + NAME_CAPACITY_BYTES
+                + 256
         );
         assert_eq!(core::mem::offset_of!(Health, source_kind), 81);
-        assert_eq!(core::mem::offset_of!(Health, world_frame), size_of::<Health>() - NAME_CAPACITY_BYTES);
+        assert_eq!(core::mem::offset_of!(Health, world_frame), size_of::<Health>() - NAME_CAPACITY_BYTES - 256);
+        assert_eq!(size_of::<TfHealth>(), 256);
+        assert_eq!(core::mem::offset_of!(Health, tf), size_of::<Health>() - 256);
         assert_eq!(size_of::<SnapshotHealth>(), 64);
         assert_eq!(core::mem::offset_of!(GraphHeader, instance_id), 16);
         assert_eq!(core::mem::offset_of!(GraphHeader, capacity_exceeded), 52);

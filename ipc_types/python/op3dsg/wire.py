@@ -20,7 +20,7 @@ from typing import Dict, Iterator, List, Optional
 import numpy as np
 
 #: Version of the wire contract this package reads (``SCHEMA_VERSION`` in ``ipc_types/src/lib.rs``).
-SCHEMA_VERSION = 9
+SCHEMA_VERSION = 10
 
 #: Bytes in a node label buffer.
 LABEL_CAPACITY_BYTES = 48
@@ -28,6 +28,8 @@ LABEL_CAPACITY_BYTES = 48
 PHRASE_CAPACITY_BYTES = 48
 #: Bytes in a frame id, a stage, queue or model name.
 NAME_CAPACITY_BYTES = 32
+#: Bytes of ``TfHealth.path`` (``TF_PATH_CAPACITY_BYTES``).
+TF_PATH_CAPACITY_BYTES = 192
 #: Default most nodes / edges of one graph sample (the profile's ``ipc.max_nodes`` / ``ipc.max_edges``).
 MAX_NODES = 16_384
 MAX_EDGES = 32_768
@@ -410,6 +412,33 @@ class SnapshotHealth(_Wire):
         return "op3dsg::SnapshotHealth"
 
 
+class TfHealth(_Wire):
+    """The tf input's state with ``pose.source = "ros2"`` (256 bytes): ``op3dsg::TfHealth``.
+
+    ``path`` is the chain of the last lookup (world frame first, ``" -> "`` between frames);
+    ``stamp_ns`` of the health record minus ``newest_data_ns`` is the age of its ``/tf`` data."""
+
+    _fields_ = [
+        ("path", _u8 * TF_PATH_CAPACITY_BYTES),
+        ("lookup_stamp_ns", _u64),
+        ("newest_data_ns", _u64),
+        ("dynamic_messages", _u64),
+        ("static_messages", _u64),
+        ("transforms_refused", _u64),
+        ("time_jumps", _u64),
+        ("active", _u8),
+        ("reserved", _u8 * 15),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "op3dsg::TfHealth"
+
+    def path_str(self) -> str:
+        """``path`` as text (``""`` before the first lookup)."""
+        return fixed_str(self.path)
+
+
 class Health(_Wire):
     """Daemon health, published on ``<prefix>/health`` every health period: ``op3dsg::Health``.
 
@@ -443,6 +472,7 @@ class Health(_Wire):
         ("recorder", RecorderHealth),
         ("snapshot", SnapshotHealth),
         ("world_frame", _u8 * NAME_CAPACITY_BYTES),
+        ("tf", TfHealth),
     ]
 
     @staticmethod
@@ -560,7 +590,8 @@ def source_kind_name(value: int) -> str:
 #: Every mirrored structure, by its Rust name.
 WIRE_TYPES = {
     cls.__name__: cls
-    for cls in (Node, Edge, GraphHeader, PoseStamped, StageHealth, QueueHealth, RefinerHealth, PoseHealth, ModelHealth, RecorderHealth, SnapshotHealth, Health)
+    for cls in (Node, Edge, GraphHeader, PoseStamped, StageHealth, QueueHealth, RefinerHealth, PoseHealth, ModelHealth, RecorderHealth, SnapshotHealth, TfHealth,
+                Health)
 }
 
 NODE_BYTES = ctypes.sizeof(Node)

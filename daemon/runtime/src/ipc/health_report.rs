@@ -64,6 +64,50 @@ pub struct HealthReport {
     /// The map snapshots (see `op3dsg_ipc_types::SnapshotHealth`).
     #[serde(default)]
     pub snapshot: SnapshotReport,
+    /// The tf input (`pose.source = "ros2"`; see `op3dsg_ipc_types::TfHealth`); absent otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tf: Option<TfReport>,
+}
+
+/// The tf input of a [`HealthReport`].
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TfReport {
+    /// The chain of the last lookup, world frame first (empty before the first).
+    pub path: String,
+    /// The stamp of that lookup, ns since the epoch (0: none yet).
+    pub lookup_stamp_ns: u64,
+    /// The oldest of the newest `/tf` samples of that chain, ns since the epoch (0: every link
+    /// static).
+    pub newest_data_ns: u64,
+    /// The record's `stamp_ns` minus `newest_data_ns`, seconds: how old the chain's data was
+    /// when the record was made (tf and the daemon on one clock); `None` before the first lookup
+    /// or with a static chain.
+    pub data_age_s: Option<f64>,
+    /// `/tf` messages received.
+    pub dynamic_messages: u64,
+    /// `/tf_static` messages received.
+    pub static_messages: u64,
+    /// Transforms refused by the buffer (besides non-finite values and quaternions).
+    pub transforms_refused: u64,
+    /// Jumps back in time that cleared the dynamic transforms.
+    pub time_jumps: u64,
+}
+
+impl TfReport {
+    fn from_health(h: &Health) -> Option<Self> {
+        let tf = &h.tf;
+        (tf.active != 0).then(|| Self {
+            path: tf.path_str().to_owned(),
+            lookup_stamp_ns: tf.lookup_stamp_ns,
+            newest_data_ns: tf.newest_data_ns,
+            data_age_s: (tf.newest_data_ns != 0).then_some((h.stamp_ns as f64 - tf.newest_data_ns as f64) * 1e-9),
+            dynamic_messages: tf.dynamic_messages,
+            static_messages: tf.static_messages,
+            transforms_refused: tf.transforms_refused,
+            time_jumps: tf.time_jumps,
+        })
+    }
 }
 
 /// The map snapshots of a [`HealthReport`].
@@ -322,6 +366,7 @@ impl From<&Health> for HealthReport {
             refiner: RefinerReport::from(&h.refiner),
             recorder: RecorderReport::from(&h.recorder),
             snapshot: SnapshotReport::from(&h.snapshot),
+            tf: TfReport::from_health(h),
             poses: pose_counters(&h.pose).iter().map(|(name, n)| ((*name).to_owned(), *n)).collect(),
             models: h
                 .valid_models()

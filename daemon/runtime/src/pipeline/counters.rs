@@ -124,6 +124,9 @@ impl HealthSource for Counters {
         h.refiner = self.refiner.health();
         h.recorder = self.recorder.health();
         h.model_count = crate::onnx::fill_model_health(&mut h.models) as u32;
+        if let Some(tf) = &self.ros2_tf {
+            h.tf = tf.health();
+        }
         h
     }
 }

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use op3dsg_ipc_types::HealthSubscriber;
 use op3dsg_runtime::ipc::HealthReport;
-use op3dsg_runtime::ipc::health_report::{RecorderReport, RefinerReport, SnapshotReport};
+use op3dsg_runtime::ipc::health_report::{RecorderReport, RefinerReport, SnapshotReport, TfReport};
 
 use super::{connect_error, node_name, poll_until, write_output};
 
@@ -62,7 +62,26 @@ fn health_text(h: &HealthReport) -> String {
     if h.refiner.state != "off" {
         write_refiner(&mut s, &h.refiner);
     }
+    if let Some(tf) = &h.tf {
+        write_tf(&mut s, tf);
+    }
     s
+}
+
+/// The tf input: the last chain and the age of its data, then its message counters.
+fn write_tf(s: &mut String, tf: &TfReport) {
+    let path = if tf.path.is_empty() { "no lookup yet" } else { tf.path.as_str() };
+    let age = match tf.data_age_s {
+        Some(age) => format!("data age {age:.3} s"),
+        None if tf.path.is_empty() => String::new(),
+        None => "static chain".to_owned(),
+    };
+    let _ = writeln!(s, "tf  {path}  {age}");
+    let _ = writeln!(
+        s,
+        "tf messages  /tf {}  /tf_static {}  refused transforms {}  jumps back in time {}",
+        tf.dynamic_messages, tf.static_messages, tf.transforms_refused, tf.time_jumps
+    );
 }
 
 /// The daemon's counters: uptime, source, graph and map, frames, planners, poses, models.
@@ -226,5 +245,24 @@ mod tests {
             (&json["source_kind"], &json["world_frame"]),
             (&serde_json::json!("unknown"), &serde_json::json!("map"))
         );
+    }
+
+    #[test]
+    fn health_text_shows_the_tf_chain_and_its_age_only_with_the_tf_input() {
+        let mut health = Health { stamp_ns: 10_250_000_000, ..Health::default() };
+        assert!(!health_text(&HealthReport::from(&health)).contains("tf "), "no tf input, no tf lines");
+        health.tf.active = 1;
+        assert!(health_text(&HealthReport::from(&health)).contains("tf  no lookup yet  \n"));
+        op3dsg_ipc_types::write_fixed_str(&mut health.tf.path, "map -> odom -> camera");
+        (health.tf.lookup_stamp_ns, health.tf.newest_data_ns, health.tf.static_messages) =
+            (10_000_000_000, 10_000_000_000, 1);
+        let text = health_text(&HealthReport::from(&health));
+        assert!(text.contains("tf  map -> odom -> camera  data age 0.250 s\n"), "{text}");
+        assert!(text.contains("/tf_static 1  refused transforms 0"), "{text}");
+        let json = serde_json::to_value(HealthReport::from(&health)).unwrap();
+        assert_eq!(json["tf"]["data_age_s"], 0.25);
+        // A chain of static links only: no age.
+        health.tf.newest_data_ns = 0;
+        assert!(health_text(&HealthReport::from(&health)).contains("camera  static chain\n"));
     }
 }
