@@ -15,7 +15,8 @@
 
 Subscribes to the three topics until stdin closes, then prints one JSON object: per topic the
 messages received, their attachments (rmw_zenoh), the last message decoded; the liveliness
-tokens seen.
+tokens seen; and what RViz would show after all the marker arrays (each applied in order by the
+Marker message's ADD, DELETE and DELETEALL rules), with every (ns, id) ever added.
 
 Usage: ros2_subscriber.py --key-style rmw_zenoh|bridge --distro humble --domain-id 0
            --namespace "" --connect tcp/127.0.0.1:7447
@@ -112,6 +113,23 @@ def main():
     lock = threading.Lock()
     seen = {t: {"received": 0, "keys": [], "attachments": [], "errors": [], "markers_actions": [], "last": None}
             for t in TOPICS}
+    # What RViz shows after every array so far, by the Marker message's rules: ADD (0) adds or
+    # replaces (ns, id), DELETE (2) removes it, DELETEALL (3) removes every marker (of its ns
+    # when one is given).
+    shown = {}
+    ever_added = set()
+    deletes = {"count": 0}
+
+    def apply_markers(markers):
+        for m in markers:
+            if m.action == 3:
+                for key in [k for k in shown if not m.ns or k[0] == m.ns]:
+                    del shown[key]
+            elif m.action == 2:
+                deletes["count"] += shown.pop((m.ns, m.id), None) is not None
+            elif m.action == 0:
+                shown[(m.ns, m.id)] = m.type
+                ever_added.add((m.ns, m.id))
 
     def subscriber(topic, ros_type, dds_type):
         name = topic.lstrip("/")
@@ -136,6 +154,7 @@ def main():
                     entry["last"] = summarise(topic, msg)
                     if topic == "/op3dsg/markers":
                         entry["markers_actions"].append(sorted({(m.ns, m.action) for m in msg.markers}))
+                        apply_markers(msg.markers)
                 except Exception as e:  # a payload rosbags cannot read is what the test looks for
                     entry["errors"].append(repr(e))
 
@@ -154,7 +173,9 @@ def main():
     with lock:
         for entry in seen.values():
             entry["markers_actions"] = [[list(p) for p in a] for a in entry["markers_actions"]]
-        print(json.dumps({"event": "done", "topics": seen, "tokens": tokens}), flush=True)
+        rviz = {"shown": sorted([ns, i, t] for (ns, i), t in shown.items()),
+                "ever_added": sorted([ns, i] for ns, i in ever_added), "deleted": deletes["count"]}
+        print(json.dumps({"event": "done", "topics": seen, "tokens": tokens, "rviz": rviz}), flush=True)
     for s in subscribers:
         s.undeclare()
     session.close()

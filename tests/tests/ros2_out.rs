@@ -22,7 +22,7 @@ mod ros2_common;
 use ros2_common::{Killed, router, script};
 
 /// Frames of the synthetic run.
-const FRAMES: u64 = 150;
+const FRAMES: u64 = 300;
 
 /// `Marker` shapes and actions (visualization_msgs/msg/Marker).
 const CUBE: i64 = 1;
@@ -60,6 +60,11 @@ fn run(style: &str) -> (Value, Value) {
         "ros2.out.occupancy=true".to_owned(),
         "ros2.out.graph_json=true".to_owned(),
         "ros2.out.period_ms=200".to_owned(),
+        // A noisy detector (split objects, false positives): the map merges
+        // and removes nodes it had published, whose markers must then be deleted.
+        "detector.oracle.preset=\"field\"".to_owned(),
+        "detector.oracle.split_rate=0.5".to_owned(),
+        "detector.oracle.false_positives_per_frame=2".to_owned(),
     ];
     let args: Vec<&str> = sets.iter().flat_map(|kv| ["--set", kv.as_str()]).collect();
     let daemon = Daemon::start(&prefix, &args);
@@ -149,6 +154,27 @@ fn assert_graph_seen(seen: &Value, dumped: &Value) {
         assert_eq!(lines["type"].as_i64(), Some(LINE_LIST));
         assert!(lines["points"].as_u64() >= Some(2));
     }
+
+    // Applied in order, the arrays leave RViz with a box for each node of the final graph and
+    // nothing else: the boxes of nodes the map removed were deleted.
+    let cubes = |list: &Value, with_type: bool| -> std::collections::BTreeSet<(String, u64)> {
+        list.as_array()
+            .expect("rviz")
+            .iter()
+            .filter(|m| m[0] == "objects" || m[0] == "parts")
+            .filter(|m| !with_type || m[2].as_i64() == Some(CUBE))
+            .map(|m| (m[0].as_str().unwrap_or_default().to_owned(), m[1].as_u64().unwrap_or(u64::MAX)))
+            .collect()
+    };
+    let expected: std::collections::BTreeSet<(String, u64)> = nodes
+        .iter()
+        .map(|n| ((if n["kind"] == "part" { "parts" } else { "objects" }).to_owned(), n["id"].as_u64().unwrap_or(0)))
+        .collect();
+    let rviz = &seen["rviz"];
+    assert_eq!(cubes(&rviz["shown"], true), expected, "RViz's boxes after every array: {rviz}");
+    let removed = cubes(&rviz["ever_added"], false).difference(&expected).count() as u64;
+    assert!(removed > 0, "the noisy run removed published nodes: {rviz}");
+    assert!(rviz["deleted"].as_u64() >= Some(removed), "a DELETE for every removed box: {rviz}");
 
     let grid = &topics["/op3dsg/occupancy"]["last"];
     assert_eq!(grid["frame_id"].as_str(), Some(frame.as_str()), "the grid in the markers' frame");
