@@ -88,6 +88,32 @@ fn daemon(prefix: &str, extra: &[&str]) -> Daemon {
     Daemon::start(prefix, &args)
 }
 
+/// [`daemon`] with its log (warnings) written to `log`.
+fn daemon_logged(prefix: &str, extra: &[&str], log: &Path) -> Daemon {
+    let profile = Path::new(env!("CARGO_MANIFEST_DIR")).join("../profiles/replay-icl.toml");
+    let child = Command::new(op3dsg_tests::binary("op3dsgd"))
+        .args(["--prefix", prefix, "--profile", profile.to_str().expect("path")])
+        .args(["--set", &format!("run.max_frames={FRAMES}"), "--set", "run.exit_at_end=false"])
+        .args(["--set", "world.frame_id=\"map\""])
+        .args(extra)
+        .env("OP3DSG_LOG", "warn")
+        .stdin(Stdio::null())
+        .stderr(std::fs::File::create(log).expect("log file"))
+        .spawn()
+        .expect("spawn op3dsgd");
+    Daemon { child, prefix: prefix.to_owned() }
+}
+
+/// The tf input's warnings about `reason` in a daemon log: the first (with the error, which
+/// holds `error_text`) comes once; the rest only give the count, at powers of two.
+fn assert_logged_once(log: &str, reason: &str, error_text: &str, count: u64) {
+    let lines: Vec<&str> = log.lines().filter(|l| l.contains("no camera pose from tf")).collect();
+    let first = lines.iter().filter(|l| !l.contains("count=") && l.contains(error_text)).count();
+    let counted = lines.iter().filter(|l| l.contains("count=") && l.contains(reason)).count() as u64;
+    assert_eq!(counted, u64::from(count.ilog2()), "{reason}: the rest at powers of two up to {count}: {lines:#?}");
+    assert_eq!(first, 1, "{reason}: the first warning: {lines:#?}");
+}
+
 /// A static broadcaster started before the daemon: publishes `/tf_static` once and keeps it in
 /// its cache (transient local) until dropped; the daemon must fetch it when it subscribes.
 fn static_publisher(port: u16, style: &str, traj: &Path) -> Killed {
@@ -235,7 +261,9 @@ fn rmw_zenoh_statics_from_before_a_broken_chain_and_future_stamps_then_fusion_re
         ["--set", "pose.max_wait_ms=500", "--set", "pose.future_tolerance_ms=10000", "--set", "run.max_frames=0"]
             .map(str::to_owned),
     );
-    let d = daemon(&prefix, &args.iter().map(String::as_str).collect::<Vec<_>>());
+    let log_dir = tempfile::tempdir().expect("tempdir");
+    let log = log_dir.path().join("op3dsgd.log");
+    let d = daemon_logged(&prefix, &args.iter().map(String::as_str).collect::<Vec<_>>(), &log);
     // base_link never hangs under odom: map -> odom and base_link -> ... -> camera are two trees.
     publish(port, "rmw_zenoh", traj, &["--omit-frame", "base_link", "--no-static"]);
     let mut health = d.health_subscriber("ros2-chain-health");
@@ -256,6 +284,11 @@ fn rmw_zenoh_statics_from_before_a_broken_chain_and_future_stamps_then_fusion_re
         h.pose.accepted > 0 && h.keyframes > keyframes && h.detections_fused > fused
     });
     assert!(h.graph_version > 0, "{h:?}");
+    let text = std::fs::read_to_string(&log).expect("daemon log");
+    // The first names the break: base_link's tree and the map's are apart.
+    assert_logged_once(&text, "no_transform_path", "no transform path from", h.pose.no_transform_path);
+    let first = text.lines().find(|l| l.contains("no transform path from")).unwrap_or_default();
+    assert!(first.contains("base_link"), "the log names the missing link: {first}");
 }
 
 fn op3dsg_json(args: &[&str]) -> Value {
