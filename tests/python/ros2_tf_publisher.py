@@ -186,6 +186,16 @@ class Publisher:
         if self.token_key:
             self.token = session.liveliness().declare_token(self.token_key)
 
+    def wait_matched(self, timeout_s):
+        """Waits until a subscriber of the topic is known (Zenoh drops puts nobody matches), at
+        most timeout_s; False when none came."""
+        end = time.monotonic() + timeout_s
+        while not self.publisher.matching_status.matching:
+            if time.monotonic() > end:
+                return False
+            time.sleep(0.02)
+        return True
+
     def put(self, payload):
         attachment = None
         if self.token_key:
@@ -229,6 +239,8 @@ def parse_args(argv):
     parser.add_argument("--rate", type=float, default=30.0, help="poses per second (0: as fast as possible)")
     parser.add_argument("--start-delay-s", type=float, default=0.5, help="after declaring, before publishing")
     parser.add_argument("--linger-s", type=float, default=1.0, help="keep the session after the last pose")
+    parser.add_argument("--wait-subscriber-s", type=float, default=10.0,
+                        help="before /tf, wait at most this long for a subscriber to be known")
     parser.add_argument("--omit-frame", action="append", default=[], help="never publish the transform into it")
     parser.add_argument("--stamp-offset-ns", type=int, default=0, help="added to every /tf stamp")
     parser.add_argument("--malformed", type=int, default=0, help="truncated /tf payloads published first")
@@ -264,6 +276,9 @@ def main(argv):
         print(json.dumps({"event": "ready", "tf_key": tf and tf.key, "tf_static_key": tf_static and tf_static.key,
                           "tokens": tokens, "zid": str(session.info.zid())}), flush=True)
         time.sleep(args.start_delay_s)
+        if tf is not None and not tf.wait_matched(args.wait_subscriber_s):
+            print(f"no subscriber of {tf.key} after {args.wait_subscriber_s} s; publishing anyway",
+                  file=sys.stderr, flush=True)
 
         omit = set(args.omit_frame)
         statics = [e for e in STATIC_EDGES if e[1] not in omit]

@@ -181,24 +181,25 @@ fn assert_same_nodes(with_tf: &Value, with_frames: &Value) {
     }
 }
 
-#[test]
-fn tf_over_the_bridge_gives_the_graph_of_the_recordings_poses_and_bad_payloads_are_counted() {
+/// The same graph as with the recording's poses, the static links fetched from a publisher that
+/// came first, three truncated payloads counted, the chain in health.
+fn same_graph_as_the_recordings_poses(style: &str) {
     let Some(world) = RosWorld::start() else { return };
     let (port, traj) = (world.port, world.trajectory.as_path());
 
     // The robot's static transforms were sent before the daemon started.
-    let _statics = static_publisher(port, "bridge", traj);
-    let prefix = unique_prefix("ros2-bridge");
-    let args = ros2_args(port, "bridge");
+    let _statics = static_publisher(port, style, traj);
+    let prefix = unique_prefix(&format!("ros2-{style}"));
+    let args = ros2_args(port, style);
     let with_tf = daemon(&prefix, &args.iter().map(String::as_str).collect::<Vec<_>>());
-    let done = publish(port, "bridge", traj, &["--malformed", "3", "--no-static"]);
+    let done = publish(port, style, traj, &["--malformed", "3", "--no-static"]);
     assert_eq!(done["published"].as_u64(), Some(211), "{done}");
     let mut health = with_tf.health_subscriber("ros2-health");
     let h = health_where(&mut health, "every frame", Duration::from_secs(240), |h| h.frames_captured >= FRAMES);
     assert_eq!(h.frames_without_pose, 0, "every frame got its pose from tf: {:?}", h.pose);
     assert!(h.pose.accepted >= FRAMES, "{:?}", h.pose);
 
-    let reference = daemon(&unique_prefix("ros2-reference"), &[]);
+    let reference = daemon(&unique_prefix(&format!("ros2-reference-{style}")), &[]);
     let mut ref_health = reference.health_subscriber("ros2-ref-health");
     health_where(&mut ref_health, "every frame", Duration::from_secs(240), |h| h.frames_captured >= FRAMES);
     std::thread::sleep(Duration::from_secs(3));
@@ -220,6 +221,16 @@ fn tf_over_the_bridge_gives_the_graph_of_the_recordings_poses_and_bad_payloads_a
     assert_eq!((tf["static_messages"].as_u64(), tf["dynamic_messages"].as_u64()), (Some(1), Some(211)), "{report}");
     assert_eq!(tf["newest_data_ns"].as_u64(), done["last_stamp_ns"].as_u64(), "{report}");
     assert!(tf["data_age_s"].as_f64().is_some(), "{report}");
+}
+
+#[test]
+fn tf_over_the_bridge_gives_the_graph_of_the_recordings_poses_and_bad_payloads_are_counted() {
+    same_graph_as_the_recordings_poses("bridge");
+}
+
+#[test]
+fn tf_over_rmw_zenoh_gives_the_graph_of_the_recordings_poses_and_bad_payloads_are_counted() {
+    same_graph_as_the_recordings_poses("rmw_zenoh");
 }
 
 #[test]
