@@ -193,7 +193,10 @@ fn main() {
         std::thread::Builder::new().name("op3dsg-ros2-tf".into()).spawn(move || thread.run()).expect("spawn");
     ready_rx.recv().expect("ready").expect("the tf input's session and subscribers");
     // The keyframe gate's stand-in: takes the poses.
-    let drain = std::thread::spawn(move || poses_rx.iter().count());
+    let drain = std::thread::Builder::new()
+        .name("keyframe-gate".into())
+        .spawn(move || poses_rx.iter().count())
+        .expect("spawn the pose drain");
 
     let mut stdin = child.stdin.take().expect("stdin");
     let mut lines = BufReader::new(child.stdout.take().expect("stdout")).lines().map_while(Result::ok);
