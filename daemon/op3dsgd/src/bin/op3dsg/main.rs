@@ -8,7 +8,7 @@
 //! | module | subcommands |
 //! |---|---|
 //! | [`watch`] | `watch` |
-//! | [`dump`] | `dump` |
+//! | [`dump`], [`picture`] | `dump` |
 //! | [`health`] | `health` |
 //! | [`gt`] | `gt` |
 //! | [`annotate`] | `annotate` |
@@ -30,6 +30,7 @@ mod goal;
 mod gt;
 mod health;
 mod map;
+mod picture;
 mod query;
 mod record;
 mod watch;
@@ -80,9 +81,11 @@ enum Command {
         remote: Remote,
     },
     /// Print the current graph once: a table (nodes, then edges), the graph JSON form (schema
-    /// op3dsg.graph/1, the same as `op3dsg gt` writes), or the compact form for LLM prompts
+    /// op3dsg.graph/1, the same as `op3dsg gt` writes), the compact form for LLM prompts
     /// (op3dsg.llm/1: objects with their parts, affordances and relations by id; see
-    /// docs/llm-graph.md).
+    /// docs/llm-graph.md), or a picture: Graphviz DOT (objects as boxes, parts as ellipses, each
+    /// labelled with its id; relations as labelled arrows: part-of dashed, spatial, functional
+    /// bold) or the same drawn as SVG without Graphviz.
     Dump {
         /// Output form.
         #[arg(long, value_enum, default_value_t = dump::DumpFormat::Table)]
