@@ -69,13 +69,18 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Live view: one text line per graph update or per interval (graph version, counts,
-    /// capacity flag, frames, keyframes, per-stage rates and latencies, queue depths).
+    /// Live view of the daemon. On a terminal: a full-screen view redrawn in place (graph
+    /// version and age, objects, parts, edges; the daemon's counters; per stage its rate, p50,
+    /// p99 and errors; queues with their drops; the pose and tf inputs, the LLM refiner,
+    /// snapshots and the recorder; the last warnings derived from the health records); q, Esc or
+    /// Ctrl-C quits. Otherwise (a pipe, a log): one compact line per interval (graph version,
+    /// counts, capacity flag, frames, keyframes, per-stage rates and latencies, queue depths).
     ///
     /// Waits for the daemon if it is not up yet. Ctrl-C exits.
     Watch {
-        /// Print at least this often even without a graph update, milliseconds.
-        #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(10..=60_000))]
+        /// Print a line this often (not on a terminal), or redraw at least this often (on a
+        /// terminal, which also redraws on each graph and health record), milliseconds.
+        #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(10..=60_000))]
         interval_ms: u64,
         #[command(flatten)]
         remote: Remote,
