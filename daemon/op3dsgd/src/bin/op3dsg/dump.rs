@@ -1,7 +1,8 @@
 //! `op3dsg dump`: the current graph once, read with the client library's [`GraphSubscriber`] (or,
 //! with `--zenoh`, its [`RemoteGraphSubscriber`] from another computer), as
-//! a table, as graph JSON (`op3dsg.graph/1`), or in the compact form for LLM prompts
-//! (`op3dsg.llm/1`, see `docs/llm-graph.md`).
+//! a table, as graph JSON (`op3dsg.graph/1`), in the compact form for LLM prompts
+//! (`op3dsg.llm/1`, see `docs/llm-graph.md`), or as a picture (Graphviz DOT or SVG, see
+//! [`picture`](super::picture)).
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -25,6 +26,10 @@ pub(super) enum DumpFormat {
     Json,
     /// The compact JSON form for LLM prompts (op3dsg.llm/1).
     Llm,
+    /// Graphviz DOT: objects and parts as nodes, relations as labelled edges.
+    Dot,
+    /// The DOT picture drawn as SVG (laid out without Graphviz).
+    Svg,
 }
 
 /// `op3dsg dump`: waits up to `timeout` for the daemon and its first graph, then writes it to
@@ -48,6 +53,8 @@ pub(super) fn dump(from: DaemonAt<'_>, format: DumpFormat, timeout: Duration, ou
         }
         DumpFormat::Llm => llm_form(&graph),
         DumpFormat::Table => graph_table(&graph),
+        DumpFormat::Dot => super::picture::dot(&graph),
+        DumpFormat::Svg => super::picture::svg(&graph),
     };
     write_output(out, &text)
 }

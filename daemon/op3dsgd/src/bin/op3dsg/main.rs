@@ -8,7 +8,7 @@
 //! | module | subcommands |
 //! |---|---|
 //! | [`watch`] | `watch` |
-//! | [`dump`] | `dump` |
+//! | [`dump`], [`picture`] | `dump` |
 //! | [`health`] | `health` |
 //! | [`gt`] | `gt` |
 //! | [`annotate`] | `annotate` |
@@ -30,6 +30,7 @@ mod goal;
 mod gt;
 mod health;
 mod map;
+mod picture;
 mod query;
 mod record;
 mod watch;
@@ -68,21 +69,28 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Live view: one text line per graph update or per interval (graph version, counts,
-    /// capacity flag, frames, keyframes, per-stage rates and latencies, queue depths).
+    /// Live view of the daemon. On a terminal: a full-screen view redrawn in place (graph
+    /// version and age, objects, parts, edges; the daemon's counters; per stage its rate, p50,
+    /// p99 and errors; queues with their drops; the pose and tf inputs, the LLM refiner,
+    /// snapshots and the recorder; the last warnings derived from the health records); q, Esc or
+    /// Ctrl-C quits. Otherwise (a pipe, a log): one compact line per interval (graph version,
+    /// counts, capacity flag, frames, keyframes, per-stage rates and latencies, queue depths).
     ///
     /// Waits for the daemon if it is not up yet. Ctrl-C exits.
     Watch {
-        /// Print at least this often even without a graph update, milliseconds.
-        #[arg(long, default_value_t = 500, value_parser = clap::value_parser!(u64).range(10..=60_000))]
+        /// Print a line this often (not on a terminal), or redraw at least this often (on a
+        /// terminal, which also redraws on each graph and health record), milliseconds.
+        #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(10..=60_000))]
         interval_ms: u64,
         #[command(flatten)]
         remote: Remote,
     },
     /// Print the current graph once: a table (nodes, then edges), the graph JSON form (schema
-    /// op3dsg.graph/1, the same as `op3dsg gt` writes), or the compact form for LLM prompts
+    /// op3dsg.graph/1, the same as `op3dsg gt` writes), the compact form for LLM prompts
     /// (op3dsg.llm/1: objects with their parts, affordances and relations by id; see
-    /// docs/llm-graph.md).
+    /// docs/llm-graph.md), or a picture: Graphviz DOT (objects as boxes, parts as ellipses, each
+    /// labelled with its id; relations as labelled arrows: part-of dashed, spatial, functional
+    /// bold) or the same drawn as SVG without Graphviz.
     Dump {
         /// Output form.
         #[arg(long, value_enum, default_value_t = dump::DumpFormat::Table)]
