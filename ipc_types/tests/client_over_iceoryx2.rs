@@ -75,6 +75,8 @@ fn late_subscriber_gets_the_current_graph_then_only_the_newest_update() {
     assert_eq!(graphs.latest_if_newer(1).expect("read").map(|g| g.version()), Some(4));
     assert!(graphs.latest_if_newer(4).expect("read").is_none());
     assert!(!graphs.wait_for_update(Duration::from_millis(20)).expect("wait"), "nothing pending");
+    // A zero timeout only looks (iceoryx2's own timed wait would take it as "no limit").
+    assert!(!graphs.wait_for_update(Duration::ZERO).expect("wait"), "nothing pending, at once");
 
     // A queued sample counts as an update even when its event was already consumed.
     daemon.publish_graph(|s| write_kitchen(s, 5));

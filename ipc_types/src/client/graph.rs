@@ -104,13 +104,19 @@ impl GraphSubscriber {
     }
 
     /// Waits up to `timeout` for a new graph; `true` when one is waiting (a `graph_updated`
-    /// event came, or a sample is already queued), `false` on timeout. A signal that interrupts
+    /// event came, or a sample is already queued), `false` on timeout (at once for a zero
+    /// timeout). A signal that interrupts
     /// the wait (Ctrl-C under the planner's own handler) returns `Ok(false)` early, so the caller
     /// can check its stop flag.
     pub fn wait_for_update(&self, timeout: Duration) -> Result<bool, ClientError> {
         let queued =
             self.subscriber.has_samples().map_err(|e| self.error(Operation::Receive, ErrorCause::Connection(e)))?;
-        let wait = if queued { self.listener.try_wait(|_| {}) } else { self.listener.timed_wait(|_| {}, timeout) };
+        // iceoryx2's timed wait takes a zero timeout as "no limit": a zero timeout only looks.
+        let wait = if queued || timeout.is_zero() {
+            self.listener.try_wait(|_| {})
+        } else {
+            self.listener.timed_wait(|_| {}, timeout)
+        };
         match wait {
             Ok(count) => Ok(queued || count > 0),
             Err(ListenerWaitError::InterruptSignal) => Ok(queued),
