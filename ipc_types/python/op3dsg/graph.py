@@ -422,6 +422,9 @@ class GraphClient:
             if queued:
                 self._listener.try_wait()
                 return True
+            if timeout <= 0:
+                # iceoryx2's timed wait takes a zero duration as no limit: only look.
+                return len(self._listener.try_wait()) > 0
             return len(self._listener.timed_wait(_iox.duration(timeout))) > 0
         except Exception as e:
             if _iox.reason(e) == "InterruptSignal":
