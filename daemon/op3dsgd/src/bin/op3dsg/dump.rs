@@ -219,7 +219,7 @@ fn llm_form(graph: &Graph) -> String {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use op3dsg_ipc_types::publish::GraphBuffer;
     use op3dsg_ipc_types::{Edge, GraphHeader, NO_NODE, Node, SCHEMA_VERSION, affordance_bits, write_fixed_str};
 
@@ -240,7 +240,9 @@ mod tests {
         n
     }
 
-    fn edge(source_id: u32, target_id: u32, functional: bool, phrase: &str) -> Edge {
+    /// An edge by its relation phrase (spatial, or functional with `functional`); shared by the
+    /// picture's tests.
+    pub(crate) fn edge(source_id: u32, target_id: u32, functional: bool, phrase: &str) -> Edge {
         let relation_id = if functional {
             op3dsg_ipc_types::FUNCTIONAL_RELATION_BASE
                 + op3dsg_ipc_types::FUNCTIONAL_RELATIONS.iter().position(|r| *r == phrase).unwrap() as u16

@@ -243,26 +243,15 @@ fn xml_text(text: &str) -> String {
 #[cfg(test)]
 mod tests {
     use op3dsg_ipc_types::publish::GraphBuffer;
-    use op3dsg_ipc_types::{Edge, GraphHeader, NO_NODE, Node, SCHEMA_VERSION, write_fixed_str};
+    use op3dsg_ipc_types::{GraphHeader, NO_NODE, Node, SCHEMA_VERSION, write_fixed_str};
 
     use super::*;
+    use crate::dump::tests::edge;
 
     fn node(id: u32, parent_id: u32, label: &str) -> Node {
         let mut n = Node { id, parent_id, kind: u8::from(parent_id != NO_NODE), ..Node::default() };
         write_fixed_str(&mut n.label, label);
         n
-    }
-
-    fn edge(source_id: u32, target_id: u32, functional: bool, phrase: &str) -> Edge {
-        let relation_id = if functional {
-            op3dsg_ipc_types::FUNCTIONAL_RELATION_BASE
-                + op3dsg_ipc_types::FUNCTIONAL_RELATIONS.iter().position(|r| *r == phrase).unwrap() as u16
-        } else {
-            op3dsg_ipc_types::SPATIAL_RELATIONS.iter().position(|r| *r == phrase).unwrap() as u16
-        };
-        let mut e = Edge { source_id, target_id, kind: u8::from(functional), relation_id, ..Edge::default() };
-        write_fixed_str(&mut e.phrase, phrase);
-        e
     }
 
     fn cabinet() -> Graph {
