@@ -131,8 +131,9 @@ mod text;
 
 pub use access::{IPC_ROOT_ENV, IpcRoot, RootError};
 pub use client::{
-    ClientError, EdgeView, ErrorCause, Graph, GraphSubscriber, HealthSubscriber, NodeView, Operation, Pose,
-    PosePublisher, QueryClient, QueryClientError, SnapshotError, UnknownAffordance, check_message,
+    ClientError, EdgeRef, EdgeView, ErrorCause, Graph, GraphSubscriber, GraphView, HealthSubscriber, NodeRef, NodeView,
+    Operation, Pose, PosePublisher, QueryClient, QueryClientError, SnapshotError, UnknownAffordance, check_layout,
+    check_message,
 };
 pub use graph_types::{
     AFFORDANCES, EDGE_BYTES, Edge, EdgeKind, EdgeOrigin, FUNCTIONAL_RELATION_BASE, FUNCTIONAL_RELATIONS, GraphHeader,

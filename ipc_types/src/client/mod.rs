@@ -13,6 +13,7 @@
 //! returns `Ok(false)`). Opening first removes the shared-memory leftovers of dead processes, so a
 //! client never waits on a daemon that was killed.
 
+mod accessors;
 mod check;
 mod error;
 mod follower;
@@ -24,6 +25,9 @@ mod query;
 mod remote;
 #[cfg(feature = "zenoh")]
 mod remote_request;
+mod sample_view;
+#[cfg(test)]
+mod test_graphs;
 mod view;
 
 use std::time::{Duration, Instant};
@@ -32,7 +36,7 @@ use iceoryx2::config::Config;
 use iceoryx2::node::Node as IoxNode;
 use iceoryx2::prelude::{NodeBuilder, NodeName, SignalHandlingMode};
 
-pub use check::{SnapshotError, check_message};
+pub use check::{SnapshotError, check_layout, check_message};
 pub use error::{ClientError, ErrorCause, Operation};
 pub use follower::{Applied, RemoteFollower};
 pub use graph::GraphSubscriber;
@@ -43,6 +47,7 @@ pub use query::{QueryClient, QueryClientError};
 pub use remote::{RemoteClientError, RemoteGraphSubscriber};
 #[cfg(feature = "zenoh")]
 pub use remote_request::RemoteRequester;
+pub use sample_view::{EdgeRef, GraphView, NodeRef};
 pub use view::{EdgeView, Graph, NodeView, UnknownAffordance};
 
 use crate::access::{IpcRoot, RootError};
