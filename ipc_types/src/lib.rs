@@ -132,8 +132,8 @@ mod text;
 pub use access::{IPC_ROOT_ENV, IpcRoot, RootError};
 pub use client::{
     ClientError, EdgeRef, EdgeView, ErrorCause, Graph, GraphSubscriber, GraphView, HealthSubscriber, NodeRef, NodeView,
-    Operation, Pose, PosePublisher, QueryClient, QueryClientError, SnapshotError, UnknownAffordance, check_layout,
-    check_message,
+    OccupancyError, OccupancyMap, OccupancySubscriber, Operation, Pose, PosePublisher, QueryClient, QueryClientError,
+    SnapshotError, UnknownAffordance, check_layout, check_message, check_occupancy,
 };
 pub use graph_types::{
     AFFORDANCES, EDGE_BYTES, Edge, EdgeKind, EdgeOrigin, FUNCTIONAL_RELATION_BASE, FUNCTIONAL_RELATIONS, GraphHeader,
