@@ -28,6 +28,7 @@ use crate::{Edge, GraphHeader, GraphMessage, NO_NODE, NODE_BYTES, Node, NodeKind
 #[derive(Clone, Copy)]
 pub struct GraphView<'a> {
     header: &'a GraphHeader,
+    payload: &'a [u8],
     nodes: &'a [Node],
     edges: &'a [Edge],
     restarted: bool,
@@ -60,7 +61,7 @@ impl<'a> GraphView<'a> {
         let nodes = records::<Node>(node_bytes, payload)?;
         let edges = records::<Edge>(edge_bytes, payload)?;
         check_records(&message)?;
-        Ok(Self { header, nodes, edges, restarted: false })
+        Ok(Self { header, payload, nodes, edges, restarted: false })
     }
 
     /// A view of a sample laid out in one byte block: the [`GraphHeader`]'s 112 bytes, then the
@@ -89,6 +90,12 @@ impl<'a> GraphView<'a> {
     /// sample went back: for a graph a planner keeps, or asks many questions of.
     pub fn to_graph(&self) -> Graph {
         Graph::from(self)
+    }
+
+    /// The sample as received: its header and its payload bytes (for [`Graph::from_message`],
+    /// a recorder, or another transport).
+    pub fn message(&self) -> GraphMessage<'a> {
+        GraphMessage::new(self.header, self.payload)
     }
 
     /// Graph version (see [`Graph::version`]).
