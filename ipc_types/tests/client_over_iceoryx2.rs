@@ -158,7 +158,7 @@ fn the_view_reads_the_sample_in_shared_memory_and_refuses_a_bad_one() {
         let from_handle: Vec<_> = view.edges_from(2).map(|e| (e.phrase().to_owned(), e.origin())).collect();
         let remote = view.edges_to(20).next().and_then(|e| e.source()).map(|n| n.label().to_owned());
         let pullable: Vec<u32> = view.find_by_affordance("pinch_pull").expect("canonical").map(|n| n.id()).collect();
-        (view.version(), view.restarted(), knob, parts, from_handle, remote, pullable, view.to_graph())
+        (view.version(), view.restarted(), knob, parts, from_handle, remote, pullable, view.to_graph().expect("valid"))
     };
     let (version, restarted, knob, parts, from_handle, remote, pullable, copy) =
         wait_for_view(&daemon, &mut graphs, read).expect("the history sample through the view");

@@ -97,6 +97,7 @@ fn view_edge(e: EdgeRef<'_>) -> String {
 /// lookup for lookup; returns the node count.
 fn agree(view: GraphView<'_>) -> usize {
     let owned = Graph::from_message(&view.message()).expect("the owned decode accepts what the view accepted");
+    view.check_records().expect("the daemon writes only known kinds and origins");
     let version = view.version();
     assert_eq!(view.header(), owned.header(), "version {version}: header");
     assert_eq!(

@@ -60,8 +60,10 @@ def _f32(value) -> float:
 
 class _GraphData:
     """What a borrowed view and an owned copy share: the header, the node and edge arrays, and
-    lookups on them. Subclasses provide ``_header``, ``_nodes``, ``_edges`` and ``restarted``."""
+    lookups on them. Subclasses provide ``_service`` (named in errors), ``_header``, ``_nodes``,
+    ``_edges`` and ``restarted``."""
 
+    _service: str
     _header: GraphHeader
     _nodes: np.ndarray
     _edges: np.ndarray
@@ -69,6 +71,13 @@ class _GraphData:
 
     def _check(self) -> None:
         """Raises when the data is gone (only a released view)."""
+
+    def check_records(self) -> None:
+        """Every node's kind and every edge's kind and origin within the vocabulary, the first one
+        outside named (:class:`~op3dsg.errors.InvalidGraphError`): the record check the Rust
+        owned decode runs on receipt, which a view skips (one vectorised pass over the records,
+        as long as reading them all). :meth:`GraphView.copy` runs it."""
+        _check_records(self._service, self.nodes, self.edges)
 
     # -- header -----------------------------------------------------------------------------
     @property
@@ -254,7 +263,7 @@ class _GraphData:
         node = {
             "id": int(n["id"]),
             "label": fixed_str(n["label"]),
-            "kind": NODE_KINDS[int(n["kind"])],
+            "kind": self._name(NODE_KINDS, n, f"nodes[{index}].kind", "(0 object, 1 part)"),
             "parent": None if parent == NO_NODE else parent,
             "centre_m": [_f32(v) for v in n["centre_m"]],
             "box_min_m": [_f32(v) for v in n["box_min_m"]],
@@ -279,11 +288,20 @@ class _GraphData:
         return {
             "source": int(e["source_id"]),
             "target": int(e["target_id"]),
-            "kind": EDGE_KINDS[int(e["kind"])],
+            "kind": self._name(EDGE_KINDS, e, f"edges[{index}].kind", "(0 spatial, 1 functional)"),
             "relation": relation_phrase(int(e["relation_id"])),
             "confidence": _f32(e["confidence"]),
-            "origin": EDGE_ORIGINS[int(e["origin"])],
+            "origin": self._name(EDGE_ORIGINS, e, f"edges[{index}].origin", "(0..=3)"),
         }
+
+    def _name(self, names, record, field: str, known: str) -> str:
+        """The name of ``record``'s value of ``field`` (``nodes[i].kind``, ...); a value outside
+        ``names`` raises :class:`~op3dsg.errors.InvalidGraphError` naming it, as
+        :meth:`check_records` would."""
+        value = int(record[field.rsplit(".", 1)[1]])
+        if value >= len(names):
+            raise _invalid(self._service, f"{field}: unknown value {value} {known}")
+        return names[value]
 
     def to_dict(self) -> dict:
         """The whole graph in the graph JSON form (``op3dsg.graph/1``, as ``op3dsg dump --json``;
@@ -304,7 +322,8 @@ class Graph(_GraphData):
     """An owned graph (from :meth:`GraphView.copy`): the same interface as :class:`GraphView`,
     valid for as long as it is kept, writable arrays of its own."""
 
-    def __init__(self, header: GraphHeader, nodes: np.ndarray, edges: np.ndarray, restarted: bool):
+    def __init__(self, header: GraphHeader, nodes: np.ndarray, edges: np.ndarray, restarted: bool, service: str = "graph"):
+        self._service = service
         self._header = header
         self._nodes = nodes
         self._edges = edges
@@ -313,7 +332,8 @@ class Graph(_GraphData):
     @classmethod
     def from_bytes(cls, data, source: str = "graph bytes") -> "Graph":
         """A graph sample laid out in one buffer (the header's 112 bytes, then the payload), read
-        in place: the arrays view ``data`` (read-only, no copy). Checked as a received sample is,
+        in place: the arrays view ``data`` (read-only, no copy). Checked as a received sample is
+        (the header against the length, the alignment; the records by :meth:`check_records`),
         and more: a buffer shorter than a header, or not starting on an 8-byte boundary, raises
         :class:`~op3dsg.errors.InvalidGraphError`; ``source`` names it in errors."""
         raw = np.frombuffer(data, dtype=np.uint8)
@@ -323,7 +343,7 @@ class Graph(_GraphData):
         _check_alignment(source, "header", int(raw.ctypes.data))
         header = GraphHeader.from_buffer_copy(raw[:header_bytes].tobytes())
         nodes, edges = _records(source, header, raw[header_bytes:])
-        return cls(header, _read_only(nodes), _read_only(edges), False)
+        return cls(header, _read_only(nodes), _read_only(edges), False, source)
 
     def __repr__(self) -> str:
         return f"Graph(version={self.version}, instance_id={self.instance_id:#018x}, nodes={self.node_count}, edges={self.edge_count})"
@@ -361,8 +381,10 @@ class GraphView(_GraphData):
             )
 
     def copy(self) -> Graph:
-        """An owned copy of this graph (header, nodes, edges), valid after the sample is released."""
-        return Graph(self.header, self.nodes.copy(), self.edges.copy(), self.restarted)
+        """An owned copy of this graph (header, nodes, edges), valid after the sample is released.
+        The records are checked first (:meth:`check_records`), as the Rust owned copy checks them."""
+        self.check_records()
+        return Graph(self.header, self.nodes.copy(), self.edges.copy(), self.restarted, self._service)
 
     def release(self) -> None:
         """Gives the sample back to the daemon now (``sample.delete()``); the view and every array
@@ -428,9 +450,9 @@ def _check_alignment(service: str, field: str, address: int) -> None:
 
 
 def _records(service: str, header: GraphHeader, payload: np.ndarray):
-    """The node and edge arrays viewing ``payload`` (a ``uint8`` array) after the checks of the
-    Rust ``GraphView``: the header against the payload's length, the payload's alignment (when
-    it holds records), every kind and origin."""
+    """The node and edge arrays viewing ``payload`` (a ``uint8`` array) after the constant-time
+    checks of the Rust ``GraphView``: the header against the payload's length, the payload's
+    alignment (when it holds records). The records are not scanned (:func:`_check_records`)."""
     _check_header(service, header, payload.size)
     node_count, edge_count = int(header.node_count), int(header.edge_count)
     if not payload.size:
@@ -438,7 +460,6 @@ def _records(service: str, header: GraphHeader, payload: np.ndarray):
     _check_alignment(service, "payload", int(payload.ctypes.data))
     nodes = np.frombuffer(payload, dtype=NODE_DTYPE, count=node_count, offset=0)
     edges = np.frombuffer(payload, dtype=EDGE_DTYPE, count=edge_count, offset=node_count * NODE_BYTES)
-    _check_records(service, nodes, edges)
     return nodes, edges
 
 
@@ -546,9 +567,13 @@ class GraphClient:
 
         When a newer sample is queued, the view returned before is released first (one borrowed
         sample at most), older queued samples are released unread, and the newest is checked
-        against the contract (schema version, counts, payload size, kinds): a bad one raises
+        against the contract in constant time, as the Rust view is (schema version, counts
+        within capacity, payload size, alignment): a bad one raises
         :class:`~op3dsg.errors.SchemaVersionError` or :class:`~op3dsg.errors.InvalidGraphError`
-        and is released. Without a newer sample the current view is returned again."""
+        and is released. The records' kinds and origins are checked by
+        :meth:`GraphView.check_records` and :meth:`GraphView.copy`, and a value outside the
+        vocabulary raises when :meth:`GraphView.node_dict` or :meth:`GraphView.edge_dict` reads
+        it. Without a newer sample the current view is returned again."""
         if not self._has_samples():
             return self._view if self._view is not None and self._view.valid else None
         self.release()

@@ -1,7 +1,7 @@
 """The lookups of ``GraphView`` (the Rust ``GraphView``'s, by index) against ``op3dsg dump --json``
 of a live daemon; the refusal of malformed samples (crafted bytes: a short header, counts past the
-end, a misaligned block, another schema version, unknown kinds); the ``OP3DSG_PREFIX`` default;
-``with`` for views and query clients; the ``py.typed`` marker."""
+end, a misaligned block, another schema version) and the record check naming unknown kinds; the
+``OP3DSG_PREFIX`` default; ``with`` for views and query clients; the ``py.typed`` marker."""
 
 from __future__ import annotations
 
@@ -111,18 +111,25 @@ def test_a_short_header_counts_past_the_end_and_a_misaligned_block_are_refused()
     assert "cannot be read in place" in str(error.value)
 
 
-def test_another_schema_version_and_unknown_kinds_are_refused():
+def test_another_schema_version_is_refused_and_unknown_kinds_are_named_by_the_record_check():
     with pytest.raises(op3dsg.SchemaVersionError) as error:
         op3dsg.Graph.from_bytes(aligned(kitchen_bytes(schema=wire.SCHEMA_VERSION + 1)))
     assert (error.value.found, error.value.expected) == (wire.SCHEMA_VERSION + 1, wire.SCHEMA_VERSION)
+    op3dsg.Graph.from_bytes(aligned(kitchen_bytes())).check_records()
     data = bytearray(kitchen_bytes())
     data[HEADER_BYTES + 4 * wire.NODE_BYTES + 8] = 9  # nodes[4].kind
+    graph = op3dsg.Graph.from_bytes(aligned(bytes(data)), source="kitchen.bin")
+    with pytest.raises(op3dsg.InvalidGraphError, match=r"kitchen.bin: receive: invalid sample: nodes\[4\].kind: unknown value 9"):
+        graph.check_records()
     with pytest.raises(op3dsg.InvalidGraphError, match=r"nodes\[4\].kind: unknown value 9"):
-        op3dsg.Graph.from_bytes(aligned(bytes(data)))
+        graph.node(11)
     data = bytearray(kitchen_bytes())
     data[HEADER_BYTES + 6 * wire.NODE_BYTES + 3 * wire.EDGE_BYTES + 9] = 4  # edges[3].origin
+    graph = op3dsg.Graph.from_bytes(aligned(bytes(data)))
     with pytest.raises(op3dsg.InvalidGraphError, match=r"edges\[3\].origin: unknown value 4"):
-        op3dsg.Graph.from_bytes(aligned(bytes(data)))
+        graph.check_records()
+    with pytest.raises(op3dsg.InvalidGraphError, match=r"edges\[3\].origin: unknown value 4"):
+        graph.edge_dict(3)
 
 
 def test_the_prefix_defaults_to_op3dsg_prefix_then_op3dsg(monkeypatch):

@@ -148,9 +148,11 @@ impl GraphSubscriber {
     /// while `read` runs and goes back to the daemon when it returns. `Ok(None)` (and `read` not
     /// called) when no sample arrived since the last [`Self::with_latest`] or [`Self::poll`].
     ///
-    /// The sample is checked first, as [`Self::latest`] checks it (schema version, counts and
-    /// payload length, alignment, kinds): one that breaks the contract is an error naming what
-    /// is wrong, and `read` is not called. Older queued samples are released unread.
+    /// The sample is checked first, in constant time (schema version, counts within capacity,
+    /// payload length, alignment; see [`GraphView::from_message`]): one that breaks the contract
+    /// is an error naming what is wrong, and `read` is not called. The records are not scanned
+    /// ([`GraphView::check_records`] does, as [`Self::latest`] does on every sample). Older
+    /// queued samples are released unread.
     ///
     /// While `read` runs the daemon publishes on: this subscriber's buffer takes the next
     /// samples (dropping its oldest when full) and the held sample is one of the slots the

@@ -2,12 +2,19 @@
 //! byte block), with typed records ([`NodeRef`], [`EdgeRef`]) and the lookups of the owned
 //! [`Graph`] that need no index.
 //!
-//! The sample's payload is cast to `&[Node]` and `&[Edge]` (`bytemuck`, no copy) after one check
-//! of the header against the payload's length ([`check_layout`]), the payload's alignment and
-//! the kind and origin bytes of the records; every later read is within those slices. Lookups
-//! scan the records (a binary search for an id), so a planner that reads a few nodes of each
-//! new graph pays for those alone; one that asks many questions of one graph keeps an owned
-//! [`Graph`] ([`GraphView::to_graph`]), whose indices answer in constant time.
+//! The sample's payload is cast to `&[Node]` and `&[Edge]` (`bytemuck`, no copy) after one
+//! constant-time check of the header against the payload's length ([`check_layout`]) and of the
+//! payload's alignment; every later read is within those slices. Nothing scans the records on
+//! receipt: a planner that reads a few nodes of each new graph pays for those alone. Lookups
+//! scan the records (a binary search for an id); one that asks many questions of one graph keeps
+//! an owned [`Graph`] ([`GraphView::to_graph`]), whose indices answer in constant time.
+//!
+//! The kind and origin bytes of the records are decoded when read. The owned decode also checks
+//! every one of them on receipt; the view does so on request ([`GraphView::check_records`]) and
+//! in [`GraphView::to_graph`]. Within one schema version only a broken publisher writes a value
+//! outside the vocabulary (a new kind or origin comes with a new schema version, which the view
+//! refuses at once); the view's accessors read such a value as the first of the vocabulary
+//! (object, spatial, geometry).
 
 use crate::client::accessors::{contains_ignore_ascii_case, edge_record_accessors, node_record_accessors};
 use crate::client::check::{check_layout, check_records};
@@ -48,11 +55,11 @@ impl core::fmt::Debug for GraphView<'_> {
 }
 
 impl<'a> GraphView<'a> {
-    /// A view of `message`, after checking it: the header's schema version, its counts within
-    /// its capacities and the payload's length ([`check_layout`]), the payload's start on an
-    /// 8-byte boundary (the records' alignment), every node's kind and every edge's kind and
-    /// origin. A sample that fails is refused with the error naming what is wrong; nothing
-    /// beyond the payload is read.
+    /// A view of `message`, after checking it in constant time: the header's schema version,
+    /// its counts within its capacities and the payload's length ([`check_layout`]), and the
+    /// payload's start on an 8-byte boundary (the records' alignment). A sample that fails is
+    /// refused with the error naming what is wrong; nothing beyond the payload is ever read.
+    /// The records' kinds and origins are checked by [`Self::check_records`].
     pub fn from_message(message: GraphMessage<'a>) -> Result<Self, SnapshotError> {
         let GraphMessage { header, payload } = message;
         check_layout(header, payload.len())?;
@@ -60,8 +67,14 @@ impl<'a> GraphView<'a> {
         let (node_bytes, edge_bytes) = payload.split_at(node_bytes);
         let nodes = records::<Node>(node_bytes, payload)?;
         let edges = records::<Edge>(edge_bytes, payload)?;
-        check_records(&message)?;
         Ok(Self { header, payload, nodes, edges, restarted: false })
+    }
+
+    /// The record half of [`check_message`](crate::check_message), which the view skips on
+    /// receipt: every node's kind and every edge's kind and origin within the vocabulary, the
+    /// first one outside named. One pass over the records (as long as reading every one).
+    pub fn check_records(&self) -> Result<(), SnapshotError> {
+        check_records(&self.message())
     }
 
     /// A view of a sample laid out in one byte block: the [`GraphHeader`]'s 112 bytes, then the
@@ -87,9 +100,10 @@ impl<'a> GraphView<'a> {
     }
 
     /// An owned copy of this graph (header, nodes, edges; one block copy each), valid after the
-    /// sample went back: for a graph a planner keeps, or asks many questions of.
-    pub fn to_graph(&self) -> Graph {
-        Graph::from(self)
+    /// sample went back: for a graph a planner keeps, or asks many questions of. The records are
+    /// checked first ([`Self::check_records`]), as the owned decode checks them.
+    pub fn to_graph(&self) -> Result<Graph, SnapshotError> {
+        Graph::try_from(self)
     }
 
     /// The sample as received: its header and its payload bytes (for [`Graph::from_message`],

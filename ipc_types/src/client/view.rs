@@ -199,13 +199,15 @@ impl Adjacency {
     }
 }
 
-impl From<&GraphView<'_>> for Graph {
-    /// An owned copy of the sample the view reads ([`GraphView::to_graph`]).
-    fn from(view: &GraphView<'_>) -> Self {
+impl TryFrom<&GraphView<'_>> for Graph {
+    type Error = SnapshotError;
+
+    /// An owned copy of the sample the view reads, its records checked ([`GraphView::to_graph`]).
+    fn try_from(view: &GraphView<'_>) -> Result<Self, SnapshotError> {
         let mut graph = Self::new();
-        graph.copy_from_view(view);
+        graph.copy_from_view(view)?;
         graph.restarted = view.restarted();
-        graph
+        Ok(graph)
     }
 }
 
@@ -251,11 +253,13 @@ impl Graph {
         Ok(())
     }
 
-    /// Replaces this graph with a copy of `view`'s (already checked) nodes and edges, reusing
-    /// the buffers: one block copy each for nodes and edges. For a planner that reads samples
-    /// through [`GraphSubscriber::with_latest`](crate::GraphSubscriber::with_latest) and keeps
-    /// some of them.
-    pub fn copy_from_view(&mut self, view: &GraphView<'_>) {
+    /// Replaces this graph with a copy of `view`'s nodes and edges, reusing the buffers: one
+    /// block copy each for nodes and edges. For a planner that reads samples through
+    /// [`GraphSubscriber::with_latest`](crate::GraphSubscriber::with_latest) and keeps some of
+    /// them. The records are checked first ([`GraphView::check_records`]); on error the graph is
+    /// left as it was.
+    pub fn copy_from_view(&mut self, view: &GraphView<'_>) -> Result<(), SnapshotError> {
+        view.check_records()?;
         let previous_instance = self.header.instance_id;
         self.header = *view.header();
         self.restarted = previous_instance != 0 && previous_instance != self.header.instance_id;
@@ -266,6 +270,7 @@ impl Graph {
         if let Some(old) = self.indices.take() {
             *self.spare.get_mut().unwrap_or_else(PoisonError::into_inner) = old;
         }
+        Ok(())
     }
 
     /// The indices of the graph held now, built on first use (reusing the previous graph's

@@ -24,7 +24,8 @@
 //!   (`graph_index_build`), since a planner that only scans the nodes never pays it.
 //! - **view**: the same publish; `t1` inside the closure of [`GraphSubscriber::with_latest`] once
 //!   the first node's id and label were read through the [`GraphView`] (newest sample received,
-//!   checked, its records cast in place; nothing copied).
+//!   its header checked against its length, its records cast in place; nothing copied or
+//!   scanned).
 //! - **raw**: `t0` just before loaning a byte slice of the graph sample's size (header + nodes +
 //!   edges); copy a prepared buffer in, send, notify; `t1` after the child received the sample
 //!   and copied the bytes out.

@@ -393,8 +393,9 @@ fn ipc_markdown(s: &mut String, ipc: &IpcLatency) {
          zero-filled sample of the graph's size (at most {:.1} MiB), write the records in place, \
          send, notify). Owned `Graph`: the client library's `GraphSubscriber::latest_if_newer` \
          returning the owned `Graph` (receive, check, copy). View: `GraphSubscriber::with_latest` \
-         until the first node's id and label were read through the `GraphView` (receive, check, \
-         records cast in place, no copy). Raw: loan a byte slice of the graph sample's size, copy, \
+         until the first node's id and label were read through the `GraphView` (receive, the \
+         header checked against the payload's length, records cast in place; nothing copied or \
+         scanned). Raw: loan a byte slice of the graph sample's size, copy, \
          send, notify; receive, copy out.\n",
         ipc.messages,
         ipc.warmup,

@@ -1,6 +1,7 @@
 //! The borrowed view on crafted bytes: it answers as the owned graph does, and every sample
 //! that breaks the layout (counts past the end, a short or misaligned block, another schema
-//! version, unknown kinds) is refused with the error naming it, before any record is read.
+//! version) is refused with the error naming it, before any record is read; unknown kinds and
+//! origins are named by the record check and refused by the owned copy.
 
 use super::*;
 use crate::client::test_graphs::{empty, graph_of, kitchen, push_node};
@@ -89,7 +90,8 @@ fn the_view_answers_as_the_owned_graph_does() {
     assert_eq!(ids(view.find_by_affordance("hook_pull").expect("canonical")), [2, 3]);
     assert_eq!(view.find_by_affordance("fly").map(|_| ()), Err(UnknownAffordance));
     // The owned copy of the view is the owned decode of the sample.
-    let copy = view.to_graph();
+    view.check_records().expect("valid records");
+    let copy = view.to_graph().expect("valid records");
     assert_eq!((copy.header(), copy.wire_edges().len()), (owned.header(), owned.wire_edges().len()));
     assert_eq!(ids(view.find_by_label_containing("")), copy.nodes().map(|n| n.id()).collect::<Vec<_>>());
 }
@@ -201,20 +203,28 @@ fn a_short_header_and_another_schema_version_are_refused() {
 }
 
 #[test]
-fn unknown_kinds_and_origins_are_refused_naming_the_record() {
+fn unknown_kinds_and_origins_are_found_by_the_record_check_and_refused_by_the_copy() {
     let mut s = kitchen(1);
     s.nodes[4].kind = 9;
     let message = s.encode();
     let block = Block::from_bytes(message.payload);
     let payload = &block.bytes()[..message.payload.len()];
-    let err = GraphView::from_message(GraphMessage::new(message.header, payload)).expect_err("unknown kind");
+    // Nothing scans the records on receipt; the value reads as the first kind.
+    let view = GraphView::from_message(GraphMessage::new(message.header, payload)).expect("layout fits");
+    assert_eq!((view.node(11).map(|n| n.kind()), view.wire_nodes()[4].kind), (Some(NodeKind::Object), 9));
+    let err = view.check_records().expect_err("unknown kind");
     assert_eq!(err.to_string(), "nodes[4].kind: unknown value 9 (0 object, 1 part)");
+    assert_eq!(view.to_graph().map(|_| ()), Err(err), "the owned copy refuses it as the owned decode does");
+    let mut kept = graph_of(&mut kitchen(2));
+    assert_eq!(kept.copy_from_view(&view), Err(err));
+    assert_eq!(kept.version(), 2, "left as it was");
+    assert_eq!(Graph::from_message(&message).map(|_| ()), Err(err));
 
     let mut s = kitchen(1);
     s.edges[3].origin = 4;
     let message = s.encode();
     let block = Block::from_bytes(message.payload);
     let payload = &block.bytes()[..message.payload.len()];
-    let err = GraphView::from_message(GraphMessage::new(message.header, payload)).expect_err("unknown origin");
-    assert_eq!(err, SnapshotError::UnknownEdgeOrigin { index: 3, value: 4 });
+    let view = GraphView::from_message(GraphMessage::new(message.header, payload)).expect("layout fits");
+    assert_eq!(view.check_records(), Err(SnapshotError::UnknownEdgeOrigin { index: 3, value: 4 }));
 }
