@@ -5,11 +5,13 @@
 //!   `P/graph` and `P/graph_updated` with the daemon's QoS (`op3dsg_ipc_types::services`) and
 //!   publishes a graph of `--nodes` nodes (three objects to one part, two edges per node, like
 //!   `op3dsg bench perf`) as a new version every period, until the time is up.
-//! - `graph_bench read --prefix P [--samples 500]` reads it as a planner does with
+//! - `graph_bench read --prefix P [--samples 500] [--view]` reads it as a planner does with
 //!   [`GraphSubscriber`]: wait for `graph_updated`, then time `latest_if_newer` (receive the newest
-//!   sample, check it, copy it into the owned `Graph`, build its indices). Prints one JSON line:
-//!   p50 / p99 of that call and of publish → graph in hand (the header's `publish_time_ns` to the
-//!   end of the call, both on the wall clock), microseconds.
+//!   sample, check it, copy it into the owned `Graph`), or with `--view` `with_latest` up to the
+//!   first node's id and label read through the zero-copy `GraphView` (receive, check, records
+//!   cast in place). Prints one JSON line: p50 / p99 of that call and of publish → graph in hand
+//!   (the header's `publish_time_ns` to the end of the read, both on the wall clock),
+//!   microseconds.
 
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
@@ -146,29 +148,61 @@ fn percentile_us(sorted_ns: &[u64], p: f64) -> f64 {
     sorted_ns[i] as f64 / 1e3
 }
 
-fn read(prefix: &str, samples: usize) -> Result<(), Error> {
+/// One timed read: the call's duration, publish → in hand, and the version read.
+struct Read {
+    call_ns: u64,
+    latency_ns: u64,
+    version: u64,
+    nodes: usize,
+}
+
+/// `latest_if_newer` into the owned graph.
+fn read_owned(graphs: &mut GraphSubscriber, last_seen: u64) -> Result<Option<Read>, Error> {
+    let t0 = Instant::now();
+    let Some(graph) = graphs.latest_if_newer(last_seen)? else { return Ok(None) };
+    let call_ns = t0.elapsed().as_nanos() as u64;
+    let latency_ns = wall_clock_ns().saturating_sub(graph.publish_time_ns());
+    Ok(Some(Read { call_ns, latency_ns, version: graph.version(), nodes: graph.node_count() }))
+}
+
+/// `with_latest` up to the first node read through the view.
+fn read_view(graphs: &mut GraphSubscriber) -> Result<Option<Read>, Error> {
+    let t0 = Instant::now();
+    let read = graphs.with_latest(|view| {
+        std::hint::black_box(view.nodes().next().map(|n| (n.id(), n.label().len())));
+        let call_ns = t0.elapsed().as_nanos() as u64;
+        let latency_ns = wall_clock_ns().saturating_sub(view.publish_time_ns());
+        Read { call_ns, latency_ns, version: view.version(), nodes: view.node_count() }
+    })?;
+    Ok(read)
+}
+
+fn read(prefix: &str, samples: usize, view: bool) -> Result<(), Error> {
     let mut graphs = GraphSubscriber::open_wait(prefix, "op3dsg-bench-rust-reader", Duration::from_secs(30))?;
     let (mut call_ns, mut latency_ns) = (Vec::with_capacity(samples), Vec::with_capacity(samples));
     let (mut last_seen, mut nodes, mut warmed) = (0, 0, false);
     let deadline = Instant::now() + Duration::from_secs(120);
     while call_ns.len() < samples && Instant::now() < deadline {
         graphs.wait_for_update(Duration::from_secs(1))?;
-        let t0 = Instant::now();
-        let Some(graph) = graphs.latest_if_newer(last_seen)? else { continue };
-        let elapsed = t0.elapsed().as_nanos() as u64;
-        let in_hand_ns = wall_clock_ns();
-        (last_seen, nodes) = (graph.version(), graph.node_count());
+        let taken = if view { read_view(&mut graphs)? } else { read_owned(&mut graphs, last_seen)? };
+        let Some(read) = taken else { continue };
+        (last_seen, nodes) = (read.version, read.nodes);
         // The first graph may be the history sample, delivered late, into cold buffers: not timed.
         if warmed {
-            call_ns.push(elapsed);
-            latency_ns.push(in_hand_ns.saturating_sub(graph.publish_time_ns()));
+            call_ns.push(read.call_ns);
+            latency_ns.push(read.latency_ns);
         }
         warmed = true;
     }
     call_ns.sort_unstable();
     latency_ns.sort_unstable();
+    let reader = if view {
+        "rust GraphSubscriber::with_latest (view, first node read)"
+    } else {
+        "rust GraphSubscriber::latest_if_newer (copy into Graph)"
+    };
     println!(
-        "{{\"reader\": \"rust GraphSubscriber::latest_if_newer (copy into Graph)\", \"nodes\": {nodes}, \"samples\": {}, \
+        "{{\"reader\": \"{reader}\", \"nodes\": {nodes}, \"samples\": {}, \
          \"call_p50_us\": {:.1}, \"call_p99_us\": {:.1}, \"latency_p50_us\": {:.1}, \"latency_p99_us\": {:.1}}}",
         call_ns.len(),
         percentile_us(&call_ns, 0.5),
@@ -191,10 +225,14 @@ fn main() -> Result<(), Error> {
             let seconds = arg("--seconds").map(|s| s.parse()).transpose()?.unwrap_or(30.0);
             publish(&prefix, nodes, Duration::from_millis(period_ms), seconds)
         }
-        Some("read") => read(&prefix, arg("--samples").map(|s| s.parse()).transpose()?.unwrap_or(500)),
-        _ => {
-            Err("usage: graph_bench publish|read --prefix P [--nodes N --period-ms MS --seconds S | --samples N]"
-                .into())
-        }
+        Some("read") => read(
+            &prefix,
+            arg("--samples").map(|s| s.parse()).transpose()?.unwrap_or(500),
+            args.iter().any(|a| a == "--view"),
+        ),
+        _ => Err(
+            "usage: graph_bench publish|read --prefix P [--nodes N --period-ms MS --seconds S | --samples N [--view]]"
+                .into(),
+        ),
     }
 }

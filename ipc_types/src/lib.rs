@@ -8,10 +8,12 @@
 //!   `#[type_name]`, so a C or Python client can mirror them field by field from this
 //!   documentation alone (Python: a `ctypes.Structure` whose `type_name()` returns the name given
 //!   below). [`services`] holds the service names, prefix rules and QoS both sides use.
-//! - **Client** ([`client`], re-exported here): [`GraphSubscriber`] waits for and copies the
-//!   newest graph into an owned [`Graph`] with typed views ([`NodeView`], [`EdgeView`]);
-//!   [`HealthSubscriber`] reads the daemon's [`Health`]; [`PosePublisher`] sends camera or base
-//!   poses to the daemon.
+//! - **Client** ([`client`], re-exported here): [`GraphSubscriber`] waits for the newest graph
+//!   and lends it in place as a [`GraphView`] ([`GraphSubscriber::with_latest`], no copy) or
+//!   copies it into an owned [`Graph`] with typed views ([`NodeView`], [`EdgeView`]);
+//!   [`HealthSubscriber`] reads the daemon's [`Health`]; [`OccupancySubscriber`] its occupancy
+//!   map; [`PosePublisher`] sends camera or base poses to the daemon; [`QueryClient`] asks it
+//!   questions.
 //!
 //! ```no_run
 //! use std::time::Duration;
@@ -35,6 +37,21 @@
 //!     }
 //! }
 //! # }
+//! ```
+//!
+//! The same loop in place, for a planner that reads a few nodes of each new graph: the closure
+//! gets a [`GraphView`] of the sample in shared memory and holds it only while it runs.
+//!
+//! ```no_run
+//! # use std::time::Duration;
+//! # let mut graphs = op3dsg_ipc_types::GraphSubscriber::open("op3dsg", "my-planner")?;
+//! graphs.wait_for_update(Duration::from_millis(500))?;
+//! graphs.with_latest(|graph| {
+//!     for handle in graph.find_by_label("cabinet handle") {
+//!         println!("handle {} of {:?} at {:?} m", handle.id(), handle.parent().map(|p| p.label()), handle.centre_m());
+//!     }
+//! })?;
+//! # Ok::<(), op3dsg_ipc_types::ClientError>(())
 //! ```
 //!
 //! Examples: `cargo run -p op3dsg-ipc-types --example planner -- --prefix op3dsg --versions 3`
@@ -131,8 +148,9 @@ mod text;
 
 pub use access::{IPC_ROOT_ENV, IpcRoot, RootError};
 pub use client::{
-    ClientError, EdgeView, ErrorCause, Graph, GraphSubscriber, HealthSubscriber, NodeView, Operation, Pose,
-    PosePublisher, QueryClient, QueryClientError, SnapshotError, UnknownAffordance, check_message,
+    ClientError, EdgeRef, EdgeView, ErrorCause, Graph, GraphSubscriber, GraphView, HealthSubscriber, NodeRef, NodeView,
+    OccupancyError, OccupancyMap, OccupancySubscriber, Operation, Pose, PosePublisher, QueryClient, QueryClientError,
+    SnapshotError, UnknownAffordance, check_layout, check_message, check_occupancy,
 };
 pub use graph_types::{
     AFFORDANCES, EDGE_BYTES, Edge, EdgeKind, EdgeOrigin, FUNCTIONAL_RELATION_BASE, FUNCTIONAL_RELATIONS, GraphHeader,

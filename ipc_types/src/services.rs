@@ -97,6 +97,15 @@ pub type IpcService = iceoryx2::service::ipc_threadsafe::Service;
 
 /// Prefix of the services when a profile or a client names none.
 pub const DEFAULT_PREFIX: &str = "op3dsg";
+/// The environment variable whose value is the prefix when none is given: `op3dsgd`, the
+/// `op3dsg` CLI, the examples and the Python client read it ([`default_prefix`]).
+pub const PREFIX_ENV: &str = "OP3DSG_PREFIX";
+
+/// The prefix a client uses when its caller names none: `$OP3DSG_PREFIX` when set and not
+/// empty, else [`DEFAULT_PREFIX`] (what `op3dsg` and `op3dsgd` do without `--prefix`).
+pub fn default_prefix() -> String {
+    std::env::var(PREFIX_ENV).ok().filter(|p| !p.is_empty()).unwrap_or_else(|| DEFAULT_PREFIX.to_owned())
+}
 /// Longest accepted prefix (the longest service name, `<prefix>/graph_updated`, must stay far
 /// below iceoryx2's 255-byte limit).
 pub const MAX_PREFIX_LEN: usize = 128;
@@ -206,10 +215,13 @@ pub enum ServiceKind {
     Health,
     /// `<prefix>/pose`: [`PoseStamped`] publish-subscribe (input to the daemon).
     Pose,
+    /// `<prefix>/occupancy`: the occupancy map, `[i8]` cells with an [`OccupancyHeader`] (its own
+    /// table above).
+    Occupancy,
 }
 
 impl ServiceKind {
-    /// Every service, in table order.
+    /// The services of the first table (graph, graph_updated, health, pose), in table order.
     pub const ALL: [ServiceKind; 4] = [Self::Graph, Self::GraphUpdated, Self::Health, Self::Pose];
 
     /// The name after `<prefix>/`.
@@ -219,6 +231,7 @@ impl ServiceKind {
             Self::GraphUpdated => "graph_updated",
             Self::Health => "health",
             Self::Pose => "pose",
+            Self::Occupancy => OCCUPANCY_SUFFIX,
         }
     }
 
@@ -239,6 +252,8 @@ pub struct ServiceNames {
     pub health: String,
     /// `<prefix>/pose`: [`PoseStamped`] publish-subscribe (input to the daemon).
     pub pose: String,
+    /// `<prefix>/occupancy`: the occupancy map.
+    pub occupancy: String,
 }
 
 impl ServiceNames {
@@ -249,6 +264,7 @@ impl ServiceNames {
             graph_updated: ServiceKind::GraphUpdated.name(prefix),
             health: ServiceKind::Health.name(prefix),
             pose: ServiceKind::Pose.name(prefix),
+            occupancy: ServiceKind::Occupancy.name(prefix),
         }
     }
 
@@ -259,6 +275,7 @@ impl ServiceNames {
             ServiceKind::GraphUpdated => &self.graph_updated,
             ServiceKind::Health => &self.health,
             ServiceKind::Pose => &self.pose,
+            ServiceKind::Occupancy => &self.occupancy,
         }
     }
 }

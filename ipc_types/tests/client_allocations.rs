@@ -112,3 +112,24 @@ fn a_warm_subscriber_receives_a_graph_without_allocating() {
         assert_eq!(allocations, 0, "version {version}");
     }
 }
+
+#[test]
+fn reading_through_the_view_allocates_nothing_even_cold() {
+    let prefix = unique_prefix();
+    let daemon = FakeDaemon::start(&prefix, 2);
+    let mut graphs = GraphSubscriber::open(&prefix, "op3dsg-test-view").expect("open graph");
+    for version in 1..=3 {
+        daemon.publish_graph(|s| write_large(s, version, 1_000));
+        assert!(graphs.wait_for_update(Duration::from_secs(5)).expect("wait"));
+        let (allocations, read) = allocations_in(|| {
+            graphs
+                .with_latest(|view| {
+                    let handle = view.node(1).map(|n| (n.label().len(), n.parent().map(|p| p.id())));
+                    (view.version(), handle, view.parts_of(10).count(), view.edges_to(0).count())
+                })
+                .expect("read")
+        });
+        assert_eq!(read, Some((version, Some((6, Some(0))), 1, 1)));
+        assert_eq!(allocations, 0, "version {version}: no copy, no index, no buffer");
+    }
+}

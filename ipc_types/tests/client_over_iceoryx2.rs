@@ -12,9 +12,9 @@ use iceoryx2::port::subscriber::SubscriberCreateError;
 use op3dsg_ipc_types::client::open_or_create_pose_service;
 use op3dsg_ipc_types::services::{DEFAULT_POSE_BUFFER, DEFAULT_PREFIX};
 use op3dsg_ipc_types::{
-    EdgeKind, EdgeOrigin, ErrorCause, GraphSubscriber, Health, HealthSubscriber, NAME_CAPACITY_BYTES, NodeKind,
-    Operation, Pose, PoseError, PoseKind, PosePublisher, SCHEMA_VERSION, ServiceKind, SnapshotError, StageHealth,
-    write_fixed_str,
+    EdgeKind, EdgeOrigin, ErrorCause, GraphSubscriber, GraphView, Health, HealthSubscriber, NAME_CAPACITY_BYTES,
+    NodeKind, Operation, Pose, PoseError, PoseKind, PosePublisher, SCHEMA_VERSION, ServiceKind, SnapshotError,
+    StageHealth, write_fixed_str,
 };
 
 /// Polls `latest_if_newer` (updating the stand-in's connections) until a graph newer than
@@ -131,6 +131,70 @@ fn a_sample_of_another_schema_is_an_error_naming_both_versions() {
     );
     // The bad sample is gone and the last good graph is still there.
     assert_eq!(graphs.latest().expect("read").map(|g| g.version()), Some(3));
+}
+
+/// Polls `with_latest` (updating the stand-in's connections) until it lends a sample or 5 s
+/// pass; returns what `read` made of it.
+fn wait_for_view<R>(daemon: &FakeDaemon, graphs: &mut GraphSubscriber, read: impl Fn(GraphView<'_>) -> R) -> Option<R> {
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while Instant::now() < deadline {
+        daemon.update_connections();
+        if let Some(result) = graphs.with_latest(&read).expect("read through the view") {
+            return Some(result);
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    None
+}
+
+#[test]
+fn the_view_reads_the_sample_in_shared_memory_and_refuses_a_bad_one() {
+    let prefix = unique_prefix();
+    let daemon = FakeDaemon::start(&prefix, 2);
+    let mut graphs = GraphSubscriber::open(&prefix, "op3dsg-test-view").expect("open graph");
+    assert!(graphs.with_latest(|_| ()).expect("nothing yet").is_none(), "nothing published: closure not called");
+    daemon.publish_graph(|s| write_kitchen(s, 1));
+    let read = |view: GraphView<'_>| {
+        let knob = view.find_by_label("knob").next().map(|n| (n.id(), n.parent().map(|p| p.label().to_owned())));
+        let parts: Vec<u32> = view.parts_of(1).map(|n| n.id()).collect();
+        let from_handle: Vec<_> = view.edges_from(2).map(|e| (e.phrase().to_owned(), e.origin())).collect();
+        let remote = view.edges_to(20).next().and_then(|e| e.source()).map(|n| n.label().to_owned());
+        let pullable: Vec<u32> = view.find_by_affordance("pinch_pull").expect("canonical").map(|n| n.id()).collect();
+        (view.version(), view.restarted(), knob, parts, from_handle, remote, pullable, view.to_graph().expect("valid"))
+    };
+    let (version, restarted, knob, parts, from_handle, remote, pullable, copy) =
+        wait_for_view(&daemon, &mut graphs, read).expect("the history sample through the view");
+    assert_eq!((version, restarted), (1, false));
+    assert_eq!(knob, Some((11, Some("stove".to_owned()))));
+    assert_eq!(parts, [2, 3]);
+    assert_eq!(
+        from_handle,
+        [("part of".to_owned(), EdgeOrigin::Geometry), ("pull to open or close".to_owned(), EdgeOrigin::Knowledge)]
+    );
+    assert_eq!((remote.as_deref(), pullable), (Some("remote"), vec![3]));
+    assert_eq!((copy.version(), copy.node_count(), copy.edge_count()), (1, 7, 6));
+    assert_eq!(copy.node(11).and_then(|n| n.parent()).map(|p| p.label()), Some("stove"), "the copy is a whole graph");
+    assert!(graphs.with_latest(|_| ()).expect("read").is_none(), "taken: nothing new until the next sample");
+    assert!(graphs.graph().is_none(), "the view copies nothing into the owned graph");
+
+    // A sample of another schema is refused before the closure runs; the next good one is read.
+    daemon.publish_graph(|s| {
+        write_kitchen(s, 2);
+        s.header.schema_version = SCHEMA_VERSION + 1;
+    });
+    assert!(graphs.wait_for_update(Duration::from_secs(5)).expect("wait"));
+    let err = graphs.with_latest(|_| unreachable!("a refused sample is never lent")).expect_err("schema mismatch");
+    let found = SCHEMA_VERSION + 1;
+    assert_eq!(err.cause(), ErrorCause::InvalidGraph(SnapshotError::SchemaVersion { found, expected: SCHEMA_VERSION }));
+    assert!(err.to_string().starts_with(&format!("{prefix}/graph: receive: invalid sample: header.schema_version")));
+
+    // A restarted daemon's graph is flagged on the view as on the owned graph.
+    daemon.publish_graph(|s| {
+        write_kitchen(s, 1);
+        s.header.instance_id = common::INSTANCE_ID + 1;
+    });
+    let seen = wait_for_view(&daemon, &mut graphs, |v| (v.version(), v.instance_id(), v.restarted()));
+    assert_eq!(seen, Some((1, common::INSTANCE_ID + 1, true)));
 }
 
 #[test]

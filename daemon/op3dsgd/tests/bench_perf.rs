@@ -90,7 +90,7 @@ fn bench_perf_runs_and_reports_sane_figures() {
         assert!(run.rss_peak_mib() >= run.rss_start_mib());
     }
 
-    // IPC: one row per size, graph and raw measured in the same run.
+    // IPC: one row per size, owned graph, view and raw measured in the same run.
     let ipc = report.ipc.as_ref().expect("IPC section");
     assert_eq!(ipc.messages, IPC_MESSAGES);
     assert_eq!(ipc.rows.iter().map(|r| r.nodes).collect::<Vec<_>>(), IPC_NODES);
@@ -106,6 +106,13 @@ fn bench_perf_runs_and_reports_sane_figures() {
         assert_eq!(row.bytes, header + row.nodes * 144 + row.edges * 64, "header and records, nothing more");
         assert!(row.ratio_p50.is_finite() && row.ratio_p50 > 0.0);
         assert!(row.ratio_p99.is_finite() && row.ratio_p99 > 0.0);
+        // The zero-copy view, measured in the same run.
+        sane(&row.view, &format!("view {}", row.nodes));
+        sane(&row.view_publish_call, &format!("view publish call {}", row.nodes));
+        sane(&row.view_read_call, &format!("view read call {}", row.nodes));
+        assert_eq!((row.view.count as usize, row.view_read_call.count as usize), (IPC_MESSAGES, IPC_MESSAGES));
+        assert!(row.view_ratio_p50.is_finite() && row.view_ratio_p50 > 0.0);
+        assert!(row.view_ratio_p99.is_finite() && row.view_ratio_p99 > 0.0);
     }
     assert!(ipc.rows[1].bytes > ipc.rows[0].bytes);
 
@@ -140,6 +147,7 @@ fn bench_perf_runs_and_reports_sane_figures() {
         "| prior |",
         "| end_to_end |",
         "| 300 |",
+        "| view, first node |",
         "fusion.png",
         "| peer: ConceptGraphs fusion |",
     ] {

@@ -7,7 +7,12 @@ Two lines read the graph as numpy views of the daemon's shared memory (no copy):
 
 - :class:`GraphClient` — ``latest()``, ``latest_if_newer(version)``, ``wait_for_update(timeout)``,
   ``restarted``; returns :class:`GraphView` (``nodes`` / ``edges`` structured arrays viewing the
-  sample, ``copy()`` to an owned :class:`Graph`, labels decoded on demand).
+  sample, the lookups of the Rust ``GraphView`` by index: ``node(id)``, ``index_of``,
+  ``parts_of``, ``parent_of``, ``edges_from``, ``edges_to``, ``find_by_label``,
+  ``find_by_label_containing``, ``find_by_affordance``; ``copy()`` to an owned :class:`Graph`,
+  labels decoded on demand; ``with`` gives the sample back at the end).
+- Every client takes ``prefix=None`` as ``$OP3DSG_PREFIX``, else ``op3dsg`` (:func:`default_prefix`),
+  as the ``op3dsg`` command does.
 - :class:`PosePublisher` — sends poses on ``<prefix>/pose`` (creates the service if nobody has).
 - :func:`query` / :class:`QueryClient` — the nodes that serve a need in words ("somewhere to
   wash my hands"), from ``<prefix>/query`` (needs the daemon's text encoder), each with its
@@ -47,6 +52,7 @@ from .errors import (
     SchemaVersionError,
     SubscriberSlotsFullError,
 )
+from ._iox import default_prefix
 from .graph import Graph, GraphClient, GraphView, wait_for_graph
 from .health import HealthClient, health
 from .occupancy import OccupancyClient, OccupancyHeader, OccupancyMap
@@ -72,6 +78,7 @@ from .wire import (
     NODE_DTYPE,
     POSE_WORLD_FROM_BASE,
     POSE_WORLD_FROM_CAMERA,
+    PREFIX_ENV,
     SCHEMA_VERSION,
     SOURCE_KINDS,
     SPATIAL_RELATIONS,
@@ -122,6 +129,7 @@ __all__ = [
     "Op3dsgError",
     "POSE_WORLD_FROM_BASE",
     "POSE_WORLD_FROM_CAMERA",
+    "PREFIX_ENV",
     "PosePublisher",
     "PoseService",
     "PoseStamped",
@@ -142,6 +150,7 @@ __all__ = [
     "affordance_origin",
     "affordance_origins",
     "check_pose",
+    "default_prefix",
     "fixed_str",
     "health",
     "make_pose",

@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 import re
 import time
-from typing import Callable, TypeVar
+from typing import Callable, Optional, TypeVar
 
 import iceoryx2 as iox2
 
@@ -19,7 +19,7 @@ from .errors import (
     Op3dsgError,
     SubscriberSlotsFullError,
 )
-from .wire import MAX_PREFIX_LEN
+from .wire import DEFAULT_PREFIX, MAX_PREFIX_LEN, PREFIX_ENV
 
 #: How often a client started before the daemon retries opening its services (seconds).
 OPEN_RETRY_INTERVAL_S = 0.1
@@ -49,6 +49,17 @@ def validate_prefix(prefix: str, service: str) -> None:
             fail(f"invalid character {ch!r} (allowed: A-Z a-z 0-9 _ - . /)")
     if prefix.startswith("/") or prefix.endswith("/") or "//" in prefix:
         fail("must not start or end with '/' nor contain \"//\"")
+
+
+def default_prefix() -> str:
+    """The prefix a client uses when given none: ``$OP3DSG_PREFIX`` when set and not empty, else
+    ``op3dsg`` (what ``op3dsg`` and ``op3dsgd`` do without ``--prefix``)."""
+    return os.environ.get(PREFIX_ENV) or DEFAULT_PREFIX
+
+
+def resolve_prefix(prefix: Optional[str]) -> str:
+    """``prefix``, or :func:`default_prefix` for ``None``."""
+    return default_prefix() if prefix is None else prefix
 
 
 def service_name(prefix: str, suffix: str) -> str:

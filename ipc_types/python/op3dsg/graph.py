@@ -32,7 +32,6 @@ import numpy as np
 from . import _iox
 from .errors import InvalidGraphError, Op3dsgError, SampleReleasedError, SchemaVersionError
 from .wire import (
-    DEFAULT_PREFIX,
     EDGE_BYTES,
     EDGE_DTYPE,
     EDGE_KINDS,
@@ -45,6 +44,7 @@ from .wire import (
     NODE_KINDS,
     SCHEMA_VERSION,
     GraphHeader,
+    affordance_bits,
     affordance_names,
     affordance_origins,
     fixed_str,
@@ -60,8 +60,10 @@ def _f32(value) -> float:
 
 class _GraphData:
     """What a borrowed view and an owned copy share: the header, the node and edge arrays, and
-    lookups on them. Subclasses provide ``_header``, ``_nodes``, ``_edges`` and ``restarted``."""
+    lookups on them. Subclasses provide ``_service`` (named in errors), ``_header``, ``_nodes``,
+    ``_edges`` and ``restarted``."""
 
+    _service: str
     _header: GraphHeader
     _nodes: np.ndarray
     _edges: np.ndarray
@@ -69,6 +71,13 @@ class _GraphData:
 
     def _check(self) -> None:
         """Raises when the data is gone (only a released view)."""
+
+    def check_records(self) -> None:
+        """Every node's kind and every edge's kind and origin within the vocabulary, the first one
+        outside named (:class:`~op3dsg.errors.InvalidGraphError`): the record check the Rust
+        owned decode runs on receipt, which a view skips (one vectorised pass over the records,
+        as long as reading them all). :meth:`GraphView.copy` runs it."""
+        _check_records(self._service, self.nodes, self.edges)
 
     # -- header -----------------------------------------------------------------------------
     @property
@@ -166,11 +175,19 @@ class _GraphData:
         """The relation phrase of the edge at ``index``."""
         return fixed_str(self.edges["phrase"][index])
 
+    # -- lookups: the Rust GraphView's, answered by index (into ``nodes`` / ``edges``) ----------
     def index_of(self, node_id: int) -> Optional[int]:
-        """Index of the node with ``node_id`` (nodes are sorted by id), ``None`` when absent."""
+        """Index of the node with ``node_id`` (a binary search: the contract sorts the nodes by
+        id), ``None`` when absent."""
         ids = self.nodes["id"]
         i = int(np.searchsorted(ids, node_id))
         return i if i < len(ids) and ids[i] == node_id else None
+
+    def node(self, node_id: int) -> Optional[dict]:
+        """The node with ``node_id`` in the graph JSON form (:meth:`node_dict`), ``None`` when
+        absent."""
+        i = self.index_of(node_id)
+        return None if i is None else self.node_dict(i)
 
     def objects(self) -> np.ndarray:
         """Indices of the object nodes."""
@@ -181,13 +198,54 @@ class _GraphData:
         return np.flatnonzero(self.nodes["kind"] == NODE_KIND_PART)
 
     def parts_of(self, object_id: int) -> np.ndarray:
-        """Indices of the parts whose parent is the node ``object_id``."""
-        nodes = self.nodes
-        return np.flatnonzero((nodes["parent_id"] == object_id) & (nodes["kind"] == NODE_KIND_PART))
+        """Indices of the nodes whose parent is the node ``object_id`` (its parts); empty for an id
+        not in this graph."""
+        if self.index_of(object_id) is None:
+            return np.empty(0, np.intp)
+        return np.flatnonzero(self.nodes["parent_id"] == object_id)
+
+    def parent_of(self, part_id: int) -> Optional[int]:
+        """Index of the parent object of the part ``part_id``; ``None`` for objects, unattached
+        parts, parents not in this graph and unknown ids."""
+        i = self.index_of(part_id)
+        if i is None:
+            return None
+        parent = int(self.nodes["parent_id"][i])
+        return None if parent == NO_NODE else self.index_of(parent)
+
+    def edges_from(self, node_id: int) -> np.ndarray:
+        """Indices of the edges whose source is ``node_id``; empty for an id not in this graph."""
+        if self.index_of(node_id) is None:
+            return np.empty(0, np.intp)
+        return np.flatnonzero(self.edges["source_id"] == node_id)
+
+    def edges_to(self, node_id: int) -> np.ndarray:
+        """Indices of the edges whose target is ``node_id``; empty for an id not in this graph."""
+        if self.index_of(node_id) is None:
+            return np.empty(0, np.intp)
+        return np.flatnonzero(self.edges["target_id"] == node_id)
 
     def find_by_label(self, label: str) -> np.ndarray:
         """Indices of the nodes labelled exactly ``label``."""
         return np.flatnonzero(self.nodes["label"] == label.encode("utf-8"))
+
+    def find_by_label_containing(self, text: str) -> np.ndarray:
+        """Indices of the nodes whose label contains ``text``, ASCII letters compared without
+        case (``"handle"`` finds "Cabinet Handle" and "drawer handle")."""
+        labels = self.nodes["label"]
+        if not text:
+            return np.arange(len(labels))
+        return np.flatnonzero(np.char.find(np.char.lower(labels), text.encode("utf-8").lower()) >= 0)
+
+    def find_by_affordance(self, name: str) -> np.ndarray:
+        """Indices of the nodes that afford ``name`` (one of :data:`~op3dsg.wire.AFFORDANCES`;
+        ``ValueError`` naming them for another name)."""
+        return self.find_by_affordance_bits(affordance_bits([name]))
+
+    def find_by_affordance_bits(self, bits: int) -> np.ndarray:
+        """Indices of the nodes that afford every affordance in ``bits`` (a set over
+        :data:`~op3dsg.wire.AFFORDANCES`, see :func:`~op3dsg.wire.affordance_bits`)."""
+        return np.flatnonzero((self.nodes["affordance_bits"] & bits) == bits)
 
     def affordance_origins(self, index: int) -> dict:
         """The affordances of the node at ``index`` (not id), each with its origin
@@ -205,7 +263,7 @@ class _GraphData:
         node = {
             "id": int(n["id"]),
             "label": fixed_str(n["label"]),
-            "kind": NODE_KINDS[int(n["kind"])],
+            "kind": self._name(NODE_KINDS, n, f"nodes[{index}].kind", "(0 object, 1 part)"),
             "parent": None if parent == NO_NODE else parent,
             "centre_m": [_f32(v) for v in n["centre_m"]],
             "box_min_m": [_f32(v) for v in n["box_min_m"]],
@@ -230,11 +288,20 @@ class _GraphData:
         return {
             "source": int(e["source_id"]),
             "target": int(e["target_id"]),
-            "kind": EDGE_KINDS[int(e["kind"])],
+            "kind": self._name(EDGE_KINDS, e, f"edges[{index}].kind", "(0 spatial, 1 functional)"),
             "relation": relation_phrase(int(e["relation_id"])),
             "confidence": _f32(e["confidence"]),
-            "origin": EDGE_ORIGINS[int(e["origin"])],
+            "origin": self._name(EDGE_ORIGINS, e, f"edges[{index}].origin", "(0..=3)"),
         }
+
+    def _name(self, names, record, field: str, known: str) -> str:
+        """The name of ``record``'s value of ``field`` (``nodes[i].kind``, ...); a value outside
+        ``names`` raises :class:`~op3dsg.errors.InvalidGraphError` naming it, as
+        :meth:`check_records` would."""
+        value = int(record[field.rsplit(".", 1)[1]])
+        if value >= len(names):
+            raise _invalid(self._service, f"{field}: unknown value {value} {known}")
+        return names[value]
 
     def to_dict(self) -> dict:
         """The whole graph in the graph JSON form (``op3dsg.graph/1``, as ``op3dsg dump --json``;
@@ -255,11 +322,28 @@ class Graph(_GraphData):
     """An owned graph (from :meth:`GraphView.copy`): the same interface as :class:`GraphView`,
     valid for as long as it is kept, writable arrays of its own."""
 
-    def __init__(self, header: GraphHeader, nodes: np.ndarray, edges: np.ndarray, restarted: bool):
+    def __init__(self, header: GraphHeader, nodes: np.ndarray, edges: np.ndarray, restarted: bool, service: str = "graph"):
+        self._service = service
         self._header = header
         self._nodes = nodes
         self._edges = edges
         self.restarted = restarted
+
+    @classmethod
+    def from_bytes(cls, data, source: str = "graph bytes") -> "Graph":
+        """A graph sample laid out in one buffer (the header's 112 bytes, then the payload), read
+        in place: the arrays view ``data`` (read-only, no copy). Checked as a received sample is
+        (the header against the length, the alignment; the records by :meth:`check_records`),
+        and more: a buffer shorter than a header, or not starting on an 8-byte boundary, raises
+        :class:`~op3dsg.errors.InvalidGraphError`; ``source`` names it in errors."""
+        raw = np.frombuffer(data, dtype=np.uint8)
+        header_bytes = ctypes.sizeof(GraphHeader)
+        if raw.size < header_bytes:
+            raise _invalid(source, f"header: {raw.size} bytes, but a GraphHeader has {header_bytes}")
+        _check_alignment(source, "header", int(raw.ctypes.data))
+        header = GraphHeader.from_buffer_copy(raw[:header_bytes].tobytes())
+        nodes, edges = _records(source, header, raw[header_bytes:])
+        return cls(header, _read_only(nodes), _read_only(edges), False, source)
 
     def __repr__(self) -> str:
         return f"Graph(version={self.version}, instance_id={self.instance_id:#018x}, nodes={self.node_count}, edges={self.edge_count})"
@@ -297,8 +381,10 @@ class GraphView(_GraphData):
             )
 
     def copy(self) -> Graph:
-        """An owned copy of this graph (header, nodes, edges), valid after the sample is released."""
-        return Graph(self.header, self.nodes.copy(), self.edges.copy(), self.restarted)
+        """An owned copy of this graph (header, nodes, edges), valid after the sample is released.
+        The records are checked first (:meth:`check_records`), as the Rust owned copy checks them."""
+        self.check_records()
+        return Graph(self.header, self.nodes.copy(), self.edges.copy(), self.restarted, self._service)
 
     def release(self) -> None:
         """Gives the sample back to the daemon now (``sample.delete()``); the view and every array
@@ -306,6 +392,13 @@ class GraphView(_GraphData):
         sample, self._sample = self._sample, None
         if sample is not None:
             sample.delete()
+
+    def __enter__(self) -> "GraphView":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        """Leaving a ``with`` block gives the sample back (:meth:`release`)."""
+        self.release()
 
     def __repr__(self) -> str:
         if not self.valid:
@@ -342,6 +435,34 @@ def _check_header(service: str, header: GraphHeader, payload_len: int) -> None:
         )
 
 
+#: The alignment of the node records (their ``u64`` field): where a payload must start to be
+#: read in place, as the Rust client requires.
+RECORD_ALIGNMENT = 8
+
+
+def _check_alignment(service: str, field: str, address: int) -> None:
+    if address % RECORD_ALIGNMENT:
+        raise _invalid(
+            service,
+            f"{field}: starts at address {address:#x}, not a multiple of {RECORD_ALIGNMENT} (its records' alignment), "
+            "so it cannot be read in place",
+        )
+
+
+def _records(service: str, header: GraphHeader, payload: np.ndarray):
+    """The node and edge arrays viewing ``payload`` (a ``uint8`` array) after the constant-time
+    checks of the Rust ``GraphView``: the header against the payload's length, the payload's
+    alignment (when it holds records). The records are not scanned (:func:`_check_records`)."""
+    _check_header(service, header, payload.size)
+    node_count, edge_count = int(header.node_count), int(header.edge_count)
+    if not payload.size:
+        return np.empty(0, NODE_DTYPE), np.empty(0, EDGE_DTYPE)
+    _check_alignment(service, "payload", int(payload.ctypes.data))
+    nodes = np.frombuffer(payload, dtype=NODE_DTYPE, count=node_count, offset=0)
+    edges = np.frombuffer(payload, dtype=EDGE_DTYPE, count=edge_count, offset=node_count * NODE_BYTES)
+    return nodes, edges
+
+
 def _check_records(service: str, nodes: np.ndarray, edges: np.ndarray) -> None:
     """The record half of ``check_message``: every node's kind, every edge's kind and origin
     (one vectorised pass each; the index of the first bad one only on failure)."""
@@ -373,12 +494,17 @@ class GraphClient:
     daemon next updates its connections (within ~100 ms), without an event: so call
     :meth:`latest` after every :meth:`wait_for_update`, also when it timed out.
 
-    ``timeout`` (seconds): how long the constructor waits for a daemon that is not up yet
-    (0: fail at once with :class:`~op3dsg.errors.NotServingError`).
+    ``prefix``: the daemon's service prefix; ``None`` takes ``$OP3DSG_PREFIX``, else ``op3dsg``
+    (as the ``op3dsg`` command does). ``timeout`` (seconds): how long the constructor waits for a
+    daemon that is not up yet (0: fail at once with :class:`~op3dsg.errors.NotServingError`).
+    A view can be used in a ``with`` block, which gives its sample back at the end::
+
+        with client.latest() as graph:
+            print(graph.node(graph.nodes["id"][0]))
     """
 
-    def __init__(self, prefix: str = DEFAULT_PREFIX, timeout: float = 0.0, node_name: Optional[str] = None):
-        self.prefix = prefix
+    def __init__(self, prefix: Optional[str] = None, timeout: float = 0.0, node_name: Optional[str] = None):
+        self.prefix = prefix = _iox.resolve_prefix(prefix)
         self.service = _iox.service_name(prefix, "graph")
         self.event_service = _iox.service_name(prefix, "graph_updated")
         deadline = _iox.deadline_after(timeout)
@@ -444,9 +570,13 @@ class GraphClient:
 
         When a newer sample is queued, the view returned before is released first (one borrowed
         sample at most), older queued samples are released unread, and the newest is checked
-        against the contract (schema version, counts, payload size, kinds): a bad one raises
+        against the contract in constant time, as the Rust view is (schema version, counts
+        within capacity, payload size, alignment): a bad one raises
         :class:`~op3dsg.errors.SchemaVersionError` or :class:`~op3dsg.errors.InvalidGraphError`
-        and is released. Without a newer sample the current view is returned again."""
+        and is released. The records' kinds and origins are checked by
+        :meth:`GraphView.check_records` and :meth:`GraphView.copy`, and a value outside the
+        vocabulary raises when :meth:`GraphView.node_dict` or :meth:`GraphView.edge_dict` reads
+        it. Without a newer sample the current view is returned again."""
         if not self._has_samples():
             return self._view if self._view is not None and self._view.valid else None
         self.release()
@@ -514,16 +644,13 @@ class GraphClient:
         # header's count, since Python's Slice.len() is unreliable in 0.10.
         payload_len = int(sample.header.number_of_elements)
         _check_header(self.service, header, payload_len)
-        node_count, edge_count = int(header.node_count), int(header.edge_count)
         if payload_len:
             buffer = (ctypes.c_uint8 * payload_len).from_address(sample.payload_ptr)
             # The arrays keep the sample object alive (so it is not released while they exist).
             buffer._op3dsg_sample = sample
-            nodes = np.frombuffer(buffer, dtype=NODE_DTYPE, count=node_count, offset=0)
-            edges = np.frombuffer(buffer, dtype=EDGE_DTYPE, count=edge_count, offset=node_count * NODE_BYTES)
+            nodes, edges = _records(self.service, header, np.frombuffer(buffer, dtype=np.uint8))
         else:
             nodes, edges = np.empty(0, NODE_DTYPE), np.empty(0, EDGE_DTYPE)
-        _check_records(self.service, nodes, edges)
         restarted = self._last_instance not in (0, header.instance_id)
         self._last_instance = header.instance_id
         return GraphView(self.service, sample, header, _read_only(nodes), _read_only(edges), restarted)

@@ -12,7 +12,7 @@ import iceoryx2 as iox2
 
 from . import _iox
 from .errors import SchemaVersionError
-from .wire import DEFAULT_PREFIX, HISTORY_SIZE, SCHEMA_VERSION, Health
+from .wire import HISTORY_SIZE, SCHEMA_VERSION, Health
 
 
 class HealthClient(_iox.LatestClient):
@@ -22,8 +22,8 @@ class HealthClient(_iox.LatestClient):
     daemon next updates its connections (within ~100 ms). ``timeout`` (seconds): how long the
     constructor waits for a daemon that is not up yet."""
 
-    def __init__(self, prefix: str = DEFAULT_PREFIX, timeout: float = 0.0, node_name: Optional[str] = None):
-        self.prefix = prefix
+    def __init__(self, prefix: Optional[str] = None, timeout: float = 0.0, node_name: Optional[str] = None):
+        self.prefix = prefix = _iox.resolve_prefix(prefix)
         self.service = _iox.service_name(prefix, "health")
         deadline = _iox.deadline_after(timeout)
         name = node_name or _iox.default_node_name("health")
@@ -70,9 +70,10 @@ class HealthClient(_iox.LatestClient):
         )
 
 
-def health(prefix: str = DEFAULT_PREFIX, timeout: float = 5.0) -> Health:
+def health(prefix: Optional[str] = None, timeout: float = 5.0) -> Health:
     """The daemon's newest health record, waiting up to ``timeout`` seconds for the daemon and
-    its record (:class:`~op3dsg.errors.NotServingError` when no daemon serves the prefix)."""
+    its record (:class:`~op3dsg.errors.NotServingError` when no daemon serves the prefix).
+    ``prefix`` ``None``: ``$OP3DSG_PREFIX``, else ``op3dsg``."""
     deadline = time.monotonic() + timeout
     with HealthClient(prefix, timeout=timeout) as client:
         return client.wait(max(0.0, deadline - time.monotonic()))

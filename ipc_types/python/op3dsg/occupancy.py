@@ -27,7 +27,7 @@ import numpy as np
 
 from . import _iox
 from .errors import InvalidGraphError, SchemaVersionError
-from .wire import DEFAULT_PREFIX, HISTORY_SIZE, _Wire
+from .wire import HISTORY_SIZE, _Wire
 
 #: Version of :class:`OccupancyHeader` and the cell encoding (``OCCUPANCY_SCHEMA_VERSION``).
 OCCUPANCY_SCHEMA_VERSION = 1
@@ -188,8 +188,8 @@ class OccupancyClient(_iox.LatestClient):
     a daemon with ``occupancy.enabled = false`` has no such service
     (:class:`~op3dsg.errors.NotServingError`)."""
 
-    def __init__(self, prefix: str = DEFAULT_PREFIX, timeout: float = 0.0, node_name: Optional[str] = None):
-        self.prefix = prefix
+    def __init__(self, prefix: Optional[str] = None, timeout: float = 0.0, node_name: Optional[str] = None):
+        self.prefix = prefix = _iox.resolve_prefix(prefix)
         self.service = _iox.service_name(prefix, "occupancy")
         deadline = _iox.deadline_after(timeout)
         name = node_name or _iox.default_node_name("occupancy")

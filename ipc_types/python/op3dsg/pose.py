@@ -23,7 +23,6 @@ from . import _iox
 from .errors import Iceoryx2Error, InvalidPoseError
 from .wire import (
     DEFAULT_POSE_BUFFER,
-    DEFAULT_PREFIX,
     NAME_CAPACITY_BYTES,
     POSE_MAX_PUBLISHERS,
     POSE_MAX_SUBSCRIBERS,
@@ -143,8 +142,8 @@ class PosePublisher:
         poses.publish(stamp_ns, [x, y, 0.0], [0, 0, sin(yaw / 2), cos(yaw / 2)], kind=op3dsg.POSE_WORLD_FROM_BASE)
     """
 
-    def __init__(self, prefix: str = DEFAULT_PREFIX, node_name: Optional[str] = None):
-        self.prefix = prefix
+    def __init__(self, prefix: Optional[str] = None, node_name: Optional[str] = None):
+        self.prefix = prefix = _iox.resolve_prefix(prefix)
         self.service = _iox.service_name(prefix, "pose")
         self._node = _iox.create_node(
             prefix, self.service, node_name or _iox.default_node_name("pose"), make_root=True

@@ -31,7 +31,7 @@ import iceoryx2 as iox2
 
 from . import _iox
 from .errors import Op3dsgError
-from .wire import DEFAULT_PREFIX, LABEL_CAPACITY_BYTES, NO_NODE, NODE_KINDS, _Wire, fixed_str, write_fixed_str
+from .wire import LABEL_CAPACITY_BYTES, NO_NODE, NODE_KINDS, _Wire, fixed_str, write_fixed_str
 
 QUERY_SCHEMA_VERSION = 2
 QUERY_TEXT_CAPACITY_BYTES = 256
@@ -40,6 +40,8 @@ QUERY_MATCHED_TEXT_CAPACITY_BYTES = 96
 QUERY_MESSAGE_CAPACITY_BYTES = 160
 #: Requests one client may have in flight (the service's ``max_active_requests_per_client``).
 QUERY_MAX_ACTIVE_REQUESTS_PER_CLIENT = 4
+#: Clients (planners, ``op3dsg query``) that may hold a ``query`` port at once (``QUERY_MAX_CLIENTS``).
+QUERY_MAX_CLIENTS = 16
 #: ``QueryResponse.status`` values, by wire value.
 QUERY_STATUSES = ("ok", "busy", "encoder_off", "no_graph", "bad_request", "encoder_failed", "shutting_down")
 #: ``QueryHit.matched`` values, by wire value.
@@ -244,11 +246,17 @@ def _approach(h: QueryHit) -> Optional[Approach]:
 
 
 class QueryClient:
-    """A client of ``<prefix>/query``. ``timeout`` (seconds): how long the constructor waits for
-    a daemon that is not up yet."""
+    """A client of ``<prefix>/query``. ``prefix`` ``None``: ``$OP3DSG_PREFIX``, else ``op3dsg``.
+    ``timeout`` (seconds): how long the constructor waits for a daemon that is not up yet.
+    :meth:`close` (or leaving a ``with`` block) gives its client port back to the daemon's
+    service (16 clients at most)::
 
-    def __init__(self, prefix: str = DEFAULT_PREFIX, timeout: float = 0.0, node_name: Optional[str] = None):
-        self.prefix = prefix
+        with op3dsg.QueryClient("op3dsg", timeout=5) as client:
+            hits = client.query("somewhere to wash my hands", k=3)
+    """
+
+    def __init__(self, prefix: Optional[str] = None, timeout: float = 0.0, node_name: Optional[str] = None):
+        self.prefix = prefix = _iox.resolve_prefix(prefix)
         self.service = _iox.service_name(prefix, "query")
         deadline = _iox.deadline_after(timeout)
         name = node_name or _iox.default_node_name("query")
@@ -293,7 +301,31 @@ class QueryClient:
             result = self.query(str(target), 1, timeout)
         return goal_of(self.service, target, result)
 
+    def close(self) -> None:
+        """Gives the client port back and lets go of the client's iceoryx2 node, so the slot
+        is free for another client; the client is unusable afterwards (its calls raise
+        :class:`~op3dsg.errors.Op3dsgError` naming the service). Calling it twice does nothing."""
+        client, self._client = getattr(self, "_client", None), None
+        if client is not None:
+            client.delete()
+        self._node = None
+
+    @property
+    def closed(self) -> bool:
+        return self._client is None
+
+    def __enter__(self) -> "QueryClient":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"QueryClient(prefix={self.prefix!r}{', closed' if self.closed else ''})"
+
     def _send(self, request: QueryRequest, timeout: float) -> QueryResult:
+        if self._client is None:
+            raise Op3dsgError(self.service, "query", "the client is closed (close() or the end of its with block)")
         try:
             pending = self._client.send_copy(request)
         except Exception as e:
@@ -383,16 +415,17 @@ def goal_of(service: str, target, result: QueryResult) -> Goal:
     return Goal(node_id=hit.node_id, kind=hit.kind, label=hit.label, graph_version=result.graph_version, approach=hit.approach)
 
 
-def query(text: str, k: int = 5, prefix: str = DEFAULT_PREFIX, timeout: float = 5.0) -> QueryResult:
-    """One query with a client made for it (waiting up to ``timeout`` for the daemon too)."""
+def query(text: str, k: int = 5, prefix: Optional[str] = None, timeout: float = 5.0) -> QueryResult:
+    """One query with a client made for it and closed after (waiting up to ``timeout`` for the
+    daemon too). ``prefix`` ``None``: ``$OP3DSG_PREFIX``, else ``op3dsg``."""
     started = time.monotonic()
-    client = QueryClient(prefix, timeout=timeout)
-    return client.query(text, k, max(0.1, timeout - (time.monotonic() - started)))
+    with QueryClient(prefix, timeout=timeout) as client:
+        return client.query(text, k, max(0.1, timeout - (time.monotonic() - started)))
 
 
-def goal(target, prefix: str = DEFAULT_PREFIX, timeout: float = 5.0) -> Goal:
-    """The approach pose of ``target`` (node id or need in words) with a client made for it
-    (waiting up to ``timeout`` for the daemon too); see :meth:`QueryClient.goal`."""
+def goal(target, prefix: Optional[str] = None, timeout: float = 5.0) -> Goal:
+    """The approach pose of ``target`` (node id or need in words) with a client made for it and
+    closed after (waiting up to ``timeout`` for the daemon too); see :meth:`QueryClient.goal`."""
     started = time.monotonic()
-    client = QueryClient(prefix, timeout=timeout)
-    return client.goal(target, max(0.1, timeout - (time.monotonic() - started)))
+    with QueryClient(prefix, timeout=timeout) as client:
+        return client.goal(target, max(0.1, timeout - (time.monotonic() - started)))

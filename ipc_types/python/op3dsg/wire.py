@@ -103,6 +103,8 @@ REFINER_REJECTIONS = (
 
 # QoS of the services (``ipc_types/src/services.rs``).
 DEFAULT_PREFIX = "op3dsg"
+#: The environment variable a client takes its prefix from when given none (as ``op3dsg`` does).
+PREFIX_ENV = "OP3DSG_PREFIX"
 MAX_PREFIX_LEN = 128
 HISTORY_SIZE = 1
 SAFE_OVERFLOW = True

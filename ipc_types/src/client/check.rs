@@ -1,7 +1,13 @@
 //! The contract checks of a received graph ([`GraphMessage`]) and [`SnapshotError`], the error
 //! that names the field or entry that breaks it.
+//!
+//! Two halves: [`check_layout`] (the header against the payload's length: schema version,
+//! counts within capacity, length matching the counts; constant time) and the record checks
+//! (every node's kind, every edge's kind and origin; one pass). [`check_message`] runs both, as
+//! the owned [`Graph`](crate::Graph) and the borrowed [`GraphView`](crate::GraphView) do before
+//! reading a sample.
 
-use crate::{EDGE_BYTES, EdgeKind, EdgeOrigin, GraphMessage, NODE_BYTES, NodeKind, SCHEMA_VERSION};
+use crate::{EDGE_BYTES, EdgeKind, EdgeOrigin, GraphHeader, GraphMessage, NODE_BYTES, NodeKind, SCHEMA_VERSION};
 
 /// A graph sample that breaks the wire contract; names the offending field or entry.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -50,6 +56,25 @@ pub enum SnapshotError {
         /// Wire value.
         value: u8,
     },
+    /// A sample given as one byte block is shorter than a [`GraphHeader`].
+    HeaderSize {
+        /// Bytes found.
+        found: usize,
+        /// `size_of::<GraphHeader>()` (112).
+        expected: usize,
+    },
+    /// The header or the records do not start at an address their type's alignment allows, so
+    /// they cannot be read in place.
+    Misaligned {
+        /// `header` or `payload`.
+        field: &'static str,
+        /// The address found.
+        address: usize,
+        /// The alignment needed (8).
+        alignment: usize,
+    },
+    /// The records are read in place only on a little-endian machine (the wire's byte order).
+    ByteOrder,
 }
 
 impl core::fmt::Display for SnapshotError {
@@ -74,6 +99,17 @@ impl core::fmt::Display for SnapshotError {
             Self::UnknownEdgeOrigin { index, value } => {
                 write!(f, "edges[{index}].origin: unknown value {value} (0..=3)")
             }
+            Self::HeaderSize { found, expected } => {
+                write!(f, "header: {found} bytes, but a GraphHeader has {expected}")
+            }
+            Self::Misaligned { field, address, alignment } => write!(
+                f,
+                "{field}: starts at address {address:#x}, not a multiple of {alignment} (its records' alignment), \
+                 so it cannot be read in place"
+            ),
+            Self::ByteOrder => {
+                write!(f, "records: read in place only on a little-endian machine (the wire's byte order)")
+            }
         }
     }
 }
@@ -81,10 +117,18 @@ impl core::fmt::Display for SnapshotError {
 impl std::error::Error for SnapshotError {}
 
 /// Checks a graph sample against the contract: schema version, counts within the stated
-/// capacity, payload length matching the counts, every node's kind and every edge's kind and
-/// origin.
+/// capacity, payload length matching the counts ([`check_layout`]), every node's kind and every
+/// edge's kind and origin.
 pub fn check_message(message: &GraphMessage<'_>) -> Result<(), SnapshotError> {
-    let header = message.header;
+    check_layout(message.header, message.payload.len())?;
+    check_records(message)
+}
+
+/// The constant-time half of [`check_message`]: the header's schema version, its counts within
+/// its capacities, and `payload_len` equal to what the counts need. Once it passes, the node and
+/// edge records lie within the payload; nothing past `payload_len` is ever read. The arithmetic
+/// cannot overflow (64-bit products of 32-bit counts).
+pub fn check_layout(header: &GraphHeader, payload_len: usize) -> Result<(), SnapshotError> {
     if header.schema_version != SCHEMA_VERSION {
         return Err(SnapshotError::SchemaVersion { found: header.schema_version, expected: SCHEMA_VERSION });
     }
@@ -102,22 +146,39 @@ pub fn check_message(message: &GraphMessage<'_>) -> Result<(), SnapshotError> {
             capacity: header.edge_capacity as usize,
         });
     }
-    if message.payload.len() != header.payload_bytes() {
-        return Err(SnapshotError::PayloadSize { found: message.payload.len(), expected: header.payload_bytes() });
+    let needed = u64::from(header.node_count) * NODE_BYTES as u64 + u64::from(header.edge_count) * EDGE_BYTES as u64;
+    if payload_len as u64 != needed {
+        return Err(SnapshotError::PayloadSize {
+            found: payload_len,
+            expected: usize::try_from(needed).unwrap_or(usize::MAX),
+        });
     }
-    for (index, node) in message.node_records().iter().enumerate() {
-        // The kind byte of a node record (offset 8).
-        if NodeKind::from_u8(node[8]).is_none() {
-            return Err(SnapshotError::UnknownNodeKind { index, value: node[8] });
+    Ok(())
+}
+
+/// The record half of [`check_message`], for a message whose layout passed [`check_layout`]:
+/// one pass over the kind bytes (and origin bytes) of the records; the index of the first bad
+/// one only on failure.
+pub(crate) fn check_records(message: &GraphMessage<'_>) -> Result<(), SnapshotError> {
+    // The kind byte of a node record (offset 8); kinds are 0 and 1.
+    let nodes = message.node_records();
+    if nodes.iter().fold(0u8, |bad, node| bad | (node[8] & !1)) != 0 {
+        for (index, node) in nodes.iter().enumerate() {
+            if NodeKind::from_u8(node[8]).is_none() {
+                return Err(SnapshotError::UnknownNodeKind { index, value: node[8] });
+            }
         }
     }
-    for (index, edge) in message.edge_records().iter().enumerate() {
-        // The kind and origin bytes of an edge record (offsets 8 and 9).
-        if EdgeKind::from_u8(edge[8]).is_none() {
-            return Err(SnapshotError::UnknownEdgeKind { index, value: edge[8] });
-        }
-        if EdgeOrigin::from_u8(edge[9]).is_none() {
-            return Err(SnapshotError::UnknownEdgeOrigin { index, value: edge[9] });
+    // The kind and origin bytes of an edge record (offsets 8 and 9); kinds 0 and 1, origins 0..=3.
+    let edges = message.edge_records();
+    if edges.iter().fold(0u8, |bad, edge| bad | (edge[8] & !1) | (edge[9] & !3)) != 0 {
+        for (index, edge) in edges.iter().enumerate() {
+            if EdgeKind::from_u8(edge[8]).is_none() {
+                return Err(SnapshotError::UnknownEdgeKind { index, value: edge[8] });
+            }
+            if EdgeOrigin::from_u8(edge[9]).is_none() {
+                return Err(SnapshotError::UnknownEdgeOrigin { index, value: edge[9] });
+            }
         }
     }
     Ok(())

@@ -12,7 +12,7 @@ use iceoryx2::service::builder::event::EventOpenError;
 use iceoryx2::service::builder::publish_subscribe::{PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError};
 
 use crate::access::{AccessDenied, IPC_ROOT_ENV, IpcRoot};
-use crate::client::SnapshotError;
+use crate::client::{OccupancyError, SnapshotError};
 use crate::services::{PrefixError, ServiceKind};
 use crate::{PoseError, SCHEMA_VERSION};
 
@@ -94,6 +94,8 @@ pub enum ErrorCause {
     Send(SendError),
     /// A received graph sample breaks the contract (another schema version, a bad count or kind).
     InvalidGraph(SnapshotError),
+    /// A received occupancy map breaks the contract (another schema version, a bad size).
+    InvalidOccupancy(OccupancyError),
     /// A received health record has another schema version.
     HealthSchemaVersion {
         /// Version in the sample.
@@ -137,6 +139,7 @@ impl core::fmt::Display for ErrorCause {
             Self::Wait(e) => write!(f, "{e}"),
             Self::Send(e) => write!(f, "{e}"),
             Self::InvalidGraph(e) => write!(f, "invalid sample: {e}"),
+            Self::InvalidOccupancy(e) => write!(f, "invalid map: {e}"),
             Self::HealthSchemaVersion { found, expected } => {
                 write!(f, "invalid sample: schema_version: found {found}, this build reads {expected}")
             }
@@ -228,6 +231,7 @@ impl std::error::Error for ClientError {
             ErrorCause::Wait(e) => Some(e),
             ErrorCause::Send(e) => Some(e),
             ErrorCause::InvalidGraph(e) => Some(e),
+            ErrorCause::InvalidOccupancy(e) => Some(e),
             ErrorCause::InvalidPose(e) => Some(e),
             ErrorCause::InvalidNodeName(e) => Some(e),
             ErrorCause::OpenEvent(e) => Some(e),

@@ -5,20 +5,29 @@ use std::time::{Duration, Instant};
 use iceoryx2::node::Node as IoxNode;
 use iceoryx2::port::listener::{Listener, ListenerWaitError};
 use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::sample::Sample;
 use iceoryx2::service::builder::event::EventOpenError;
 use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
 
-use crate::client::{ClientError, ErrorCause, Graph, Operation, RootUse, create_node, retry_while_not_serving};
+use crate::client::{
+    ClientError, ErrorCause, Graph, GraphView, Operation, RootUse, create_node, retry_while_not_serving,
+};
 use crate::publish::GraphPayload;
 use crate::services::{HISTORY_SIZE, IpcService, ServiceKind, ServiceNames, service_name};
 use crate::{GraphHeader, GraphMessage};
 
-/// Reads the daemon's scene graph: waits for `graph_updated`, then copies the newest sample of
-/// `graph` into an owned [`Graph`] it keeps (and reuses) across calls.
+/// Reads the daemon's scene graph: waits for `graph_updated`, then reads the newest sample of
+/// `graph` in one of two ways:
 ///
-/// A subscriber may borrow only one sample at a time: [`Self::latest`] releases each older queued
-/// sample before taking the next, copies only the newest one's nodes and edges, and returns the
-/// sample to the daemon at once.
+/// - [`Self::with_latest`]: in place, a [`GraphView`] of the sample lent to a closure (no copy;
+///   the sample goes back when the closure returns). For a planner that reads a few nodes of
+///   each new graph.
+/// - [`Self::latest`] / [`Self::latest_if_newer`]: copied into an owned [`Graph`] it keeps (and
+///   reuses) across calls, with lookup indices built on first use. For a planner that keeps the
+///   graph between updates or asks many questions of it.
+///
+/// A subscriber may borrow only one sample at a time: both release each older queued sample
+/// before taking the next, and return the sample to the daemon when done with it.
 ///
 /// A daemon restart shows as a new [`Graph::instance_id`]: [`Self::latest_if_newer`] then returns
 /// the new daemon's graph whatever its version, and [`Self::restarted`] says so.
@@ -38,6 +47,8 @@ pub struct GraphSubscriber {
     returned_instance: u64,
     /// The last returned graph came from another instance than the one before it.
     restarted: bool,
+    /// Instance of the last sample received, by either path (0: none yet).
+    last_instance: u64,
     node: IoxNode<IpcService>,
 }
 
@@ -78,6 +89,7 @@ impl GraphSubscriber {
             received: false,
             returned_instance: 0,
             restarted: false,
+            last_instance: 0,
             node,
         }
     }
@@ -129,19 +141,66 @@ impl GraphSubscriber {
     /// Takes the newest queued sample, if any, into the owned graph; `true` when one was copied.
     /// Older queued samples are released unread.
     pub fn poll(&mut self) -> Result<bool, ClientError> {
+        let Some(sample) = self.receive_newest()? else { return Ok(false) };
+        let message = GraphMessage::new(sample.user_header(), sample.payload());
+        self.graph.copy_from(&message).map_err(|e| self.error(Operation::Receive, ErrorCause::InvalidGraph(e)))?;
+        self.last_instance = self.graph.instance_id();
+        self.received = true;
+        Ok(true)
+    }
+
+    /// Lends the newest graph that arrived since the last receive to `read`, in place: a
+    /// [`GraphView`] of the sample in shared memory, nothing copied. The sample is held only
+    /// while `read` runs and goes back to the daemon when it returns. `Ok(None)` (and `read` not
+    /// called) when no sample arrived since the last [`Self::with_latest`] or [`Self::poll`].
+    ///
+    /// The sample is checked first, in constant time (schema version, counts within capacity,
+    /// payload length, alignment; see [`GraphView::from_message`]): one that breaks the contract
+    /// is an error naming what is wrong, and `read` is not called. The records are not scanned
+    /// ([`GraphView::check_records`] does, as [`Self::latest`] does on every sample). Older
+    /// queued samples are released unread.
+    ///
+    /// While `read` runs the daemon publishes on: this subscriber's buffer takes the next
+    /// samples (dropping its oldest when full) and the held sample is one of the slots the
+    /// daemon reserved for it, so holding a view never stalls the publisher (see
+    /// [`services`](crate::services)). Keep the closure short all the same: what it holds is
+    /// the graph as it was when it was published.
+    ///
+    /// A sample taken here is not copied into the owned graph: [`Self::graph`] and
+    /// [`Self::latest`] keep the graph they held. A planner that wants to keep one calls
+    /// [`GraphView::to_graph`] (or [`Graph::copy_from_view`] into a graph it reuses).
+    ///
+    /// ```no_run
+    /// # use std::time::Duration;
+    /// # let mut graphs = op3dsg_ipc_types::GraphSubscriber::open("op3dsg", "doc-view")?;
+    /// graphs.wait_for_update(Duration::from_millis(500))?;
+    /// let handles = graphs.with_latest(|graph| {
+    ///     graph.find_by_label("cabinet handle").map(|h| (h.id(), h.centre_m())).collect::<Vec<_>>()
+    /// })?;
+    /// # Ok::<(), op3dsg_ipc_types::ClientError>(())
+    /// ```
+    pub fn with_latest<R>(&mut self, read: impl FnOnce(GraphView<'_>) -> R) -> Result<Option<R>, ClientError> {
+        let Some(sample) = self.receive_newest()? else { return Ok(None) };
+        let view = GraphView::from_message(GraphMessage::new(sample.user_header(), sample.payload()))
+            .map_err(|e| self.error(Operation::Receive, ErrorCause::InvalidGraph(e)))?;
+        let instance = view.instance_id();
+        let restarted = self.last_instance != 0 && self.last_instance != instance;
+        self.last_instance = instance;
+        let result = read(view.with_restarted(restarted));
+        drop(sample);
+        Ok(Some(result))
+    }
+
+    /// Receives every queued sample and keeps the newest, releasing each older one before taking
+    /// the next (one borrowed sample at most); `None` when none is queued.
+    fn receive_newest(&self) -> Result<Option<GraphSample>, ClientError> {
         let mut newest = None;
         while self.subscriber.has_samples().map_err(|e| self.error(Operation::Receive, ErrorCause::Connection(e)))? {
             // Release the older sample before borrowing the next (one borrowed sample at most).
             drop(newest.take());
             newest = self.subscriber.receive().map_err(|e| self.error(Operation::Receive, ErrorCause::Receive(e)))?;
         }
-        let Some(sample) = newest else { return Ok(false) };
-        let message = GraphMessage::new(sample.user_header(), sample.payload());
-        self.graph.copy_from(&message).map_err(|e| {
-            ClientError::new(&self.prefix, ServiceKind::Graph, Operation::Receive, ErrorCause::InvalidGraph(e))
-        })?;
-        self.received = true;
-        Ok(true)
+        Ok(newest)
     }
 
     /// The newest graph received so far ([`Self::poll`] first); `None` while the daemon has
@@ -187,6 +246,8 @@ impl GraphSubscriber {
         ClientError::new(&self.prefix, ServiceKind::Graph, operation, cause)
     }
 }
+
+type GraphSample = Sample<IpcService, GraphPayload, GraphHeader>;
 
 type GraphPorts = (Subscriber<IpcService, GraphPayload, GraphHeader>, Listener<IpcService>);
 

@@ -1,10 +1,15 @@
 //! The client side of the op3dsg services, for planners, navigation stacks and tools:
 //!
 //! - [`GraphSubscriber`]: opens `<prefix>/graph` and `<prefix>/graph_updated` (waiting for the
-//!   daemon if it is not up yet), wakes on updates and copies the newest graph into an owned
-//!   [`Graph`] with typed views ([`NodeView`], [`EdgeView`]).
+//!   daemon if it is not up yet), wakes on updates and lends the newest sample as a
+//!   [`GraphView`] or copies it into an owned [`Graph`] with typed views ([`NodeView`],
+//!   [`EdgeView`]).
+//! - [`GraphView`]: one graph sample read in place, lent by [`GraphSubscriber::with_latest`]
+//!   (no copy; [`NodeRef`], [`EdgeRef`]).
 //! - [`HealthSubscriber`]: reads `<prefix>/health` alone, so it works even when every graph
 //!   subscriber slot is taken.
+//! - [`OccupancySubscriber`]: reads the occupancy map (`<prefix>/occupancy`) into an
+//!   [`OccupancyMap`].
 //! - [`PosePublisher`]: sends checked camera or base poses on `<prefix>/pose`.
 //!
 //! Every port uses the QoS of [`crate::services`]; clients never create the daemon's services.
@@ -13,17 +18,22 @@
 //! returns `Ok(false)`). Opening first removes the shared-memory leftovers of dead processes, so a
 //! client never waits on a daemon that was killed.
 
+mod accessors;
 mod check;
 mod error;
 mod follower;
 mod graph;
 mod health;
+mod occupancy;
 mod pose;
 mod query;
 #[cfg(feature = "zenoh")]
 mod remote;
 #[cfg(feature = "zenoh")]
 mod remote_request;
+mod sample_view;
+#[cfg(test)]
+mod test_graphs;
 mod view;
 
 use std::time::{Duration, Instant};
@@ -32,17 +42,19 @@ use iceoryx2::config::Config;
 use iceoryx2::node::Node as IoxNode;
 use iceoryx2::prelude::{NodeBuilder, NodeName, SignalHandlingMode};
 
-pub use check::{SnapshotError, check_message};
+pub use check::{SnapshotError, check_layout, check_message};
 pub use error::{ClientError, ErrorCause, Operation};
 pub use follower::{Applied, RemoteFollower};
 pub use graph::GraphSubscriber;
 pub use health::HealthSubscriber;
+pub use occupancy::{OccupancyError, OccupancyMap, OccupancySubscriber, check_occupancy};
 pub use pose::{Pose, PosePublisher, PoseService, open_or_create_pose_service};
 pub use query::{QueryClient, QueryClientError};
 #[cfg(feature = "zenoh")]
 pub use remote::{RemoteClientError, RemoteGraphSubscriber};
 #[cfg(feature = "zenoh")]
 pub use remote_request::RemoteRequester;
+pub use sample_view::{EdgeRef, GraphView, NodeRef};
 pub use view::{EdgeView, Graph, NodeView, UnknownAffordance};
 
 use crate::access::{IpcRoot, RootError};
@@ -127,6 +139,7 @@ mod tests {
     fn clients_can_move_to_another_thread() {
         fn assert_send<T: Send>() {}
         assert_send::<GraphSubscriber>();
+        assert_send::<OccupancySubscriber>();
         assert_send::<HealthSubscriber>();
         assert_send::<PosePublisher>();
         assert_send::<Graph>();

@@ -6,11 +6,9 @@ use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 use std::sync::{Mutex, OnceLock, PoisonError};
 
-use crate::client::{SnapshotError, check_message};
-use crate::{
-    AFFORDANCES, Edge, EdgeKind, EdgeOrigin, GraphHeader, GraphMessage, NO_NODE, Node, NodeKind, affordance_bits,
-    affordance_names, relation_phrase,
-};
+use crate::client::accessors::{contains_ignore_ascii_case, edge_record_accessors, node_record_accessors};
+use crate::client::{GraphView, SnapshotError, check_message};
+use crate::{AFFORDANCES, Edge, GraphHeader, GraphMessage, NO_NODE, Node, NodeKind, affordance_bits};
 
 /// A hasher for node ids (u32): one multiply, as rustc's FxHash does. Ids come from the daemon,
 /// not from an adversary, so no DoS-resistant hashing is needed on this per-graph path.
@@ -201,6 +199,18 @@ impl Adjacency {
     }
 }
 
+impl TryFrom<&GraphView<'_>> for Graph {
+    type Error = SnapshotError;
+
+    /// An owned copy of the sample the view reads, its records checked ([`GraphView::to_graph`]).
+    fn try_from(view: &GraphView<'_>) -> Result<Self, SnapshotError> {
+        let mut graph = Self::new();
+        graph.copy_from_view(view)?;
+        graph.restarted = view.restarted();
+        Ok(graph)
+    }
+}
+
 impl core::fmt::Debug for Graph {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.debug_struct("Graph")
@@ -237,6 +247,26 @@ impl Graph {
         self.restarted = previous_instance != 0 && previous_instance != self.header.instance_id;
         message.copy_nodes_into(&mut self.nodes);
         message.copy_edges_into(&mut self.edges);
+        if let Some(old) = self.indices.take() {
+            *self.spare.get_mut().unwrap_or_else(PoisonError::into_inner) = old;
+        }
+        Ok(())
+    }
+
+    /// Replaces this graph with a copy of `view`'s nodes and edges, reusing the buffers: one
+    /// block copy each for nodes and edges. For a planner that reads samples through
+    /// [`GraphSubscriber::with_latest`](crate::GraphSubscriber::with_latest) and keeps some of
+    /// them. The records are checked first ([`GraphView::check_records`]); on error the graph is
+    /// left as it was.
+    pub fn copy_from_view(&mut self, view: &GraphView<'_>) -> Result<(), SnapshotError> {
+        view.check_records()?;
+        let previous_instance = self.header.instance_id;
+        self.header = *view.header();
+        self.restarted = previous_instance != 0 && previous_instance != self.header.instance_id;
+        self.nodes.clear();
+        self.nodes.extend_from_slice(view.wire_nodes());
+        self.edges.clear();
+        self.edges.extend_from_slice(view.wire_edges());
         if let Some(old) = self.indices.take() {
             *self.spare.get_mut().unwrap_or_else(PoisonError::into_inner) = old;
         }
@@ -403,11 +433,6 @@ impl Graph {
     }
 }
 
-fn contains_ignore_ascii_case(haystack: &str, needle: &str) -> bool {
-    let (haystack, needle) = (haystack.as_bytes(), needle.as_bytes());
-    needle.is_empty() || haystack.windows(needle.len()).any(|w| w.eq_ignore_ascii_case(needle))
-}
-
 /// One node of a [`Graph`], with typed accessors.
 #[derive(Clone, Copy)]
 pub struct NodeView<'a> {
@@ -432,121 +457,7 @@ impl<'a> NodeView<'a> {
         &self.graph.nodes[self.index as usize]
     }
 
-    /// Stable node id.
-    pub fn id(&self) -> u32 {
-        self.wire().id
-    }
-
-    /// Object or part.
-    pub fn kind(&self) -> NodeKind {
-        // Checked when the graph was copied (check_message).
-        NodeKind::from_u8(self.wire().kind).unwrap_or_default()
-    }
-
-    /// `true` for an object node.
-    pub fn is_object(&self) -> bool {
-        self.kind() == NodeKind::Object
-    }
-
-    /// `true` for a part node.
-    pub fn is_part(&self) -> bool {
-        self.kind() == NodeKind::Part
-    }
-
-    /// The voted label.
-    pub fn label(&self) -> &'a str {
-        self.wire().label_str()
-    }
-
-    /// Confidence in [0, 1].
-    pub fn confidence(&self) -> f32 {
-        self.wire().confidence
-    }
-
-    /// Centre of the node's points, world frame, metres.
-    pub fn centre_m(&self) -> [f32; 3] {
-        self.wire().centre_m
-    }
-
-    /// Minimum corner of the axis-aligned box, world frame, metres.
-    pub fn box_min_m(&self) -> [f32; 3] {
-        self.wire().box_min_m
-    }
-
-    /// Maximum corner of the axis-aligned box, world frame, metres.
-    pub fn box_max_m(&self) -> [f32; 3] {
-        self.wire().box_max_m
-    }
-
-    /// Extent of the axis-aligned box along each world axis, metres.
-    pub fn size_m(&self) -> [f32; 3] {
-        let (min, max) = (self.box_min_m(), self.box_max_m());
-        [max[0] - min[0], max[1] - min[1], max[2] - min[2]]
-    }
-
-    /// The gravity-aligned oriented box: its centre (world frame, metres), its size along its
-    /// first, second and up axes (metres) and its yaw about the world's up axis (radians in
-    /// `(-pi/2, pi/2]`); [`Node`]'s docs define the axes.
-    pub fn oriented_box(&self) -> ([f32; 3], [f32; 3], f32) {
-        let n = self.wire();
-        (n.obb_centre_m, n.obb_size_m, n.obb_yaw_rad)
-    }
-
-    /// The oriented box's four bottom corners, counter-clockwise seen from above, for a world
-    /// with +z up (a robot's map frame): the node's footprint on the floor, world frame, metres.
-    pub fn footprint_z_up_m(&self) -> [[f32; 2]; 4] {
-        let ([cx, cy, _], [sx, sy, _], yaw) = self.oriented_box();
-        let (sin, cos) = yaw.sin_cos();
-        let corner = |a: f32, b: f32| {
-            let (u, v) = (a * sx * 0.5, b * sy * 0.5);
-            [cx + cos * u - sin * v, cy + sin * u + cos * v]
-        };
-        [corner(-1.0, -1.0), corner(1.0, -1.0), corner(1.0, 1.0), corner(-1.0, 1.0)]
-    }
-
-    /// Keyframe detections fused into this node.
-    pub fn observation_count(&self) -> u32 {
-        self.wire().observation_count
-    }
-
-    /// Stamp of the last keyframe that observed this node, nanoseconds.
-    pub fn last_seen_stamp_ns(&self) -> u64 {
-        self.wire().last_seen_stamp_ns
-    }
-
-    /// Bit set over [`AFFORDANCES`].
-    pub fn affordance_bits(&self) -> u16 {
-        self.wire().affordance_bits
-    }
-
-    /// Names of the node's affordances, in canonical order.
-    pub fn affordances(&self) -> impl Iterator<Item = &'static str> + use<> {
-        affordance_names(self.affordance_bits())
-    }
-
-    /// Each of the node's affordances with its origin (knowledge, llm, knowledge+llm; geometry
-    /// for one the publisher gave no origin), in canonical order.
-    pub fn affordance_origins(&self) -> impl Iterator<Item = (&'static str, EdgeOrigin)> + use<> {
-        let n = self.wire();
-        crate::affordance_origins(n.affordance_bits, n.affordance_knowledge_bits, n.affordance_llm_bits)
-    }
-
-    /// Where the node's affordance `name` came from; `None` when the node does not afford it
-    /// (or `name` is outside [`AFFORDANCES`]).
-    pub fn affordance_origin(&self, name: &str) -> Option<EdgeOrigin> {
-        self.wire().affordance_origin(AFFORDANCES.iter().position(|a| *a == name)?)
-    }
-
-    /// `true` when the node affords `name` (`false` for names outside [`AFFORDANCES`]).
-    pub fn has_affordance(&self, name: &str) -> bool {
-        affordance_bits([name]).is_ok_and(|bits| self.affordance_bits() & bits == bits)
-    }
-
-    /// Id of the parent object of a part (`None` for objects and unattached parts).
-    pub fn parent_id(&self) -> Option<u32> {
-        let id = self.wire().parent_id;
-        (id != NO_NODE).then_some(id)
-    }
+    node_record_accessors!('a);
 
     /// The parent object of a part, when it is in this graph.
     pub fn parent(&self) -> Option<NodeView<'a>> {
@@ -597,16 +508,6 @@ impl<'a> EdgeView<'a> {
         &self.graph.edges[self.index as usize]
     }
 
-    /// Source node id.
-    pub fn source_id(&self) -> u32 {
-        self.wire().source_id
-    }
-
-    /// Target node id.
-    pub fn target_id(&self) -> u32 {
-        self.wire().target_id
-    }
-
     /// The source node, when it is in this graph.
     pub fn source(&self) -> Option<NodeView<'a>> {
         let index = self.graph.indices().source_index[self.index as usize];
@@ -619,33 +520,7 @@ impl<'a> EdgeView<'a> {
         (index != NO_INDEX).then_some(NodeView { graph: self.graph, index })
     }
 
-    /// Spatial or functional.
-    pub fn kind(&self) -> EdgeKind {
-        // Checked when the graph was copied (check_message).
-        EdgeKind::from_u8(self.wire().kind).unwrap_or_default()
-    }
-
-    /// Where the edge came from.
-    pub fn origin(&self) -> EdgeOrigin {
-        // Checked when the graph was copied (check_message).
-        EdgeOrigin::from_u8(self.wire().origin).unwrap_or_default()
-    }
-
-    /// Canonical relation id (see [`relation_phrase`](crate::relation_phrase)).
-    pub fn relation_id(&self) -> u16 {
-        self.wire().relation_id
-    }
-
-    /// The relation phrase ("part of", "pull to open or close", ...): the canonical phrase of
-    /// the relation id, or the phrase written in the sample for an id this build does not know.
-    pub fn phrase(&self) -> &'a str {
-        relation_phrase(self.relation_id()).unwrap_or_else(|| self.wire().phrase_str())
-    }
-
-    /// Confidence in [0, 1].
-    pub fn confidence(&self) -> f32 {
-        self.wire().confidence
-    }
+    edge_record_accessors!('a);
 }
 
 #[cfg(test)]

@@ -86,7 +86,9 @@ impl SourceKind {
 /// live camera, a replay or the synthetic rooms ([`SourceKind`]). Both are fixed for one daemon
 /// instance.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, PlacementDefault)]
+#[derive(
+    Debug, Clone, Copy, Default, PartialEq, Eq, ZeroCopySend, PlacementDefault, bytemuck::Pod, bytemuck::Zeroable,
+)]
 #[type_name("op3dsg::GraphHeader")]
 pub struct GraphHeader {
     /// [`SCHEMA_VERSION`](crate::SCHEMA_VERSION) of the publisher.

@@ -2,7 +2,7 @@
 //! of the same size, for `op3dsg bench perf`.
 //!
 //! This process publishes; a child process of the same binary (`op3dsg --prefix P bench
-//! ipc-peer --pairs N`, see [`ipc_peer`]) subscribes. Services, under a private prefix:
+//! ipc-peer --rounds N`, see [`ipc_peer`]) subscribes. Services, under a private prefix:
 //!
 //! | service | what |
 //! |---|---|
@@ -10,17 +10,22 @@
 //! | `P/bench/raw`, `P/bench/raw_updated` | a `[u8]` publish-subscribe service and its event |
 //! | `P/bench/ack` | event: the child took a message (or is ready) |
 //!
-//! Per graph size, messages alternate graph, raw, graph, raw, ...; the publisher sends the next
-//! one only after the child's acknowledgement, so no message waits behind another. The child waits
-//! on an iceoryx2 event listener for both kinds (as a planner waits on `graph_updated`).
+//! Per graph size, messages go round graph (owned read), raw, graph (view read), graph, raw,
+//! graph, ...; the publisher sends the next one only after the child's acknowledgement, so no
+//! message waits behind another. The child waits on an iceoryx2 event listener for every kind
+//! (as a planner waits on `graph_updated`).
 //!
-//! - **graph**: `t0` just before [`GraphServer::publish_graph`] (choose the records, loan a
-//!   zero-filled sample of exactly their size, write header, nodes and edges in place, send,
+//! - **graph** (owned): `t0` just before [`GraphServer::publish_graph`] (choose the records, loan
+//!   a zero-filled sample of exactly their size, write header, nodes and edges in place, send,
 //!   notify); `t1` when the planner client
 //!   library's [`GraphSubscriber::latest_if_newer`] returned the owned [`Graph`] in the child
 //!   (newest sample received, checked, its nodes and edges copied out). The lookup indices are
 //!   built on the first lookup; the child times one right after `t1` and reports it apart
 //!   (`graph_index_build`), since a planner that only scans the nodes never pays it.
+//! - **view**: the same publish; `t1` inside the closure of [`GraphSubscriber::with_latest`] once
+//!   the first node's id and label were read through the [`GraphView`] (newest sample received,
+//!   its header checked against its length, its records cast in place; nothing copied or
+//!   scanned).
 //! - **raw**: `t0` just before loaning a byte slice of the graph sample's size (header + nodes +
 //!   edges); copy a prepared buffer in, send, notify; `t1` after the child received the sample
 //!   and copied the bytes out.
@@ -37,23 +42,20 @@ use anyhow::{Context as _, anyhow, bail};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
-use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections as _;
 use iceoryx2::prelude::Node;
+use op3dsg_ipc_types::{EdgeKind, EdgeOrigin, GraphHeader, MAX_EDGES, MAX_NODES, NodeKind, graph_payload_bytes};
 #[cfg(doc)]
-use op3dsg_ipc_types::Graph;
-use op3dsg_ipc_types::{
-    EdgeKind, EdgeOrigin, GraphHeader, GraphSubscriber, IpcRoot, MAX_EDGES, MAX_NODES, NodeKind, graph_payload_bytes,
-};
+use op3dsg_ipc_types::{Graph, GraphSubscriber, GraphView};
 use serde::{Deserialize, Serialize};
 
-use super::{Percentiles, PerfOptions};
+use super::{Percentiles, PerfOptions, Receipts};
 use op3dsg_runtime::graph::{GraphEdge, GraphNode, SceneGraph};
 use op3dsg_runtime::ipc::{GraphServer, IpcConfig, IpcService, create_node, service_name};
 use op3dsg_runtime::world::clock::wall_clock_ns;
 
 /// How long either side waits for the other before giving up.
-const PEER_TIMEOUT: Duration = Duration::from_secs(20);
+pub(super) const PEER_TIMEOUT: Duration = Duration::from_secs(20);
 
 /// One graph size of the IPC measurement.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -83,6 +85,23 @@ pub struct IpcRow {
     pub ratio_p50: f64,
     /// `graph.p99_ms / raw.p99_ms`.
     pub ratio_p99: f64,
+    /// Graph publish → the first node read through the zero-copy `GraphView` of
+    /// `GraphSubscriber::with_latest` in the other process.
+    #[serde(default)]
+    pub view: Percentiles,
+    /// The publisher's share of `view`: the `publish_graph` call alone.
+    #[serde(default)]
+    pub view_publish_call: Percentiles,
+    /// The subscriber's share of `view`: from the `with_latest` call to the first node read
+    /// (receive, check, cast, read).
+    #[serde(default)]
+    pub view_read_call: Percentiles,
+    /// `view.p50_ms / raw.p50_ms`.
+    #[serde(default)]
+    pub view_ratio_p50: f64,
+    /// `view.p99_ms / raw.p99_ms`.
+    #[serde(default)]
+    pub view_ratio_p99: f64,
 }
 
 /// The IPC section of the report.
@@ -161,36 +180,20 @@ pub fn filled_bytes(graph: &SceneGraph) -> usize {
     size_of::<GraphHeader>() + graph_payload_bytes(graph.nodes.len().min(MAX_NODES), graph.edges.len().min(MAX_EDGES))
 }
 
-struct BenchServices {
-    raw_name: String,
-    raw_updated_name: String,
-    ack_name: String,
+pub(super) struct BenchServices {
+    pub(super) raw_name: String,
+    pub(super) raw_updated_name: String,
+    pub(super) ack_name: String,
 }
 
 impl BenchServices {
-    fn new(prefix: &str) -> Self {
+    pub(super) fn new(prefix: &str) -> Self {
         Self {
             raw_name: format!("{prefix}/bench/raw"),
             raw_updated_name: format!("{prefix}/bench/raw_updated"),
             ack_name: format!("{prefix}/bench/ack"),
         }
     }
-}
-
-/// What the child received: per kind, `(message id, receive wall clock ns)`.
-#[derive(Debug, Default, Serialize, Deserialize)]
-pub struct Receipts {
-    /// Graph messages (id = graph version).
-    pub graph: Vec<(u64, u64)>,
-    /// Per graph message, nanoseconds spent in the successful `GraphSubscriber::latest_if_newer`
-    /// call.
-    pub graph_read_ns: Vec<u64>,
-    /// Per graph message, nanoseconds of the first id lookup after the read (the index build),
-    /// taken after the receive stamp.
-    #[serde(default)]
-    pub graph_index_ns: Vec<u64>,
-    /// Raw messages (id = the first 8 bytes, little endian).
-    pub raw: Vec<(u64, u64)>,
 }
 
 struct BenchPublisher {
@@ -267,10 +270,34 @@ impl BenchPublisher {
         Ok(())
     }
 
-    /// Sends, per size of `graphs`, `options.ipc_warmup + options.ipc_messages` pairs of a graph
-    /// and a raw sample of the graph's size (the first 8 bytes of `payload` its id), each after
-    /// `child`'s acknowledgement of the one before.
-    fn send_pairs(
+    /// Publishes `graph` as version `id`, records its send time under `kind` and waits for
+    /// `child`'s acknowledgement.
+    fn send_graph(
+        &mut self,
+        child: &mut Child,
+        graph: &mut SceneGraph,
+        id: u64,
+        at: (usize, bool),
+        kind: &mut SentKind,
+    ) -> anyhow::Result<()> {
+        let (size_index, timed) = at;
+        graph.version = id;
+        let t0 = wall_clock_ns();
+        let call = Instant::now();
+        self.server.publish_graph(graph).context("publishing a graph")?;
+        let call_ms = call.elapsed().as_secs_f64() * 1e3;
+        kind.at.insert(id, (size_index, t0, timed));
+        if timed {
+            kind.calls_ms[size_index].push(call_ms);
+        }
+        self.wait_ack(child, "a graph")
+    }
+
+    /// Sends, per size of `graphs`, `options.ipc_warmup + options.ipc_messages` rounds of a
+    /// graph (read into an owned graph), a raw sample of the graph's size (the first 8 bytes of
+    /// `payload` its id) and a graph (read through the view), each after `child`'s
+    /// acknowledgement of the one before.
+    fn send_rounds(
         &mut self,
         child: &mut Child,
         graphs: &[SceneGraph],
@@ -278,28 +305,18 @@ impl BenchPublisher {
         payload: &mut [u8],
     ) -> anyhow::Result<Sent> {
         let mut sent = Sent {
-            graph: HashMap::new(),
-            raw: HashMap::new(),
-            graph_calls_ms: vec![Vec::new(); graphs.len()],
-            raw_calls_ms: vec![Vec::new(); graphs.len()],
+            graph: SentKind::new(graphs.len()),
+            raw: SentKind::new(graphs.len()),
+            view: SentKind::new(graphs.len()),
         };
         let mut id = 0u64;
         for (size_index, graph) in graphs.iter().enumerate() {
             let mut graph = graph.clone();
             let bytes = filled_bytes(&graph);
             for k in 0..options.ipc_warmup + options.ipc_messages {
-                let timed = k >= options.ipc_warmup;
+                let at = (size_index, k >= options.ipc_warmup);
                 id += 1;
-                graph.version = id;
-                let t0 = wall_clock_ns();
-                let call = Instant::now();
-                self.server.publish_graph(&graph).context("publishing a graph")?;
-                let call_ms = call.elapsed().as_secs_f64() * 1e3;
-                sent.graph.insert(id, (size_index, t0, timed));
-                if timed {
-                    sent.graph_calls_ms[size_index].push(call_ms);
-                }
-                self.wait_ack(child, "a graph")?;
+                self.send_graph(child, &mut graph, id, at, &mut sent.graph)?;
 
                 id += 1;
                 payload[..8].copy_from_slice(&id.to_le_bytes());
@@ -307,11 +324,14 @@ impl BenchPublisher {
                 let call = Instant::now();
                 self.send_raw(&payload[..bytes])?;
                 let call_ms = call.elapsed().as_secs_f64() * 1e3;
-                sent.raw.insert(id, (size_index, t0, timed));
-                if timed {
-                    sent.raw_calls_ms[size_index].push(call_ms);
+                sent.raw.at.insert(id, (size_index, t0, at.1));
+                if at.1 {
+                    sent.raw.calls_ms[size_index].push(call_ms);
                 }
                 self.wait_ack(child, "a raw sample")?;
+
+                id += 1;
+                self.send_graph(child, &mut graph, id, at, &mut sent.view)?;
             }
         }
         Ok(sent)
@@ -322,22 +342,35 @@ impl BenchPublisher {
 /// timed (not warm-up).
 type SentAt = HashMap<u64, (usize, u64, bool)>;
 
-/// What [`BenchPublisher::send_pairs`] sent, and its publish calls' durations per size.
+/// What [`BenchPublisher::send_rounds`] sent of one kind, and its publish calls' durations per
+/// size.
+struct SentKind {
+    at: SentAt,
+    calls_ms: Vec<Vec<f64>>,
+}
+
+impl SentKind {
+    fn new(sizes: usize) -> Self {
+        Self { at: HashMap::new(), calls_ms: vec![Vec::new(); sizes] }
+    }
+}
+
+/// What [`BenchPublisher::send_rounds`] sent: graphs read into an owned graph, raw samples,
+/// graphs read through the view.
 struct Sent {
-    graph: SentAt,
-    raw: SentAt,
-    graph_calls_ms: Vec<Vec<f64>>,
-    raw_calls_ms: Vec<Vec<f64>>,
+    graph: SentKind,
+    raw: SentKind,
+    view: SentKind,
 }
 
 /// Kills the child on every early return.
 struct ChildGuard(Option<Child>);
 
 impl ChildGuard {
-    /// Starts the subscriber process (`op3dsg --prefix PREFIX bench ipc-peer --pairs N`).
-    fn spawn_peer(options: &PerfOptions, prefix: &str, pairs: usize) -> anyhow::Result<Self> {
+    /// Starts the subscriber process (`op3dsg --prefix PREFIX bench ipc-peer --rounds N`).
+    fn spawn_peer(options: &PerfOptions, prefix: &str, rounds: usize) -> anyhow::Result<Self> {
         let child = Command::new(&options.peer_exe)
-            .args(["--prefix", prefix, "bench", "ipc-peer", "--pairs", &pairs.to_string()])
+            .args(["--prefix", prefix, "bench", "ipc-peer", "--rounds", &rounds.to_string()])
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
@@ -377,9 +410,9 @@ pub fn ipc_latency(options: &PerfOptions) -> anyhow::Result<IpcLatency> {
     let max_bytes = graphs.iter().map(filled_bytes).max().unwrap_or(8).max(8);
     let mut publisher = BenchPublisher::open(&prefix, max_bytes)?;
     let per_size = options.ipc_warmup + options.ipc_messages;
-    let pairs = per_size * graphs.len();
+    let rounds = per_size * graphs.len();
 
-    let mut guard = ChildGuard::spawn_peer(options, &prefix, pairs)?;
+    let mut guard = ChildGuard::spawn_peer(options, &prefix, rounds)?;
     let child = guard.0.as_mut().ok_or_else(|| anyhow!("subscriber process missing"))?;
     publisher.wait_ack(child, "start-up")?;
     publisher.server.update_connections()?;
@@ -389,10 +422,10 @@ pub fn ipc_latency(options: &PerfOptions) -> anyhow::Result<IpcLatency> {
     for (i, b) in payload.iter_mut().enumerate() {
         *b = (i % 251) as u8;
     }
-    let mut sent = publisher.send_pairs(child, &graphs, options, &mut payload)?;
+    let mut sent = publisher.send_rounds(child, &graphs, options, &mut payload)?;
     let receipts = guard.receipts()?;
     Ok(IpcLatency {
-        wait: "iceoryx2 event listener (timed_wait), both kinds".to_owned(),
+        wait: "iceoryx2 event listener (timed_wait), every kind".to_owned(),
         messages: options.ipc_messages,
         warmup: options.ipc_warmup,
         max_sample_bytes: size_of::<GraphHeader>() + IpcConfig::default().graph_capacity().max_payload_bytes(),
@@ -415,6 +448,18 @@ fn latencies(sent: &SentAt, received: &[(u64, u64)], sizes: usize, what: &str) -
     Ok(per_size)
 }
 
+/// Per size, the timed values of `values` (one per received message of `received`, in order),
+/// milliseconds; messages not timed are left out.
+fn per_size(sent: &SentAt, received: &[(u64, u64)], values: &[u64], sizes: usize) -> Vec<Vec<f64>> {
+    let mut out: Vec<Vec<f64>> = vec![Vec::new(); sizes];
+    for (&(id, _), &ns) in received.iter().zip(values) {
+        if let Some(&(size, _, true)) = sent.get(&id) {
+            out[size].push(ns as f64 / 1e6);
+        }
+    }
+    out
+}
+
 /// One row per size of `graphs` from what was sent and what the subscriber received; every
 /// size must have `messages` timed messages of each kind.
 fn ipc_rows(
@@ -423,136 +468,48 @@ fn ipc_rows(
     receipts: &Receipts,
     messages: usize,
 ) -> anyhow::Result<Vec<IpcRow>> {
-    let mut graph_ms = latencies(&sent.graph, &receipts.graph, graphs.len(), "graph")?;
-    let mut read_ms: Vec<Vec<f64>> = vec![Vec::new(); graphs.len()];
-    let mut index_ms: Vec<Vec<f64>> = vec![Vec::new(); graphs.len()];
-    for ((&(id, _), &read_ns), &index_ns) in
-        receipts.graph.iter().zip(&receipts.graph_read_ns).zip(&receipts.graph_index_ns)
-    {
-        if let Some(&(size, _, true)) = sent.graph.get(&id) {
-            read_ms[size].push(read_ns as f64 / 1e6);
-            index_ms[size].push(index_ns as f64 / 1e6);
-        }
-    }
-    let mut raw_ms = latencies(&sent.raw, &receipts.raw, graphs.len(), "raw sample")?;
+    let sizes = graphs.len();
+    let mut graph_ms = latencies(&sent.graph.at, &receipts.graph, sizes, "graph")?;
+    let mut read_ms = per_size(&sent.graph.at, &receipts.graph, &receipts.graph_read_ns, sizes);
+    let mut index_ms = per_size(&sent.graph.at, &receipts.graph, &receipts.graph_index_ns, sizes);
+    let mut view_ms = latencies(&sent.view.at, &receipts.view, sizes, "graph read through the view")?;
+    let mut view_read_ms = per_size(&sent.view.at, &receipts.view, &receipts.view_read_ns, sizes);
+    let mut raw_ms = latencies(&sent.raw.at, &receipts.raw, sizes, "raw sample")?;
     let mut rows = Vec::new();
     for (i, graph) in graphs.iter().enumerate() {
-        if graph_ms[i].len() != messages || raw_ms[i].len() != messages {
+        if graph_ms[i].len() != messages || raw_ms[i].len() != messages || view_ms[i].len() != messages {
             bail!(
-                "graphs of {} nodes: {} graphs and {} raw samples received of {} sent each",
+                "graphs of {} nodes: {} graphs, {} raw samples and {} views received of {} sent each",
                 graph.nodes.len(),
                 graph_ms[i].len(),
                 raw_ms[i].len(),
+                view_ms[i].len(),
                 messages
             );
         }
         let g = Percentiles::from_samples_ms(&mut graph_ms[i]);
         let r = Percentiles::from_samples_ms(&mut raw_ms[i]);
+        let v = Percentiles::from_samples_ms(&mut view_ms[i]);
         rows.push(IpcRow {
             nodes: graph.nodes.len(),
             edges: graph.edges.len(),
             bytes: filled_bytes(graph),
             ratio_p50: g.p50_ms / r.p50_ms.max(1e-9),
             ratio_p99: g.p99_ms / r.p99_ms.max(1e-9),
+            view_ratio_p50: v.p50_ms / r.p50_ms.max(1e-9),
+            view_ratio_p99: v.p99_ms / r.p99_ms.max(1e-9),
             graph: g,
             raw: r,
-            graph_publish_call: Percentiles::from_samples_ms(&mut sent.graph_calls_ms[i]),
-            raw_publish_call: Percentiles::from_samples_ms(&mut sent.raw_calls_ms[i]),
+            view: v,
+            graph_publish_call: Percentiles::from_samples_ms(&mut sent.graph.calls_ms[i]),
+            raw_publish_call: Percentiles::from_samples_ms(&mut sent.raw.calls_ms[i]),
+            view_publish_call: Percentiles::from_samples_ms(&mut sent.view.calls_ms[i]),
             graph_read_call: Percentiles::from_samples_ms(&mut read_ms[i]),
             graph_index_build: Percentiles::from_samples_ms(&mut index_ms[i]),
+            view_read_call: Percentiles::from_samples_ms(&mut view_read_ms[i]),
         });
     }
     Ok(rows)
-}
-
-/// The subscriber process: opens the services under `prefix`, acknowledges start-up, then takes
-/// `pairs` graph + raw message pairs in turn, acknowledging each, and returns the receipts (the
-/// CLI prints them as JSON on standard output).
-pub fn ipc_peer(prefix: &str, pairs: usize) -> anyhow::Result<Receipts> {
-    let mut graphs = GraphSubscriber::open_wait(prefix, "op3dsg-bench-subscriber", PEER_TIMEOUT)
-        .context("opening the graph services")?;
-    let names = BenchServices::new(prefix);
-    let node = create_node(&IpcRoot::resolve(), "op3dsg-bench-subscriber-raw")?;
-    let raw: Subscriber<IpcService, [u8], ()> = node
-        .service_builder(&service_name(prefix, &names.raw_name)?)
-        .publish_subscribe::<[u8]>()
-        .open()
-        .map_err(|e| anyhow!("open service {}: {e:?}", names.raw_name))?
-        .subscriber_builder()
-        .create()
-        .map_err(|e| anyhow!("create subscriber on {}: {e:?}", names.raw_name))?;
-    let raw_updated = node
-        .service_builder(&service_name(prefix, &names.raw_updated_name)?)
-        .event()
-        .open()
-        .map_err(|e| anyhow!("open service {}: {e:?}", names.raw_updated_name))?
-        .listener_builder()
-        .create()
-        .map_err(|e| anyhow!("create listener on {}: {e:?}", names.raw_updated_name))?;
-    let ack = node
-        .service_builder(&service_name(prefix, &names.ack_name)?)
-        .event()
-        .open()
-        .map_err(|e| anyhow!("open service {}: {e:?}", names.ack_name))?
-        .notifier_builder()
-        .create()
-        .map_err(|e| anyhow!("create notifier on {}: {e:?}", names.ack_name))?;
-    let acknowledge = || ack.notify().map(|_| ()).map_err(|e| anyhow!("notify {}: {e:?}", names.ack_name));
-    acknowledge()?;
-
-    let mut receipts = Receipts {
-        graph: Vec::with_capacity(pairs),
-        graph_read_ns: Vec::with_capacity(pairs),
-        graph_index_ns: Vec::with_capacity(pairs),
-        raw: Vec::with_capacity(pairs),
-    };
-    let mut copy: Vec<u8> = Vec::new();
-    let mut last_version = 0;
-    for _ in 0..pairs {
-        let deadline = Instant::now() + PEER_TIMEOUT;
-        let version = loop {
-            if graphs.wait_for_update(Duration::from_millis(100)).context("waiting for a graph")? {
-                let read = Instant::now();
-                if let Some(graph) = graphs.latest_if_newer(last_version).context("reading a graph")? {
-                    receipts.graph_read_ns.push(read.elapsed().as_nanos() as u64);
-                    break graph.version();
-                }
-            }
-            if Instant::now() >= deadline {
-                bail!("no graph within {} s", PEER_TIMEOUT.as_secs());
-            }
-        };
-        let received_ns = wall_clock_ns();
-        if let Some(graph) = graphs.graph() {
-            let index = Instant::now();
-            std::hint::black_box(graph.node(0).is_some());
-            receipts.graph_index_ns.push(index.elapsed().as_nanos() as u64);
-        }
-        last_version = version;
-        receipts.graph.push((version, received_ns));
-        acknowledge()?;
-
-        let id = loop {
-            let woken = raw_updated
-                .timed_wait(|_| {}, Duration::from_millis(100))
-                .map_err(|e| anyhow!("waiting on {}: {e:?}", names.raw_updated_name))?;
-            if woken > 0
-                && let Some(sample) = raw.receive().map_err(|e| anyhow!("receive on {}: {e:?}", names.raw_name))?
-            {
-                copy.clear();
-                copy.extend_from_slice(sample.payload());
-                let mut id = [0u8; 8];
-                id.copy_from_slice(copy.get(..8).ok_or_else(|| anyhow!("raw sample shorter than 8 bytes"))?);
-                break u64::from_le_bytes(id);
-            }
-            if Instant::now() >= deadline {
-                bail!("no raw sample within {} s", PEER_TIMEOUT.as_secs());
-            }
-        };
-        receipts.raw.push((id, wall_clock_ns()));
-        acknowledge()?;
-    }
-    Ok(receipts)
 }
 
 #[cfg(test)]

@@ -12,10 +12,12 @@
 //!    detection over all workers, fusion, prior graph + reasoner, publish), the `end_to_end`
 //!    latency from a keyframe's capture to the send of the first graph version holding it, and
 //!    the process's resident memory sampled over the run from `/proc/self/status`.
-//! 2. **IPC** ([`ipc_latency`]): graph publish → subscriber receive between two processes (this
-//!    one publishes, a child process of the same binary subscribes) for graphs of several sizes,
-//!    next to raw iceoryx2 publish-subscribe of a byte slice of the same size measured in the
-//!    same run, message for message interleaved. The ratio of the two is the figure.
+//! 2. **IPC** ([`ipc_latency`], the subscriber side in [`ipc_peer`]): graph publish → subscriber
+//!    read between two processes (this one publishes, a child process of the same binary
+//!    subscribes) for graphs of several sizes, read into the client library's owned `Graph` and
+//!    through its zero-copy `GraphView`, next to raw iceoryx2 publish-subscribe of a byte slice of
+//!    the same size measured in the same run, message for message interleaved. The ratios to raw
+//!    are the figures.
 //! 3. **Fusion cost against map size** ([`fusion_curve`]): one 40-detection step of a real
 //!    kitchen keyframe into maps grown through several sizes (`fusion::workload`), with a PNG
 //!    plot ([`fusion_curve::plot_png`]).
@@ -39,6 +41,7 @@
 
 pub mod fusion_curve;
 pub mod ipc_latency;
+pub mod ipc_peer;
 pub mod llm_hot_path;
 pub mod peer_fusion;
 pub mod pipeline_run;
@@ -52,7 +55,8 @@ use std::time::Duration;
 use serde::{Deserialize, Serialize};
 
 pub use fusion_curve::{FusionCurve, FusionPoint, fusion_curve};
-pub use ipc_latency::{IpcLatency, IpcRow, ipc_latency, ipc_peer};
+pub use ipc_latency::{IpcLatency, IpcRow, ipc_latency};
+pub use ipc_peer::{Receipts, ipc_peer};
 pub use llm_hot_path::{LlmHotPath, SlowChatServer, StageComparison, llm_hot_path};
 pub use peer_fusion::{FusionCost, PeerFusionCost, peer_fusion_cost};
 pub use pipeline_run::{PipelineRun, RssSample, StageRow, pipeline_run};
@@ -383,47 +387,64 @@ fn rss_series(samples: &[RssSample], n: usize) -> String {
 fn ipc_markdown(s: &mut String, ipc: &IpcLatency) {
     let _ = writeln!(
         s,
-        "**IPC**: publish → receive in another process, {} timed messages per row after {} warm-up \
-         ones, graph and raw interleaved; the subscriber waits on an iceoryx2 event listener for \
-         both. Graph: `GraphServer::publish_graph` (select, loan a zero-filled sample of the \
-         graph's size (at most {:.1} MiB), write the records in place, send, notify) to the client library's \
-         `GraphSubscriber::latest_if_newer` returning the owned `Graph`. Raw: loan a byte slice \
-         of the graph sample's size, copy, send, notify; receive, copy out.\n",
+        "**IPC**: publish → read in another process, {} timed messages per row after {} warm-up \
+         ones, the three reads interleaved message by message; the subscriber waits on an iceoryx2 \
+         event listener for each. Graph publish: `GraphServer::publish_graph` (select, loan a \
+         zero-filled sample of the graph's size (at most {:.1} MiB), write the records in place, \
+         send, notify). Owned `Graph`: the client library's `GraphSubscriber::latest_if_newer` \
+         returning the owned `Graph` (receive, check, copy). View: `GraphSubscriber::with_latest` \
+         until the first node's id and label were read through the `GraphView` (receive, the \
+         header checked against the payload's length, records cast in place; nothing copied or \
+         scanned). Raw: loan a byte slice of the graph sample's size, copy, \
+         send, notify; receive, copy out.\n",
         ipc.messages,
         ipc.warmup,
         op3dsg_runtime::stats::mib(ipc.max_sample_bytes as u64)
     );
     let _ = writeln!(
         s,
-        "| graph nodes | edges | bytes | graph p50 / p99 µs | raw iceoryx2 p50 / p99 µs | ratio p50 / p99 | publish call p50, graph / raw µs | graph read call p50 µs | index build p50 µs |"
+        "| graph nodes | edges | bytes | read | p50 / p99 µs | ratio to raw p50 / p99 | publish call p50 µs | read call p50 µs |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|");
     for r in &ipc.rows {
+        let size = format!("| {} | {} | {} |", r.nodes, r.edges, r.bytes);
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} / {} | {} / {} | {:.1} / {:.1} | {} / {} | {} | {} |",
-            r.nodes,
-            r.edges,
-            r.bytes,
-            us(r.graph.p50_ms),
-            us(r.graph.p99_ms),
+            "{size} raw iceoryx2 (copy out) | {} / {} | 1.0 / 1.0 | {} | – |",
             us(r.raw.p50_ms),
             us(r.raw.p99_ms),
+            us(r.raw_publish_call.p50_ms)
+        );
+        let _ = writeln!(
+            s,
+            "{size} owned `Graph` | {} / {} | {:.2} / {:.2} | {} | {} (index build {}) |",
+            us(r.graph.p50_ms),
+            us(r.graph.p99_ms),
             r.ratio_p50,
             r.ratio_p99,
             us(r.graph_publish_call.p50_ms),
-            us(r.raw_publish_call.p50_ms),
             us(r.graph_read_call.p50_ms),
             us(r.graph_index_build.p50_ms)
+        );
+        let _ = writeln!(
+            s,
+            "{size} view, first node | {} / {} | {:.2} / {:.2} | {} | {} |",
+            us(r.view.p50_ms),
+            us(r.view.p99_ms),
+            r.view_ratio_p50,
+            r.view_ratio_p99,
+            us(r.view_publish_call.p50_ms),
+            us(r.view_read_call.p50_ms)
         );
     }
     let _ = writeln!(
         s,
-        "\nPublish call: the publisher's call alone, notify included; graph read call: the \
-         subscriber's `latest_if_newer` (receive and copy into the owned `Graph`); the rest is the \
-         wake-up. Index build: the first id lookup on the received graph, timed after the receipt \
-         and not part of the latency (the indices are built on first use). With few cores the woken subscriber may run before the notify returns, so for \
-         large payloads the publish call can include the subscriber's work too.\n"
+        "\nPublish call: the publisher's call alone, notify included; read call: the subscriber's \
+         `latest_if_newer` (owned) or `with_latest` up to the first node read (view); the rest is \
+         the wake-up. Index build: the owned graph's first id lookup, timed after the receipt and \
+         not part of the latency (the indices are built on first use; the view needs none). With \
+         few cores the woken subscriber may run before the notify returns, so for large payloads \
+         the publish call can include the subscriber's work too.\n"
     );
 }
 

@@ -146,8 +146,8 @@ fn command_line() -> String {
 
 /// `op3dsg bench ipc-peer`: the subscriber process of `bench perf`'s IPC measurement; prints its
 /// receipts as one JSON line.
-pub(super) fn ipc_peer(prefix: &str, pairs: usize) -> Result<()> {
-    let receipts = op3dsg_sim::perf::ipc_peer(prefix, pairs)?;
+pub(super) fn ipc_peer(prefix: &str, rounds: usize) -> Result<()> {
+    let receipts = op3dsg_sim::perf::ipc_peer(prefix, rounds)?;
     let mut text = serde_json::to_string(&receipts).context("serialising the receipts")?;
     text.push('\n');
     write_output(None, &text)

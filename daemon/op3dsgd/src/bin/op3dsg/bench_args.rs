@@ -104,9 +104,10 @@ pub(super) enum BenchCommand {
     /// The subscriber process of `bench perf`'s IPC measurement (started by it).
     #[command(hide = true)]
     IpcPeer {
-        /// Graph + raw message pairs to take before exiting.
+        /// Rounds of a graph (owned read), a raw sample and a graph (view read) to take before
+        /// exiting.
         #[arg(long)]
-        pairs: usize,
+        rounds: usize,
     },
     /// The synthetic quality benchmark: seeded kitchens, bathrooms, bedrooms and living rooms
     /// run through the batch pipeline (oracle detector with knowledge-guided prompt lists,

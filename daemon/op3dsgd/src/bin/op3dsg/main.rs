@@ -438,7 +438,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Map { dir, command: MapCommand::Reset } => map::reset(&dir),
         Command::Bench { command: BenchCommand::Record(args) } => record::bench(*args),
         Command::Record { command: RecordCommand::Info { files, json } } => record::info(&files, json),
-        Command::Bench { command: BenchCommand::IpcPeer { pairs } } => bench::ipc_peer(&prefix, pairs),
+        Command::Bench { command: BenchCommand::IpcPeer { rounds } } => bench::ipc_peer(&prefix, rounds),
         Command::Eval { pred, gt, vocabulary, profile, json } => {
             eval::evaluate(&pred, &gt, &vocabulary, profile.as_deref(), json.as_deref())
         }
