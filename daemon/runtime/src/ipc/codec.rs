@@ -8,6 +8,8 @@ use op3dsg_ipc_types::{
     NODE_BYTES, Node as WireNode, NodeKind, PHRASE_CAPACITY_BYTES, SCHEMA_VERSION, SnapshotError, check_message,
     graph_payload_bytes, relation_phrase,
 };
+use std::mem::MaybeUninit;
+
 use rustc_hash::FxHashMap;
 
 use crate::graph::{GraphEdge, GraphNode, SceneGraph};
@@ -278,9 +280,13 @@ impl GraphEncoder {
     }
 
     /// Writes the records of the graph [`Self::select`] chose into `out` (exactly
-    /// `report.payload_bytes` long, every byte written) and completes the header (object and part
-    /// counts) and `report` (labels cut).
-    pub fn write_payload(&mut self, graph: &SceneGraph, out: &mut [u8], report: &mut PublishReport) {
+    /// `report.payload_bytes` long, every byte written: `out` may be a loaned sample's
+    /// uninitialised bytes) and completes the header (object and part counts) and `report`
+    /// (labels cut).
+    ///
+    /// # Panics
+    /// When `out` is not `report.payload_bytes` long.
+    pub fn write_payload<B: OutByte>(&mut self, graph: &SceneGraph, out: &mut [B], report: &mut PublishReport) {
         let counts = write_records(graph, &self.selected, &self.edges, &self.phrases, out);
         (self.header.object_count, self.header.part_count, report.labels_cut) = counts;
     }
@@ -300,17 +306,67 @@ impl GraphEncoder {
     }
 }
 
-/// Writes the chosen nodes, then edges, as records into `out`; returns the object and part
-/// counts and the number of labels cut.
-fn write_records(
+/// A byte of the buffer records are written into: an initialised `u8` (the encoder's own buffer)
+/// or a `MaybeUninit<u8>` (a sample loaned without zero-filling it first).
+pub trait OutByte: Sized {
+    /// Copies `src` into `dst` (the same length).
+    fn put(dst: &mut [Self], src: &[u8]);
+}
+
+impl OutByte for u8 {
+    fn put(dst: &mut [u8], src: &[u8]) {
+        dst.copy_from_slice(src);
+    }
+}
+
+impl OutByte for MaybeUninit<u8> {
+    fn put(dst: &mut [MaybeUninit<u8>], src: &[u8]) {
+        assert_eq!(dst.len(), src.len(), "record length");
+        for (d, &s) in dst.iter_mut().zip(src) {
+            d.write(s);
+        }
+    }
+}
+
+/// Writes `wire` into the record `out`.
+fn put_node<B: OutByte>(out: &mut [B; NODE_BYTES], wire: &WireNode) {
+    #[cfg(target_endian = "little")]
+    B::put(out, bytemuck::bytes_of(wire));
+    #[cfg(not(target_endian = "little"))]
+    {
+        let mut bytes = [0u8; NODE_BYTES];
+        wire.write_bytes(&mut bytes);
+        B::put(out, &bytes);
+    }
+}
+
+/// Writes `wire` into the record `out`.
+fn put_edge<B: OutByte>(out: &mut [B; EDGE_BYTES], wire: &Edge) {
+    #[cfg(target_endian = "little")]
+    B::put(out, bytemuck::bytes_of(wire));
+    #[cfg(not(target_endian = "little"))]
+    {
+        let mut bytes = [0u8; EDGE_BYTES];
+        wire.write_bytes(&mut bytes);
+        B::put(out, &bytes);
+    }
+}
+
+/// Writes the chosen nodes, then edges, as records into `out`, every byte of it; returns the
+/// object and part counts and the number of labels cut.
+///
+/// # Panics
+/// When `out` is not exactly the records' length (the publisher relies on every byte of a loaned
+/// sample being written).
+fn write_records<B: OutByte>(
     graph: &SceneGraph,
     selected: &[usize],
     edges: &[(u32, u32, u32)],
     phrases: &[[u8; PHRASE_CAPACITY_BYTES]],
-    out: &mut [u8],
+    out: &mut [B],
 ) -> (u32, u32, usize) {
-    debug_assert_eq!(out.len(), graph_payload_bytes(selected.len(), edges.len()));
-    let split = (selected.len() * NODE_BYTES).min(out.len());
+    assert_eq!(out.len(), graph_payload_bytes(selected.len(), edges.len()), "graph payload length");
+    let split = selected.len() * NODE_BYTES;
     let (node_bytes, edge_bytes) = out.split_at_mut(split);
     let (mut object_count, mut part_count, mut labels_cut) = (0u32, 0u32, 0usize);
     for (record, &i) in node_bytes.as_chunks_mut::<NODE_BYTES>().0.iter_mut().zip(selected) {
@@ -341,7 +397,7 @@ fn write_records(
         if !op3dsg_ipc_types::write_fixed_str(&mut wire.label, &node.label) {
             labels_cut += 1;
         }
-        wire.write_bytes(record);
+        put_node(record, &wire);
     }
     for (record, &(i, _, _)) in edge_bytes.as_chunks_mut::<EDGE_BYTES>().0.iter_mut().zip(edges) {
         let edge = &graph.edges[i as usize];
@@ -350,7 +406,7 @@ fn write_records(
             op3dsg_ipc_types::write_fixed_str(&mut phrase, relation_phrase(edge.relation_id).unwrap_or(""));
             phrase
         });
-        Edge {
+        let wire = Edge {
             source_id: edge.source_id,
             target_id: edge.target_id,
             kind: edge.kind as u8,
@@ -358,8 +414,8 @@ fn write_records(
             relation_id: edge.relation_id,
             confidence: edge.confidence,
             phrase,
-        }
-        .write_bytes(record);
+        };
+        put_edge(record, &wire);
     }
     (object_count, part_count, labels_cut)
 }

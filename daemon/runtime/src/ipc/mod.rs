@@ -43,8 +43,8 @@
 //!   samples hold the largest graph the profile allows (`ipc.max_nodes`, `ipc.max_edges`;
 //!   `initial_max_slice_len` with iceoryx2's static allocation strategy), and each publish loans
 //!   and writes only the bytes of the current graph ([`GraphEncoder`] chooses the records, the
-//!   sample is loaned zero-filled with `loan_slice`, and the records are written into it in place,
-//!   without unsafe code). The segment never grows, so late joiners get the history
+//!   sample is loaned uninitialised with `loan_slice_uninit`, and the records are written into it
+//!   in place, every byte of it, before the one `assume_init`). The segment never grows, so late joiners get the history
 //!   sample from the one segment they mapped and the memory bound below stays fixed; pages a
 //!   small graph never writes are never touched.
 //! - **Event**: the graph changes irregularly (per keyframe fusion, not per frame). Instead of

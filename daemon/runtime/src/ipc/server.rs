@@ -207,15 +207,20 @@ impl GraphServer {
     /// [`GRAPH_UPDATED_EVENT_ID`]). Allocates nothing once a graph of this size was published.
     pub fn publish_graph(&mut self, graph: &SceneGraph) -> Result<PublishReport, IpcError> {
         let mut report = self.encoder.select(graph);
-        // `loan_slice` zero-fills the bytes (a memset), which is what lets the records be written
-        // in place without unsafe code; every byte is then overwritten.
+        // Loaned without zero-filling (profiled at 2,000 nodes, the memset of the whole sample
+        // took about a quarter of the call's time): the records are written straight into the
+        // uninitialised bytes.
         let mut sample = self
             .graph_publisher
-            .loan_slice(report.payload_bytes)
+            .loan_slice_uninit(report.payload_bytes)
             .map_err(|e| service_err(&self.names.graph, "loan", e))?;
         self.encoder.write_payload(graph, sample.payload_mut(), &mut report);
         self.encoder.set_publish_time_ns(wall_clock_ns());
         *sample.user_header_mut() = *self.encoder.header();
+        // SAFETY: `write_payload` wrote every byte of the payload: it asserts that the payload is
+        // exactly its records' length, and writes each record in full.
+        #[allow(unsafe_code)]
+        let sample = unsafe { sample.assume_init() };
         sample.send().map_err(|e| service_err(&self.names.graph, "send", e))?;
         self.notifier
             .notify_with_custom_event_id(EventId::new(GRAPH_UPDATED_EVENT_ID))

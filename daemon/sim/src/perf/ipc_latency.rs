@@ -16,7 +16,7 @@
 //! (as a planner waits on `graph_updated`).
 //!
 //! - **graph** (owned): `t0` just before [`GraphServer::publish_graph`] (choose the records, loan
-//!   a zero-filled sample of exactly their size, write header, nodes and edges in place, send,
+//!   an uninitialised sample of exactly their size, write header, nodes and edges in place, send,
 //!   notify); `t1` when the planner client
 //!   library's [`GraphSubscriber::latest_if_newer`] returned the owned [`Graph`] in the child
 //!   (newest sample received, checked, its nodes and edges copied out). The lookup indices are

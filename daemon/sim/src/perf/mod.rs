@@ -389,8 +389,8 @@ fn ipc_markdown(s: &mut String, ipc: &IpcLatency) {
         s,
         "**IPC**: publish → read in another process, {} timed messages per row after {} warm-up \
          ones, the three reads interleaved message by message; the subscriber waits on an iceoryx2 \
-         event listener for each. Graph publish: `GraphServer::publish_graph` (select, loan a \
-         zero-filled sample of the graph's size (at most {:.1} MiB), write the records in place, \
+         event listener for each. Graph publish: `GraphServer::publish_graph` (select, loan an \
+         uninitialised sample of the graph's size (at most {:.1} MiB), write the records in place, \
          send, notify). Owned `Graph`: the client library's `GraphSubscriber::latest_if_newer` \
          returning the owned `Graph` (receive, check, copy). View: `GraphSubscriber::with_latest` \
          until the first node's id and label were read through the `GraphView` (receive, the \

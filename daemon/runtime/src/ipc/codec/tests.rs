@@ -161,6 +161,36 @@ fn writing_into_a_loaned_buffer_matches_the_own_buffer() {
 }
 
 #[test]
+fn writing_into_uninitialised_bytes_writes_every_byte_as_the_own_buffer() {
+    let graph = SceneGraph {
+        version: 4,
+        stamp_ns: 2,
+        nodes: vec![node(3, NodeKind::Object, 10), node(7, NodeKind::Part, 20)],
+        edges: vec![edge(7, 3), edge(3, 7)],
+    };
+    let mut own = encoder();
+    own.encode(&graph);
+    let mut split = encoder();
+    let mut report = split.select(&graph);
+    let mut loaned = vec![std::mem::MaybeUninit::<u8>::uninit(); report.payload_bytes];
+    split.write_payload(&graph, &mut loaned, &mut report);
+    // Every byte was written: reading them back is what the publisher's `assume_init` relies on.
+    #[allow(unsafe_code)]
+    let written: Vec<u8> = loaned.iter().map(|b| unsafe { b.assume_init() }).collect();
+    assert_eq!(written.as_slice(), own.payload());
+}
+
+#[test]
+#[should_panic(expected = "graph payload length")]
+fn a_buffer_of_another_length_is_refused() {
+    let graph = SceneGraph { version: 1, stamp_ns: 1, nodes: vec![node(3, NodeKind::Object, 10)], edges: vec![] };
+    let mut encoder = encoder();
+    let mut report = encoder.select(&graph);
+    let mut short = vec![std::mem::MaybeUninit::<u8>::uninit(); report.payload_bytes - 1];
+    encoder.write_payload(&graph, &mut short, &mut report);
+}
+
+#[test]
 fn sparse_ids_encode_like_dense_ones() {
     let mut encoder = encoder();
     let ids = [3u32, 5_000_000, 4_000_000_000];
