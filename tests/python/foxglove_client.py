@@ -16,8 +16,9 @@ subscription id, uint64 LE receive timestamp in nanoseconds, then the message. A
 Modes:
   scene --url URL [--count N] [--timeout-s T]
       subscribes to /op3dsg/scene, decodes N SceneUpdates against the advertised schema and
-      prints each as one JSON line: graph_version, deletions, and per node entity its cube
-      (centre, size, orientation, colour), label and metadata; per edge entity its lines.
+      prints each as one JSON line: graph_version, the message's size in bytes, deletions, and
+      per node entity its cube (centre, size, orientation, colour), label and metadata; per edge
+      entity its lines.
   stall --url URL
       subscribes to every channel and never reads again (prints "subscribed" once); runs until
       killed.
@@ -137,7 +138,7 @@ async def scene(url, count, timeout_s):
             if parts is None or parts[0] != 7:
                 continue
             update = cls.FromString(parts[2])
-            print(json.dumps(scene_json(update, parts[1])), flush=True)
+            print(json.dumps({**scene_json(update, parts[1]), "bytes": len(parts[2])}), flush=True)
             got += 1
 
 

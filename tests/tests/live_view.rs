@@ -142,8 +142,9 @@ fn a_foxglove_client_sees_the_boxes_of_the_graph_of_the_same_version() {
         if scene["graph_version"].as_u64() == Some(version) {
             assert_scene_is_graph(&scene, &graph);
             eprintln!(
-                "live view: version {version}: {} entities match the dumped graph",
-                scene["entities"].as_array().map_or(0, Vec::len)
+                "live view: version {version}: {} entities ({} bytes) match the dumped graph",
+                scene["entities"].as_array().map_or(0, Vec::len),
+                scene["bytes"]
             );
             break;
         }
@@ -251,4 +252,19 @@ fn five_viewers_connecting_and_leaving_in_a_loop_leak_nothing() {
     let after = wait_for("the daemon's memory", Duration::from_secs(5), || Some(rss_kib(pid)));
     eprintln!("live view: RSS {warm} KiB after warm-up, {after} KiB after 200 more viewers came and went");
     assert!(after <= warm + 16 * 1024, "RSS grew from {warm} to {after} KiB over 40 cycles of 5 viewers");
+    // The shutdown ladder ends the live view too, with a viewer connected.
+    let mut viewer = Killed(
+        Command::new(python())
+            .arg(client())
+            .args(["stall", "--url", &url(port)])
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("start a viewer"),
+    );
+    let mut line = String::new();
+    BufReader::new(viewer.0.stdout.take().expect("stdout")).read_line(&mut line).expect("read");
+    let mut daemon = daemon;
+    daemon.sigterm();
+    let status = daemon.wait_exit(Duration::from_secs(60)).expect("op3dsgd ends after SIGTERM");
+    assert!(status.success(), "op3dsgd with a viewer connected exits cleanly on SIGTERM: {status}");
 }

@@ -163,7 +163,9 @@ impl LiveViewThread {
         );
         let Server { runtime, handle, .. } = server;
         let shutdown = handle.stop();
-        if runtime.block_on(tokio::time::timeout(Duration::from_secs(2), shutdown.wait())).is_err() {
+        // The timer is made inside the runtime: outside it, tokio has no clock to arm it with.
+        let closed = runtime.block_on(async { tokio::time::timeout(Duration::from_secs(2), shutdown.wait()).await });
+        if closed.is_err() {
             debug!("live view: viewers did not close within 2 s");
         }
         runtime.shutdown_timeout(Duration::from_secs(1));
