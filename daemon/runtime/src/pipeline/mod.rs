@@ -172,24 +172,8 @@ impl Pipeline {
             feed.graphs.push(graphs);
         }
         // The live view, fed like the off-robot stages; the gate hands it poses and images.
-        let live = match q.live_view {
-            Some(queue) => {
-                let feed =
-                    remote.get_or_insert_with(|| RemoteFeed { graphs: Vec::new(), health: Arc::new(Latest::new()) });
-                let inputs = (queue, feed.health.clone());
-                let (graphs, live) = stages::live_view(
-                    &mut s,
-                    profile,
-                    inputs,
-                    (source.intrinsics(), latest_occupancy.clone()),
-                    &counters,
-                    &stop,
-                )?;
-                feed.graphs.push(graphs);
-                Some(live)
-            }
-            None => None,
-        };
+        let inputs = (source.intrinsics(), latest_occupancy.clone());
+        let live = stages::live_view(&mut s, profile, (q.live_view, &mut remote), inputs, &counters, &stop)?;
         let (publisher, ready) = stages::publisher(
             profile,
             source.kind(),

@@ -311,30 +311,31 @@ pub(super) fn ros2_out(
     }
 }
 
-/// The live view (`[live_view] enabled`), started once its server listens; returns the
-/// publisher's end of its graph hand-over and the keyframe gate's end of its pose and images.
+/// The live view (`[live_view] enabled`), started once its server listens: its graph hand-over
+/// joins the publisher's `remote` feed (made if the off-robot stages made none), whose health
+/// it reads too; returns the keyframe gate's end of its pose and images.
 pub(super) fn live_view(
     stages: &mut Stages,
     profile: &Profile,
-    (queue, health): (RemoteQueue, Arc<Latest<(op3dsg_ipc_types::Health, u64)>>),
+    (queue, remote): (Option<RemoteQueue>, &mut Option<RemoteFeed>),
     (intrinsics, occupancy): (Intrinsics, Option<Arc<LatestOccupancy>>),
     counters: &Counters,
     stop: &Arc<std::sync::atomic::AtomicBool>,
-) -> Result<(QueueSender<(Arc<SceneGraph>, u64)>, LiveFeed), StartError> {
-    let Some(live_counters) = counters.live_view.clone() else {
-        return Err(StartError::Incompatible { field: "live_view", reason: "no counters".to_owned() });
+) -> Result<Option<LiveFeed>, StartError> {
+    let (Some((graphs_tx, graphs_rx)), Some(live_counters)) = (queue, counters.live_view.clone()) else {
+        return Ok(None);
     };
+    let feed = remote.get_or_insert_with(|| RemoteFeed { graphs: Vec::new(), health: Arc::new(Latest::new()) });
     let c = &profile.live_view;
     let rate = c.images.then_some(c.image_rate_hz);
-    let (feed, intake) = live_feed(intrinsics.width, intrinsics.height, c.image_scale, rate);
+    let (live, intake) = live_feed(intrinsics.width, intrinsics.height, c.image_scale, rate);
     let (ready, ready_rx) = crossbeam_channel::bounded(1);
-    let (graphs_tx, graphs_rx) = queue;
     let thread = LiveViewThread {
         config: c.clone(),
         world_frame: profile.world.frame_id.clone(),
         up_axis: profile.world.up_axis,
         graphs: graphs_rx,
-        health,
+        health: feed.health.clone(),
         occupancy,
         frames: intake,
         counters: live_counters,
@@ -343,7 +344,10 @@ pub(super) fn live_view(
     };
     stages.spawn("live-view", move || thread.run())?;
     match ready_rx.recv() {
-        Ok(Ok(())) => Ok((graphs_tx, feed)),
+        Ok(Ok(())) => {
+            feed.graphs.push(graphs_tx);
+            Ok(Some(live))
+        }
         Ok(Err(reason)) => Err(StartError::Incompatible { field: "live_view.bind", reason }),
         Err(_) => Err(StartError::Incompatible {
             field: "live_view",
