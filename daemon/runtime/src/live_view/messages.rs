@@ -205,7 +205,8 @@ mod tests {
                 assert_eq!([p.x, p.y, p.z], ["x", "y", "z"].map(|k| rc["pose"]["position"][k].as_f64().unwrap()));
                 let s = c.size.unwrap();
                 assert_eq!([s.x, s.y, s.z], ["x", "y", "z"].map(|k| rc["size"][k].as_f64().unwrap()));
-                assert_eq!(c.color.unwrap().a, rc["color"]["a"].as_f64().unwrap());
+                // The recorder writes the colours as f32.
+                assert_eq!(c.color.unwrap().a as f32, rc["color"]["a"].as_f64().unwrap() as f32);
             }
             for (t, rt) in e.texts.iter().zip(r["texts"].as_array().unwrap()) {
                 assert_eq!(t.text, rt["text"].as_str().unwrap());
