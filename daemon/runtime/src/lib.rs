@@ -33,6 +33,7 @@
 //! | stage | [`keyframe`] | the keyframe gate and its thread |
 //! | stage | [`publish`] | the publisher thread |
 //! | stage | [`zenoh`] | the graph, its deltas and health for consumers off the robot, over Zenoh |
+//! | stage | [`live_view`] | the graph, the camera, the map and health in Foxglove, over its WebSocket protocol |
 //! | composition | [`config`] | the profile: the stages' sections and the checks across them |
 //! | composition | [`backend`] | source, detector and fusion registries |
 //! | composition | [`pipeline`] | the wiring of named stage threads and bounded queues, health, the shutdown ladder |
@@ -64,6 +65,7 @@ pub mod install;
 pub mod ipc;
 pub mod keyframe;
 pub mod knowledge;
+pub mod live_view;
 pub mod occupancy;
 pub mod onnx;
 pub mod perception;

@@ -237,6 +237,13 @@ fn init_logging(filter: &str) {
             Some(format!("--log / OP3DSG_LOG {filter:?}: {e}; using \"info\"")),
         ),
     };
+    // The live view's server logs every viewer that went away mid-send (a closed laptop, a
+    // dropped tunnel) as an error; that is the viewer's business, not the daemon's. A filter
+    // that names `foxglove` itself decides.
+    let filter = match "foxglove::websocket::connected_client::poller=off".parse() {
+        Ok(quiet) if !filter.to_string().contains("foxglove") => filter.add_directive(quiet),
+        _ => filter,
+    };
     let registry = tracing_subscriber::registry().with(filter);
     let journal = stderr_is_journal().then(tracing_journald::layer);
     match journal {

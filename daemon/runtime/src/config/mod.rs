@@ -44,6 +44,7 @@ use crate::fusion::FusionConfig;
 use crate::fusion::snapshot::SnapshotConfig;
 use crate::ipc::IpcConfig;
 use crate::keyframe::{KeyframeConfig, MAX_PENDING_FRAMES, PoseConfig};
+use crate::live_view::LiveViewConfig;
 use crate::occupancy::{NavigationConfig, OccupancyConfig};
 use crate::onnx::OnnxConfig;
 use crate::onnx::text_encoder::TextEncoderConfig;
@@ -149,6 +150,9 @@ pub struct Profile {
     /// `pose.source = "ros2"`.
     #[serde(default)]
     pub ros2: Ros2Config,
+    /// The Foxglove live view (`crate::live_view`); off unless `enabled`.
+    #[serde(default)]
+    pub live_view: LiveViewConfig,
     /// The sections of registered backends, by dotted path (`source.synthetic`,
     /// `detector.oracle`, `fusion.conceptgraphs`), as their backend checked and completed them
     /// at load time.
@@ -247,6 +251,7 @@ impl Profile {
             self.navigation.validate("navigation"),
             self.zenoh.validate("zenoh"),
             self.ros2.validate("ros2"),
+            self.live_view.validate("live_view"),
             self.reasoner.validate("reasoner"),
             self.health.validate("health"),
             self.run.validate("run"),

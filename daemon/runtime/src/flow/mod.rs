@@ -16,8 +16,10 @@ use op3dsg_ipc_types::{Health, PoseStamped, QueryRequest, QueryResponse};
 use tracing::warn;
 
 mod detection;
+mod live;
 
 pub use detection::{Detection, Mask};
+pub use live::{LiveFeed, LiveImages, LiveIntake, live_feed};
 
 use crate::graph::SceneGraph;
 use crate::queue::{Latest, QueueSender};

@@ -19,7 +19,7 @@ use super::log_limit::{LOG_PERIOD, LogLimit};
 use super::{
     GateDecision, KeyframeCounters, KeyframeGate, MAX_PENDING_FRAMES, PoseRefusal, PoseSourceKind, count_gate,
 };
-use crate::flow::{CapturedFrame, KeyframeItem, POLL};
+use crate::flow::{CapturedFrame, KeyframeItem, LiveFeed, POLL};
 use crate::occupancy::OccupancyFeed;
 use crate::queue::{Popped, QueueReceiver, QueueSender};
 use crate::record::{RecordSender, SideChannelTap};
@@ -88,6 +88,8 @@ pub struct KeyframeThread {
     pub recorder: Option<KeyframeRecorder>,
     /// The occupancy map's scan queue, when on.
     pub occupancy: Option<OccupancyFeed>,
+    /// The live view's newest pose and images, when `[live_view] enabled`.
+    pub live: Option<LiveFeed>,
 }
 
 impl std::fmt::Debug for KeyframeThread {
@@ -129,6 +131,10 @@ impl KeyframeThread {
         // the recorder's pool, or a counted drop; never a wait).
         if let Some((sender, taps)) = self.recorder.as_mut() {
             sender.offer_frame(&captured.frame, taps);
+        }
+        // The live view's downscaled copy, only while a viewer watches an image (never waits).
+        if let Some(live) = self.live.as_mut() {
+            live.offer_frame(&captured.frame);
         }
         self.gate.note_frame(captured.frame.stamp_ns);
         pending.push_back(Pending { captured, arrived: Instant::now() });
@@ -180,6 +186,9 @@ impl KeyframeThread {
                 self.counters.keyframes.fetch_add(1, Ordering::Relaxed);
                 if let Some((sender, _)) = self.recorder.as_mut() {
                     sender.offer_keyframe(frame.stamp_ns, &world_from_camera);
+                }
+                if let Some(live) = &self.live {
+                    live.offer_keyframe(frame.stamp_ns, &world_from_camera);
                 }
                 // The occupancy map's copy of the subsampled depth (never waits).
                 if let Some(feed) = &self.occupancy {

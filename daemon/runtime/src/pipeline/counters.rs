@@ -10,6 +10,7 @@ use op3dsg_ipc_types::{Health, write_fixed_str};
 use crate::capture::CaptureCounters;
 use crate::fusion::FusionCounters;
 use crate::keyframe::KeyframeCounters;
+use crate::live_view::LiveViewCounters;
 use crate::publish::PublishCounters;
 use crate::queue::QueueStats;
 use crate::reasoner::llm::RefinerStats;
@@ -46,6 +47,8 @@ pub struct Counters {
     pub ros2_tf: Option<Arc<TfInputCounters>>,
     /// The ROS output (`None` unless a topic of `[ros2.out]` is on).
     pub ros2_out: Option<Arc<Ros2OutputCounters>>,
+    /// The Foxglove live view (`None` without `[live_view] enabled`).
+    pub live_view: Option<Arc<LiveViewCounters>>,
 }
 
 impl Counters {
@@ -66,13 +69,14 @@ impl Counters {
             zenoh: None,
             ros2_tf: None,
             ros2_out: None,
+            live_view: None,
         }
     }
 
     /// One entry per stage, in pipeline order: `capture`, `keyframe`, `detect/0..N-1`, `fusion`,
     /// `prior` (prior graph + reasoner, on the fusion thread), `publish`, and `end_to_end` (not a
     /// thread: from a keyframe's capture to the send of the first graph holding it), then
-    /// `zenoh` and `ros2_tf` when those stages are on.
+    /// `zenoh`, `ros2_tf`, `ros2_out` and `live_view` when those stages are on.
     pub fn stages(&self) -> Vec<Arc<StageStats>> {
         let mut stages = vec![self.capture.stage.clone(), self.keyframe.stage.clone()];
         stages.extend(self.detect.iter().cloned());
@@ -85,6 +89,7 @@ impl Counters {
         stages.extend(self.zenoh.as_ref().map(|z| z.stage.clone()));
         stages.extend(self.ros2_tf.as_ref().map(|t| t.stage.clone()));
         stages.extend(self.ros2_out.as_ref().map(|o| o.stage.clone()));
+        stages.extend(self.live_view.as_ref().map(|l| l.stage.clone()));
         stages
     }
 

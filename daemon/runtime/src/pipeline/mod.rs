@@ -138,6 +138,7 @@ impl Pipeline {
         counters.zenoh = profile.zenoh.enabled.then(Arc::default);
         counters.ros2_tf = (profile.pose.source == PoseSourceKind::Ros2).then(Arc::default);
         counters.ros2_out = profile.ros2.out.any().then(Arc::default);
+        counters.live_view = profile.live_view.enabled.then(Arc::default);
         let counters = Arc::new(counters);
         let stages::RestoredMap { fusion, resume, snapshots } = stages::restored_map(profile, backends, &counters)?;
         let (snapshot_sink, snapshot_writer) = snapshots.unzip();
@@ -155,7 +156,7 @@ impl Pipeline {
         // The occupancy thread's copy of its map, for the query worker and the Zenoh stage.
         let ros2_map = profile.ros2.out.occupancy;
         let latest_occupancy = (profile.occupancy.enabled
-            && (query_graph.is_some() || profile.zenoh.enabled || ros2_map))
+            && (query_graph.is_some() || profile.zenoh.enabled || ros2_map || profile.live_view.enabled))
             .then(|| Arc::new(Latest::new()));
         let mut remote = match (q.remote, counters.zenoh.as_ref()) {
             (Some(queue), Some(zenoh)) => {
@@ -170,6 +171,9 @@ impl Pipeline {
             let feed = remote.get_or_insert_with(|| RemoteFeed { graphs: Vec::new(), health: Arc::new(Latest::new()) });
             feed.graphs.push(graphs);
         }
+        // The live view, fed like the off-robot stages; the gate hands it poses and images.
+        let inputs = (source.intrinsics(), latest_occupancy.clone());
+        let live = stages::live_view(&mut s, profile, (q.live_view, &mut remote), inputs, &counters, &stop)?;
         let (publisher, ready) = stages::publisher(
             profile,
             source.kind(),
@@ -209,7 +213,8 @@ impl Pipeline {
         } else {
             None
         };
-        let keyframe = stages::keyframe(profile, source.as_ref(), gate, &counters, &stop, recorder, occupancy_feed);
+        let keyframe =
+            stages::keyframe(profile, source.as_ref(), gate, &counters, &stop, recorder, (occupancy_feed, live));
         s.spawn("keyframe", move || {
             let _alive = gate_alive;
             keyframe.run();

@@ -13,12 +13,15 @@ use super::Counters;
 use crate::backend::{Backends, StartError};
 use crate::capture::CaptureThread;
 use crate::config::{Profile, effective_toml};
-use crate::flow::{CapturedFrame, DetectionBatch, GraphItem, KeyframeItem, LatestGraph, RemoteFeed, RemoteQueries};
+use crate::flow::{
+    CapturedFrame, DetectionBatch, GraphItem, KeyframeItem, LatestGraph, LiveFeed, RemoteFeed, RemoteQueries, live_feed,
+};
 use crate::fusion::snapshot::{SnapshotSink, SnapshotStore, SnapshotWriter};
 use crate::fusion::{Fusion, FusionThread, Resume};
 use crate::graph::SceneGraph;
 use crate::ipc::{GraphCapacity, GraphOrigin};
 use crate::keyframe::{KeyframeGate, KeyframeRecorder, KeyframeThread, PoseSourceKind};
+use crate::live_view::LiveViewThread;
 use crate::occupancy::persist::OccupancyStore;
 use crate::occupancy::{
     LatestOccupancy, OccupancyFeed, OccupancyGrid, OccupancyPublisher, OccupancyThread, scan_queue,
@@ -92,11 +95,16 @@ pub(super) struct Queues {
     pub(super) remote: Option<RemoteQueue>,
     /// Publisher → ROS output, latest wins (a topic of `[ros2.out]` on).
     pub(super) ros2_out: Option<RemoteQueue>,
+    /// Publisher → live view, latest wins (`[live_view] enabled`).
+    pub(super) live_view: Option<RemoteQueue>,
     pub(super) stats: Vec<Arc<QueueStats>>,
 }
 
 /// Graph versions waiting for the ROS output (it sends the newest anyway).
 const ROS2_OUT_QUEUE: usize = 2;
+
+/// Graph versions waiting for the live view (it sends the newest anyway).
+const LIVE_VIEW_QUEUE: usize = 2;
 
 /// The publisher → Zenoh stage queue.
 pub(super) type RemoteQueue = (QueueSender<(Arc<SceneGraph>, u64)>, QueueReceiver<(Arc<SceneGraph>, u64)>);
@@ -121,6 +129,12 @@ impl Queues {
             stats.push(ros2_out);
             (tx, rx)
         });
+        let live_view = profile.live_view.enabled.then(|| {
+            let config = QueueConfig { capacity: LIVE_VIEW_QUEUE, policy: OverflowPolicy::LatestWins };
+            let (tx, rx, live_view) = queue("live_view", config, stop.clone());
+            stats.push(live_view);
+            (tx, rx)
+        });
         Self {
             frames: (frames_tx, frames_rx),
             keyframes: (kf_tx, kf_rx),
@@ -129,6 +143,7 @@ impl Queues {
             poses: crossbeam_channel::bounded(profile.pose.buffer_len),
             remote,
             ros2_out,
+            live_view,
             stats,
         }
     }
@@ -293,6 +308,51 @@ pub(super) fn ros2_out(
         Ok(Ok(())) => Ok(graphs_tx),
         Ok(Err(reason)) => Err(StartError::Zenoh(reason)),
         Err(_) => Err(StartError::Zenoh("ros2: the output thread ended during start-up".to_owned())),
+    }
+}
+
+/// The live view (`[live_view] enabled`), started once its server listens: its graph hand-over
+/// joins the publisher's `remote` feed (made if the off-robot stages made none), whose health
+/// it reads too; returns the keyframe gate's end of its pose and images.
+pub(super) fn live_view(
+    stages: &mut Stages,
+    profile: &Profile,
+    (queue, remote): (Option<RemoteQueue>, &mut Option<RemoteFeed>),
+    (intrinsics, occupancy): (Intrinsics, Option<Arc<LatestOccupancy>>),
+    counters: &Counters,
+    stop: &Arc<std::sync::atomic::AtomicBool>,
+) -> Result<Option<LiveFeed>, StartError> {
+    let (Some((graphs_tx, graphs_rx)), Some(live_counters)) = (queue, counters.live_view.clone()) else {
+        return Ok(None);
+    };
+    let feed = remote.get_or_insert_with(|| RemoteFeed { graphs: Vec::new(), health: Arc::new(Latest::new()) });
+    let c = &profile.live_view;
+    let rate = c.images.then_some(c.image_rate_hz);
+    let (live, intake) = live_feed(intrinsics.width, intrinsics.height, c.image_scale, rate);
+    let (ready, ready_rx) = crossbeam_channel::bounded(1);
+    let thread = LiveViewThread {
+        config: c.clone(),
+        world_frame: profile.world.frame_id.clone(),
+        up_axis: profile.world.up_axis,
+        graphs: graphs_rx,
+        health: feed.health.clone(),
+        occupancy,
+        frames: intake,
+        counters: live_counters,
+        stop: stop.clone(),
+        ready,
+    };
+    stages.spawn("live-view", move || thread.run())?;
+    match ready_rx.recv() {
+        Ok(Ok(())) => {
+            feed.graphs.push(graphs_tx);
+            Ok(Some(live))
+        }
+        Ok(Err(reason)) => Err(StartError::Incompatible { field: "live_view.bind", reason }),
+        Err(_) => Err(StartError::Incompatible {
+            field: "live_view",
+            reason: "the live view's thread ended during start-up".to_owned(),
+        }),
     }
 }
 
@@ -468,7 +528,7 @@ pub(super) fn keyframe(
     counters: &Counters,
     stop: &Arc<std::sync::atomic::AtomicBool>,
     recorder: Option<KeyframeRecorder>,
-    occupancy: Option<OccupancyFeed>,
+    (occupancy, live): (Option<OccupancyFeed>, Option<LiveFeed>),
 ) -> KeyframeThread {
     let mut gate = KeyframeGate::new(&profile.keyframe, &profile.pose);
     gate.set_frame_clock(source.stamp_clock());
@@ -481,6 +541,7 @@ pub(super) fn keyframe(
         stop: stop.clone(),
         recorder,
         occupancy,
+        live,
     }
 }
 

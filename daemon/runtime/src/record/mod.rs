@@ -40,6 +40,7 @@ use op3dsg_ipc_types::{Health, RecorderHealth};
 pub use config::{ChannelConfig, ColourEncoding, RecordChannels, RecordCompression, RecordConfig};
 pub use sender::RecordSender;
 pub use thread::{RecordStartError, RecordThread, Recorder};
+pub(crate) use writer::health_json;
 
 use crate::graph::SceneGraph;
 

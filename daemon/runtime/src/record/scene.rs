@@ -5,6 +5,9 @@
 //! between node centres: spatial edges grey, functional edges green, each kind one entity
 //! (`edges/spatial`, `edges/functional`) so Foxglove's topic settings can hide one.
 //!
+//! [`node_shapes`] and [`edge_lines`] hold these decisions once: the recorder writes them as
+//! JSON here, the live view (`crate::live_view`) sends them through the `foxglove` crate.
+//!
 //! Each update first deletes every entity of the topic (`ALL`), so removed nodes disappear; the
 //! scene at any time is exactly the graph version written last.
 
@@ -29,10 +32,14 @@ const TEXT_COLOUR: Colour = Colour { r: 1.0, g: 1.0, b: 1.0, a: 1.0 };
 /// `foxglove.Color`.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Colour {
-    pub(crate) r: f32,
-    pub(crate) g: f32,
-    pub(crate) b: f32,
-    pub(crate) a: f32,
+    /// Red, 0..=1.
+    pub r: f32,
+    /// Green, 0..=1.
+    pub g: f32,
+    /// Blue, 0..=1.
+    pub b: f32,
+    /// Opacity, 0..=1.
+    pub a: f32,
 }
 
 impl Colour {
@@ -173,6 +180,110 @@ fn v3(p: [f32; 3]) -> [f64; 3] {
     p.map(f64::from)
 }
 
+/// A node as the viewers draw it (the recorder's scene and the live view alike): a cube on its
+/// oriented box and a label above the box's top.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NodeShape {
+    /// The entity's id, `node/<id>`.
+    pub entity_id: String,
+    /// Whether the node is a part (drawn apart from objects).
+    pub part: bool,
+    /// The cube's centre, world, metres.
+    pub centre_m: [f64; 3],
+    /// The cube's rotation: the box's yaw about the world's up axis.
+    pub rotation: glam::DQuat,
+    /// The cube's size along its own axes, metres.
+    pub size_m: [f64; 3],
+    /// The cube's colour.
+    pub colour: Colour,
+    /// Where the label sits: 5 cm above the box's top along up.
+    pub label_position_m: [f64; 3],
+    /// The label's font size (scale-invariant pixels).
+    pub font_size: f64,
+    /// The label.
+    pub label: String,
+    /// `graph_version`, `node_id`, `kind`, `label`, `yaw_rad`, and `affordances` when any.
+    pub metadata: Vec<(&'static str, String)>,
+}
+
+/// The lines of one kind of edge between node centres.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EdgeLines {
+    /// The entity's id, `edges/spatial` or `edges/functional`.
+    pub entity_id: &'static str,
+    /// Pairs of points (a line list), world, metres.
+    pub points_m: Vec<[f64; 3]>,
+    /// The lines' colour.
+    pub colour: Colour,
+    /// Scale-invariant thickness, pixels.
+    pub thickness: f64,
+}
+
+/// The labels' colour.
+pub const LABEL_COLOUR: Colour = TEXT_COLOUR;
+
+/// The shapes of `graph`'s nodes, in node order; `up_axis` is the world's, about which the
+/// boxes' yaw turns.
+pub fn node_shapes(graph: &SceneGraph, up_axis: UpAxis) -> impl Iterator<Item = NodeShape> + '_ {
+    graph.nodes.iter().map(move |node| {
+        let obb = node.display_box(up_axis);
+        let (rotation, up) = obb.rotation(up_axis);
+        let centre = v3(obb.centre_m);
+        let size = v3(obb.size_m).map(|v| v.max(0.0));
+        let top = glam::DVec3::from_array(centre) + up * (size[2] / 2.0 + 0.05);
+        let part = node.kind == NodeKind::Part;
+        let mut metadata = vec![
+            ("graph_version", graph.version.to_string()),
+            ("node_id", node.id.to_string()),
+            ("kind", node.kind.as_str().to_owned()),
+            ("label", node.label.clone()),
+            ("yaw_rad", obb.yaw_rad.to_string()),
+        ];
+        if node.affordance_bits != 0 {
+            // "hook_pull:knowledge+llm,pinch_pull:llm": each affordance with its origin.
+            let affordances: Vec<String> =
+                node.affordance_origins().map(|(name, origin)| format!("{name}:{}", origin.as_str())).collect();
+            metadata.push(("affordances", affordances.join(",")));
+        }
+        NodeShape {
+            entity_id: format!("node/{}", node.id),
+            part,
+            centre_m: centre,
+            rotation,
+            size_m: size,
+            colour: if part { PART_COLOUR } else { OBJECT_COLOUR },
+            label_position_m: top.to_array(),
+            font_size: if part { 12.0 } else { 16.0 },
+            label: node.label.clone(),
+            metadata,
+        }
+    })
+}
+
+/// The edges of `graph` as two line lists between node centres: spatial (part-of among them)
+/// grey, functional green; an edge whose end is not in the graph is left out.
+pub fn edge_lines(graph: &SceneGraph) -> [EdgeLines; 2] {
+    let centre_of = |id: u32| graph.nodes.binary_search_by_key(&id, |n| n.id).ok().map(|i| v3(graph.nodes[i].centre_m));
+    [
+        (EdgeKind::Spatial, "edges/spatial", SPATIAL_EDGE_COLOUR, 1.5),
+        (EdgeKind::Functional, "edges/functional", FUNCTIONAL_EDGE_COLOUR, 3.0),
+    ]
+    .map(|(kind, entity_id, colour, thickness)| {
+        let mut points_m = Vec::new();
+        for edge in graph.edges.iter().filter(|e| e.kind == kind) {
+            if let (Some(a), Some(b)) = (centre_of(edge.source_id), centre_of(edge.target_id)) {
+                points_m.push(a);
+                points_m.push(b);
+            }
+        }
+        EdgeLines { entity_id, points_m, colour, thickness }
+    })
+}
+
+fn vector([x, y, z]: [f64; 3]) -> Vector3 {
+    Vector3 { x, y, z }
+}
+
 /// Writes the `foxglove.SceneUpdate` JSON of `graph` into `out` (cleared first); `up_axis` is the
 /// world's (`world.up_axis`), about which the boxes' yaw turns, and every entity is in the frame
 /// `world_frame` (`world.frame_id`).
@@ -180,69 +291,35 @@ pub fn write_scene_update(graph: &SceneGraph, up_axis: UpAxis, world_frame: &str
     out.clear();
     let timestamp = Time::from_ns(graph.stamp_ns);
     let mut entities = Vec::with_capacity(graph.nodes.len() + 2);
-    for node in &graph.nodes {
-        let obb = node.display_box(up_axis);
-        let (rotation, up) = obb.rotation(up_axis);
-        let centre = v3(obb.centre_m);
-        let [sx, sy, sz] = v3(obb.size_m).map(|v| v.max(0.0));
-        let top = glam::DVec3::from_array(centre) + up * (sz / 2.0 + 0.05);
-        let part = node.kind == NodeKind::Part;
-        let mut entity = Entity::new(timestamp, world_frame, format!("node/{}", node.id));
-        entity.metadata = vec![
-            KeyValue { key: "graph_version", value: graph.version.to_string() },
-            KeyValue { key: "node_id", value: node.id.to_string() },
-            KeyValue { key: "kind", value: node.kind.as_str().to_owned() },
-            KeyValue { key: "label", value: node.label.clone() },
-            KeyValue { key: "yaw_rad", value: obb.yaw_rad.to_string() },
-        ];
-        if node.affordance_bits != 0 {
-            // "hook_pull:knowledge+llm,pinch_pull:llm": each affordance with its origin.
-            let affordances: Vec<String> =
-                node.affordance_origins().map(|(name, origin)| format!("{name}:{}", origin.as_str())).collect();
-            entity.metadata.push(KeyValue { key: "affordances", value: affordances.join(",") });
-        }
+    for shape in node_shapes(graph, up_axis) {
+        let mut entity = Entity::new(timestamp, world_frame, shape.entity_id);
+        entity.metadata = shape.metadata.into_iter().map(|(key, value)| KeyValue { key, value }).collect();
         entity.cubes.push(Cube {
-            pose: Pose::new(centre, rotation),
-            size: Vector3 { x: sx, y: sy, z: sz },
-            color: if part { PART_COLOUR } else { OBJECT_COLOUR },
+            pose: Pose::new(shape.centre_m, shape.rotation),
+            size: vector(shape.size_m),
+            color: shape.colour,
         });
         entity.texts.push(Text {
-            pose: Pose::at(top.to_array()),
+            pose: Pose::at(shape.label_position_m),
             billboard: true,
-            font_size: if part { 12.0 } else { 16.0 },
+            font_size: shape.font_size,
             scale_invariant: true,
             color: TEXT_COLOUR,
-            text: node.label.clone(),
+            text: shape.label,
         });
         entities.push(entity);
     }
-    let centre_of = |id: u32| {
-        graph.nodes.binary_search_by_key(&id, |n| n.id).ok().map(|i| {
-            let [x, y, z] = v3(graph.nodes[i].centre_m);
-            Vector3 { x, y, z }
-        })
-    };
-    for (kind, name, colour) in [
-        (EdgeKind::Spatial, "edges/spatial", SPATIAL_EDGE_COLOUR),
-        (EdgeKind::Functional, "edges/functional", FUNCTIONAL_EDGE_COLOUR),
-    ] {
-        let mut points = Vec::new();
-        for edge in graph.edges.iter().filter(|e| e.kind == kind) {
-            if let (Some(a), Some(b)) = (centre_of(edge.source_id), centre_of(edge.target_id)) {
-                points.push(a);
-                points.push(b);
-            }
-        }
-        let mut entity = Entity::new(timestamp, world_frame, name.to_owned());
+    for lines in edge_lines(graph) {
+        let mut entity = Entity::new(timestamp, world_frame, lines.entity_id.to_owned());
         entity.metadata = vec![KeyValue { key: "graph_version", value: graph.version.to_string() }];
-        if !points.is_empty() {
+        if !lines.points_m.is_empty() {
             entity.lines.push(Line {
                 kind: 2, // LINE_LIST
                 pose: Pose::at([0.0; 3]),
-                thickness: if kind == EdgeKind::Functional { 3.0 } else { 1.5 },
+                thickness: lines.thickness,
                 scale_invariant: true,
-                points,
-                color: colour,
+                points: lines.points_m.into_iter().map(vector).collect(),
+                color: lines.colour,
                 colors: Vec::new(),
                 indices: Vec::new(),
             });

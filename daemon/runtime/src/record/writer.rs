@@ -140,7 +140,8 @@ pub(crate) fn thread_cpu_ns() -> u64 {
         .unwrap_or(0)
 }
 
-fn health_json(h: &Health) -> serde_json::Value {
+/// The health record as the recorder writes it (`op3dsg.Health`, JSON); the live view sends the same.
+pub(crate) fn health_json(h: &Health) -> serde_json::Value {
     let stages: Vec<_> = h.stages[..h.stage_count as usize]
         .iter()
         .map(|s| {
