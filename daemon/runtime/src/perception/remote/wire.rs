@@ -452,8 +452,8 @@ fn encode_depth(out: &mut Vec<u8>, depth: &[u16], w: u32, h: u32, encoding: Imag
         }
         ImageEncoding::Png => {
             use image::ImageEncoder as _;
-            // PNG stores 16-bit samples big-endian.
-            let be: Vec<u8> = depth.iter().flat_map(|v| v.to_be_bytes()).collect();
+            // The encoder takes 16-bit samples in native order (it writes PNG's big-endian).
+            let be: Vec<u8> = depth.iter().flat_map(|v| v.to_ne_bytes()).collect();
             image::codecs::png::PngEncoder::new_with_quality(
                 &mut *out,
                 image::codecs::png::CompressionType::Fast,
