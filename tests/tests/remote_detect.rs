@@ -159,8 +159,11 @@ fn dump(prefix: &str) -> Value {
     serde_json::from_slice(&output.stdout).expect("dump JSON")
 }
 
-/// Nodes (id, label, kind, centre) and edges of a dumped graph.
-fn shape(graph: &Value) -> (Vec<(u64, String, String, Vec<f64>)>, Vec<String>) {
+/// A node as compared: id, label, kind, centre.
+type NodeShape = (u64, String, String, Vec<f64>);
+
+/// Nodes and edges of a dumped graph.
+fn shape(graph: &Value) -> (Vec<NodeShape>, Vec<String>) {
     let nodes = graph["nodes"]
         .as_array()
         .expect("nodes")
@@ -214,14 +217,17 @@ fn two_remote_yolox_workers_give_the_graph_of_the_local_detector() {
     let watching = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(true));
     let watcher = {
         let (latest, watching) = (latest.clone(), watching.clone());
-        std::thread::spawn(move || {
-            while watching.load(std::sync::atomic::Ordering::Relaxed) {
-                if let Some(figures) = status.try_read() {
-                    *latest.lock().expect("lock") = figures;
+        std::thread::Builder::new()
+            .name("detect-status".to_owned())
+            .spawn(move || {
+                while watching.load(std::sync::atomic::Ordering::Relaxed) {
+                    if let Some(figures) = status.try_read() {
+                        *latest.lock().expect("lock") = figures;
+                    }
+                    std::thread::sleep(Duration::from_millis(100));
                 }
-                std::thread::sleep(Duration::from_millis(100));
-            }
-        })
+            })
+            .expect("spawn the status watcher")
     };
     let remote_graph = final_graph(&remote);
     watching.store(false, std::sync::atomic::Ordering::Relaxed);

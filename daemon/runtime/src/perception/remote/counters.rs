@@ -107,7 +107,7 @@ impl WorkerCounters {
             "round_trip_p99_ms": p99,
             "bytes_out": load(&self.bytes_out),
             "bytes_in": load(&self.bytes_in),
-            "bytes_per_keyframe": if requests == 0 { 0 } else { bytes / requests },
+            "bytes_per_keyframe": bytes.checked_div(requests).unwrap_or(0),
         })
     }
 }
