@@ -33,7 +33,7 @@ pub use counters::{Rejection, RemoteCounters, WorkerCounters};
 /// `detector.kind` of remote detection.
 pub const REMOTE_DETECTOR: &str = "remote";
 
-/// The key a worker `id` serves requests on under `prefix`.
+/// The key a worker serves requests on, below its key (`<prefix>/detect/<id>`).
 pub fn request_key(worker_key: &str) -> String {
     format!("{worker_key}/request")
 }
