@@ -7,7 +7,7 @@
 //! code span that starts with `op3dsg`, `op3dsgd` or `cargo` (a reference table's synopsis marks
 //! `[`, `]`, `...`, `<placeholder>` taken out). Each command is checked:
 //!
-//! - `op3dsg` / `op3dsgd` (bare, `target/<profile>/op3dsg*`, `/usr/bin/op3dsg*`, or
+//! - `op3dsg` / `op3dsgd` / `op3dsg-detectd` (bare, `target/<profile>/op3dsg*`, `/usr/bin/op3dsg*`, or
 //!   `cargo run ... --bin op3dsgd -- args`): the binary built from this checkout, given the same
 //!   subcommand words and `--help`, exits 0, and every `--flag` / `-f` the line uses is an option
 //!   in that help; every `--set KEY=VALUE` names a key the profile accepts;
@@ -481,7 +481,7 @@ impl Checker {
             let Some(program) = command.first() else { continue };
             let args = &command[1..];
             let base = program.rsplit('/').next().unwrap_or(program);
-            if base == "op3dsg" || base == "op3dsgd" {
+            if matches!(base, "op3dsg" | "op3dsgd" | "op3dsg-detectd") {
                 self.check_binary(line, base, args);
             } else if program.ends_with(".sh") && (program.contains("scripts/") || program.contains("systemd/")) {
                 self.check_script(line, program);
@@ -721,7 +721,7 @@ fn command_of_span(file: &str, line: usize, table_row: bool, span: &str) -> Opti
     }
     let words: Vec<&str> = plain.split_whitespace().collect();
     let first = words.first().map(|w| w.rsplit('/').next().unwrap_or(w));
-    (words.len() >= 2 && matches!(first, Some("op3dsg" | "op3dsgd" | "cargo"))).then(|| DocLine {
+    (words.len() >= 2 && matches!(first, Some("op3dsg" | "op3dsgd" | "op3dsg-detectd" | "cargo"))).then(|| DocLine {
         file: file.to_owned(),
         line,
         text: words.join(" "),
@@ -1082,7 +1082,7 @@ fn robot_command_problem(program: &str, args: &[String]) -> Option<String> {
     let base = program.rsplit('/').next().unwrap_or(program);
     let operands: Vec<&String> = args.iter().filter(|a| !a.starts_with('-')).collect();
     match base {
-        "op3dsg" | "op3dsgd" | "cargo" => None,
+        "op3dsg" | "op3dsgd" | "op3dsg-detectd" | "cargo" => None,
         _ if program.ends_with(".sh") || base.starts_with("python") => None,
         "systemctl" => {
             let verb = operands.first()?;

@@ -30,6 +30,7 @@ use crate::fusion::Fusion;
 use crate::fusion::snapshot::SnapshotError;
 use crate::onnx::OnnxError;
 use crate::perception::Detector;
+use crate::perception::remote::{REMOTE_DETECTOR, SKIP_FALLBACK};
 use crate::record::SideChannelTap;
 
 mod runtime;
@@ -255,12 +256,31 @@ impl Backends {
     /// runner both do.
     pub fn open(&self, profile: &Profile) -> Result<(OpenedSource, DetectorFactory), StartError> {
         let opened = self.source(&profile.source.kind)?.open(profile)?;
-        let factory = self.detector(&profile.detector.kind)?.prepare(profile, &opened)?;
-        let factory = match &profile.detector.region_encoder {
+        let factory = self.prepare_detectors(profile, &profile.detector.kind, &opened)?;
+        Ok((opened, factory))
+    }
+
+    /// The factory of detector `kind` (with `[detector.region_encoder]` around it), as `open`
+    /// and a detection worker process (`op3dsg-detectd`) make it. `remote` prepares its
+    /// fallback (`detector.remote.fallback`) the same way; the region encoder then runs on the
+    /// worker, not around the remote detector.
+    pub fn prepare_detectors(
+        &self,
+        profile: &Profile,
+        kind: &str,
+        opened: &OpenedSource,
+    ) -> Result<DetectorFactory, StartError> {
+        if kind == REMOTE_DETECTOR {
+            let fallback = &profile.detector.remote.fallback;
+            let fallback =
+                (fallback != SKIP_FALLBACK).then(|| self.prepare_detectors(profile, fallback, opened)).transpose()?;
+            return runtime::remote(profile, fallback);
+        }
+        let factory = self.detector(kind)?.prepare(profile, opened)?;
+        Ok(match &profile.detector.region_encoder {
             Some(config) => runtime::with_region_encoder(profile, factory, config)?,
             None => factory,
-        };
-        Ok((opened, factory))
+        })
     }
 }
 
@@ -285,6 +305,23 @@ impl SectionRegistry for Backends {
         let detector = self.detector(&profile.detector.kind).map_err(to_pair)?;
         self.fusion_backend(&profile.fusion.method).map_err(to_pair)?;
         source.validate(profile)?;
+        if profile.detector.kind == REMOTE_DETECTOR && profile.detector.remote.fallback != SKIP_FALLBACK {
+            let fallback = &profile.detector.remote.fallback;
+            let backend = self.detector(fallback).map_err(|_| {
+                (
+                    "detector.remote.fallback".to_owned(),
+                    format!(
+                        "no detector \"{fallback}\" in this build (\"skip\" or one of: {})",
+                        self.detector_names()
+                            .into_iter()
+                            .filter(|n| *n != REMOTE_DETECTOR)
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                )
+            })?;
+            backend.validate(profile)?;
+        }
         detector.validate(profile)
     }
 }

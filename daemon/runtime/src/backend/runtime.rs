@@ -1,5 +1,6 @@
 //! The backends the runtime provides itself: sources `replay` and `mcap`, detectors `yolox` and
-//! `open_vocab` (with `[detector.region_encoder]` around any detector), fusion `op3dsg`.
+//! `open_vocab` (with `[detector.region_encoder]` around any detector) and `remote`, fusion
+//! `op3dsg`.
 
 use std::sync::{Arc, Mutex, PoisonError};
 
@@ -16,6 +17,7 @@ use crate::knowledge::KnowledgeBase;
 use crate::onnx::{OnnxError, OnnxRuntime};
 use crate::perception::open_vocab::OpenVocabDetector;
 use crate::perception::region_encoder::{RegionEncoder, RegionEncoderConfig, WithRegionEncoder};
+use crate::perception::remote::{REMOTE_DETECTOR, RemoteClient, RemoteDetector};
 use crate::perception::yolox::YoloxDetector;
 use crate::perception::{Detection, Detector, DetectorError, OPEN_VOCAB_DETECTOR, YOLOX_DETECTOR};
 
@@ -24,7 +26,7 @@ pub(super) fn sources() -> Vec<Arc<dyn SourceBackend>> {
 }
 
 pub(super) fn detectors() -> Vec<Arc<dyn DetectorBackend>> {
-    vec![Arc::new(YoloxBackend), Arc::new(OpenVocabBackend)]
+    vec![Arc::new(YoloxBackend), Arc::new(OpenVocabBackend), Arc::new(RemoteBackend)]
 }
 
 pub(super) fn fusions() -> Vec<Arc<dyn FusionBackend>> {
@@ -159,6 +161,36 @@ impl DetectorBackend for OpenVocabBackend {
                 .map(|d| Box::new(d) as Box<dyn Detector>)
         })
     }
+}
+
+/// `detector.kind = "remote"` (`[detector.remote]`): its detectors come from [`remote`], which
+/// also prepares the fallback's; by itself it has no fallback (`skip`).
+struct RemoteBackend;
+
+impl DetectorBackend for RemoteBackend {
+    fn name(&self) -> &'static str {
+        REMOTE_DETECTOR
+    }
+
+    fn prepare(&self, profile: &Profile, _source: &OpenedSource) -> Result<DetectorFactory, StartError> {
+        remote(profile, None)
+    }
+}
+
+/// The remote detectors of `[detector.remote]`, sharing one session (the profile's `[zenoh]`
+/// settings; without its listeners when the Zenoh stage, which holds them, is on too), each
+/// with its own detector of `fallback`'s factory.
+pub(super) fn remote(profile: &Profile, fallback: Option<DetectorFactory>) -> Result<DetectorFactory, StartError> {
+    let mut zenoh = profile.zenoh.clone();
+    if zenoh.enabled {
+        zenoh.listen.clear();
+    }
+    let session = zenoh.session_config().map_err(|(key, e)| StartError::Zenoh(format!("{key}: {e}")))?;
+    let client = RemoteClient::open(session, &zenoh.prefix(), &profile.detector.remote).map_err(StartError::Zenoh)?;
+    Ok(Arc::new(move |worker| {
+        let fallback = fallback.as_ref().map(|f| f(worker));
+        Box::new(RemoteDetector::new(client.clone(), fallback)) as Box<dyn Detector>
+    }))
 }
 
 /// The knowledge base of `reasoner.knowledge_dir`, else the built-in tables (the detectors' part

@@ -135,10 +135,13 @@ fn load_layers(
 }
 
 /// Sub-tables of `[source]`, `[detector]` and `[fusion]` that are the runtime's own typed sections
-/// (`region_encoder` goes with every detector kind, `colour` is the OP3DSG fusion's); any other
-/// sub-table is a registered backend's.
-const RUNTIME_SECTIONS: [(&str, &[&str]); 3] =
-    [("source", &["replay"]), ("detector", &["yolox", "open_vocab", "region_encoder"]), ("fusion", &["colour"])];
+/// (`region_encoder` goes with every detector kind, `remote` with `detector.kind = "remote"`,
+/// `colour` is the OP3DSG fusion's); any other sub-table is a registered backend's.
+const RUNTIME_SECTIONS: [(&str, &[&str]); 3] = [
+    ("source", &["replay"]),
+    ("detector", &["yolox", "open_vocab", "region_encoder", "remote"]),
+    ("fusion", &["colour"]),
+];
 
 /// `detector.kind = "onnx"` is the older name of `"yolox"`.
 fn normalise_kinds(merged: &mut toml::Table) {

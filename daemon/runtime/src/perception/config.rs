@@ -4,6 +4,7 @@ use serde::{Deserialize, Serialize};
 
 use super::open_vocab::OpenVocabConfig;
 use super::region_encoder::RegionEncoderConfig;
+use super::remote::{REMOTE_DETECTOR, RemoteConfig};
 use super::yolox::YoloxConfig;
 
 /// YOLOX through ONNX Runtime (`detector.kind`; `"onnx"` is accepted as a synonym).
@@ -17,7 +18,8 @@ pub const OPEN_VOCAB_DETECTOR: &str = "open_vocab";
 pub struct DetectorConfig {
     /// Backend: `yolox` (YOLOX, closed vocabulary, COCO, `[detector.yolox]`; `"onnx"` is a
     /// synonym), `open_vocab` (text-prompted, `[detector.open_vocab]`; contract in
-    /// `perception/open_vocab.rs`), or one registered with [`crate::backend::Backends`]
+    /// `perception/open_vocab.rs`), `remote` (`op3dsg-detectd` workers over Zenoh,
+    /// `[detector.remote]`), or one registered with [`crate::backend::Backends`]
     /// (`oracle` in `op3dsgd`).
     pub kind: String,
     /// Worker threads (`op3dsg-detect-<i>`), each with its own detector instance.
@@ -35,6 +37,10 @@ pub struct DetectorConfig {
     /// `perception/region_encoder.rs`). Unset: the detector's own features, if any.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub region_encoder: Option<RegionEncoderConfig>,
+    /// `[detector.remote]`: the detection workers over Zenoh, the timeout and the fallback (used
+    /// with `kind = "remote"`; `perception/remote/`).
+    #[serde(default)]
+    pub remote: RemoteConfig,
 }
 
 impl DetectorConfig {
@@ -44,7 +50,9 @@ impl DetectorConfig {
         if !(1..=64).contains(&self.workers) {
             return Err(format!("{path}.workers: must be within [1, 64], got {}", self.workers));
         }
-        if self.kind == YOLOX_DETECTOR {
+        // A remote detector's local fallback is checked as if it were the kind.
+        let local = if self.kind == REMOTE_DETECTOR { self.remote.fallback.as_str() } else { self.kind.as_str() };
+        if local == YOLOX_DETECTOR {
             self.yolox.validate(&format!("{path}.yolox"))?;
             if self.yolox.class_map.is_empty() {
                 return Err(format!(
@@ -52,8 +60,11 @@ impl DetectorConfig {
                 ));
             }
         }
-        if self.kind == OPEN_VOCAB_DETECTOR {
+        if local == OPEN_VOCAB_DETECTOR {
             self.open_vocab.validate(&format!("{path}.open_vocab"))?;
+        }
+        if self.kind == REMOTE_DETECTOR {
+            self.remote.validate(&format!("{path}.remote"))?;
         }
         if let Some(encoder) = &self.region_encoder {
             encoder.validate(&format!("{path}.region_encoder"))?;

@@ -7,6 +7,7 @@
 //! | `config.rs` | `[detector]` ([`DetectorConfig`]) |
 //! | `thread.rs` | [`DetectThread`], a detection worker |
 //! | `yolox.rs`, `open_vocab/`, `mask_decoder.rs`, `region_encoder.rs`, `tagger.rs` | the ONNX detectors and their parts |
+//! | `remote/` | remote detection over Zenoh: the wire format, `[detector.remote]`, the robot's client |
 //! | `candidates.rs`, `depth_mask.rs`, `image_input.rs` | what they share: knowledge-guided prompts, masks from depth, image tensors |
 
 use op3dsg_drivers::frame::Frame;
@@ -19,6 +20,7 @@ pub mod image_input;
 pub mod mask_decoder;
 pub mod open_vocab;
 pub mod region_encoder;
+pub mod remote;
 pub mod tagger;
 mod thread;
 pub mod yolox;

@@ -1,0 +1,361 @@
+//! Remote detection with real processes over loopback: `op3dsgd` with `detector.kind =
+//! "remote"` listens on a free port, `op3dsg-detectd` workers (YOLOX-nano, CPU execution
+//! provider, `profiles/replay-icl.toml`'s detector) connect to it; multicast scouting stays off.
+//!
+//! - On the ICL-NUIM replay, two workers give the graph the same detector gives locally, every
+//!   keyframe answered remotely and both workers used.
+//! - On the synthetic kitchen (endless): killing one worker moves its keyframes to the other;
+//!   killing both switches to the local fallback, and a returning worker takes over again.
+//! - Workers that answer garbage, late, for another request, with a mask outside the image or
+//!   with embeddings of another dimension are rejected and counted by reason
+//!   (`OP3DSG_DETECTD_FAULT`, built with `--features op3dsgd/fault-hooks`).
+//!
+//! The daemon's figures come from its `<prefix>/detect_status` queryable. Needs `.models/` and
+//! the shared development data (skips with a message when absent, fails in CI).
+
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use op3dsg_tests::{Daemon, binary, unique_prefix, wait_for};
+use serde_json::Value;
+use zenoh::Wait;
+
+fn free_port() -> u16 {
+    TcpListener::bind("127.0.0.1:0").expect("bind a free port").local_addr().expect("port").port()
+}
+
+fn profile() -> Option<PathBuf> {
+    op3dsg_shared_data::shared_data("rgbd/icl_livingroom1/rgb.txt")?;
+    op3dsg_shared_data::shared_data("models/yolox_nano/yolox_nano.onnx")?;
+    Some(Path::new(env!("CARGO_MANIFEST_DIR")).join("../profiles/replay-icl.toml"))
+}
+
+/// A running `op3dsg-detectd`, killed on drop.
+struct Worker(Child);
+
+impl Worker {
+    fn start(profile: &Path, port: u16, key_prefix: &str, id: &str, fault: &[(&str, &str)]) -> Self {
+        let child = Command::new(binary("op3dsg-detectd"))
+            .arg("--profile")
+            .arg(profile)
+            .args(["--set", &format!("zenoh.key_prefix=\"{key_prefix}\"")])
+            .args(["--set", &format!("zenoh.connect=[\"tcp/127.0.0.1:{port}\"]")])
+            .args(["--set", "detector.workers=1", "--id", id])
+            .env("OP3DSG_LOG", "warn")
+            .envs(fault.iter().copied())
+            .stdin(Stdio::null())
+            .spawn()
+            .expect("spawn op3dsg-detectd");
+        Self(child)
+    }
+
+    fn kill(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+impl Drop for Worker {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+/// The daemon's arguments for remote detection to `workers` (ids) under `key_prefix`.
+fn remote_args(port: u16, key_prefix: &str, workers: &[&str], extra: &[&str]) -> Vec<String> {
+    let keys: Vec<String> = workers.iter().map(|w| format!("\"{key_prefix}/detect/{w}\"")).collect();
+    let mut args: Vec<String> = [
+        "detector.kind=\"remote\"".to_owned(),
+        format!("zenoh.key_prefix=\"{key_prefix}\""),
+        format!("zenoh.listen=[\"tcp/127.0.0.1:{port}\"]"),
+        format!("detector.remote.workers=[{}]", keys.join(", ")),
+        "detector.remote.wait_for_workers_ms=60000".to_owned(),
+    ]
+    .into_iter()
+    .chain(extra.iter().map(|s| (*s).to_owned()))
+    .flat_map(|set| ["--set".to_owned(), set])
+    .collect();
+    args.push("--log".to_owned());
+    args.push("warn".to_owned());
+    args
+}
+
+/// A Zenoh client of the daemon's session, to read `<prefix>/detect_status`.
+struct Status {
+    session: zenoh::Session,
+    key: String,
+}
+
+impl Status {
+    fn connect(port: u16, key_prefix: &str) -> Self {
+        let mut config = zenoh::Config::default();
+        for (key, value) in [
+            ("mode", "\"client\"".to_owned()),
+            ("connect/endpoints", format!("[\"tcp/127.0.0.1:{port}\"]")),
+            ("scouting/multicast/enabled", "false".to_owned()),
+        ] {
+            config.insert_json5(key, &value).expect("zenoh config");
+        }
+        let session = wait_for("a Zenoh session to the daemon", Duration::from_secs(60), || {
+            zenoh::open(config.clone()).wait().ok()
+        });
+        Self { session, key: format!("{key_prefix}/detect_status") }
+    }
+
+    /// The daemon's remote-detection figures, once it answers.
+    fn read(&self) -> Value {
+        wait_for("the daemon's detect_status", Duration::from_secs(60), || self.try_read())
+    }
+
+    /// The figures, if the daemon answers now.
+    fn try_read(&self) -> Option<Value> {
+        let replies = self.session.get(&self.key).timeout(Duration::from_secs(2)).wait().ok()?;
+        let reply = replies.recv().ok()?;
+        let sample = reply.result().ok()?;
+        serde_json::from_slice(&sample.payload().to_bytes()).ok()
+    }
+
+    fn worker(&self, key: &str, field: &str) -> u64 {
+        self.read()["workers"][key][field].as_u64().unwrap_or(0)
+    }
+
+    /// Waits until `pick` holds for the figures; returns them and how long it took.
+    fn until(&self, what: &str, timeout: Duration, pick: impl Fn(&Value) -> bool) -> (Value, Duration) {
+        let started = Instant::now();
+        let status = wait_for(what, timeout, || {
+            std::thread::sleep(Duration::from_millis(50));
+            Some(self.read()).filter(&pick)
+        });
+        (status, started.elapsed())
+    }
+}
+
+/// The final graph of a daemon on the ICL replay: waits until all 211 frames are captured and
+/// the graph version holds still, then `op3dsg dump --json`.
+fn final_graph(daemon: &Daemon) -> Value {
+    let mut health = daemon.health_subscriber("remote-detect-health");
+    op3dsg_tests::health_where(&mut health, "all 211 frames captured", Duration::from_secs(240), |h| {
+        h.frames_captured >= 211
+    });
+    let mut last = dump(&daemon.prefix);
+    loop {
+        std::thread::sleep(Duration::from_secs(2));
+        let now = dump(&daemon.prefix);
+        if now["graph_version"] == last["graph_version"] {
+            return now;
+        }
+        last = now;
+    }
+}
+
+fn dump(prefix: &str) -> Value {
+    let output = Command::new(binary("op3dsg"))
+        .args(["--prefix", prefix, "dump", "--json", "--timeout-s", "30"])
+        .output()
+        .expect("run op3dsg dump");
+    assert!(output.status.success(), "op3dsg dump: {}", String::from_utf8_lossy(&output.stderr));
+    serde_json::from_slice(&output.stdout).expect("dump JSON")
+}
+
+/// A node as compared: id, label, kind, centre.
+type NodeShape = (u64, String, String, Vec<f64>);
+
+/// Nodes and edges of a dumped graph.
+fn shape(graph: &Value) -> (Vec<NodeShape>, Vec<String>) {
+    let nodes = graph["nodes"]
+        .as_array()
+        .expect("nodes")
+        .iter()
+        .map(|n| {
+            let centre = n["centre_m"].as_array().expect("centre").iter().map(|v| v.as_f64().expect("f64")).collect();
+            (
+                n["id"].as_u64().expect("id"),
+                n["label"].as_str().expect("label").to_owned(),
+                n["kind"].as_str().expect("kind").to_owned(),
+                centre,
+            )
+        })
+        .collect();
+    let mut edges: Vec<String> = graph["edges"]
+        .as_array()
+        .expect("edges")
+        .iter()
+        .map(|e| format!("{} {} {} {}", e["source"], e["target"], e["kind"], e["relation"]))
+        .collect();
+    edges.sort();
+    (nodes, edges)
+}
+
+#[test]
+fn two_remote_yolox_workers_give_the_graph_of_the_local_detector() {
+    let Some(profile) = profile() else { return };
+    let profile_arg = profile.display().to_string();
+    // The profile exits at the end of the sequence; these daemons keep serving their last graph.
+    let keep = ["--set", "run.exit_at_end=false"];
+    let local = Daemon::start(&unique_prefix("remote-local"), &["--profile", &profile_arg, keep[0], keep[1]]);
+    let local_graph = final_graph(&local);
+    drop(local);
+
+    let (port, key_prefix) = (free_port(), format!("rd{}", std::process::id()));
+    let _workers: Vec<Worker> =
+        ["w1", "w2"].iter().map(|id| Worker::start(&profile, port, &key_prefix, id, &[])).collect();
+    let mut args = vec!["--profile".to_owned(), profile_arg];
+    args.extend(remote_args(
+        port,
+        &key_prefix,
+        &["w1", "w2"],
+        &["detector.remote.timeout_ms=30000", "run.exit_at_end=false"],
+    ));
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let remote = Daemon::start(&unique_prefix("remote"), &args);
+    // The detection session closes when the sequence's last keyframe is detected: its figures
+    // are read while it runs, the newest kept.
+    let status = Status::connect(port, &key_prefix);
+    let latest = std::sync::Arc::new(std::sync::Mutex::new(Value::Null));
+    let watching = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(true));
+    let watcher = {
+        let (latest, watching) = (latest.clone(), watching.clone());
+        std::thread::Builder::new()
+            .name("detect-status".to_owned())
+            .spawn(move || {
+                while watching.load(std::sync::atomic::Ordering::Relaxed) {
+                    if let Some(figures) = status.try_read() {
+                        *latest.lock().expect("lock") = figures;
+                    }
+                    std::thread::sleep(Duration::from_millis(100));
+                }
+            })
+            .expect("spawn the status watcher")
+    };
+    let remote_graph = final_graph(&remote);
+    watching.store(false, std::sync::atomic::Ordering::Relaxed);
+    watcher.join().expect("status watcher");
+    let status = latest.lock().expect("lock").clone();
+    println!("local: {}\nremote: {}\nfigures: {status}", shape(&local_graph).0.len(), shape(&remote_graph).0.len());
+
+    let (local_nodes, local_edges) = shape(&local_graph);
+    let (remote_nodes, remote_edges) = shape(&remote_graph);
+    assert!(!local_nodes.is_empty(), "YOLOX finds objects on the ICL sequence");
+    assert_eq!(local_nodes.len(), remote_nodes.len(), "node count: {local_nodes:?} vs {remote_nodes:?}");
+    for (a, b) in local_nodes.iter().zip(&remote_nodes) {
+        assert_eq!((a.0, &a.1, &a.2), (b.0, &b.1, &b.2), "node {}", a.0);
+        for (u, v) in a.3.iter().zip(&b.3) {
+            assert!((u - v).abs() <= 1e-5 * u.abs().max(1.0), "node {} centre {:?} vs {:?}", a.0, a.3, b.3);
+        }
+    }
+    assert_eq!(local_edges, remote_edges, "edges");
+    // Every keyframe was answered remotely, by both workers between them.
+    assert_eq!(status["fallback_keyframes"], 0, "{status}");
+    for w in ["w1", "w2"] {
+        let figures = &status["workers"][format!("{key_prefix}/detect/{w}")];
+        assert!(figures["replies"].as_u64().unwrap_or(0) > 0, "worker {w} answered: {status}");
+        assert!(figures["bytes_per_keyframe"].as_u64().unwrap_or(0) > 1000, "{status}");
+    }
+}
+
+#[test]
+fn killed_workers_hand_over_to_each_other_then_to_the_fallback_and_back() {
+    let Some(profile) = profile() else { return };
+    let (port, key_prefix) = (free_port(), format!("rk{}", std::process::id()));
+    let key = |w: &str| format!("{key_prefix}/detect/{w}");
+    let mut w1 = Worker::start(&profile, port, &key_prefix, "w1", &[]);
+    let mut w2 = Worker::start(&profile, port, &key_prefix, "w2", &[]);
+    // The synthetic kitchen loops forever at 15 frames/s; the fallback is YOLOX on the robot.
+    let mut args = vec!["--profile".to_owned(), profile.display().to_string()];
+    args.extend(remote_args(
+        port,
+        &key_prefix,
+        &["w1", "w2"],
+        &[
+            "source.kind=\"synthetic\"",
+            "source.rate_hz=15.0",
+            "detector.remote.timeout_ms=2000",
+            "detector.remote.retry_after_ms=500",
+            "detector.remote.fallback=\"yolox\"",
+        ],
+    ));
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let _daemon = Daemon::start(&unique_prefix("remote-kill"), &args);
+    let status = Status::connect(port, &key_prefix);
+    let minute = Duration::from_secs(120);
+    status.until("both workers answering", minute, |s| {
+        ["w1", "w2"].iter().all(|w| s["workers"][key(w)]["replies"].as_u64().unwrap_or(0) > 0)
+    });
+
+    // One worker gone: the other takes every keyframe, no fallback.
+    w1.kill();
+    let w1_replies = status.worker(&key("w1"), "replies");
+    let w2_replies = status.worker(&key("w2"), "replies");
+    let (after, _) = status.until("w2 taking w1's keyframes", minute, |s| {
+        s["workers"][key("w2")]["replies"].as_u64().unwrap_or(0) >= w2_replies + 10
+    });
+    assert_eq!(after["workers"][key("w1")]["replies"].as_u64(), Some(w1_replies), "{after}");
+    assert_eq!(after["fallback_active"], false, "{after}");
+
+    // Both gone: the fallback takes over.
+    w2.kill();
+    let (fallen, took) = status.until("the fallback on", minute, |s| s["fallback_active"] == true);
+    println!("fallback on {} ms after the last worker died: {fallen}", took.as_millis());
+    let fallback_keyframes = fallen["fallback_keyframes"].as_u64().unwrap_or(0);
+    status.until("keyframes on the fallback", minute, |s| {
+        s["fallback_keyframes"].as_u64().unwrap_or(0) >= fallback_keyframes + 3
+    });
+
+    // A worker returns: keyframes go to it again.
+    let _w1 = Worker::start(&profile, port, &key_prefix, "w1", &[]);
+    let (back, took) = status.until("w1 answering again, fallback off", minute, |s| {
+        s["fallback_active"] == false && s["workers"][key("w1")]["replies"].as_u64().unwrap_or(0) > w1_replies
+    });
+    println!("back on a worker {} ms after it started: {back}", took.as_millis());
+    let gone = back["workers"][key("w2")]["unreachable"].as_u64().unwrap_or(0)
+        + back["workers"][key("w2")]["timeouts"].as_u64().unwrap_or(0);
+    assert!(gone > 0, "requests to the dead worker are counted: {back}");
+}
+
+#[test]
+fn workers_that_answer_garbage_late_or_mismatched_are_rejected_by_reason() {
+    let Some(profile) = profile() else { return };
+    let (port, key_prefix) = (free_port(), format!("rf{}", std::process::id()));
+    let faults = ["garbage", "late", "wrong_id", "mask_size", "embedding_dim"];
+    let _workers: Vec<Worker> = faults
+        .iter()
+        .map(|fault| {
+            let env = [("OP3DSG_DETECTD_FAULT", *fault), ("OP3DSG_DETECTD_FAULT_DELAY_MS", "1500")];
+            Worker::start(&profile, port, &key_prefix, fault, &env)
+        })
+        .collect();
+    let mut args = vec!["--profile".to_owned(), profile.display().to_string()];
+    args.extend(remote_args(
+        port,
+        &key_prefix,
+        &faults,
+        &[
+            "source.kind=\"synthetic\"",
+            "source.rate_hz=15.0",
+            "detector.remote.timeout_ms=300",
+            "detector.remote.retry_after_ms=100",
+        ],
+    ));
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let _daemon = Daemon::start(&unique_prefix("remote-faults"), &args);
+    let status = Status::connect(port, &key_prefix);
+    let reason = |s: &Value, worker: &str, field: &str| -> u64 {
+        let w = &s["workers"][format!("{key_prefix}/detect/{worker}")];
+        w["rejections"][field].as_u64().or_else(|| w[field].as_u64()).unwrap_or(0)
+    };
+    let (s, _) = status.until("every fault counted", Duration::from_secs(180), |s| {
+        reason(s, "garbage", "garbage") > 0
+            && reason(s, "late", "timeouts") > 0
+            && reason(s, "late", "late") > 0
+            && reason(s, "wrong_id", "wrong_id") > 0
+            && reason(s, "mask_size", "mask_size") > 0
+            && reason(s, "embedding_dim", "embedding_dim") > 0
+    });
+    println!("{s}");
+    for w in faults {
+        assert_eq!(s["workers"][format!("{key_prefix}/detect/{w}")]["replies"], 0, "nothing of {w} is used: {s}");
+    }
+    assert!(s["fallback_keyframes"].as_u64().unwrap_or(0) > 0, "{s}");
+}
