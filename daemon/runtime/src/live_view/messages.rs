@@ -15,7 +15,7 @@ use crate::flow::LiveImages;
 use crate::graph::SceneGraph;
 use crate::occupancy::MapCopy;
 use crate::record::scene::{Colour, LABEL_COLOUR, edge_lines, node_shapes};
-use crate::world::{OrientedBox, UpAxis, horizontal_frame};
+use crate::world::UpAxis;
 
 /// A stamp as Foxglove's `Timestamp` (seconds past 2106 saturate).
 pub fn timestamp(stamp_ns: u64) -> Timestamp {
@@ -108,14 +108,7 @@ pub fn frame_transform(
 /// corner on the floor, its rows and columns along the world's horizontal axes.
 pub fn occupancy_grid(map: &MapCopy, world_frame: &str) -> Grid {
     let h = &map.header;
-    let up_axis = match h.up_axis {
-        1 => UpAxis::Y,
-        2 => UpAxis::NegY,
-        _ => UpAxis::Z,
-    };
-    let [first, second, up] = horizontal_frame(up_axis).map(|v| v.as_dvec3());
-    let corner = first * f64::from(h.origin_x_m) + second * f64::from(h.origin_y_m) + up * f64::from(h.floor_height_m);
-    let (rotation, _) = OrientedBox::default().rotation(up_axis);
+    let (corner, rotation) = map.corner_pose();
     let cell = f64::from(h.cell_size_m);
     Grid {
         timestamp: Some(timestamp(h.stamp_ns)),
@@ -157,6 +150,7 @@ mod tests {
 
     use super::*;
     use crate::graph::{GraphEdge, GraphNode};
+    use crate::world::OrientedBox;
 
     fn node(id: u32, kind: NodeKind, min: [f32; 3], max: [f32; 3]) -> GraphNode {
         GraphNode {

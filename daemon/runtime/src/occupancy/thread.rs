@@ -34,6 +34,7 @@ use super::{DepthScan, GridGeometry, OccupancyGrid, OccupancyPublisher, RobotPos
 use crate::queue::Latest;
 use crate::stats::StageStats;
 use crate::world::clock::wall_clock_ns;
+use crate::world::{OrientedBox, UpAxis, horizontal_frame};
 
 /// How long the thread waits for a scan before it checks the clock and the stop flag.
 const POLL: Duration = Duration::from_millis(20);
@@ -104,6 +105,23 @@ pub struct MapCopy {
     /// The header the map was published with (`<prefix>/occupancy`; its free and occupied counts
     /// are those of `cells`).
     pub header: OccupancyHeader,
+}
+
+impl MapCopy {
+    /// The grid's corner on the floor in world coordinates, and the rotation that turns the
+    /// grid's rows and columns onto the world's horizontal axes (how viewers place the map).
+    pub fn corner_pose(&self) -> (glam::DVec3, glam::DQuat) {
+        let h = &self.header;
+        let up_axis = match h.up_axis {
+            1 => UpAxis::Y,
+            2 => UpAxis::NegY,
+            _ => UpAxis::Z,
+        };
+        let [first, second, up] = horizontal_frame(up_axis).map(|v| v.as_dvec3());
+        let corner =
+            first * f64::from(h.origin_x_m) + second * f64::from(h.origin_y_m) + up * f64::from(h.floor_height_m);
+        (corner, OrientedBox::default().rotation(up_axis).0)
+    }
 }
 
 /// The newest published map, for the query worker and the Zenoh stage (copied in place; no

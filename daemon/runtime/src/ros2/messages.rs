@@ -26,7 +26,7 @@ use op3dsg_ros2::msg::visualization_msgs::{Marker, MarkerArray};
 
 use crate::graph::{SceneGraph, colours};
 use crate::occupancy::MapCopy;
-use crate::world::{OrientedBox, UpAxis, horizontal_frame};
+use crate::world::UpAxis;
 
 const fn rgba([r, g, b, a]: [f32; 4]) -> ColorRGBA {
     ColorRGBA { r, g, b, a }
@@ -175,14 +175,7 @@ pub fn marker_array(graph: &SceneGraph, up_axis: UpAxis, frame: &str, state: &mu
 /// turned so the grid's rows and columns run along the world's horizontal axes.
 pub fn occupancy_grid(map: &MapCopy, frame: &str) -> OccupancyGrid {
     let h = &map.header;
-    let up_axis = match h.up_axis {
-        1 => UpAxis::Y,
-        2 => UpAxis::NegY,
-        _ => UpAxis::Z,
-    };
-    let [first, second, up] = horizontal_frame(up_axis).map(|v| v.as_dvec3());
-    let corner = first * f64::from(h.origin_x_m) + second * f64::from(h.origin_y_m) + up * f64::from(h.floor_height_m);
-    let (rotation, _) = OrientedBox::default().rotation(up_axis);
+    let (corner, rotation) = map.corner_pose();
     let stamp = Time::from_ns(h.stamp_ns);
     OccupancyGrid {
         header: Header { stamp, frame_id: frame.to_owned() },
@@ -208,6 +201,7 @@ mod tests {
 
     use super::*;
     use crate::graph::{GraphEdge, GraphNode};
+    use crate::world::OrientedBox;
 
     fn node(id: u32, kind: NodeKind, parent_id: Option<u32>, min: [f32; 3], max: [f32; 3]) -> GraphNode {
         GraphNode {
