@@ -512,7 +512,7 @@ mod tests {
         assert!(ground_truth(&opened).is_some_and(|truth| !truth.scene.instances().is_empty()));
         let err = load_profile(None, &["detector.kind=oracle_v2".to_owned()]).unwrap_err();
         assert!(
-            err.message.contains("no detector \"oracle_v2\" in this build (it has: open_vocab, oracle, yolox)"),
+            err.message.contains("no detector \"oracle_v2\" in this build (it has: open_vocab, oracle, remote, yolox)"),
             "{err}"
         );
     }
