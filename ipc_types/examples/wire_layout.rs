@@ -19,10 +19,11 @@ use op3dsg_ipc_types::services::{
 use op3dsg_ipc_types::{
     AFFORDANCES, EDGE_BYTES, EXECUTION_PROVIDERS, Edge, FIXED_STAGES, FUNCTIONAL_RELATION_BASE, FUNCTIONAL_RELATIONS,
     FUTURE_POSE_LIMIT_NS, GraphHeader, Health, LABEL_CAPACITY_BYTES, MAX_EDGES, MAX_MODELS, MAX_NODES, MAX_QUEUES,
-    MAX_STAGES, MAX_WORKERS, ModelHealth, NAME_CAPACITY_BYTES, NO_NODE, NODE_BYTES, Node, PHRASE_CAPACITY_BYTES,
-    PoseHealth, PoseStamped, QueueHealth, RECORDER_STATES, REFINER_ERRORS, REFINER_FORMATS, REFINER_REJECTIONS,
-    REFINER_STATES, RecorderHealth, RefinerHealth, SCHEMA_VERSION, SNAPSHOT_STATES, SOURCE_KINDS, SPATIAL_RELATIONS,
-    SnapshotHealth, StageHealth, TF_PATH_CAPACITY_BYTES, TfHealth, ZeroCopySend,
+    MAX_REMOTE_WORKERS, MAX_STAGES, MAX_WORKERS, ModelHealth, NAME_CAPACITY_BYTES, NO_NODE, NODE_BYTES, Node,
+    PHRASE_CAPACITY_BYTES, PoseHealth, PoseStamped, QueueHealth, RECORDER_STATES, REFINER_ERRORS, REFINER_FORMATS,
+    REFINER_REJECTIONS, REFINER_STATES, REMOTE_KEY_CAPACITY_BYTES, REMOTE_REJECTIONS, RecorderHealth, RefinerHealth,
+    RemoteHealth, RemoteWorkerHealth, SCHEMA_VERSION, SNAPSHOT_STATES, SOURCE_KINDS, SPATIAL_RELATIONS, SnapshotHealth,
+    StageHealth, TF_PATH_CAPACITY_BYTES, TfHealth, ZeroCopySend,
 };
 
 /// The JSON object of one type: `"Name": {"type_name", "size", "align", "fields": [...]}`.
@@ -215,9 +216,48 @@ fn health_layouts() -> Vec<String> {
             snapshot,
             world_frame,
             tf,
+            remote,
         }
     );
     types.extend(tf_layout());
+    types.extend(remote_layout());
+    types
+}
+
+/// Remote detection's part of the health record.
+fn remote_layout() -> Vec<String> {
+    let mut types = Vec::new();
+    layout!(
+        types,
+        RemoteWorkerHealth {
+            key,
+            requests,
+            replies,
+            timeouts,
+            late,
+            unreachable,
+            rejections,
+            bytes_out,
+            bytes_in,
+            round_trip_p50_us,
+            round_trip_p99_us,
+            in_flight,
+            alive,
+            reserved,
+        }
+    );
+    layout!(
+        types,
+        RemoteHealth {
+            active,
+            fallback_active,
+            worker_count,
+            workers_not_reported,
+            fallback_keyframes,
+            fallback_switches,
+            workers,
+        }
+    );
     types
 }
 
@@ -254,6 +294,8 @@ fn constants() -> String {
     constant("PHRASE_CAPACITY_BYTES", PHRASE_CAPACITY_BYTES.to_string());
     constant("NAME_CAPACITY_BYTES", NAME_CAPACITY_BYTES.to_string());
     constant("TF_PATH_CAPACITY_BYTES", TF_PATH_CAPACITY_BYTES.to_string());
+    constant("REMOTE_KEY_CAPACITY_BYTES", REMOTE_KEY_CAPACITY_BYTES.to_string());
+    constant("MAX_REMOTE_WORKERS", MAX_REMOTE_WORKERS.to_string());
     constant("MAX_NODES", MAX_NODES.to_string());
     constant("MAX_EDGES", MAX_EDGES.to_string());
     constant("NO_NODE", NO_NODE.to_string());
@@ -274,6 +316,7 @@ fn constants() -> String {
     constant("REFINER_ERRORS", json_strings(&REFINER_ERRORS));
     constant("REFINER_FORMATS", json_strings(&REFINER_FORMATS));
     constant("REFINER_REJECTIONS", json_strings(&REFINER_REJECTIONS));
+    constant("REMOTE_REJECTIONS", json_strings(&REMOTE_REJECTIONS));
     constant("SOURCE_KINDS", json_strings(&SOURCE_KINDS));
     constant("DEFAULT_PREFIX", format!("\"{DEFAULT_PREFIX}\""));
     constant("MAX_PREFIX_LEN", MAX_PREFIX_LEN.to_string());

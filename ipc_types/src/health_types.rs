@@ -275,6 +275,9 @@ pub struct Health {
     pub world_frame: [u8; NAME_CAPACITY_BYTES],
     /// The tf input (`pose.source = "ros2"`); all zero otherwise.
     pub tf: TfHealth,
+    /// Remote detection (`detector.kind = "remote"`, or a local kind whose fallback it is); all
+    /// zero otherwise.
+    pub remote: RemoteHealth,
 }
 
 /// Bytes of [`TfHealth::path`].
@@ -364,6 +367,7 @@ impl Default for Health {
             snapshot: SnapshotHealth::default(),
             world_frame: [0; NAME_CAPACITY_BYTES],
             tf: TfHealth::default(),
+            remote: RemoteHealth::default(),
         }
     }
 }
@@ -389,6 +393,136 @@ impl Health {
     /// [`Self::world_frame`] as text.
     pub fn world_frame_str(&self) -> &str {
         crate::fixed_str(&self.world_frame)
+    }
+}
+
+/// The most detection workers [`RemoteHealth`] reports (the first seen; `<prefix>/detect_status`
+/// over Zenoh lists every one).
+pub const MAX_REMOTE_WORKERS: usize = 8;
+/// Bytes of [`RemoteWorkerHealth::key`].
+pub const REMOTE_KEY_CAPACITY_BYTES: usize = 96;
+/// Why a worker's reply was not used ([`RemoteWorkerHealth::rejections`] index `i` counts
+/// `REMOTE_REJECTIONS[i]`): `garbage` (not a reply of this wire version), `wrong_id` (it answers
+/// another request or keyframe), `mask_size` (a mask leaves the image or its runs do not cover
+/// its box), `embedding_dim` (a region embedding of another dimension), `refused` (the worker
+/// cannot serve the model contract), `failed` (the worker's detector failed).
+pub const REMOTE_REJECTIONS: [&str; 6] = ["garbage", "wrong_id", "mask_size", "embedding_dim", "refused", "failed"];
+
+/// One remote detection worker as the robot sees it (size 216 bytes). Counters are since the
+/// daemon started; the round trip's quantiles are over every accepted reply since then.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend, PlacementDefault)]
+#[type_name("op3dsg::RemoteWorkerHealth")]
+pub struct RemoteWorkerHealth {
+    /// The worker's Zenoh key (`<prefix>/detect/<id>`), UTF-8, NUL padded (a longer key ends in
+    /// `...`).
+    pub key: [u8; REMOTE_KEY_CAPACITY_BYTES],
+    /// Requests sent.
+    pub requests: u64,
+    /// Replies accepted.
+    pub replies: u64,
+    /// Requests that got no reply within `timeout_ms`.
+    pub timeouts: u64,
+    /// Replies that came after their request's timeout (dropped).
+    pub late: u64,
+    /// Requests that found no worker at the key (it was gone).
+    pub unreachable: u64,
+    /// Replies rejected, by reason ([`REMOTE_REJECTIONS`] order).
+    pub rejections: [u64; 6],
+    /// Request bytes sent (the encoded keyframes).
+    pub bytes_out: u64,
+    /// Reply bytes received.
+    pub bytes_in: u64,
+    /// Round trip of accepted replies, median, microseconds (0: none yet).
+    pub round_trip_p50_us: f32,
+    /// Round trip of accepted replies, 99th percentile, microseconds (0: none yet).
+    pub round_trip_p99_us: f32,
+    /// Requests outstanding now.
+    pub in_flight: u32,
+    /// 1 while the worker's liveliness token is present (`detector.remote.workers = "auto"`;
+    /// configured keys always read 1).
+    pub alive: u8,
+    /// Reserved, zero.
+    pub reserved: [u8; 3],
+}
+
+impl Default for RemoteWorkerHealth {
+    fn default() -> Self {
+        Self {
+            key: [0; REMOTE_KEY_CAPACITY_BYTES],
+            requests: 0,
+            replies: 0,
+            timeouts: 0,
+            late: 0,
+            unreachable: 0,
+            rejections: [0; 6],
+            bytes_out: 0,
+            bytes_in: 0,
+            round_trip_p50_us: 0.0,
+            round_trip_p99_us: 0.0,
+            in_flight: 0,
+            alive: 0,
+            reserved: [0; 3],
+        }
+    }
+}
+
+impl RemoteWorkerHealth {
+    /// [`Self::key`] as text.
+    pub fn key_str(&self) -> &str {
+        crate::fixed_str(&self.key)
+    }
+    /// Rejections of every reason.
+    pub fn rejected(&self) -> u64 {
+        self.rejections.iter().sum()
+    }
+    /// Bytes both ways per request sent (0 before the first).
+    pub fn bytes_per_keyframe(&self) -> u64 {
+        (self.bytes_out + self.bytes_in).checked_div(self.requests).unwrap_or(0)
+    }
+}
+
+/// Remote detection's state (size 1,752 bytes): the fallback's and the first
+/// [`MAX_REMOTE_WORKERS`] workers'.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend, PlacementDefault)]
+#[type_name("op3dsg::RemoteHealth")]
+pub struct RemoteHealth {
+    /// 1 when the daemon detects through remote workers.
+    pub active: u8,
+    /// 1 while keyframes go to the fallback (`detector.remote.fallback`) because no worker
+    /// answers.
+    pub fallback_active: u8,
+    /// Number of valid entries in `workers`.
+    pub worker_count: u16,
+    /// Workers seen beyond [`MAX_REMOTE_WORKERS`] (not reported here).
+    pub workers_not_reported: u32,
+    /// Keyframes the fallback took (or skipped, with `fallback = "skip"`).
+    pub fallback_keyframes: u64,
+    /// Times the fallback took over from the workers.
+    pub fallback_switches: u64,
+    /// Per worker, in the order first seen.
+    pub workers: [RemoteWorkerHealth; MAX_REMOTE_WORKERS],
+}
+
+impl Default for RemoteHealth {
+    fn default() -> Self {
+        Self {
+            active: 0,
+            fallback_active: 0,
+            worker_count: 0,
+            workers_not_reported: 0,
+            fallback_keyframes: 0,
+            fallback_switches: 0,
+            workers: [RemoteWorkerHealth::default(); MAX_REMOTE_WORKERS],
+        }
+    }
+}
+
+impl RemoteHealth {
+    /// The valid worker entries.
+    pub fn valid_workers(&self) -> &[RemoteWorkerHealth] {
+        &self.workers[..(self.worker_count as usize).min(MAX_REMOTE_WORKERS)]
     }
 }
 

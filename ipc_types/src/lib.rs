@@ -159,10 +159,10 @@ pub use graph_types::{
     affordance_origin, affordance_origins, graph_payload_bytes, relation_id, relation_phrase,
 };
 pub use health_types::{
-    EXECUTION_PROVIDERS, FIXED_STAGES, FUTURE_POSE_LIMIT_NS, Health, MAX_MODELS, MAX_QUEUES, MAX_STAGES, MAX_WORKERS,
-    ModelHealth, PoseHealth, QueueHealth, RECORDER_STATES, REFINER_ERRORS, REFINER_FORMATS, REFINER_REJECTIONS,
-    REFINER_STATES, RecorderHealth, RefinerHealth, SNAPSHOT_STATES, SnapshotHealth, StageHealth,
-    TF_PATH_CAPACITY_BYTES, TfHealth,
+    EXECUTION_PROVIDERS, FIXED_STAGES, FUTURE_POSE_LIMIT_NS, Health, MAX_MODELS, MAX_QUEUES, MAX_REMOTE_WORKERS,
+    MAX_STAGES, MAX_WORKERS, ModelHealth, PoseHealth, QueueHealth, RECORDER_STATES, REFINER_ERRORS, REFINER_FORMATS,
+    REFINER_REJECTIONS, REFINER_STATES, REMOTE_KEY_CAPACITY_BYTES, REMOTE_REJECTIONS, RecorderHealth, RefinerHealth,
+    RemoteHealth, RemoteWorkerHealth, SNAPSHOT_STATES, SnapshotHealth, StageHealth, TF_PATH_CAPACITY_BYTES, TfHealth,
 };
 pub use occupancy_types::{
     OCCUPANCY_FREE_MAX_PERCENT, OCCUPANCY_MAX_SIDE_CELLS, OCCUPANCY_OCCUPIED_MIN_PERCENT, OCCUPANCY_SCHEMA_VERSION,
@@ -208,7 +208,11 @@ pub use text::{fixed_str, write_fixed_str};
 ///
 /// 10: [`Health`] grew by [`TfHealth`] (256 bytes) after `world_frame`: the tf input's last
 /// chain, its stamp and data age, and its message counters. The graph's layout is unchanged.
-pub const SCHEMA_VERSION: u32 = 10;
+///
+/// 11: [`Health`] grew by [`RemoteHealth`] (1,752 bytes) after `tf`: remote detection's fallback
+/// and its workers' requests, replies, timeouts, rejections by reason, bytes and round trips.
+/// The graph's layout is unchanged.
+pub const SCHEMA_VERSION: u32 = 11;
 
 /// Bytes in a frame id (`PoseStamped::frame_id`), a stage or a queue name.
 pub const NAME_CAPACITY_BYTES: usize = 32;
@@ -252,11 +256,15 @@ mod tests {
                 + 64
                 + NAME_CAPACITY_BYTES
                 + 256
+                + 1752
         );
         assert_eq!(core::mem::offset_of!(Health, source_kind), 81);
-        assert_eq!(core::mem::offset_of!(Health, world_frame), size_of::<Health>() - NAME_CAPACITY_BYTES - 256);
+        assert_eq!(core::mem::offset_of!(Health, world_frame), size_of::<Health>() - NAME_CAPACITY_BYTES - 256 - 1752);
         assert_eq!(size_of::<TfHealth>(), 256);
-        assert_eq!(core::mem::offset_of!(Health, tf), size_of::<Health>() - 256);
+        assert_eq!(core::mem::offset_of!(Health, tf), size_of::<Health>() - 256 - 1752);
+        assert_eq!(size_of::<RemoteWorkerHealth>(), 216);
+        assert_eq!(size_of::<RemoteHealth>(), 1752);
+        assert_eq!(core::mem::offset_of!(Health, remote), size_of::<Health>() - 1752);
         assert_eq!(size_of::<SnapshotHealth>(), 64);
         assert_eq!(core::mem::offset_of!(GraphHeader, instance_id), 16);
         assert_eq!(core::mem::offset_of!(GraphHeader, capacity_exceeded), 52);

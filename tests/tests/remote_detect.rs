@@ -339,7 +339,7 @@ fn workers_that_answer_garbage_late_or_mismatched_are_rejected_by_reason() {
         ],
     ));
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
-    let _daemon = Daemon::start(&unique_prefix("remote-faults"), &args);
+    let daemon = Daemon::start(&unique_prefix("remote-faults"), &args);
     let status = Status::connect(port, &key_prefix);
     let reason = |s: &Value, worker: &str, field: &str| -> u64 {
         let w = &s["workers"][format!("{key_prefix}/detect/{worker}")];
@@ -358,4 +358,35 @@ fn workers_that_answer_garbage_late_or_mismatched_are_rejected_by_reason() {
         assert_eq!(s["workers"][format!("{key_prefix}/detect/{w}")]["replies"], 0, "nothing of {w} is used: {s}");
     }
     assert!(s["fallback_keyframes"].as_u64().unwrap_or(0) > 0, "{s}");
+
+    // The health record carries the same figures per worker, as `op3dsg health` and `watch` show.
+    let mut health = daemon.health_subscriber("remote-faults-health");
+    let reasons = [("garbage", 0), ("wrong_id", 1), ("mask_size", 2), ("embedding_dim", 3)];
+    let entry = |h: &op3dsg_ipc_types::Health, worker: &str| {
+        let key = format!("{key_prefix}/detect/{worker}");
+        h.remote.valid_workers().iter().find(|w| w.key_str() == key).copied()
+    };
+    let h = op3dsg_tests::health_where(&mut health, "every fault counted in health", Duration::from_secs(30), |h| {
+        reasons.iter().all(|(fault, reason)| entry(h, fault).is_some_and(|w| w.rejections[*reason] > 0))
+            && entry(h, "late").is_some_and(|w| w.late > 0)
+    });
+    assert_eq!((h.remote.active, h.remote.worker_count as usize), (1, faults.len()));
+    for (fault, reason) in reasons {
+        assert_eq!(op3dsg_ipc_types::REMOTE_REJECTIONS[reason], fault);
+        let w = entry(&h, fault).expect("the worker in health");
+        assert!(w.replies == 0 && w.requests > 0 && w.alive == 1, "{fault}: {w:?}");
+        assert!(w.bytes_out > 1000, "{fault}: the keyframes sent are counted: {w:?}");
+    }
+    let late = entry(&h, "late").expect("the late worker");
+    assert!(late.timeouts > 0 && late.replies == 0, "{late:?}");
+    assert!(h.remote.fallback_keyframes > 0);
+    let json = Command::new(binary("op3dsg"))
+        .args(["--prefix", &daemon.prefix, "health", "--json"])
+        .output()
+        .expect("run op3dsg health");
+    assert!(json.status.success(), "{}", String::from_utf8_lossy(&json.stderr));
+    let json: Value = serde_json::from_slice(&json.stdout).expect("health JSON");
+    let workers = json["remote"]["workers"].as_array().expect("remote workers in op3dsg health --json");
+    assert_eq!(workers.len(), faults.len(), "{json}");
+    assert!(workers.iter().all(|w| w["replies"] == 0 && w["requests"].as_u64().unwrap_or(0) > 0), "{json}");
 }

@@ -20,7 +20,7 @@ from typing import Dict, Iterator, List, Optional
 import numpy as np
 
 #: Version of the wire contract this package reads (``SCHEMA_VERSION`` in ``ipc_types/src/lib.rs``).
-SCHEMA_VERSION = 10
+SCHEMA_VERSION = 11
 
 #: Bytes in a node label buffer.
 LABEL_CAPACITY_BYTES = 48
@@ -30,6 +30,10 @@ PHRASE_CAPACITY_BYTES = 48
 NAME_CAPACITY_BYTES = 32
 #: Bytes of ``TfHealth.path`` (``TF_PATH_CAPACITY_BYTES``).
 TF_PATH_CAPACITY_BYTES = 192
+#: Bytes of ``RemoteWorkerHealth.key`` (``REMOTE_KEY_CAPACITY_BYTES``).
+REMOTE_KEY_CAPACITY_BYTES = 96
+#: The most remote detection workers one health record reports.
+MAX_REMOTE_WORKERS = 8
 #: Default most nodes / edges of one graph sample (the profile's ``ipc.max_nodes`` / ``ipc.max_edges``).
 MAX_NODES = 16_384
 MAX_EDGES = 32_768
@@ -100,6 +104,8 @@ REFINER_REJECTIONS = (
     "implausible_relation",
     "implausible_affordance",
 )
+#: Why a remote detection worker's reply was not used (``RemoteWorkerHealth.rejections`` order).
+REMOTE_REJECTIONS = ("garbage", "wrong_id", "mask_size", "embedding_dim", "refused", "failed")
 
 # QoS of the services (``ipc_types/src/services.rs``).
 DEFAULT_PREFIX = "op3dsg"
@@ -441,6 +447,64 @@ class TfHealth(_Wire):
         return fixed_str(self.path)
 
 
+class RemoteWorkerHealth(_Wire):
+    """One remote detection worker as the robot sees it (216 bytes): ``op3dsg::RemoteWorkerHealth``.
+
+    Counters are since the daemon started; ``rejections`` counts by :data:`REMOTE_REJECTIONS`."""
+
+    _fields_ = [
+        ("key", _u8 * REMOTE_KEY_CAPACITY_BYTES),
+        ("requests", _u64),
+        ("replies", _u64),
+        ("timeouts", _u64),
+        ("late", _u64),
+        ("unreachable", _u64),
+        ("rejections", _u64 * 6),
+        ("bytes_out", _u64),
+        ("bytes_in", _u64),
+        ("round_trip_p50_us", ctypes.c_float),
+        ("round_trip_p99_us", ctypes.c_float),
+        ("in_flight", _u32),
+        ("alive", _u8),
+        ("reserved", _u8 * 3),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "op3dsg::RemoteWorkerHealth"
+
+    def key_str(self) -> str:
+        """``key`` as text: the worker's Zenoh key."""
+        return fixed_str(self.key)
+
+    def bytes_per_keyframe(self) -> int:
+        """Bytes both ways per request sent (0 before the first)."""
+        return (self.bytes_out + self.bytes_in) // self.requests if self.requests else 0
+
+
+class RemoteHealth(_Wire):
+    """Remote detection (``detector.kind = "remote"``; 1,752 bytes): ``op3dsg::RemoteHealth``.
+
+    Only the first ``worker_count`` workers are valid: use :meth:`valid_workers`."""
+
+    _fields_ = [
+        ("active", _u8),
+        ("fallback_active", _u8),
+        ("worker_count", _u16),
+        ("workers_not_reported", _u32),
+        ("fallback_keyframes", _u64),
+        ("fallback_switches", _u64),
+        ("workers", RemoteWorkerHealth * MAX_REMOTE_WORKERS),
+    ]
+
+    @staticmethod
+    def type_name() -> str:
+        return "op3dsg::RemoteHealth"
+
+    def valid_workers(self) -> List[RemoteWorkerHealth]:
+        return list(self.workers[: min(self.worker_count, MAX_REMOTE_WORKERS)])
+
+
 class Health(_Wire):
     """Daemon health, published on ``<prefix>/health`` every health period: ``op3dsg::Health``.
 
@@ -475,6 +539,7 @@ class Health(_Wire):
         ("snapshot", SnapshotHealth),
         ("world_frame", _u8 * NAME_CAPACITY_BYTES),
         ("tf", TfHealth),
+        ("remote", RemoteHealth),
     ]
 
     @staticmethod
@@ -576,6 +641,32 @@ class Health(_Wire):
                 "accepted": self.refiner.accepted,
                 "rejections": dict(zip(REFINER_REJECTIONS, list(self.refiner.rejections))),
             },
+            "remote": {
+                "active": bool(self.remote.active),
+                "fallback_active": bool(self.remote.fallback_active),
+                "fallback_keyframes": self.remote.fallback_keyframes,
+                "fallback_switches": self.remote.fallback_switches,
+                "workers_not_reported": self.remote.workers_not_reported,
+                "workers": [
+                    {
+                        "key": w.key_str(),
+                        "alive": bool(w.alive),
+                        "requests": w.requests,
+                        "replies": w.replies,
+                        "timeouts": w.timeouts,
+                        "late": w.late,
+                        "unreachable": w.unreachable,
+                        "rejections": dict(zip(REMOTE_REJECTIONS, list(w.rejections))),
+                        "in_flight": w.in_flight,
+                        "round_trip_p50_us": w.round_trip_p50_us,
+                        "round_trip_p99_us": w.round_trip_p99_us,
+                        "bytes_out": w.bytes_out,
+                        "bytes_in": w.bytes_in,
+                        "bytes_per_keyframe": w.bytes_per_keyframe(),
+                    }
+                    for w in self.remote.valid_workers()
+                ],
+            },
         }
 
 
@@ -593,7 +684,7 @@ def source_kind_name(value: int) -> str:
 WIRE_TYPES = {
     cls.__name__: cls
     for cls in (Node, Edge, GraphHeader, PoseStamped, StageHealth, QueueHealth, RefinerHealth, PoseHealth, ModelHealth, RecorderHealth, SnapshotHealth, TfHealth,
-                Health)
+                RemoteWorkerHealth, RemoteHealth, Health)
 }
 
 NODE_BYTES = ctypes.sizeof(Node)

@@ -67,6 +67,95 @@ pub struct HealthReport {
     /// The tf input (`pose.source = "ros2"`; see `op3dsg_ipc_types::TfHealth`); absent otherwise.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tf: Option<TfReport>,
+    /// Remote detection (see `op3dsg_ipc_types::RemoteHealth`); absent without it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub remote: Option<RemoteReport>,
+}
+
+/// Remote detection in a [`HealthReport`].
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RemoteReport {
+    /// Whether keyframes go to the fallback now (no worker answers).
+    pub fallback_active: bool,
+    /// Keyframes the fallback took (or skipped).
+    pub fallback_keyframes: u64,
+    /// Times the fallback took over.
+    pub fallback_switches: u64,
+    /// Workers seen beyond the record's room (`<prefix>/detect_status` lists them).
+    pub workers_not_reported: u32,
+    /// Per worker, in the order first seen.
+    pub workers: Vec<RemoteWorkerReport>,
+}
+
+/// One remote detection worker in a [`RemoteReport`].
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RemoteWorkerReport {
+    /// The worker's Zenoh key.
+    pub key: String,
+    /// Whether its liveliness token is present.
+    pub alive: bool,
+    /// Requests sent.
+    pub requests: u64,
+    /// Replies accepted.
+    pub replies: u64,
+    /// Requests without a reply within `timeout_ms`.
+    pub timeouts: u64,
+    /// Replies after their timeout (dropped).
+    pub late: u64,
+    /// Requests that found no worker at the key.
+    pub unreachable: u64,
+    /// Replies rejected, by reason (`op3dsg_ipc_types::REMOTE_REJECTIONS`).
+    pub rejections: std::collections::BTreeMap<String, u64>,
+    /// Requests outstanding at the record.
+    pub in_flight: u32,
+    /// Round trip of accepted replies, median, milliseconds.
+    pub round_trip_p50_ms: f64,
+    /// Round trip of accepted replies, 99th percentile, milliseconds.
+    pub round_trip_p99_ms: f64,
+    /// Request bytes sent.
+    pub bytes_out: u64,
+    /// Reply bytes received.
+    pub bytes_in: u64,
+    /// Bytes both ways per request.
+    pub bytes_per_keyframe: u64,
+}
+
+impl RemoteReport {
+    fn from_health(h: &Health) -> Option<Self> {
+        let r = &h.remote;
+        (r.active != 0).then(|| Self {
+            fallback_active: r.fallback_active != 0,
+            fallback_keyframes: r.fallback_keyframes,
+            fallback_switches: r.fallback_switches,
+            workers_not_reported: r.workers_not_reported,
+            workers: r
+                .valid_workers()
+                .iter()
+                .map(|w| RemoteWorkerReport {
+                    key: w.key_str().to_owned(),
+                    alive: w.alive != 0,
+                    requests: w.requests,
+                    replies: w.replies,
+                    timeouts: w.timeouts,
+                    late: w.late,
+                    unreachable: w.unreachable,
+                    rejections: op3dsg_ipc_types::REMOTE_REJECTIONS
+                        .iter()
+                        .zip(w.rejections)
+                        .map(|(name, n)| ((*name).to_owned(), n))
+                        .collect(),
+                    in_flight: w.in_flight,
+                    round_trip_p50_ms: f64::from(w.round_trip_p50_us) / 1e3,
+                    round_trip_p99_ms: f64::from(w.round_trip_p99_us) / 1e3,
+                    bytes_out: w.bytes_out,
+                    bytes_in: w.bytes_in,
+                    bytes_per_keyframe: w.bytes_per_keyframe(),
+                })
+                .collect(),
+        })
+    }
 }
 
 /// The tf input of a [`HealthReport`].
@@ -367,6 +456,7 @@ impl From<&Health> for HealthReport {
             recorder: RecorderReport::from(&h.recorder),
             snapshot: SnapshotReport::from(&h.snapshot),
             tf: TfReport::from_health(h),
+            remote: RemoteReport::from_health(h),
             poses: pose_counters(&h.pose).iter().map(|(name, n)| ((*name).to_owned(), *n)).collect(),
             models: h
                 .valid_models()

@@ -135,7 +135,9 @@ use op3dsg_ipc_types::{GraphHeader, Health, MAX_EDGES, MAX_NODES, NAME_CAPACITY_
 use serde::{Deserialize, Serialize};
 
 pub use codec::{GraphCapacity, GraphEncoder, PublishReport, graph_to_scene_graph, message_to_scene_graph};
-pub use health_report::{HealthReport, ModelReport, QueueReport, RefinerReport, StageReport, pose_counters};
+pub use health_report::{
+    HealthReport, ModelReport, QueueReport, RefinerReport, RemoteReport, RemoteWorkerReport, StageReport, pose_counters,
+};
 pub use server::{GraphServer, PoseCheckCounts};
 
 /// Settings of the iceoryx2 services (the `[ipc]` table of a profile).

@@ -162,6 +162,12 @@ pub trait Detector: Send {
 
     /// Name for logs and health (`oracle`, `yolox`).
     fn name(&self) -> &str;
+
+    /// Remote detection's figures for the health record: only a detector that sends keyframes
+    /// to remote workers has them.
+    fn remote_counters(&self) -> Option<std::sync::Arc<remote::RemoteCounters>> {
+        None
+    }
 }
 
 /// Runs `detector` on a keyframe into `out`. On failure `out` is left empty, so the keyframe is

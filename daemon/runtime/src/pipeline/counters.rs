@@ -11,6 +11,7 @@ use crate::capture::CaptureCounters;
 use crate::fusion::FusionCounters;
 use crate::keyframe::KeyframeCounters;
 use crate::live_view::LiveViewCounters;
+use crate::perception::remote::RemoteCounters;
 use crate::publish::PublishCounters;
 use crate::queue::QueueStats;
 use crate::reasoner::llm::RefinerStats;
@@ -49,6 +50,8 @@ pub struct Counters {
     pub ros2_out: Option<Arc<Ros2OutputCounters>>,
     /// The Foxglove live view (`None` without `[live_view] enabled`).
     pub live_view: Option<Arc<LiveViewCounters>>,
+    /// Remote detection (`None` unless the detectors send keyframes to remote workers).
+    pub remote: Option<Arc<RemoteCounters>>,
 }
 
 impl Counters {
@@ -70,6 +73,7 @@ impl Counters {
             ros2_tf: None,
             ros2_out: None,
             live_view: None,
+            remote: None,
         }
     }
 
@@ -131,6 +135,9 @@ impl HealthSource for Counters {
         h.model_count = crate::onnx::fill_model_health(&mut h.models) as u32;
         if let Some(tf) = &self.ros2_tf {
             h.tf = tf.health();
+        }
+        if let Some(remote) = &self.remote {
+            h.remote = remote.health();
         }
         h
     }

@@ -135,6 +135,9 @@ impl Pipeline {
         let enricher = make_enricher(profile)?;
         let refiner = enricher.as_ref().and_then(GraphEnricher::refiner_stats).unwrap_or_default();
         let mut counters = Counters::new(profile.detector.workers, q.stats.clone(), refiner);
+        // The detectors before the counters are shared: remote detection brings its own figures.
+        let detectors: Vec<_> = (0..counters.detect.len()).map(|worker| detector_factory(worker as u32)).collect();
+        counters.remote = detectors.iter().find_map(|d| d.remote_counters());
         counters.zenoh = profile.zenoh.enabled.then(Arc::default);
         counters.ros2_tf = (profile.pose.source == PoseSourceKind::Ros2).then(Arc::default);
         counters.ros2_out = profile.ros2.out.any().then(Arc::default);
@@ -202,7 +205,7 @@ impl Pipeline {
         let map = (fusion, resume, snapshot_sink);
         let fusion = stages::fusion(profile, map, enricher, (q.detections.1, q.graph.0), &counters, recorder.clone());
         s.spawn("fusion", move || fusion.run())?;
-        stages::detectors(&mut s, &detector_factory, q.keyframes.1, &q.detections.0, &counters)?;
+        stages::detectors(&mut s, detectors, q.keyframes.1, &q.detections.0, &counters)?;
         drop(q.detections.0);
         let recorder = recorder.map(|sender| (sender, side_taps));
         let gate = (q.frames.1, q.keyframes.0, q.poses.1);

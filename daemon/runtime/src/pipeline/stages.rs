@@ -497,23 +497,18 @@ pub(super) fn fusion(
     }
 }
 
-/// The detection workers: one detector each from `factory`, one ticketed receiver shared.
+/// The detection workers: one of `detectors` each, one ticketed receiver shared.
 pub(super) fn detectors(
     stages: &mut Stages,
-    factory: &crate::backend::DetectorFactory,
+    detectors: Vec<Box<dyn crate::perception::Detector>>,
     keyframes: QueueReceiver<KeyframeItem>,
     det_tx: &QueueSender<DetectionBatch>,
     counters: &Counters,
 ) -> Result<(), StartError> {
     let tickets: Tickets = Arc::new(Mutex::new((keyframes, 0u64)));
-    for (worker, stage) in counters.detect.iter().enumerate() {
-        let thread = DetectThread {
-            worker,
-            detector: factory(worker as u32),
-            tickets: tickets.clone(),
-            det_tx: det_tx.clone(),
-            stage: stage.clone(),
-        };
+    for (worker, (stage, detector)) in counters.detect.iter().zip(detectors).enumerate() {
+        let thread =
+            DetectThread { worker, detector, tickets: tickets.clone(), det_tx: det_tx.clone(), stage: stage.clone() };
         let name: &'static str = Box::leak(format!("detect-{worker}").into_boxed_str());
         stages.spawn(name, move || thread.run())?;
     }

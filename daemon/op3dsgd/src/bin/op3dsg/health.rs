@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use op3dsg_ipc_types::HealthSubscriber;
 use op3dsg_runtime::ipc::HealthReport;
-use op3dsg_runtime::ipc::health_report::{RecorderReport, RefinerReport, SnapshotReport, TfReport};
+use op3dsg_runtime::ipc::health_report::{RecorderReport, RefinerReport, RemoteReport, SnapshotReport, TfReport};
 
 use super::{connect_error, node_name, poll_until, write_output};
 
@@ -65,7 +65,53 @@ fn health_text(h: &HealthReport) -> String {
     if let Some(tf) = &h.tf {
         write_tf(&mut s, tf);
     }
+    if let Some(remote) = &h.remote {
+        write_remote(&mut s, remote);
+    }
     s
+}
+
+/// Remote detection: the fallback, then a line per worker.
+fn write_remote(s: &mut String, r: &RemoteReport) {
+    let _ = writeln!(
+        s,
+        "remote detection  fallback {}  fallback keyframes {}  switches to it {}",
+        if r.fallback_active { "ACTIVE" } else { "off" },
+        r.fallback_keyframes,
+        r.fallback_switches
+    );
+    if r.workers.is_empty() {
+        let _ = writeln!(s, "  no worker seen yet");
+    }
+    for w in &r.workers {
+        let rejected: u64 = w.rejections.values().sum();
+        let reasons: Vec<String> =
+            w.rejections.iter().filter(|(_, n)| **n > 0).map(|(reason, n)| format!("{reason} {n}")).collect();
+        let reasons = if reasons.is_empty() { String::new() } else { format!(" ({})", reasons.join(", ")) };
+        let _ = writeln!(
+            s,
+            "  {}  {}  requests {}  replies {}  timeouts {}  late {}  unreachable {}  rejected {rejected}{reasons}  \
+             in flight {}  round trip p50 {:.1} ms p99 {:.1} ms  {:.0} kB/keyframe",
+            w.key,
+            if w.alive { "alive" } else { "GONE" },
+            w.requests,
+            w.replies,
+            w.timeouts,
+            w.late,
+            w.unreachable,
+            w.in_flight,
+            w.round_trip_p50_ms,
+            w.round_trip_p99_ms,
+            w.bytes_per_keyframe as f64 / 1e3
+        );
+    }
+    if r.workers_not_reported > 0 {
+        let _ = writeln!(
+            s,
+            "  and {} more workers (op3dsg's Zenoh key <prefix>/detect_status lists them)",
+            r.workers_not_reported
+        );
+    }
 }
 
 /// The tf input: the last chain and the age of its data, then its message counters.
@@ -264,5 +310,28 @@ mod tests {
         // A chain of static links only: no age.
         health.tf.newest_data_ns = 0;
         assert!(health_text(&HealthReport::from(&health)).contains("camera  static chain\n"));
+    }
+
+    #[test]
+    fn health_text_shows_each_remote_worker_only_with_remote_detection() {
+        let mut health = Health::default();
+        assert!(!health_text(&HealthReport::from(&health)).contains("remote detection"));
+        health.remote.active = 1;
+        assert!(health_text(&HealthReport::from(&health)).contains("no worker seen yet"));
+        health.remote.fallback_active = 1;
+        health.remote.worker_count = 1;
+        let w = &mut health.remote.workers[0];
+        op3dsg_ipc_types::write_fixed_str(&mut w.key, "robot/op3dsg/detect/gpu");
+        (w.requests, w.replies, w.timeouts, w.bytes_out, w.bytes_in) = (10, 8, 1, 9_000_000, 1_000_000);
+        w.rejections[1] = 1;
+        w.round_trip_p50_us = 120_000.0;
+        let text = health_text(&HealthReport::from(&health));
+        assert!(text.contains("remote detection  fallback ACTIVE"), "{text}");
+        assert!(text.contains("robot/op3dsg/detect/gpu  GONE  requests 10  replies 8  timeouts 1"), "{text}");
+        assert!(text.contains("rejected 1 (wrong_id 1)"), "{text}");
+        assert!(text.contains("p50 120.0 ms") && text.contains("1000 kB/keyframe"), "{text}");
+        let json = serde_json::to_value(HealthReport::from(&health)).unwrap();
+        assert_eq!(json["remote"]["workers"][0]["rejections"]["wrong_id"], 1);
+        assert_eq!(json["remote"]["workers"][0]["bytes_per_keyframe"], 1_000_000);
     }
 }

@@ -72,7 +72,11 @@ impl RemoteClient {
                 .iter()
                 .map(|key| Worker {
                     key: key.clone(),
-                    counters: counters.worker(key),
+                    counters: {
+                        let c = counters.worker(key);
+                        c.alive.store(true, Ordering::Relaxed);
+                        c
+                    },
                     aside_until: None,
                     alive: true,
                     last_used: 0,
@@ -172,13 +176,18 @@ impl RemoteClient {
         match workers.iter_mut().find(|w| w.key == key) {
             Some(worker) => {
                 worker.alive = alive;
+                worker.counters.alive.store(alive, Ordering::Relaxed);
                 if alive {
                     worker.aside_until = None;
                 }
             }
             None if alive => workers.push(Worker {
                 key: key.to_owned(),
-                counters: self.counters.worker(key),
+                counters: {
+                    let c = self.counters.worker(key);
+                    c.alive.store(true, Ordering::Relaxed);
+                    c
+                },
                 aside_until: None,
                 alive: true,
                 last_used: 0,
@@ -409,6 +418,10 @@ impl Detector for RemoteDetector {
 
     fn name(&self) -> &str {
         "remote"
+    }
+
+    fn remote_counters(&self) -> Option<Arc<RemoteCounters>> {
+        Some(self.client.counters.clone())
     }
 }
 

@@ -66,6 +66,24 @@ fn watch_line(graph: Option<&Graph>, health: Option<&HealthReport>) -> String {
         for q in &h.queues {
             let _ = write!(s, " | q {} {}/{} drop {}", q.name, q.depth, q.capacity, q.dropped);
         }
+        if let Some(r) = &h.remote {
+            let _ = write!(s, " | remote fallback {}", if r.fallback_active { "ON" } else { "off" });
+            for w in &r.workers {
+                let _ = write!(
+                    s,
+                    " | w {} {}req {} ok {} timeout {} rejected {} rtt p50 {:.1}ms p99 {:.1}ms {}kB/kf",
+                    w.key.rsplit('/').next().unwrap_or(&w.key),
+                    if w.alive { "" } else { "GONE " },
+                    w.requests,
+                    w.replies,
+                    w.timeouts,
+                    w.rejections.values().sum::<u64>(),
+                    w.round_trip_p50_ms,
+                    w.round_trip_p99_ms,
+                    w.bytes_per_keyframe / 1000
+                );
+            }
+        }
     }
     s
 }

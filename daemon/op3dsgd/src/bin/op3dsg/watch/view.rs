@@ -1,12 +1,13 @@
 //! The full-screen view of `op3dsg watch`, drawn with ratatui: the graph (version, age, counts),
 //! the daemon's counters, the per-stage table, the queues with their drops, the inputs and
-//! subsystems (pose, tf, LLM refiner, snapshots, recorder) and the last warnings. Drawing is a
+//! subsystems (pose, tf, LLM refiner, snapshots, recorder), remote detection's workers (with
+//! `detector.kind = "remote"`) and the last warnings. Drawing is a
 //! function of what was received ([`View`]), so a test draws it on ratatui's `TestBackend`.
 
 use std::time::Instant;
 
 use op3dsg_ipc_types::Graph;
-use op3dsg_runtime::ipc::HealthReport;
+use op3dsg_runtime::ipc::{HealthReport, RemoteReport};
 use ratatui::Frame;
 use ratatui::layout::{Constraint, Layout, Rect};
 use ratatui::style::{Color, Modifier, Style, Stylize};
@@ -59,10 +60,13 @@ fn alarm(text: String) -> Span<'static> {
 /// Draws the whole view into the frame.
 pub(super) fn draw(frame: &mut Frame<'_>, view: &View<'_>) {
     let rows = view.health.map_or(0, |h| h.stages.len().max(h.queues.len()));
-    let [top, tables, state, warnings] = Layout::vertical([
+    let remote = view.health.and_then(|h| h.remote.as_ref());
+    let remote_rows = remote.map_or(0, |r| r.workers.len().max(1) as u16 + 3);
+    let [top, tables, state, remote_area, warnings] = Layout::vertical([
         Constraint::Length(4),
         Constraint::Length(rows as u16 + 3),
         Constraint::Length(7),
+        Constraint::Length(remote_rows),
         Constraint::Min(3),
     ])
     .areas(frame.area());
@@ -70,7 +74,62 @@ pub(super) fn draw(frame: &mut Frame<'_>, view: &View<'_>) {
     let [stages, queues] = Layout::horizontal([Constraint::Percentage(58), Constraint::Percentage(42)]).areas(tables);
     draw_tables(frame, view.health, stages, queues);
     frame.render_widget(Paragraph::new(state_lines(view.health)).block(Block::bordered().title(" inputs ")), state);
+    if let Some(r) = remote {
+        frame.render_widget(remote_table(r), remote_area);
+    }
     draw_warnings(frame, view, warnings);
+}
+
+/// Remote detection: a row per worker, the fallback's state in the title.
+fn remote_table(r: &RemoteReport) -> Table<'static> {
+    let head = Style::new().add_modifier(Modifier::BOLD);
+    let title = if r.fallback_active {
+        let active = alarm(format!("FALLBACK ACTIVE ({} keyframes) ", r.fallback_keyframes));
+        Line::from(vec![" remote detection · ".into(), active])
+    } else {
+        Line::from(format!(" remote detection · fallback off ({} keyframes so far) ", r.fallback_keyframes))
+    };
+    let rows: Vec<Row<'static>> = if r.workers.is_empty() {
+        vec![Row::new(["no worker seen yet"])]
+    } else {
+        r.workers
+            .iter()
+            .map(|w| {
+                let rejected: u64 = w.rejections.values().sum();
+                let flag = |n: u64| if n > 0 { n.to_string().yellow().bold() } else { "0".into() };
+                Row::new(vec![
+                    w.key.clone().into(),
+                    if w.alive { "alive".into() } else { "GONE".red().bold() },
+                    w.requests.to_string().into(),
+                    w.replies.to_string().into(),
+                    flag(w.timeouts),
+                    flag(w.late),
+                    flag(rejected),
+                    w.in_flight.to_string().into(),
+                    format!("{:.1}", w.round_trip_p50_ms).into(),
+                    format!("{:.1}", w.round_trip_p99_ms).into(),
+                    format!("{:.0}", w.bytes_per_keyframe as f64 / 1e3).into(),
+                ])
+            })
+            .collect()
+    };
+    let widths = [
+        Constraint::Min(16),
+        Constraint::Length(6),
+        Constraint::Length(9),
+        Constraint::Length(9),
+        Constraint::Length(8),
+        Constraint::Length(6),
+        Constraint::Length(9),
+        Constraint::Length(6),
+        Constraint::Length(8),
+        Constraint::Length(8),
+        Constraint::Length(8),
+    ];
+    let header = [
+        "worker", "state", "requests", "replies", "timeouts", "late", "rejected", "busy", "rtt p50", "rtt p99", "kB/kf",
+    ];
+    Table::new(rows, widths).header(Row::new(header).style(head)).block(Block::bordered().title(title))
 }
 
 /// The title block: the graph and the daemon's counters.
@@ -334,5 +393,40 @@ mod tests {
         assert!(text.contains("stage fusion errors: 2"), "{text}");
         // A small terminal: the same view clipped, never more rows than it has.
         assert_eq!(screen(40, 10, &view).len(), 10);
+    }
+
+    #[test]
+    fn the_view_has_a_row_per_remote_worker_with_remote_detection() {
+        let mut health = Health::default();
+        health.remote.active = 1;
+        health.remote.fallback_active = 1;
+        health.remote.fallback_keyframes = 7;
+        health.remote.worker_count = 2;
+        for (i, w) in health.remote.workers[..2].iter_mut().enumerate() {
+            op3dsg_ipc_types::write_fixed_str(&mut w.key, &format!("robot/op3dsg/detect/gpu{i}"));
+            (w.requests, w.replies, w.timeouts, w.alive) = (40, 38, 2, u8::from(i == 0));
+            w.round_trip_p50_us = 123_400.0;
+        }
+        let report = HealthReport::from(&health);
+        let warnings = Warnings::default();
+        let view = View {
+            source: "test",
+            connected: true,
+            graph: None,
+            health: Some(&report),
+            warnings: &warnings,
+            now: Instant::now(),
+            now_unix_ns: 0,
+        };
+        let rows = screen(140, 40, &view);
+        let text = rows.join("\n");
+        assert!(text.contains("FALLBACK ACTIVE (7 keyframes)"), "{text}");
+        let gpu1 = rows.iter().find(|r| r.contains("robot/op3dsg/detect/gpu1")).expect("a row for gpu1");
+        assert!(gpu1.contains("GONE") && gpu1.contains("123.4"), "{gpu1}");
+        assert!(rows.iter().any(|r| r.contains("robot/op3dsg/detect/gpu0") && r.contains("alive")), "{text}");
+        // Without remote detection, no such table.
+        let plain = HealthReport::from(&Health::default());
+        let view = View { health: Some(&plain), ..view };
+        assert!(!screen(140, 40, &view).join("\n").contains("remote detection"));
     }
 }

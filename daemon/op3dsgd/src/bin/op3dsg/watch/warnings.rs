@@ -4,7 +4,8 @@
 //! op3dsgd`), so the view says what the records show went wrong: frames without a pose, refused
 //! poses, queue drops, stage errors, a disconnected source, a restarted daemon, a graph over its
 //! capacity, LLM refiner failures and an open breaker, failed snapshot writes, recorder drops, tf
-//! time jumps and refused transforms, a model on another execution provider than asked. A
+//! time jumps and refused transforms, remote detection's fallback taking over and its workers'
+//! timeouts, late and rejected replies, a model on another execution provider than asked. A
 //! counter reads as what it grew by between records (the first record: since the daemon
 //! started); each kind of warning is kept once, newest first, with its total while watched.
 
@@ -12,7 +13,7 @@ use std::collections::VecDeque;
 use std::time::Instant;
 
 use op3dsg_ipc_types::Graph;
-use op3dsg_runtime::ipc::HealthReport;
+use op3dsg_runtime::ipc::{HealthReport, RemoteReport, RemoteWorkerReport};
 
 /// Kinds of warnings kept (the oldest go first).
 const KEPT: usize = 32;
@@ -157,10 +158,38 @@ impl Warnings {
             let refused = || "tf transforms refused".into();
             self.counter("tf-refused".into(), refused, was_tf.transforms_refused, tf.transforms_refused, at);
         }
+        if let Some(remote) = &h.remote {
+            self.observe_remote(remote, was.remote.as_ref().filter(|_| !first), at);
+        }
         if first {
             for m in h.models.iter().filter(|m| m.provider != m.requested_provider) {
                 let text = format!("model {} runs on {} (asked for {})", m.name, m.provider, m.requested_provider);
                 self.note(format!("model:{}", m.name), text, None, at);
+            }
+        }
+    }
+}
+
+impl Warnings {
+    /// Remote detection: the fallback taking over, and each worker's timeouts, late replies,
+    /// rejections and disappearance.
+    fn observe_remote(&mut self, r: &RemoteReport, was: Option<&RemoteReport>, at: Instant) {
+        let was_switches = was.map_or(0, |w| w.fallback_switches);
+        let fallback = || "remote detection: no worker answered, keyframes went to the fallback".into();
+        self.counter("remote-fallback".into(), fallback, was_switches, r.fallback_switches, at);
+        for w in &r.workers {
+            let before = was.and_then(|p| p.workers.iter().find(|p| p.key == w.key));
+            let old = |f: fn(&RemoteWorkerReport) -> u64| before.map_or(0, f);
+            let key = &w.key;
+            let timeouts = || format!("remote worker {key}: requests timed out");
+            self.counter(format!("remote-timeouts:{key}"), timeouts, old(|p| p.timeouts), w.timeouts, at);
+            let late = || format!("remote worker {key}: late replies dropped");
+            self.counter(format!("remote-late:{key}"), late, old(|p| p.late), w.late, at);
+            let rejected = |p: &RemoteWorkerReport| p.rejections.values().sum::<u64>();
+            let text = || format!("remote worker {key}: replies rejected");
+            self.counter(format!("remote-rejected:{key}"), text, old(rejected), rejected(w), at);
+            if !w.alive && before.is_none_or(|p| p.alive) {
+                self.note(format!("remote-gone:{key}"), format!("remote worker {key} is gone"), None, at);
             }
         }
     }
