@@ -2,13 +2,16 @@
 # Builds op3dsg with the camera and installs it as a system service, into the same paths as the
 # Debian package (for distributions without dpkg; on Debian/Ubuntu prefer `cargo deb -p op3dsgd`):
 #   /usr/bin/op3dsgd, /usr/bin/op3dsg                   the daemon and the CLI (release, --features realsense)
+#   /usr/bin/op3dsg-detectd                             the detection worker for a GPU computer
 #   /usr/sbin/op3dsg-service-user                       chooses the user the service runs as
 #   /lib/systemd/system/op3dsgd.service                 the unit (systemd/op3dsgd.service)
+#   /lib/systemd/system/op3dsg-detectd.service          the worker's unit (not enabled)
 #   /usr/share/op3dsg/profiles/                         the profiles and the knowledge base
 #   /usr/lib/op3dsg/onnxruntime/, minilm/, clip/        ONNX Runtime and the models (from .models/)
 #   /usr/lib/op3dsg/librealsense2.so.2.56               librealsense, when the build used .deps/realsense
 #   /usr/share/doc/op3dsg/                              README.md, systemd.md, robot.md
 #   /etc/op3dsg/op3dsgd.toml                            the robot's profile (never overwritten)
+#   /etc/op3dsg/op3dsg-detectd.toml                     the worker's profile (never overwritten)
 #   /etc/op3dsg/credentials/llm-api-key                 empty, root only (kept if present)
 #   system user and group `op3dsg`                      (no login, no home; in video and plugdev)
 # /var/lib/op3dsg (snapshots) and /var/log/op3dsg (recordings) are made by systemd from the unit.
@@ -38,7 +41,7 @@ while [ $# -gt 0 ]; do
     --no-build) build=0; shift ;;
     --destdir) destdir="${2:?--destdir needs a folder}"; shift 2 ;;
     --service-user) service_user="${2:?--service-user needs a user name}"; shift 2 ;;
-    -h|--help) sed -n '2,26p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,29p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
     *) echo "install.sh: unknown argument '$1' (see --help)" >&2; exit 2 ;;
   esac
 done
@@ -54,7 +57,7 @@ elif [ "$build" = 1 ]; then
   cargo build --release --locked -p op3dsgd --features realsense
 fi
 
-for b in op3dsgd op3dsg; do
+for b in op3dsgd op3dsg op3dsg-detectd; do
   if [ ! -x "$bin_dir/$b" ]; then
     echo "install.sh: $bin_dir/$b not built; run systemd/install.sh as yourself (it builds), or:" >&2
     echo "  cargo build --release -p op3dsgd --features realsense" >&2
@@ -85,9 +88,10 @@ root="${destdir%/}"
 lib="$root/usr/lib/op3dsg"
 install -d "$root/usr/bin" "$root/usr/sbin" "$root/lib/systemd/system" "$root/usr/share/op3dsg" \
   "$root/usr/share/doc/op3dsg" "$root/etc/op3dsg" "$lib/onnxruntime" "$lib/minilm" "$lib/clip"
-install -m 0755 "$bin_dir/op3dsgd" "$bin_dir/op3dsg" "$root/usr/bin/"
+install -m 0755 "$bin_dir/op3dsgd" "$bin_dir/op3dsg" "$bin_dir/op3dsg-detectd" "$root/usr/bin/"
 install -m 0755 systemd/op3dsg-service-user "$root/usr/sbin/"
 install -m 0644 systemd/op3dsgd.service "$root/lib/systemd/system/op3dsgd.service"
+install -m 0644 systemd/op3dsg-detectd.service "$root/lib/systemd/system/op3dsg-detectd.service"
 rm -rf "$root/usr/share/op3dsg/profiles"
 install -d "$root/usr/share/op3dsg/profiles/knowledge"
 install -m 0644 profiles/*.toml "$root/usr/share/op3dsg/profiles/"
@@ -117,6 +121,12 @@ if [ ! -e "$profile" ]; then
   echo "installed $profile (the Stretch 3 profile; place the detector model it names)"
 else
   echo "kept $profile"
+fi
+worker_profile="$root/etc/op3dsg/op3dsg-detectd.toml"
+if [ ! -e "$worker_profile" ]; then
+  install -m 0644 systemd/op3dsg-detectd.toml "$worker_profile"
+else
+  echo "kept $worker_profile"
 fi
 install -d -m 0700 "$root/etc/op3dsg/credentials"
 key="$root/etc/op3dsg/credentials/llm-api-key"
@@ -154,4 +164,5 @@ if [ -n "$destdir" ]; then
 fi
 systemctl daemon-reload
 echo "installed. Start it now and at every boot:   sudo systemctl enable --now op3dsgd"
+echo "on a GPU computer serving a robot instead: edit /etc/op3dsg/op3dsg-detectd.toml, then sudo systemctl enable --now op3dsg-detectd"
 echo "logs: journalctl -u op3dsgd -f    map: op3dsg map info    graph: op3dsg watch"

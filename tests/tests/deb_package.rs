@@ -137,9 +137,12 @@ fn check_installed_files(root: &Path, postinst: &str) {
     for file in [
         "usr/bin/op3dsgd",
         "usr/bin/op3dsg",
+        "usr/bin/op3dsg-detectd",
         "usr/sbin/op3dsg-service-user",
         "lib/systemd/system/op3dsgd.service",
+        "lib/systemd/system/op3dsg-detectd.service",
         "etc/op3dsg/op3dsgd.toml",
+        "etc/op3dsg/op3dsg-detectd.toml",
         "usr/share/op3dsg/profiles/base.toml",
         "usr/share/op3dsg/profiles/stretch3-d435i.toml",
         "usr/share/op3dsg/profiles/knowledge/objects.toml",
@@ -158,7 +161,13 @@ fn check_installed_files(root: &Path, postinst: &str) {
     let profile = std::fs::read_to_string(root.join("etc/op3dsg/op3dsgd.toml")).expect("robot profile");
     assert!(profile.contains("\nextends = \"stretch3-d435i.toml\"\n"), "the robot profile extends the Stretch's");
     let conffiles = std::fs::read_to_string(root.join("var/lib/dpkg/info/op3dsg.conffiles")).expect("conffiles");
-    assert_eq!(conffiles.trim(), "/etc/op3dsg/op3dsgd.toml");
+    assert_eq!(conffiles.trim(), "/etc/op3dsg/op3dsgd.toml\n/etc/op3dsg/op3dsg-detectd.toml");
+    let worker_unit =
+        std::fs::read_to_string(root.join("lib/systemd/system/op3dsg-detectd.service")).expect("the worker's unit");
+    assert!(
+        worker_unit.contains("\nExecStart=/usr/bin/op3dsg-detectd --profile /etc/op3dsg/op3dsg-detectd.toml\n"),
+        "the worker unit's ExecStart"
+    );
     let key = root.join("etc/op3dsg/credentials/llm-api-key");
     let mode = std::os::unix::fs::PermissionsExt::mode(&std::fs::metadata(&key).expect("LLM key file").permissions());
     assert_eq!(mode & 0o777, 0o600, "the LLM key file is root's only");
@@ -184,15 +193,19 @@ fn check_installed_files(root: &Path, postinst: &str) {
     }
 }
 
-/// `systemd-analyze verify` clean, and the exposure score.
+/// `systemd-analyze verify` clean, and the exposure score, of the daemon's unit.
 fn analyze(root: &Path) -> f64 {
+    analyze_unit(root, "op3dsgd.service")
+}
+
+/// `systemd-analyze verify` clean, and the exposure score, of `unit` as installed under `root`.
+fn analyze_unit(root: &Path, unit: &str) -> f64 {
     let root_arg = format!("--root={}", root.display());
-    let verify =
-        run("systemd-analyze verify", Command::new("systemd-analyze").args(["verify", &root_arg, "op3dsgd.service"]));
-    assert!(text(&verify).trim().is_empty(), "systemd-analyze verify printed:\n{}", text(&verify));
+    let verify = run("systemd-analyze verify", Command::new("systemd-analyze").args(["verify", &root_arg, unit]));
+    assert!(text(&verify).trim().is_empty(), "systemd-analyze verify {unit} printed:\n{}", text(&verify));
     let security = run(
         "systemd-analyze security",
-        Command::new("systemd-analyze").args(["security", "--offline=true", &root_arg, "op3dsgd.service"]),
+        Command::new("systemd-analyze").args(["security", "--offline=true", &root_arg, unit]),
     );
     let report = text(&security);
     let line = report.lines().find(|l| l.contains("Overall exposure level")).expect("an exposure line");
@@ -318,6 +331,7 @@ fn check_daemon(root: &Path, work: &Path) {
     let Some(shared_model) = op3dsg_shared_data::shared_data("models/yolox_nano/yolox_nano.onnx") else { return };
     std::fs::create_dir_all(model.parent().expect("models dir")).expect("mkdir");
     std::fs::copy(shared_model, &model).expect("place the model");
+    check_worker(root, work);
     let prefix = unique_prefix("deb");
     let logs = work.join("var/log/op3dsg");
     std::fs::create_dir_all(&logs).expect("logs dir");
@@ -360,6 +374,48 @@ fn check_daemon(root: &Path, work: &Path) {
         recordings.iter().any(|p| p.extension().is_some_and(|e| e == "mcap")),
         "no recording in $LOGS_DIRECTORY: {recordings:?}"
     );
+}
+
+/// The installed detection worker with its installed profile: refused (exit 2, naming the file)
+/// until `[zenoh]` says how a robot reaches it; then it loads the Stretch profile's YOLOX with
+/// ONNX Runtime from the scratch root's `/usr/lib/op3dsg` and serves until SIGTERM (exit 0).
+fn check_worker(root: &Path, work: &Path) {
+    let profile = root.join("etc/op3dsg/op3dsg-detectd.toml");
+    let profile_arg = profile.display().to_string();
+    let refused = installed(root, "op3dsg-detectd", work).args(["--profile", &profile_arg]).output().expect("run");
+    let said = text(&refused);
+    assert_eq!(refused.status.code(), Some(2), "{said}");
+    assert!(said.contains(&profile_arg) && said.contains("zenoh.connect"), "{said}");
+    let port = std::net::TcpListener::bind("127.0.0.1:0").expect("a free port").local_addr().expect("port").port();
+    let child = installed(root, "op3dsg-detectd", work)
+        .args(["--profile", &profile_arg, "--id", "deb-test"])
+        .args(["--set", &format!("zenoh.connect=[\"tcp/127.0.0.1:{port}\"]")])
+        .args(["--set", &format!("zenoh.key_prefix=\"{}\"", unique_prefix("deb-worker"))])
+        .env("OP3DSG_LOG", "info")
+        .stdin(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("spawn the installed op3dsg-detectd");
+    let mut worker = Installed(child);
+    let ort = root.join("usr/lib/op3dsg/onnxruntime/libonnxruntime.so.1.31.1").display().to_string();
+    wait_for("the installed worker to load ONNX Runtime from the package", Duration::from_secs(60), || {
+        if let Ok(Some(status)) = worker.0.try_wait() {
+            panic!("the installed op3dsg-detectd exited with {status}");
+        }
+        let maps = std::fs::read_to_string(format!("/proc/{}/maps", worker.0.id())).ok()?;
+        maps.contains(&ort).then_some(())
+    });
+    // Serving: still running a moment after the model is loaded.
+    std::thread::sleep(Duration::from_secs(1));
+    assert!(worker.0.try_wait().expect("wait").is_none(), "the worker serves");
+    run("kill -TERM", Command::new("kill").args(["-TERM", &worker.0.id().to_string()]));
+    let status = wait_for("the worker to stop", Duration::from_secs(30), || worker.0.try_wait().ok().flatten());
+    let mut log = String::new();
+    if let Some(mut stderr) = worker.0.stderr.take() {
+        let _ = std::io::Read::read_to_string(&mut stderr, &mut log);
+    }
+    assert!(status.success(), "{status}: {log}");
+    assert!(log.contains("serving detection"), "{log}");
 }
 
 /// Every file under `root`, as an absolute path of the installed system, without dpkg's own
@@ -430,6 +486,8 @@ fn the_package_installs_a_service_that_publishes_graphs() {
     check_install_sh_matches(&files_under(&root), &work);
     let score = analyze(&root);
     eprintln!("installed unit: systemd-analyze verify clean, exposure {score}");
+    let worker_score = analyze_unit(&root, "op3dsg-detectd.service");
+    eprintln!("installed detection worker unit: systemd-analyze verify clean, exposure {worker_score}");
     check_service_user(&root);
     check_daemon(&root, &work);
 

@@ -67,7 +67,12 @@ fn main() -> ExitCode {
     let args = Args::parse();
     let filter = tracing_subscriber::EnvFilter::try_new(&args.log).unwrap_or_else(|_| "info".into());
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
-    let backends = op3dsg_sim::backends();
+    // With the camera's backend too, so a robot's profile (its [source.realsense]) loads here
+    // unchanged: the worker uses only its [detector], [onnx] and [zenoh].
+    #[allow(unused_mut)] // registered into only with the feature `realsense`
+    let mut backends = op3dsg_sim::backends();
+    #[cfg(feature = "realsense")]
+    op3dsg_realsense::backend::register(&mut backends);
     let loaded = match config::load_with(&backends, args.profile.as_deref(), &args.set) {
         Ok(loaded) => loaded,
         Err(e) => {
@@ -84,6 +89,16 @@ fn main() -> ExitCode {
     let id = args.id.clone().unwrap_or_else(hostname);
     if let Err(e) = op3dsg_runtime::zenoh::check_prefix(&format!("x/{id}")) {
         eprintln!("op3dsg-detectd: --id {id:?}: {e}");
+        return ExitCode::from(2);
+    }
+    let z = &profile.zenoh;
+    if z.connect.is_empty() && z.listen.is_empty() && !z.multicast_scouting && z.config_file.is_none() {
+        eprintln!(
+            "op3dsg-detectd: bad profile{}: no robot can reach this worker: set zenoh.connect to the \
+             robot's zenoh.listen endpoint (e.g. [\"tcp/192.168.1.20:7447\"]), or zenoh.listen here and \
+             the robot's zenoh.connect to it",
+            args.profile.as_ref().map(|f| format!(" {}", f.display())).unwrap_or_default()
+        );
         return ExitCode::from(2);
     }
     let prefixes = if args.serve.is_empty() { vec![profile.zenoh.prefix()] } else { args.serve.clone() };
@@ -235,9 +250,14 @@ fn serve(
         threads.push(thread);
     }
     info!(id, prefixes = ?prefixes, kind = %serves.kind, execution_provider = %serves.execution_provider, workers, "serving detection");
+    // Under systemd (Type=notify, systemd/op3dsg-detectd.service): ready once every key is
+    // declared; a no-op without $NOTIFY_SOCKET.
+    let serving = format!("{} on {} serving {}", serves.kind, serves.execution_provider, prefixes.join(", "));
+    let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready, sd_notify::NotifyState::Status(&serving)]);
     while !stop.load(Ordering::Relaxed) {
         std::thread::sleep(Duration::from_millis(100));
     }
+    let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
     drop(declared);
     drop(tokens);
     for thread in threads {
