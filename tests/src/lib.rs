@@ -12,6 +12,8 @@
 //! The subscribers are the planner client library's (`op3dsg_ipc_types::client`), so these
 //! tests read the daemon exactly as a planner does.
 
+pub mod netfaults;
+
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicUsize, Ordering};

@@ -7,15 +7,12 @@
 //! `op3dsg dump --json` prints for the same version. Consumers that stop reading (SIGSTOP) or die
 //! mid-transfer (SIGKILL) do not hold the daemon back either, and a fresh consumer converges.
 
-use std::io::{Read, Write};
-use std::net::{Shutdown, TcpListener, TcpStream};
 use std::process::Command;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::mpsc;
-use std::sync::{Arc, Mutex};
+use std::sync::atomic::Ordering;
 use std::thread;
 use std::time::{Duration, Instant};
 
+use op3dsg_tests::netfaults::{Netns, Proxy};
 use op3dsg_tests::{Daemon, binary, is_root, unique_prefix, wait_for};
 use serde_json::Value;
 
@@ -85,9 +82,6 @@ fn signal(pid: u32, signal: &str) {
     assert!(status.success(), "kill -{signal} {pid} failed");
 }
 
-/// Chunks read but not yet written, per direction of a connection through the proxy.
-const IN_FLIGHT: usize = 16;
-
 /// Bytes waiting in established loopback TCP connections to the daemon's `port` (IPv4): received
 /// but not read by the consumers, and written by the daemon but not yet sent (a full window).
 fn queued_bytes(port: u16) -> (u64, u64) {
@@ -109,149 +103,6 @@ fn queued_bytes(port: u16) -> (u64, u64) {
         }
     }
     (unread, unsent)
-}
-
-/// What the proxy's connections share: the faults to inject and the open connections.
-#[derive(Default)]
-struct Link {
-    /// Added to every chunk in either direction, milliseconds.
-    latency_ms: AtomicU64,
-    /// Nothing is forwarded before this instant.
-    stalled_until: Mutex<Option<Instant>>,
-    /// New connections are refused (reset at once).
-    down: AtomicBool,
-    /// Both sockets of every open connection, for resets.
-    open: Mutex<Vec<[TcpStream; 2]>>,
-    accepted: AtomicU64,
-    refused: AtomicU64,
-}
-
-impl Link {
-    /// Resets every open connection: SO_LINGER 0, so closing sends RST, and both directions shut.
-    fn reset_all(&self) {
-        for pair in self.open.lock().expect("lock").drain(..) {
-            for stream in &pair {
-                let _ = socket2::SockRef::from(stream).set_linger(Some(Duration::ZERO));
-                let _ = stream.shutdown(Shutdown::Both);
-            }
-        }
-    }
-
-    fn wait_stall(&self) {
-        loop {
-            let until = *self.stalled_until.lock().expect("lock");
-            match until {
-                Some(until) if Instant::now() < until => thread::sleep(Duration::from_millis(5)),
-                _ => return,
-            }
-        }
-    }
-}
-
-/// A TCP proxy on a loopback port that forwards to `upstream` with the faults of its [`Link`].
-struct Proxy {
-    port: u16,
-    link: Arc<Link>,
-}
-
-impl Proxy {
-    fn start(upstream: u16) -> Self {
-        let listener = TcpListener::bind("127.0.0.1:0").expect("bind the proxy");
-        let port = listener.local_addr().expect("proxy port").port();
-        let link = Arc::new(Link::default());
-        let shared = link.clone();
-        thread::Builder::new()
-            .name("proxy-accept".into())
-            .spawn(move || {
-                for client in listener.incoming().flatten() {
-                    if shared.down.load(Ordering::SeqCst) {
-                        let _ = socket2::SockRef::from(&client).set_linger(Some(Duration::ZERO));
-                        shared.refused.fetch_add(1, Ordering::SeqCst);
-                        continue;
-                    }
-                    let Ok(server) = TcpStream::connect(("127.0.0.1", upstream)) else { continue };
-                    shared.accepted.fetch_add(1, Ordering::SeqCst);
-                    forward(&shared, client, server);
-                }
-            })
-            .expect("spawn the proxy");
-        Self { port, link }
-    }
-
-    fn set_latency(&self, latency: Duration) {
-        self.link.latency_ms.store(latency.as_millis() as u64, Ordering::SeqCst);
-    }
-
-    /// Forwards nothing either way for `stall`; the connections stay open.
-    fn stall(&self, stall: Duration) {
-        *self.link.stalled_until.lock().expect("lock") = Some(Instant::now() + stall);
-    }
-
-    /// The link is down for `outage`: open connections are reset, new ones refused.
-    fn outage(&self, outage: Duration) {
-        self.link.down.store(true, Ordering::SeqCst);
-        self.link.reset_all();
-        thread::sleep(outage);
-        self.link.down.store(false, Ordering::SeqCst);
-    }
-
-    fn reset(&self) {
-        self.link.reset_all();
-    }
-}
-
-/// Starts both directions of one connection and registers it for resets.
-fn forward(link: &Arc<Link>, client: TcpStream, server: TcpStream) {
-    let clones = (client.try_clone(), server.try_clone(), client.try_clone(), server.try_clone());
-    let (Ok(c_write), Ok(s_write), Ok(c_keep), Ok(s_keep)) = clones else { return };
-    link.open.lock().expect("lock").push([c_keep, s_keep]);
-    pump(link.clone(), client, s_write, "proxy-up");
-    pump(link.clone(), server, c_write, "proxy-down");
-}
-
-/// One direction: a reader stamps each chunk with the time it is due, a writer delivers it then
-/// (after any stall). The reader holds at most [`IN_FLIGHT`] chunks, so a stall fills the
-/// sender's socket as a stalled link would. Either side ending shuts both sockets.
-fn pump(link: Arc<Link>, mut from: TcpStream, mut to: TcpStream, name: &str) {
-    let (tx, rx) = mpsc::sync_channel::<(Instant, Vec<u8>)>(IN_FLIGHT);
-    let reader_link = link.clone();
-    let (reader_from, reader_to) = (from.try_clone(), to.try_clone());
-    thread::Builder::new()
-        .name(format!("{name}-read"))
-        .spawn(move || {
-            let mut buf = vec![0u8; 16 << 10];
-            loop {
-                match from.read(&mut buf) {
-                    Ok(0) | Err(_) => break,
-                    Ok(n) => {
-                        let due = Instant::now() + Duration::from_millis(reader_link.latency_ms.load(Ordering::SeqCst));
-                        if tx.send((due, buf[..n].to_vec())).is_err() {
-                            break;
-                        }
-                    }
-                }
-            }
-            if let (Ok(a), Ok(b)) = (&reader_from, &reader_to) {
-                let _ = a.shutdown(Shutdown::Both);
-                let _ = b.shutdown(Shutdown::Both);
-            }
-        })
-        .expect("spawn a proxy reader");
-    thread::Builder::new()
-        .name(format!("{name}-write"))
-        .spawn(move || {
-            for (due, chunk) in rx {
-                if let Some(wait) = due.checked_duration_since(Instant::now()) {
-                    thread::sleep(wait);
-                }
-                link.wait_stall();
-                if to.write_all(&chunk).is_err() {
-                    let _ = to.shutdown(Shutdown::Both);
-                    break;
-                }
-            }
-        })
-        .expect("spawn a proxy writer");
 }
 
 #[test]
@@ -364,75 +215,6 @@ fn stopped_and_killed_consumers_do_not_hold_the_daemon_back_and_a_fresh_one_conv
     eprintln!("zenoh stalled consumers: resumed consumer {}; {:.1} s", held["stats"], started.elapsed().as_secs_f64());
 }
 
-/// Runs `program args`, panicking with its stderr when it fails.
-fn run(program: &str, args: &[&str]) {
-    let output = Command::new(program)
-        .args(args)
-        .output()
-        .unwrap_or_else(|e| panic!("run {program}: {e} (ip and tc: Debian's iproute2)"));
-    assert!(
-        output.status.success(),
-        "{program} {}: {}",
-        args.join(" "),
-        String::from_utf8_lossy(&output.stderr).trim()
-    );
-}
-
-/// A network namespace of this test with its own loopback limited to 10 Mbit/s by `tc tbf`;
-/// deleted on drop.
-#[derive(Debug)]
-struct Netns {
-    name: String,
-}
-
-impl Netns {
-    fn create() -> Self {
-        let name = format!("op3dsg-zt-{}", std::process::id());
-        let _ = Command::new("ip").args(["netns", "del", &name]).output(); // a leftover of a killed run
-        run("ip", &["netns", "add", &name]);
-        let netns = Self { name };
-        netns.run("ip", &["link", "set", "lo", "up"]);
-        // An Ethernet-sized MTU: with loopback's 64 KiB, TCP segments outgrow the 4 KiB burst
-        // and tbf drops every one of them.
-        netns.run("ip", &["link", "set", "lo", "mtu", "1500"]);
-        netns.run(
-            "tc",
-            &["qdisc", "add", "dev", "lo", "root", "tbf", "rate", "10mbit", "burst", "32kbit", "latency", "400ms"],
-        );
-        netns
-    }
-
-    /// The command prefix that runs a program inside the namespace.
-    fn exec(&self) -> [&str; 4] {
-        ["ip", "netns", "exec", &self.name]
-    }
-
-    fn run(&self, program: &str, args: &[&str]) {
-        let mut all = self.exec()[1..].to_vec();
-        all.push(program);
-        all.extend_from_slice(args);
-        run("ip", &all);
-    }
-
-    /// The `overlimits` count of the tbf qdisc: packets it had to hold back for the rate.
-    fn overlimits(&self) -> u64 {
-        let output = Command::new("ip")
-            .args(["netns", "exec", &self.name, "tc", "-s", "qdisc", "show", "dev", "lo"])
-            .output()
-            .expect("run tc -s qdisc show");
-        let text = String::from_utf8_lossy(&output.stdout);
-        let count = text.split("overlimits ").nth(1).and_then(|rest| rest.split_whitespace().next());
-        count.and_then(|n| n.parse().ok()).unwrap_or_else(|| panic!("no overlimits in tc's statistics: {text}"))
-    }
-}
-
-impl Drop for Netns {
-    fn drop(&mut self) {
-        let _ = Command::new("ip").args(["netns", "del", &self.name]).output();
-    }
-}
-
-/// Whether this process runs as root (network namespaces and `tc` need it).
 #[test]
 fn a_consumer_behind_a_10_mbit_link_converges() {
     if !is_root() {
@@ -441,7 +223,7 @@ fn a_consumer_behind_a_10_mbit_link_converges() {
         eprintln!("not run: {why}");
         return;
     }
-    let netns = Netns::create();
+    let netns = Netns::create("zt", "10mbit", "32kbit");
     let port = free_port();
     let key_prefix = format!("op3dsg/tbf-{}", std::process::id());
     let prefix = unique_prefix("zenoh-tbf");
