@@ -76,6 +76,11 @@ pub(super) enum BenchCommand {
     /// ratio. With --serve only the server runs (for a daemon started by hand), until
     /// interrupted. Measure with `cargo build --release`.
     Llm(Box<LlmBenchArgs>),
+    /// Remote detection's keyframe encodings (raw, png, lz4, zstd, jpeg): kB per keyframe, the
+    /// robot's CPU to encode one and the worker's to decode it, and the share of a link a stream
+    /// takes, on keyframes of the synthetic kitchen at 848x480 (or --profile's source). Measure
+    /// with a release build.
+    Remote(Box<super::bench_remote::RemoteBenchArgs>),
     /// The language query benchmark: 64 needs phrased as users phrase them, asked of the graph
     /// the batch pipeline builds of each synthetic room (kitchen, bathroom, bedroom, living
     /// room); top-1 and top-3 accuracy for objects and parts, with and without the functional

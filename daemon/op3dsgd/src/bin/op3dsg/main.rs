@@ -23,6 +23,7 @@
 mod annotate;
 mod bench;
 mod bench_args;
+mod bench_remote;
 mod dump;
 mod eval;
 mod fusion_eval;
@@ -433,6 +434,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Bench { command: BenchCommand::Perf(args) } => bench::perf(*args),
         Command::Bench { command: BenchCommand::Soak(args) } => bench::soak(*args),
         Command::Bench { command: BenchCommand::Llm(args) } => bench::llm(*args),
+        Command::Bench { command: BenchCommand::Remote(args) } => bench_remote::run(*args),
         Command::Map { dir, command: MapCommand::Info { json } } => map::info(&dir, json),
         Command::Map { dir, command: MapCommand::Save { timeout_s } } => map::save(&dir, seconds(timeout_s)?),
         Command::Map { dir, command: MapCommand::Reset } => map::reset(&dir),

@@ -22,7 +22,8 @@ pub struct RemoteConfig {
     /// Requests one worker may have outstanding; a keyframe finds another worker, or the
     /// fallback, when every worker is at its limit.
     pub max_in_flight: usize,
-    /// How colour and depth travel: `raw`, `png` or `lz4` (lossless, all three).
+    /// How colour and depth travel: `raw`, `png`, `lz4`, `zstd` (lossless, all four) or `jpeg`
+    /// (colour JPEG, lossy; depth zstd). `op3dsg bench remote` measures each.
     pub encoding: ImageEncoding,
     /// `skip`, or a local detector kind (`yolox`, with its own `[detector.yolox]`) that takes
     /// the keyframes no worker answers.

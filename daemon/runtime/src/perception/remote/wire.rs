@@ -18,8 +18,10 @@
 //! ```
 //!
 //! Encodings: 0 raw (RGB8 rows; depth u16 LE rows), 1 PNG (RGB8; 16-bit grey), 2 lz4 of the raw
-//! bytes (lz4 block with its size prepended). A reader refuses what it does not know, naming
-//! the field.
+//! bytes (lz4 block with its size prepended), 3 zstd of the raw bytes (one zstd frame), 4 JPEG
+//! (colour only; a request with `detector.remote.encoding = "jpeg"` sends its depth as 3). A
+//! reader refuses what it does not know, naming the field, and never inflates past the size the
+//! image's header gives.
 
 use op3dsg_drivers::frame::{Frame, Intrinsics};
 use op3dsg_ipc_types::NodeKind;
@@ -98,7 +100,17 @@ pub enum ImageEncoding {
     /// lz4 of the raw pixels: fast, lossless.
     #[default]
     Lz4,
+    /// zstd (level 1) of the raw pixels: lossless, smaller than lz4, slower.
+    Zstd,
+    /// JPEG (quality [`JPEG_QUALITY`]) colour, lossy; the depth travels as [`Self::Zstd`]
+    /// (depth is never sent lossy).
+    Jpeg,
 }
+
+/// The JPEG quality of [`ImageEncoding::Jpeg`] colour.
+pub const JPEG_QUALITY: u8 = 90;
+/// The zstd level of [`ImageEncoding::Zstd`].
+const ZSTD_LEVEL: i32 = 1;
 
 impl ImageEncoding {
     fn code(self) -> u8 {
@@ -106,6 +118,30 @@ impl ImageEncoding {
             Self::Raw => 0,
             Self::Png => 1,
             Self::Lz4 => 2,
+            Self::Zstd => 3,
+            Self::Jpeg => 4,
+        }
+    }
+
+    /// The encoding of the depth image when the keyframe is sent with `self`.
+    pub fn for_depth(self) -> Self {
+        match self {
+            Self::Jpeg => Self::Zstd,
+            other => other,
+        }
+    }
+
+    /// Every encoding, in code order.
+    pub const ALL: [Self; 5] = [Self::Raw, Self::Png, Self::Lz4, Self::Zstd, Self::Jpeg];
+
+    /// Its name in profiles (`raw`, `png`, `lz4`, `zstd`, `jpeg`).
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Raw => "raw",
+            Self::Png => "png",
+            Self::Lz4 => "lz4",
+            Self::Zstd => "zstd",
+            Self::Jpeg => "jpeg",
         }
     }
 
@@ -114,7 +150,9 @@ impl ImageEncoding {
             0 => Ok(Self::Raw),
             1 => Ok(Self::Png),
             2 => Ok(Self::Lz4),
-            other => Err(value(field, format!("unknown encoding {other} (0 raw, 1 png, 2 lz4)"))),
+            3 => Ok(Self::Zstd),
+            4 => Ok(Self::Jpeg),
+            other => Err(value(field, format!("unknown encoding {other} (0 raw, 1 png, 2 lz4, 3 zstd, 4 jpeg)"))),
         }
     }
 }
@@ -173,9 +211,10 @@ pub fn encode_request(
     let at = reserve_len(out);
     encode_colour(out, &frame.rgb, w, h, encoding)?;
     finish_len(out, at);
-    out.push(encoding.code());
+    let depth_encoding = encoding.for_depth();
+    out.push(depth_encoding.code());
     let at = reserve_len(out);
-    encode_depth(out, &frame.depth, w, h, encoding)?;
+    encode_depth(out, &frame.depth, w, h, depth_encoding)?;
     finish_len(out, at);
     Ok(())
 }
@@ -429,6 +468,7 @@ fn encode_colour(out: &mut Vec<u8>, rgb: &[u8], w: u32, h: u32, encoding: ImageE
     match encoding {
         ImageEncoding::Raw => out.extend_from_slice(rgb),
         ImageEncoding::Lz4 => out.extend_from_slice(&lz4_flex::compress_prepend_size(rgb)),
+        ImageEncoding::Zstd => zstd_into(out, rgb, "colour")?,
         ImageEncoding::Png => {
             use image::ImageEncoder as _;
             image::codecs::png::PngEncoder::new_with_quality(
@@ -439,8 +479,27 @@ fn encode_colour(out: &mut Vec<u8>, rgb: &[u8], w: u32, h: u32, encoding: ImageE
             .write_image(rgb, w, h, image::ExtendedColorType::Rgb8)
             .map_err(|e| value("colour", format!("PNG: {e}")))?;
         }
+        ImageEncoding::Jpeg => {
+            use image::ImageEncoder as _;
+            image::codecs::jpeg::JpegEncoder::new_with_quality(&mut *out, JPEG_QUALITY)
+                .write_image(rgb, w, h, image::ExtendedColorType::Rgb8)
+                .map_err(|e| value("colour", format!("JPEG: {e}")))?;
+        }
     }
     Ok(())
+}
+
+fn zstd_into(out: &mut Vec<u8>, raw: &[u8], field: &str) -> Result<(), WireError> {
+    let compressed = zstd::bulk::compress(raw, ZSTD_LEVEL).map_err(|e| value(field, format!("zstd: {e}")))?;
+    out.extend_from_slice(&compressed);
+    Ok(())
+}
+
+/// zstd-decompresses at most `expected` bytes (a larger frame is an error, not an allocation).
+fn unzstd(bytes: &[u8], expected: usize, field: &str) -> Result<Vec<u8>, WireError> {
+    let raw = zstd::bulk::decompress(bytes, expected).map_err(|e| value(field, format!("zstd: {e}")))?;
+    expect_len(field, raw.len(), expected)?;
+    Ok(raw)
 }
 
 fn encode_depth(out: &mut Vec<u8>, depth: &[u16], w: u32, h: u32, encoding: ImageEncoding) -> Result<(), WireError> {
@@ -450,6 +509,11 @@ fn encode_depth(out: &mut Vec<u8>, depth: &[u16], w: u32, h: u32, encoding: Imag
             let raw: Vec<u8> = depth.iter().flat_map(|v| v.to_le_bytes()).collect();
             out.extend_from_slice(&lz4_flex::compress_prepend_size(&raw));
         }
+        ImageEncoding::Zstd => {
+            let raw: Vec<u8> = depth.iter().flat_map(|v| v.to_le_bytes()).collect();
+            zstd_into(out, &raw, "depth")?;
+        }
+        ImageEncoding::Jpeg => return Err(value("depth", "depth is never sent as JPEG (lossy)".into())),
         ImageEncoding::Png => {
             use image::ImageEncoder as _;
             // The encoder takes 16-bit samples in native order (it writes PNG's big-endian).
@@ -485,6 +549,18 @@ fn decode_colour(bytes: &[u8], encoding: ImageEncoding, w: u32, h: u32, rgb: &mu
             expect_len("colour", raw.len(), expected)?;
             rgb.copy_from_slice(&raw);
         }
+        ImageEncoding::Zstd => rgb.copy_from_slice(&unzstd(bytes, expected, "colour")?),
+        ImageEncoding::Jpeg => {
+            let decoded = image::load_from_memory_with_format(bytes, image::ImageFormat::Jpeg)
+                .map_err(|e| value("colour", format!("JPEG: {e}")))?;
+            if (decoded.width(), decoded.height()) != (w, h) {
+                return Err(value(
+                    "colour",
+                    format!("JPEG is {}x{}, the request says {w}x{h}", decoded.width(), decoded.height()),
+                ));
+            }
+            rgb.copy_from_slice(decoded.into_rgb8().as_raw());
+        }
         ImageEncoding::Png => {
             let decoded = image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
                 .map_err(|e| value("colour", format!("PNG: {e}")))?;
@@ -518,6 +594,8 @@ fn decode_depth(bytes: &[u8], encoding: ImageEncoding, w: u32, h: u32, depth: &m
             expect_len("depth", raw.len(), expected)?;
             from_le(&raw, depth);
         }
+        ImageEncoding::Zstd => from_le(&unzstd(bytes, expected, "depth")?, depth),
+        ImageEncoding::Jpeg => return Err(value("depth", "depth is never sent as JPEG (lossy)".into())),
         ImageEncoding::Png => {
             let decoded = image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
                 .map_err(|e| value("depth", format!("PNG: {e}")))?;

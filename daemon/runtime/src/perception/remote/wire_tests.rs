@@ -49,7 +49,7 @@ fn reply() -> Reply {
 #[test]
 fn a_request_round_trips_in_every_encoding() {
     let frame = frame();
-    for encoding in [ImageEncoding::Raw, ImageEncoding::Png, ImageEncoding::Lz4] {
+    for encoding in [ImageEncoding::Raw, ImageEncoding::Png, ImageEncoding::Lz4, ImageEncoding::Zstd] {
         let mut bytes = Vec::new();
         encode_request(&mut bytes, 7, &frame, &contract(), encoding).expect("encode");
         let request = decode_request(&bytes).expect("decode");
@@ -60,6 +60,45 @@ fn a_request_round_trips_in_every_encoding() {
         assert!(request.frame.rgb == frame.rgb, "{encoding:?} colour");
         assert!(request.frame.depth == frame.depth, "{encoding:?} depth");
     }
+}
+
+#[test]
+fn jpeg_sends_colour_lossy_and_depth_lossless() {
+    // A smooth picture (JPEG's case): within a few levels after the round trip.
+    let mut frame = frame();
+    let width = frame.intrinsics.width as usize;
+    for (i, px) in frame.rgb.chunks_exact_mut(3).enumerate() {
+        let (x, y) = (i % width, i / width);
+        px.copy_from_slice(&[(x / 3) as u8, (y / 2) as u8, ((x + y) / 5) as u8]);
+    }
+    let mut bytes = Vec::new();
+    encode_request(&mut bytes, 7, &frame, &contract(), ImageEncoding::Jpeg).expect("encode");
+    let request = decode_request(&bytes).expect("decode");
+    assert!(request.frame.depth == frame.depth, "depth is exact");
+    let worst = request.frame.rgb.iter().zip(&frame.rgb).map(|(a, b)| a.abs_diff(*b)).max().unwrap_or(0);
+    assert!(worst <= 16, "JPEG colour off by {worst} levels");
+    assert!(bytes.len() < frame.rgb.len() / 5, "JPEG is small: {} bytes", bytes.len());
+}
+
+#[test]
+fn a_compressed_image_that_inflates_past_its_size_is_refused() {
+    let frame = frame();
+    let mut bytes = Vec::new();
+    encode_request(&mut bytes, 7, &frame, &contract(), ImageEncoding::Zstd).expect("encode");
+    // The same request declaring a 320x240 image: the colour's zstd frame holds 4 times more.
+    let width_at = 4 + 4 + 24 + 2 + 5 + 2 + 2 + 5 + 2 + 2 + 2;
+    bytes[width_at..width_at + 4].copy_from_slice(&320u32.to_le_bytes());
+    bytes[width_at + 4..width_at + 8].copy_from_slice(&240u32.to_le_bytes());
+    let e = decode_request(&bytes).expect_err("too big");
+    assert!(e.to_string().starts_with("colour: zstd"), "{e}");
+    // Depth marked as JPEG: refused by name.
+    let mut bytes = Vec::new();
+    encode_request(&mut bytes, 7, &frame, &contract(), ImageEncoding::Raw).expect("encode");
+    let depth_code_at = bytes.len() - frame.depth.len() * 2 - 5;
+    assert_eq!(bytes[depth_code_at], 0);
+    bytes[depth_code_at] = 4;
+    let e = decode_request(&bytes).expect_err("jpeg depth");
+    assert!(e.to_string().starts_with("depth: depth is never sent as JPEG"), "{e}");
 }
 
 #[test]
