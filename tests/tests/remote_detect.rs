@@ -13,6 +13,7 @@
 //! The daemon's figures come from its `<prefix>/detect_status` queryable. Needs `.models/` and
 //! the shared development data (skips with a message when absent, fails in CI).
 
+use std::path::Path;
 use std::process::Command;
 use std::time::Duration;
 
@@ -143,6 +144,58 @@ fn two_remote_yolox_workers_give_the_graph_of_the_local_detector() {
         assert!(figures["replies"].as_u64().unwrap_or(0) > 0, "worker {w} answered: {status}");
         assert!(figures["bytes_per_keyframe"].as_u64().unwrap_or(0) > 1000, "{status}");
     }
+}
+
+/// The stand-in of an open-vocabulary family (`.models/standins/`, `scripts/setup-standins.sh`).
+fn standin(name: &str) -> String {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../.models/standins").join(name);
+    assert!(path.is_file(), "{} missing: run ./scripts/setup-models.sh && ./scripts/setup-standins.sh", path.display());
+    path.display().to_string()
+}
+
+#[test]
+fn an_open_vocabulary_stand_in_worker_gives_the_graph_of_the_local_detector() {
+    if profile().is_none() {
+        return;
+    }
+    let owl = Path::new(env!("CARGO_MANIFEST_DIR")).join("../profiles/replay-icl-owl.toml");
+    let owl_arg = owl.display().to_string();
+    let model = format!("detector.open_vocab.model_path=\"{}\"", standin("owl.onnx"));
+    let local = Daemon::start(
+        &unique_prefix("remote-owl-local"),
+        &["--profile", &owl_arg, "--set", &model, "--set", "run.exit_at_end=false"],
+    );
+    let local_graph = final_graph(&local);
+    drop(local);
+
+    let (port, key_prefix) = (free_port(), format!("ro{}", std::process::id()));
+    let mut worker = Worker::start_with(&owl, port, &key_prefix, "owl", &[&model]);
+    let mut args = vec!["--profile".to_owned(), owl_arg.clone(), "--set".to_owned(), model.clone()];
+    args.extend(remote_args(
+        port,
+        &key_prefix,
+        &["owl"],
+        &["detector.remote.model=\"open_vocab\"", "detector.remote.timeout_ms=30000", "run.exit_at_end=false"],
+    ));
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let remote = Daemon::start(&unique_prefix("remote-owl"), &args);
+    let remote_graph = final_graph(&remote);
+    let mut health = remote.health_subscriber("remote-owl-health");
+    let h = op3dsg_tests::health_where(&mut health, "the worker's figures", Duration::from_secs(30), |h| {
+        h.remote.worker_count == 1
+    });
+    worker.kill();
+    let w = h.remote.valid_workers()[0];
+    assert!(w.replies > 0 && h.remote.fallback_keyframes == 0, "every keyframe answered by the worker: {w:?}");
+    let (local_nodes, local_edges) = shape(&local_graph);
+    let (remote_nodes, remote_edges) = shape(&remote_graph);
+    assert!(!local_nodes.is_empty(), "the stand-in finds regions on the ICL sequence");
+    assert_eq!(
+        local_nodes.iter().map(|n| (n.0, &n.1, &n.2)).collect::<Vec<_>>(),
+        remote_nodes.iter().map(|n| (n.0, &n.1, &n.2)).collect::<Vec<_>>(),
+        "nodes"
+    );
+    assert_eq!(local_edges, remote_edges, "edges");
 }
 
 #[test]

@@ -34,6 +34,11 @@ impl Worker {
         Self::start_in(&[], profile, port, key_prefix, id, fault)
     }
 
+    /// As [`Self::start`], with more `--set` overrides of the worker's profile.
+    pub fn start_with(profile: &Path, port: u16, key_prefix: &str, id: &str, sets: &[&str]) -> Self {
+        Self::start_full(&[], profile, port, key_prefix, id, &[], sets)
+    }
+
     /// As [`Self::start`], run through `wrapper` (`ip netns exec NAME`).
     pub fn start_in(
         wrapper: &[&str],
@@ -42,6 +47,18 @@ impl Worker {
         key_prefix: &str,
         id: &str,
         fault: &[(&str, &str)],
+    ) -> Self {
+        Self::start_full(wrapper, profile, port, key_prefix, id, fault, &[])
+    }
+
+    fn start_full(
+        wrapper: &[&str],
+        profile: &Path,
+        port: u16,
+        key_prefix: &str,
+        id: &str,
+        fault: &[(&str, &str)],
+        sets: &[&str],
     ) -> Self {
         let detectd = binary("op3dsg-detectd");
         let mut command = match wrapper.split_first() {
@@ -58,6 +75,7 @@ impl Worker {
             .args(["--set", &format!("zenoh.key_prefix=\"{key_prefix}\"")])
             .args(["--set", &format!("zenoh.connect=[\"tcp/127.0.0.1:{port}\"]")])
             .args(["--set", "detector.workers=1", "--id", id])
+            .args(sets.iter().flat_map(|set| ["--set", set]))
             .env("OP3DSG_LOG", "warn")
             .envs(fault.iter().copied())
             .stdin(Stdio::null())

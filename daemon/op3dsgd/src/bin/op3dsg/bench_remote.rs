@@ -62,7 +62,8 @@ fn keyframes(args: &RemoteBenchArgs) -> Result<Vec<Frame>> {
     overrides.extend(args.set.iter().cloned());
     overrides.push("source.rate_hz=0.0".to_owned());
     let backends = op3dsg_sim::backends();
-    let loaded = config::load_with(&backends, args.profile.as_deref(), &overrides).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let loaded =
+        config::load_with(&backends, args.profile.as_deref(), &overrides).map_err(|e| anyhow::anyhow!("{e}"))?;
     let (opened, _) = backends.open(&loaded.profile).context("opening the profile's source")?;
     let mut source = opened.source;
     let mut frame = Frame::new(source.intrinsics());
