@@ -90,7 +90,7 @@ def run(bin_dir, remote, seconds, warmup_s, rate_hz):
         window = (last.stamp_ns - start.stamp_ns) / 1e9
         keyframes = (last.keyframes - start.keyframes) / window
         row = {
-            "run": "remote (1 worker, lz4)" if remote else "local",
+            "run": "remote (1 worker, png)" if remote else "local",
             "keyframes_per_s": keyframes,
             "e2e_p50": statistics.median(e2e_p50) if e2e_p50 else float("nan"),
             "e2e_p99": max(e2e_p99) if e2e_p99 else float("nan"),

@@ -1,6 +1,6 @@
-//! Remote detection over a Wi-Fi-like link, between real processes: `op3dsgd` (synthetic kitchen
-//! at 848x480, `detector.kind = "remote"`, YOLOX on the robot as the fallback) and an
-//! `op3dsg-detectd` worker (YOLOX-nano, CPU).
+//! Remote detection over a Wi-Fi-like link, between real processes: `op3dsgd` (the ICL-NUIM
+//! replay looping at 15 frames/s, `detector.kind = "remote"`, YOLOX on the robot as the
+//! fallback) and an `op3dsg-detectd` worker (YOLOX-nano, CPU).
 //!
 //! - Through the fault proxy of `op3dsg_tests::netfaults`: 5 ms ± 3 ms added to every chunk,
 //!   100 ms stalls every 2 s, then a 3 s outage (connections reset, new ones refused). The robot
@@ -26,12 +26,13 @@ use serde_json::Value;
 mod remote_common;
 use remote_common::{Status, Worker, free_port, profile, remote_args};
 
-/// The daemon's remote-detection settings of both tests: 848x480 frames of the synthetic
-/// kitchen at 15 frames/s, a 500 ms wait per keyframe, YOLOX on the robot while no worker answers.
+/// The daemon's remote-detection settings of both tests: the ICL replay (real detections, so
+/// new graphs and a capture → graph latency) looping at 15 frames/s, a 500 ms wait per keyframe,
+/// YOLOX on the robot while no worker answers.
 const SETTINGS: [&str; 6] = [
-    "source.kind=\"synthetic\"",
+    "source.replay.loop=true",
     "source.rate_hz=15.0",
-    "source.synthetic.intrinsics={ width = 848, height = 480, fx = 615.0, fy = 615.0, cx = 424.0, cy = 240.0 }",
+    "run.exit_at_end=false",
     "detector.remote.timeout_ms=500",
     "detector.remote.retry_after_ms=300",
     "detector.remote.fallback=\"yolox\"",

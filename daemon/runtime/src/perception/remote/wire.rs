@@ -95,10 +95,12 @@ pub enum WireError {
 pub enum ImageEncoding {
     /// The pixels as they are.
     Raw,
-    /// Lossless PNG (8-bit RGB colour, 16-bit grey depth).
-    Png,
-    /// lz4 of the raw pixels: fast, lossless.
+    /// Lossless PNG (8-bit RGB colour, 16-bit grey depth; fast compression, Sub filter): the
+    /// default, the smallest lossless keyframe for about the robot's CPU of lz4
+    /// (`op3dsg bench remote`, docs/benchmarks.md).
     #[default]
+    Png,
+    /// lz4 of the raw pixels: lossless, the fastest to decode, the largest compressed.
     Lz4,
     /// zstd (level 1) of the raw pixels: lossless, smaller than lz4, slower.
     Zstd,
