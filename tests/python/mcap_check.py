@@ -34,6 +34,12 @@ DIR overrides). They are applied strictly: every object that lists its propertie
 Foxglove's panels would ignore it. A foxglove.* schema name with no published schema is an error.
 RawImage data is also decoded (base64) and must hold `step * height` bytes.
 
+The `foxglove.*` channels are protobuf: each message is decoded with the FileDescriptorSet its
+schema embeds (google.protobuf from PyPI, not the project's code) and turned into the JSON form
+Foxglove's JSON schemas describe (every field of the descriptor; time as {sec, nsec}; bytes as
+base64; enums as integers), which is then validated and checked as above. Files written before
+the recorder used protobuf hold these channels as JSON; both are read.
+
 Reads records in file order (NonSeekingReader), so a file without a summary (after kill -9) is
 read up to where it ends; the exception that stops it is reported in "error".
 """
@@ -46,6 +52,8 @@ import struct
 import sys
 import tomllib
 
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from google.protobuf.descriptor import FieldDescriptor
 from jsonschema import Draft7Validator
 from mcap.reader import NonSeekingReader
 from mcap.stream_reader import StreamReader
@@ -108,6 +116,54 @@ class FoxgloveSchemas:
                 with open(path) as f:
                     self.validators[name] = Draft7Validator(strict(json.load(f)))
         return self.validators[name]
+
+
+class Protobuf:
+    """Decodes protobuf messages with the descriptors their schema record embeds."""
+
+    def __init__(self):
+        self.classes = {}
+
+    def message_class(self, schema):
+        if schema.id not in self.classes:
+            fds = descriptor_pb2.FileDescriptorSet.FromString(schema.data)
+            pool = descriptor_pool.DescriptorPool()
+            for file in fds.file:
+                pool.Add(file)
+            self.classes[schema.id] = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
+        return self.classes[schema.id]
+
+    def decode(self, schema, data):
+        return as_json(self.message_class(schema).FromString(data))
+
+
+TIME_TYPES = ("google.protobuf.Timestamp", "google.protobuf.Duration")
+
+
+def as_json(message):
+    """A decoded protobuf message in Foxglove's JSON form: every field the descriptor defines
+    (sub-messages only when set), time and duration as {sec, nsec}, bytes base64, enums as
+    integers."""
+    if message.DESCRIPTOR.full_name in TIME_TYPES:
+        return {"sec": message.seconds, "nsec": message.nanos}
+    out = {}
+    for field in message.DESCRIPTOR.fields:
+        value = getattr(message, field.name)
+        if field.is_repeated:
+            out[field.name] = [field_json(field, v) for v in value]
+        elif field.type == FieldDescriptor.TYPE_MESSAGE and not message.HasField(field.name):
+            continue
+        else:
+            out[field.name] = field_json(field, value)
+    return out
+
+
+def field_json(field, value):
+    if field.type == FieldDescriptor.TYPE_MESSAGE:
+        return as_json(value)
+    if field.type == FieldDescriptor.TYPE_BYTES:
+        return base64.b64encode(value).decode("ascii")
+    return value
 
 
 def violations(validator, message, where):
@@ -185,6 +241,7 @@ def main(path, schema_dir, needles=()):
     clouds = []
     scenes = []
     up_axis = "z"
+    protobuf = Protobuf()
     last_log = -1
     last_stamp = {}
     with open(path, "rb") as f:
@@ -205,7 +262,10 @@ def main(path, schema_dir, needles=()):
                 if message.log_time < last_log:
                     out["log_time_ordered"] = False
                 last_log = message.log_time
-                decoded = json.loads(message.data)
+                if channel.message_encoding == "protobuf":
+                    decoded = protobuf.decode(schema, message.data)
+                else:
+                    decoded = json.loads(message.data)
                 where = f"{topic}[{entry['count'] - 1}]"
                 name = schema.name if schema else ""
                 if name.startswith("foxglove."):

@@ -248,8 +248,8 @@ impl SourceBackend for SimMcapBackend {
         let channel = truth.instance_ids.clone();
         let source = source.with_side_channel(
             INSTANCE_IDS_TOPIC,
-            Box::new(move |frame: &mut Frame, bytes: &[u8]| {
-                let image = RawImageIn::parse(bytes)?;
+            Box::new(move |frame: &mut Frame, bytes: &[u8], message_encoding: &str| {
+                let image = RawImageIn::parse(bytes, message_encoding)?;
                 let mut result = Ok(());
                 channel.write(frame, |frame, ids| {
                     ids.resize(frame.depth.len(), 0);

@@ -1,23 +1,27 @@
-//! Encoding and decoding of the raw-input messages: `foxglove.RawImage` (written by hand into a
-//! reused buffer: a 848x480 frame is ~1.6 MB of base64 and must not go through a `Value`),
-//! `foxglove.CameraCalibration` and `op3dsg.Frame`.
+//! The messages of the raw input and of the LLM refiner: `foxglove.RawImage`,
+//! `.CompressedImage` and `.CameraCalibration` in the `foxglove` crate's generated types
+//! (protobuf), read also from the JSON of earlier recordings; `op3dsg.Frame`, `.InputPose` and
+//! `.LlmExchange` (JSON).
 //!
-//! Numbers round-trip exactly: `f32` intrinsics and depth scales are written widened to `f64`
-//! and poses are `f64`, and the workspace's `serde_json` parses floats exactly
-//! (`float_roundtrip`), so a replayed frame equals the recorded one bit for bit.
-
-use std::io::Write as _;
+//! Numbers round-trip exactly: protobuf carries `f64` as its bits, `f32` intrinsics and depth
+//! scales are written widened to `f64`, poses are `f64`, and the workspace's `serde_json` parses
+//! floats exactly (`float_roundtrip`), so a replayed frame equals the recorded one bit for bit.
 
 use base64::Engine as _;
 use base64::engine::general_purpose::STANDARD;
+use foxglove::bytes::Bytes;
+use foxglove::messages::{CameraCalibration, CompressedImage, RawImage, Timestamp};
+use foxglove::{Decode, Encode};
 use serde::{Deserialize, Serialize};
+
+use super::schemas;
 
 use crate::frame::Intrinsics;
 // `op3dsg.InputPose`: defined with the poses, where the frame-source interface takes it from.
 use crate::pose::Isometry;
 pub use crate::pose::{InputPose, InputPoseKind};
 
-/// A Foxglove `time`.
+/// A Foxglove `time` as JSON (earlier recordings' `foxglove.*` messages).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Time {
     /// Seconds.
@@ -135,60 +139,86 @@ pub struct LlmExchange {
     pub verdict: Option<LlmVerdict>,
 }
 
-/// `foxglove.CameraCalibration` (pinhole, no distortion: depth is aligned to colour).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[allow(non_snake_case)]
-pub struct CameraCalibration {
-    /// Stamp of the first frame with these intrinsics.
-    pub timestamp: Time,
-    /// Always [`super::CAMERA_FRAME`].
-    pub frame_id: String,
-    /// Image width, pixels.
-    pub width: u32,
-    /// Image height, pixels.
-    pub height: u32,
-    /// Empty: rectified, no distortion.
-    pub distortion_model: String,
-    /// Distortion coefficients (none).
-    pub D: Vec<f64>,
-    /// Intrinsic matrix, row-major 3x3.
-    pub K: [f64; 9],
-    /// Rectification (identity).
-    pub R: [f64; 9],
-    /// Projection, row-major 3x4.
-    pub P: [f64; 12],
+/// A stamp as Foxglove's `Timestamp` (seconds past 2106 saturate).
+pub fn timestamp(stamp_ns: u64) -> Timestamp {
+    let sec = u32::try_from(stamp_ns / 1_000_000_000).unwrap_or(u32::MAX);
+    Timestamp::new(sec, (stamp_ns % 1_000_000_000) as u32)
 }
 
-impl CameraCalibration {
-    /// The calibration of `k` at `stamp_ns`.
-    pub fn new(k: &Intrinsics, stamp_ns: u64) -> Self {
-        let (fx, fy, cx, cy) = (f64::from(k.fx), f64::from(k.fy), f64::from(k.cx), f64::from(k.cy));
-        Self {
-            timestamp: Time::from_ns(stamp_ns),
-            frame_id: super::CAMERA_FRAME.to_owned(),
-            width: k.width,
-            height: k.height,
-            distortion_model: String::new(),
-            D: Vec::new(),
-            K: [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0],
-            R: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
-            P: [fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0],
-        }
-    }
+/// A Foxglove `Timestamp` in nanoseconds (`None`, an unset field, is 0).
+pub fn stamp_ns(t: Option<Timestamp>) -> u64 {
+    t.map_or(0, |t| u64::from(t.sec()) * 1_000_000_000 + u64::from(t.nsec()))
+}
 
-    /// The pinhole intrinsics, or what is wrong with them.
-    pub fn intrinsics(&self) -> Result<Intrinsics, String> {
-        let k = Intrinsics {
-            width: self.width,
-            height: self.height,
-            fx: self.K[0] as f32,
-            fy: self.K[4] as f32,
-            cx: self.K[2] as f32,
-            cy: self.K[5] as f32,
-        };
-        crate::frame::check_intrinsics(&k).map_err(|e| format!("intrinsics{e}"))?;
-        Ok(k)
+/// Encodes a `foxglove.*` message (protobuf) into `out` (cleared first).
+pub fn encode<T: Encode>(message: &T, out: &mut Vec<u8>) -> Result<(), String> {
+    out.clear();
+    if let Some(len) = message.encoded_len() {
+        out.reserve(len);
     }
+    message.encode(out).map_err(|e| e.to_string())
+}
+
+/// The message encodings a `foxglove.*` channel may have: `protobuf`, or `json` in files written
+/// before the recorder used the `foxglove` crate's types.
+pub const FOXGLOVE_ENCODINGS: [&str; 2] = [schemas::PROTOBUF, schemas::MESSAGE_ENCODING];
+
+fn decode_protobuf<T: Decode>(bytes: &[u8], name: &str) -> Result<T, String> {
+    T::decode(bytes).map_err(|e| format!("not a {name} (protobuf): {e}"))
+}
+
+fn unknown_encoding(message_encoding: &str) -> String {
+    format!(
+        "message encoding \"{message_encoding}\", expected \"protobuf\" (or \"json\", as earlier recordings have it)"
+    )
+}
+
+/// The `foxglove.CameraCalibration` of `k` at `stamp_ns` (pinhole, no distortion: depth is
+/// aligned to colour).
+pub fn calibration(k: &Intrinsics, stamp_ns: u64) -> CameraCalibration {
+    let (fx, fy, cx, cy) = (f64::from(k.fx), f64::from(k.fy), f64::from(k.cx), f64::from(k.cy));
+    CameraCalibration {
+        timestamp: Some(timestamp(stamp_ns)),
+        frame_id: super::CAMERA_FRAME.to_owned(),
+        width: k.width,
+        height: k.height,
+        distortion_model: String::new(),
+        d: Vec::new(),
+        k: vec![fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0],
+        r: vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        p: vec![fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+    }
+}
+
+/// A `foxglove.CameraCalibration` as JSON, as earlier recordings hold it.
+#[derive(Debug, Deserialize)]
+#[allow(non_snake_case)]
+struct CalibrationJson {
+    width: u32,
+    height: u32,
+    K: [f64; 9],
+}
+
+/// The pinhole intrinsics of a recorded `foxglove.CameraCalibration` (`message_encoding`
+/// `protobuf` or `json`), or what is wrong with it.
+pub fn calibration_intrinsics(bytes: &[u8], message_encoding: &str) -> Result<Intrinsics, String> {
+    let (width, height, k) = match message_encoding {
+        schemas::PROTOBUF => {
+            let c: CameraCalibration = decode_protobuf(bytes, schemas::CAMERA_CALIBRATION)?;
+            let k: [f64; 9] =
+                c.k.as_slice().try_into().map_err(|_| format!("K has {} values, expected 9", c.k.len()))?;
+            (c.width, c.height, k)
+        }
+        schemas::MESSAGE_ENCODING => {
+            let c: CalibrationJson = serde_json::from_slice(bytes)
+                .map_err(|e| format!("not a {} (json): {e}", schemas::CAMERA_CALIBRATION))?;
+            (c.width, c.height, c.K)
+        }
+        other => return Err(unknown_encoding(other)),
+    };
+    let k = Intrinsics { width, height, fx: k[0] as f32, fy: k[4] as f32, cx: k[2] as f32, cy: k[5] as f32 };
+    crate::frame::check_intrinsics(&k).map_err(|e| format!("intrinsics{e}"))?;
+    Ok(k)
 }
 
 /// What a `foxglove.RawImage` says of its pixels.
@@ -208,58 +238,116 @@ pub struct RawImageHeader<'a> {
     pub step: u32,
 }
 
-/// Writes a `foxglove.RawImage` of `data` into `out` (cleared first).
-pub fn encode_raw_image(out: &mut Vec<u8>, header: RawImageHeader<'_>, data: &[u8]) {
+/// The `foxglove.RawImage` of `data` (copied).
+pub fn raw_image(header: RawImageHeader<'_>, data: &[u8]) -> RawImage {
     let RawImageHeader { stamp_ns, frame_id, width, height, encoding, step } = header;
-    out.clear();
-    let t = Time::from_ns(stamp_ns);
-    // Writing into a Vec cannot fail.
-    let _ = write!(
-        out,
-        r#"{{"timestamp":{{"sec":{},"nsec":{}}},"frame_id":"{frame_id}","width":{width},"height":{height},"encoding":"{encoding}","step":{step},"data":""#,
-        t.sec, t.nsec
-    );
-    let start = out.len();
-    out.resize(start + base64::encoded_len(data.len(), true).unwrap_or(0), 0);
-    let written = STANDARD.encode_slice(data, &mut out[start..]).unwrap_or(0);
-    out.truncate(start + written);
-    out.extend_from_slice(b"\"}");
+    RawImage {
+        timestamp: Some(timestamp(stamp_ns)),
+        frame_id: frame_id.to_owned(),
+        width,
+        height,
+        encoding: encoding.to_owned(),
+        step,
+        data: Bytes::copy_from_slice(data),
+    }
 }
 
-/// Writes a `foxglove.CompressedImage` (`format` `jpeg` or `png`, `data` the encoded file) into
-/// `out` (cleared first).
-pub fn encode_compressed_image(out: &mut Vec<u8>, stamp_ns: u64, frame_id: &str, format: &str, data: &[u8]) {
-    out.clear();
-    let t = Time::from_ns(stamp_ns);
-    // Writing into a Vec cannot fail.
-    let _ = write!(
-        out,
-        r#"{{"timestamp":{{"sec":{},"nsec":{}}},"frame_id":"{frame_id}","format":"{format}","data":""#,
-        t.sec, t.nsec
-    );
-    let start = out.len();
-    out.resize(start + base64::encoded_len(data.len(), true).unwrap_or(0), 0);
-    let written = STANDARD.encode_slice(data, &mut out[start..]).unwrap_or(0);
-    out.truncate(start + written);
-    out.extend_from_slice(b"\"}");
+/// The `foxglove.CompressedImage` of `data`, an encoded `jpeg` or `png` file (copied).
+pub fn compressed_image(stamp_ns: u64, frame_id: &str, format: &str, data: &[u8]) -> CompressedImage {
+    CompressedImage {
+        timestamp: Some(timestamp(stamp_ns)),
+        frame_id: frame_id.to_owned(),
+        data: Bytes::copy_from_slice(data),
+        format: format.to_owned(),
+    }
 }
 
-/// A `foxglove.CompressedImage` as read, its data still base64.
+/// An image's bytes as read: protobuf's bytes, or the base64 text of earlier JSON recordings.
+#[derive(Debug)]
+pub enum ImageData<'a> {
+    /// The bytes themselves.
+    Bytes(Bytes),
+    /// Base64 of the bytes.
+    Base64(&'a str),
+}
+
+impl ImageData<'_> {
+    /// The bytes into `out` (cleared first).
+    fn to_vec(&self, out: &mut Vec<u8>) -> Result<(), String> {
+        out.clear();
+        match self {
+            ImageData::Bytes(b) => out.extend_from_slice(b),
+            ImageData::Base64(text) => {
+                STANDARD.decode_vec(text.as_bytes(), out).map_err(|e| format!("data: bad base64 ({e})"))?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The bytes into `out`, which must hold exactly as many.
+    fn copy_exact(&self, out: &mut [u8]) -> Result<(), String> {
+        let written = match self {
+            ImageData::Bytes(b) => {
+                if b.len() == out.len() {
+                    out.copy_from_slice(b);
+                }
+                b.len()
+            }
+            ImageData::Base64(text) => {
+                // A longer text would not fit: the decoder refuses it rather than write past `out`.
+                STANDARD.decode_slice(text.as_bytes(), out).map_err(|e| format!("data: bad base64 ({e})"))?
+            }
+        };
+        if written != out.len() {
+            return Err(format!("data: {written} bytes, expected {}", out.len()));
+        }
+        Ok(())
+    }
+}
+
+/// A `foxglove.CompressedImage` as JSON, as earlier recordings hold it.
 #[derive(Debug, Deserialize)]
+struct CompressedImageJson<'a> {
+    timestamp: Time,
+    format: String,
+    #[serde(borrow)]
+    data: &'a str,
+}
+
+/// A `foxglove.CompressedImage` as read.
+#[derive(Debug)]
 pub struct CompressedImageIn<'a> {
-    /// Stamp.
-    pub timestamp: Time,
+    /// Stamp, nanoseconds.
+    pub stamp_ns: u64,
     /// `jpeg` or `png`.
     pub format: String,
-    /// Base64 of the encoded image.
-    #[serde(borrow)]
-    pub data: &'a str,
+    /// The encoded image.
+    pub data: ImageData<'a>,
 }
 
 impl CompressedImageIn<'_> {
-    /// Parses the JSON message.
-    pub fn parse(bytes: &[u8]) -> Result<CompressedImageIn<'_>, String> {
-        serde_json::from_slice(bytes).map_err(|e| format!("not a foxglove.CompressedImage: {e}"))
+    /// Parses the message (`message_encoding` `protobuf` or `json`).
+    pub fn parse<'a>(bytes: &'a [u8], message_encoding: &str) -> Result<CompressedImageIn<'a>, String> {
+        match message_encoding {
+            schemas::PROTOBUF => {
+                let m: CompressedImage = decode_protobuf(bytes, schemas::COMPRESSED_IMAGE)?;
+                Ok(CompressedImageIn {
+                    stamp_ns: stamp_ns(m.timestamp),
+                    format: m.format,
+                    data: ImageData::Bytes(m.data),
+                })
+            }
+            schemas::MESSAGE_ENCODING => {
+                let m: CompressedImageJson<'a> = serde_json::from_slice(bytes)
+                    .map_err(|e| format!("not a {} (json): {e}", schemas::COMPRESSED_IMAGE))?;
+                Ok(CompressedImageIn {
+                    stamp_ns: m.timestamp.to_ns(),
+                    format: m.format,
+                    data: ImageData::Base64(m.data),
+                })
+            }
+            other => Err(unknown_encoding(other)),
+        }
     }
 
     /// Decodes the image (jpeg or png, 8-bit RGB) into `out`, which holds `width * height * 3`
@@ -276,9 +364,14 @@ impl CompressedImageIn<'_> {
             "png" => image::ImageFormat::Png,
             other => return Err(format!("format \"{other}\", expected jpeg or png")),
         };
-        scratch.clear();
-        STANDARD.decode_vec(self.data.as_bytes(), scratch).map_err(|e| format!("data: bad base64 ({e})"))?;
-        let decoded = image::load_from_memory_with_format(scratch, format)
+        let encoded: &[u8] = match &self.data {
+            ImageData::Bytes(b) => b,
+            base64 => {
+                base64.to_vec(scratch)?;
+                scratch
+            }
+        };
+        let decoded = image::load_from_memory_with_format(encoded, format)
             .map_err(|e| format!("data: not a {} image: {e}", self.format))?;
         if (decoded.width(), decoded.height()) != (width, height) {
             return Err(format!("{}x{} image, but the stream is {width}x{height}", decoded.width(), decoded.height()));
@@ -293,11 +386,23 @@ impl CompressedImageIn<'_> {
     }
 }
 
-/// A `foxglove.RawImage` as read, its data still base64.
+/// A `foxglove.RawImage` as JSON, as earlier recordings hold it.
 #[derive(Debug, Deserialize)]
+struct RawImageJson<'a> {
+    timestamp: Time,
+    width: u32,
+    height: u32,
+    encoding: String,
+    step: u32,
+    #[serde(borrow)]
+    data: &'a str,
+}
+
+/// A `foxglove.RawImage` as read.
+#[derive(Debug)]
 pub struct RawImageIn<'a> {
-    /// Stamp.
-    pub timestamp: Time,
+    /// Stamp, nanoseconds.
+    pub stamp_ns: u64,
     /// Width, pixels.
     pub width: u32,
     /// Height, pixels.
@@ -306,15 +411,39 @@ pub struct RawImageIn<'a> {
     pub encoding: String,
     /// Bytes per row.
     pub step: u32,
-    /// Base64 pixels.
-    #[serde(borrow)]
-    pub data: &'a str,
+    /// The pixels.
+    pub data: ImageData<'a>,
 }
 
 impl RawImageIn<'_> {
-    /// Parses the JSON message.
-    pub fn parse(bytes: &[u8]) -> Result<RawImageIn<'_>, String> {
-        serde_json::from_slice(bytes).map_err(|e| format!("not a foxglove.RawImage: {e}"))
+    /// Parses the message (`message_encoding` `protobuf` or `json`).
+    pub fn parse<'a>(bytes: &'a [u8], message_encoding: &str) -> Result<RawImageIn<'a>, String> {
+        match message_encoding {
+            schemas::PROTOBUF => {
+                let m: RawImage = decode_protobuf(bytes, schemas::RAW_IMAGE)?;
+                Ok(RawImageIn {
+                    stamp_ns: stamp_ns(m.timestamp),
+                    width: m.width,
+                    height: m.height,
+                    encoding: m.encoding,
+                    step: m.step,
+                    data: ImageData::Bytes(m.data),
+                })
+            }
+            schemas::MESSAGE_ENCODING => {
+                let m: RawImageJson<'a> =
+                    serde_json::from_slice(bytes).map_err(|e| format!("not a {} (json): {e}", schemas::RAW_IMAGE))?;
+                Ok(RawImageIn {
+                    stamp_ns: m.timestamp.to_ns(),
+                    width: m.width,
+                    height: m.height,
+                    encoding: m.encoding,
+                    step: m.step,
+                    data: ImageData::Base64(m.data),
+                })
+            }
+            other => Err(unknown_encoding(other)),
+        }
     }
 
     /// Checks the encoding and size and decodes the pixels into `out` (exactly
@@ -323,7 +452,7 @@ impl RawImageIn<'_> {
         if !encoding.contains(&self.encoding.as_str()) {
             return Err(format!("encoding \"{}\", expected {}", self.encoding, encoding.join(" or ")));
         }
-        if self.step != self.width * bytes_per_pixel {
+        if u64::from(self.step) != u64::from(self.width) * u64::from(bytes_per_pixel) {
             return Err(format!("step {} for width {} at {bytes_per_pixel} bytes per pixel", self.step, self.width));
         }
         let expected = self.step as usize * self.height as usize;
@@ -335,12 +464,7 @@ impl RawImageIn<'_> {
                 out.len()
             ));
         }
-        let written =
-            STANDARD.decode_slice(self.data.as_bytes(), out).map_err(|e| format!("data: bad base64 ({e})"))?;
-        if written != expected {
-            return Err(format!("data: {written} bytes, expected {expected}"));
-        }
-        Ok(())
+        self.data.copy_exact(out)
     }
 }
 
@@ -348,40 +472,74 @@ impl RawImageIn<'_> {
 mod tests {
     use super::*;
 
+    const PROTOBUF: &str = schemas::PROTOBUF;
+
     #[test]
     fn raw_image_round_trips() {
         let pixels: Vec<u8> = (0..=255).cycle().take(4 * 3 * 3).collect();
+        let header = RawImageHeader {
+            stamp_ns: 1_500_000_001,
+            frame_id: "camera",
+            width: 4,
+            height: 3,
+            encoding: "rgb8",
+            step: 12,
+        };
         let mut out = Vec::new();
-        encode_raw_image(
-            &mut out,
-            RawImageHeader {
-                stamp_ns: 1_500_000_001,
-                frame_id: "camera",
-                width: 4,
-                height: 3,
-                encoding: "rgb8",
-                step: 12,
-            },
-            &pixels,
-        );
-        let value: serde_json::Value = serde_json::from_slice(&out).unwrap();
-        assert_eq!(value["timestamp"]["sec"], 1);
-        assert_eq!(value["timestamp"]["nsec"], 500_000_001);
-        let image = RawImageIn::parse(&out).unwrap();
+        encode(&raw_image(header, &pixels), &mut out).unwrap();
+        let image = RawImageIn::parse(&out, PROTOBUF).unwrap();
+        assert_eq!(image.stamp_ns, 1_500_000_001);
         let mut back = vec![0u8; pixels.len()];
         image.decode_into(&["rgb8"], 3, &mut back).unwrap();
         assert_eq!(back, pixels);
         assert!(image.decode_into(&["16UC1"], 2, &mut back).unwrap_err().contains("encoding \"rgb8\""));
         let mut short = vec![0u8; 3];
         assert!(image.decode_into(&["rgb8"], 3, &mut short).unwrap_err().contains("4x3 image"));
+        // Fewer bytes than the header promises.
+        let mut cut = raw_image(header, &pixels);
+        cut.data = cut.data.slice(..30);
+        encode(&cut, &mut out).unwrap();
+        let e = RawImageIn::parse(&out, PROTOBUF).unwrap().decode_into(&["rgb8"], 3, &mut back).unwrap_err();
+        assert_eq!(e, "data: 30 bytes, expected 36");
+        assert!(
+            RawImageIn::parse(b"\xff\xff", PROTOBUF).unwrap_err().starts_with("not a foxglove.RawImage (protobuf)")
+        );
+        assert!(RawImageIn::parse(&out, "cdr").unwrap_err().starts_with("message encoding \"cdr\""));
+    }
+
+    #[test]
+    fn raw_images_of_earlier_json_recordings_still_read() {
+        let pixels: Vec<u8> = (0..24).collect();
+        let text = format!(
+            r#"{{"timestamp":{{"sec":1,"nsec":5}},"frame_id":"camera","width":4,"height":3,"encoding":"16UC1","step":8,"data":"{}"}}"#,
+            STANDARD.encode(&pixels)
+        );
+        let image = RawImageIn::parse(text.as_bytes(), schemas::MESSAGE_ENCODING).unwrap();
+        assert_eq!(image.stamp_ns, 1_000_000_005);
+        let mut back = vec![0u8; 24];
+        image.decode_into(&["16UC1"], 2, &mut back).unwrap();
+        assert_eq!(back, pixels);
+        let long = text.replace(&STANDARD.encode(&pixels), &STANDARD.encode([0u8; 30]));
+        let e = RawImageIn::parse(long.as_bytes(), "json").unwrap().decode_into(&["16UC1"], 2, &mut back).unwrap_err();
+        assert!(e.starts_with("data: bad base64"), "a longer text is refused, never written past the frame: {e}");
     }
 
     #[test]
     fn calibration_and_pose_round_trip_exactly() {
         let k = Intrinsics { width: 848, height: 480, fx: 421.123_45, fy: 420.987_6, cx: 424.3, cy: 239.7 };
-        let text = serde_json::to_string(&CameraCalibration::new(&k, 7)).unwrap();
-        let back: CameraCalibration = serde_json::from_str(&text).unwrap();
-        assert_eq!(back.intrinsics().unwrap(), k);
+        let mut bytes = Vec::new();
+        encode(&calibration(&k, 7), &mut bytes).unwrap();
+        assert_eq!(calibration_intrinsics(&bytes, PROTOBUF).unwrap(), k);
+        let mut bad = calibration(&k, 7);
+        bad.k.pop();
+        encode(&bad, &mut bytes).unwrap();
+        assert_eq!(calibration_intrinsics(&bytes, PROTOBUF).unwrap_err(), "K has 8 values, expected 9");
+        bad.k = vec![0.0; 9];
+        encode(&bad, &mut bytes).unwrap();
+        assert!(calibration_intrinsics(&bytes, PROTOBUF).unwrap_err().starts_with("intrinsics"));
+        // The JSON of earlier recordings.
+        let json = br#"{"timestamp":{"sec":0,"nsec":7},"frame_id":"camera","width":848,"height":480,"distortion_model":"","D":[],"K":[421.1234436035156,0.0,424.29998779296875,0.0,420.98760986328125,239.6999969482422,0.0,0.0,1.0],"R":[1,0,0,0,1,0,0,0,1],"P":[0,0,0,0,0,0,0,0,0,0,1,0]}"#;
+        assert_eq!(calibration_intrinsics(json, "json").unwrap(), k);
         let pose = Isometry::new(
             glam::DQuat::from_euler(glam::EulerRot::XYZ, 0.1, -0.7, 2.9),
             glam::DVec3::new(1.0 / 3.0, -2.718_281_828_459_1, 1e-17),
@@ -402,19 +560,34 @@ mod tests {
         let mut png = Vec::new();
         image::codecs::png::PngEncoder::new(&mut png).write_image(&rgb, w, h, image::ExtendedColorType::Rgb8).unwrap();
         let mut msg = Vec::new();
-        encode_compressed_image(&mut msg, 1_500_000_000, "camera", "png", &png);
-        let image = CompressedImageIn::parse(&msg).unwrap();
-        assert_eq!(image.timestamp.to_ns(), 1_500_000_000);
+        encode(&compressed_image(1_500_000_000, "camera", "png", &png), &mut msg).unwrap();
+        let image = CompressedImageIn::parse(&msg, PROTOBUF).unwrap();
+        assert_eq!(image.stamp_ns, 1_500_000_000);
         let (mut scratch, mut out) = (Vec::new(), vec![0u8; rgb.len()]);
         image.decode_rgb_into(w, h, &mut scratch, &mut out).unwrap();
         assert_eq!(out, rgb, "png is lossless");
         let e = image.decode_rgb_into(w + 1, h, &mut scratch, &mut vec![0u8; ((w + 1) * h * 3) as usize]).unwrap_err();
         assert!(e.contains("7x5 image, but the stream is 8x5"), "{e}");
-        encode_compressed_image(&mut msg, 0, "camera", "webp", &png);
-        let e = CompressedImageIn::parse(&msg).unwrap().decode_rgb_into(w, h, &mut scratch, &mut out).unwrap_err();
+        encode(&compressed_image(0, "camera", "webp", &png), &mut msg).unwrap();
+        let e = CompressedImageIn::parse(&msg, PROTOBUF)
+            .unwrap()
+            .decode_rgb_into(w, h, &mut scratch, &mut out)
+            .unwrap_err();
         assert!(e.contains("format \"webp\", expected jpeg or png"), "{e}");
-        encode_compressed_image(&mut msg, 0, "camera", "jpeg", &png);
-        let e = CompressedImageIn::parse(&msg).unwrap().decode_rgb_into(w, h, &mut scratch, &mut out).unwrap_err();
+        encode(&compressed_image(0, "camera", "jpeg", &png), &mut msg).unwrap();
+        let e = CompressedImageIn::parse(&msg, PROTOBUF)
+            .unwrap()
+            .decode_rgb_into(w, h, &mut scratch, &mut out)
+            .unwrap_err();
         assert!(e.starts_with("data: not a jpeg image"), "{e}");
+        // The JSON of earlier recordings.
+        let json = format!(
+            r#"{{"timestamp":{{"sec":2,"nsec":0}},"frame_id":"camera","format":"png","data":"{}"}}"#,
+            STANDARD.encode(&png)
+        );
+        let image = CompressedImageIn::parse(json.as_bytes(), "json").unwrap();
+        assert_eq!(image.stamp_ns, 2_000_000_000);
+        image.decode_rgb_into(w, h, &mut scratch, &mut out).unwrap();
+        assert_eq!(out, rgb);
     }
 }

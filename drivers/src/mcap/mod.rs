@@ -4,13 +4,13 @@
 //!
 //! # Channels
 //!
-//! Every channel is JSON-encoded (`message_encoding = "json"`, `schema encoding = "jsonschema"`),
-//! so Foxglove, the `mcap` CLI and any JSON reader open the files without generated code. The
-//! Foxglove message types follow the Foxglove schemas (`foxglove.RawImage`, `.CameraCalibration`,
-//! `.FrameTransform`, `.SceneUpdate`) as published in the foxglove-sdk repository's
-//! `schemas/jsonschema` (2025 releases, the field set shared by Foxglove 2.x); the schema texts
-//! embedded in each file ([`schemas`]) are written here for the fields op3dsg emits. Bytes
-//! (`RawImage.data`) are base64, as Foxglove's JSON encoding requires.
+//! The `foxglove.*` channels are protobuf (`message_encoding` and schema encoding `protobuf`):
+//! the messages are the `foxglove` crate's generated types (Foxglove SDK) and each file embeds
+//! their descriptors as the schemas ([`schemas`]), so Foxglove and any protobuf reader decode
+//! them with what the file holds. The `op3dsg.*` channels are JSON with JSON schemas written
+//! here (`message_encoding = "json"`, schema encoding `jsonschema`). Recordings written before
+//! the `foxglove.*` channels became protobuf hold them as JSON (base64 image data); the replay
+//! reads both ([`messages`]).
 //!
 //! | topic | schema | what | written |
 //! | --- | --- | --- | --- |

@@ -1,16 +1,28 @@
-//! The JSON schemas embedded in every recording, one per channel type.
+//! The schemas embedded in every recording, one per channel type.
 //!
-//! The `foxglove.*` ones describe the fields op3dsg writes with the names, types and required
-//! fields of Foxglove's published JSON schemas (foxglove-sdk `schemas/jsonschema`, 2025
-//! releases); Foxglove picks its panels by the schema *name*, so a file opens in Foxglove's
-//! 3D, Image and Raw Messages panels. The `op3dsg.*` ones describe our own messages.
+//! The `foxglove.*` channels are protobuf, their schemas the `foxglove` crate's generated
+//! types and descriptors (Foxglove SDK, the schemas Foxglove publishes): one source of truth for
+//! the recorder, the live view and the replay; Foxglove picks its panels by the schema *name*, so
+//! a file opens in Foxglove's 3D, Image and Raw Messages panels. The `op3dsg.*` channels are our
+//! own messages, JSON with the JSON schemas written here (no generated types exist for them).
+//! Files written before the `foxglove.*` channels became protobuf hold them as JSON; the replay
+//! reads both ([`super::messages`]).
 
+use std::borrow::Cow;
+
+use foxglove::Encode;
+use foxglove::messages::{
+    CameraCalibration, CompressedImage, FrameTransform, ImageAnnotations, PointCloud, RawImage, SceneUpdate,
+};
 use serde_json::{Value, json};
 
-/// Schema encoding of every channel.
+/// Schema encoding of the `op3dsg.*` channels (and of the `foxglove.*` ones in files written
+/// before they became protobuf).
 pub const SCHEMA_ENCODING: &str = "jsonschema";
-/// Message encoding of every channel.
+/// Message encoding of the `op3dsg.*` channels (as [`SCHEMA_ENCODING`]).
 pub const MESSAGE_ENCODING: &str = "json";
+/// Schema and message encoding of the `foxglove.*` channels.
+pub const PROTOBUF: &str = "protobuf";
 
 /// `foxglove.RawImage`.
 pub const RAW_IMAGE: &str = "foxglove.RawImage";
@@ -37,16 +49,45 @@ pub const INPUT_POSE: &str = "op3dsg.InputPose";
 /// `op3dsg.LlmExchange`: [`super::messages::LlmExchange`].
 pub const LLM_EXCHANGE: &str = "op3dsg.LlmExchange";
 
-/// The schema text of `name` (one of the constants above), `None` for another name.
+/// What a channel of one schema declares in a recording.
+#[derive(Debug, Clone)]
+pub struct ChannelSchema {
+    /// The schema's encoding (`protobuf` or `jsonschema`).
+    pub encoding: &'static str,
+    /// The schema: a serialised `FileDescriptorSet` (protobuf) or the JSON schema's text.
+    pub data: Cow<'static, [u8]>,
+    /// The channel's message encoding (`protobuf` or `json`).
+    pub message_encoding: &'static str,
+}
+
+fn protobuf<T: Encode>() -> Option<ChannelSchema> {
+    let schema = T::get_schema()?;
+    Some(ChannelSchema { encoding: PROTOBUF, data: schema.data, message_encoding: PROTOBUF })
+}
+
+/// The schema the recorder writes for `name` (one of the constants above), `None` for another
+/// name.
+pub fn channel_schema(name: &str) -> Option<ChannelSchema> {
+    match name {
+        RAW_IMAGE => protobuf::<RawImage>(),
+        COMPRESSED_IMAGE => protobuf::<CompressedImage>(),
+        CAMERA_CALIBRATION => protobuf::<CameraCalibration>(),
+        FRAME_TRANSFORM => protobuf::<FrameTransform>(),
+        SCENE_UPDATE => protobuf::<SceneUpdate>(),
+        IMAGE_ANNOTATIONS => protobuf::<ImageAnnotations>(),
+        POINT_CLOUD => protobuf::<PointCloud>(),
+        _ => schema_text(name).map(|text| ChannelSchema {
+            encoding: SCHEMA_ENCODING,
+            data: Cow::Owned(text.into_bytes()),
+            message_encoding: MESSAGE_ENCODING,
+        }),
+    }
+}
+
+/// The JSON schema text of an `op3dsg.*` name (one of the constants above), `None` for another
+/// name.
 pub fn schema_text(name: &str) -> Option<String> {
     let value = match name {
-        RAW_IMAGE => raw_image(),
-        COMPRESSED_IMAGE => compressed_image(),
-        CAMERA_CALIBRATION => camera_calibration(),
-        FRAME_TRANSFORM => frame_transform(),
-        SCENE_UPDATE => scene_update(),
-        IMAGE_ANNOTATIONS => image_annotations(),
-        POINT_CLOUD => point_cloud(),
         GRAPH => graph(),
         FRAME => frame(),
         HEALTH => health(),
@@ -59,294 +100,6 @@ pub fn schema_text(name: &str) -> Option<String> {
 
 fn object(title: &str, properties: Value, required: &[&str]) -> Value {
     json!({ "title": title, "type": "object", "properties": properties, "required": required })
-}
-
-fn time() -> Value {
-    json!({
-        "type": "object", "title": "time",
-        "properties": {
-            "sec": { "type": "integer", "minimum": 0 },
-            "nsec": { "type": "integer", "minimum": 0, "maximum": 999_999_999 }
-        },
-        "required": ["sec", "nsec"]
-    })
-}
-
-fn duration() -> Value {
-    json!({
-        "type": "object", "title": "duration",
-        "properties": {
-            "sec": { "type": "integer" },
-            "nsec": { "type": "integer", "minimum": 0, "maximum": 999_999_999 }
-        },
-        "required": ["sec", "nsec"]
-    })
-}
-
-fn numbers(title: &str, names: &[&str]) -> Value {
-    let properties: serde_json::Map<String, Value> =
-        names.iter().map(|n| ((*n).to_owned(), json!({ "type": "number" }))).collect();
-    object(title, Value::Object(properties), names)
-}
-
-fn vector3() -> Value {
-    numbers("foxglove.Vector3", &["x", "y", "z"])
-}
-
-fn point3() -> Value {
-    numbers("foxglove.Point3", &["x", "y", "z"])
-}
-
-fn quaternion() -> Value {
-    numbers("foxglove.Quaternion", &["x", "y", "z", "w"])
-}
-
-fn color() -> Value {
-    numbers("foxglove.Color", &["r", "g", "b", "a"])
-}
-
-fn pose() -> Value {
-    object("foxglove.Pose", json!({ "position": vector3(), "orientation": quaternion() }), &["position", "orientation"])
-}
-
-fn raw_image() -> Value {
-    let mut schema = object(
-        RAW_IMAGE,
-        json!({
-            "timestamp": time(),
-            "frame_id": { "type": "string" },
-            "width": { "type": "integer", "minimum": 0 },
-            "height": { "type": "integer", "minimum": 0 },
-            "encoding": { "type": "string", "description": "rgb8, 16UC1, mono16, ..." },
-            "step": { "type": "integer", "minimum": 0, "description": "Byte length of a row" },
-            "data": { "type": "string", "contentEncoding": "base64" }
-        }),
-        &["timestamp", "frame_id", "width", "height", "encoding", "step", "data"],
-    );
-    schema["description"] = json!("A raw image");
-    schema
-}
-
-fn compressed_image() -> Value {
-    let mut schema = object(
-        COMPRESSED_IMAGE,
-        json!({
-            "timestamp": time(),
-            "frame_id": { "type": "string" },
-            "data": { "type": "string", "contentEncoding": "base64" },
-            "format": { "type": "string", "description": "jpeg or png" }
-        }),
-        &["timestamp", "frame_id", "data", "format"],
-    );
-    schema["description"] = json!("A compressed image");
-    schema
-}
-
-fn camera_calibration() -> Value {
-    let matrix = |n: usize| json!({ "type": "array", "items": { "type": "number" }, "minItems": n, "maxItems": n });
-    object(
-        CAMERA_CALIBRATION,
-        json!({
-            "timestamp": time(),
-            "frame_id": { "type": "string" },
-            "width": { "type": "integer", "minimum": 0 },
-            "height": { "type": "integer", "minimum": 0 },
-            "distortion_model": { "type": "string" },
-            "D": { "type": "array", "items": { "type": "number" } },
-            "K": matrix(9),
-            "R": matrix(9),
-            "P": matrix(12)
-        }),
-        &["timestamp", "frame_id", "width", "height", "distortion_model", "D", "K", "R", "P"],
-    )
-}
-
-fn frame_transform() -> Value {
-    object(
-        FRAME_TRANSFORM,
-        json!({
-            "timestamp": time(),
-            "parent_frame_id": { "type": "string" },
-            "child_frame_id": { "type": "string" },
-            "translation": vector3(),
-            "rotation": quaternion()
-        }),
-        &["timestamp", "parent_frame_id", "child_frame_id", "translation", "rotation"],
-    )
-}
-
-fn scene_update() -> Value {
-    let cube = object(
-        "foxglove.CubePrimitive",
-        json!({ "pose": pose(), "size": vector3(), "color": color() }),
-        &["pose", "size", "color"],
-    );
-    let line = object(
-        "foxglove.LinePrimitive",
-        json!({
-            "type": { "title": "foxglove.LineType", "oneOf": [
-                { "title": "LINE_STRIP", "const": 0 }, { "title": "LINE_LOOP", "const": 1 }, { "title": "LINE_LIST", "const": 2 }
-            ] },
-            "pose": pose(),
-            "thickness": { "type": "number" },
-            "scale_invariant": { "type": "boolean" },
-            "points": { "type": "array", "items": point3() },
-            "color": color(),
-            "colors": { "type": "array", "items": color() },
-            "indices": { "type": "array", "items": { "type": "integer", "minimum": 0 } }
-        }),
-        &["type", "pose", "thickness", "scale_invariant", "points", "color", "colors", "indices"],
-    );
-    let text = object(
-        "foxglove.TextPrimitive",
-        json!({
-            "pose": pose(),
-            "billboard": { "type": "boolean" },
-            "font_size": { "type": "number" },
-            "scale_invariant": { "type": "boolean" },
-            "color": color(),
-            "text": { "type": "string" }
-        }),
-        &["pose", "billboard", "font_size", "scale_invariant", "color", "text"],
-    );
-    let key_value = object(
-        "foxglove.KeyValuePair",
-        json!({ "key": { "type": "string" }, "value": { "type": "string" } }),
-        &["key", "value"],
-    );
-    let array = |items: Value| json!({ "type": "array", "items": items });
-    let entity = object(
-        "foxglove.SceneEntity",
-        json!({
-            "timestamp": time(),
-            "frame_id": { "type": "string" },
-            "id": { "type": "string" },
-            "lifetime": duration(),
-            "frame_locked": { "type": "boolean" },
-            "metadata": array(key_value),
-            "arrows": array(json!({ "type": "object" })),
-            "cubes": array(cube),
-            "spheres": array(json!({ "type": "object" })),
-            "cylinders": array(json!({ "type": "object" })),
-            "lines": array(line),
-            "triangles": array(json!({ "type": "object" })),
-            "texts": array(text),
-            "models": array(json!({ "type": "object" }))
-        }),
-        &[
-            "timestamp",
-            "frame_id",
-            "id",
-            "lifetime",
-            "frame_locked",
-            "metadata",
-            "arrows",
-            "cubes",
-            "spheres",
-            "cylinders",
-            "lines",
-            "triangles",
-            "texts",
-            "models",
-        ],
-    );
-    let deletion = object(
-        "foxglove.SceneEntityDeletion",
-        json!({
-            "timestamp": time(),
-            "type": { "title": "foxglove.SceneEntityDeletionType", "oneOf": [
-                { "title": "MATCHING_ID", "const": 0 }, { "title": "ALL", "const": 1 }
-            ] },
-            "id": { "type": "string" }
-        }),
-        &["timestamp", "type", "id"],
-    );
-    object(SCENE_UPDATE, json!({ "deletions": array(deletion), "entities": array(entity) }), &["deletions", "entities"])
-}
-
-fn point2() -> Value {
-    numbers("foxglove.Point2", &["x", "y"])
-}
-
-fn key_values() -> Value {
-    let pair = object(
-        "foxglove.KeyValuePair",
-        json!({ "key": { "type": "string" }, "value": { "type": "string" } }),
-        &["key", "value"],
-    );
-    json!({ "type": "array", "items": pair })
-}
-
-fn image_annotations() -> Value {
-    let points = object(
-        "foxglove.PointsAnnotation",
-        json!({
-            "timestamp": time(),
-            "type": { "title": "foxglove.PointsAnnotationType", "oneOf": [
-                { "title": "UNKNOWN", "const": 0 }, { "title": "POINTS", "const": 1 }, { "title": "LINE_LOOP", "const": 2 },
-                { "title": "LINE_STRIP", "const": 3 }, { "title": "LINE_LIST", "const": 4 }
-            ] },
-            "points": { "type": "array", "items": point2() },
-            "outline_color": color(),
-            "outline_colors": { "type": "array", "items": color() },
-            "fill_color": color(),
-            "thickness": { "type": "number" },
-            "metadata": key_values()
-        }),
-        &["timestamp", "type", "points", "outline_color", "outline_colors", "fill_color", "thickness"],
-    );
-    let text = object(
-        "foxglove.TextAnnotation",
-        json!({
-            "timestamp": time(),
-            "position": point2(),
-            "text": { "type": "string" },
-            "font_size": { "type": "number" },
-            "text_color": color(),
-            "background_color": color(),
-            "metadata": key_values()
-        }),
-        &["timestamp", "position", "text", "font_size", "text_color", "background_color"],
-    );
-    object(
-        IMAGE_ANNOTATIONS,
-        json!({
-            "timestamp": time(),
-            "circles": { "type": "array", "items": { "type": "object" } },
-            "points": { "type": "array", "items": points },
-            "texts": { "type": "array", "items": text },
-            "metadata": key_values()
-        }),
-        &["circles", "points", "texts"],
-    )
-}
-
-fn point_cloud() -> Value {
-    let field = object(
-        "foxglove.PackedElementField",
-        json!({
-            "name": { "type": "string" },
-            "offset": { "type": "integer", "minimum": 0 },
-            "type": { "title": "foxglove.NumericType", "oneOf": [
-                { "title": "UNKNOWN", "const": 0 }, { "title": "UINT8", "const": 1 }, { "title": "INT8", "const": 2 },
-                { "title": "UINT16", "const": 3 }, { "title": "INT16", "const": 4 }, { "title": "UINT32", "const": 5 },
-                { "title": "INT32", "const": 6 }, { "title": "FLOAT32", "const": 7 }, { "title": "FLOAT64", "const": 8 }
-            ] }
-        }),
-        &["name", "offset", "type"],
-    );
-    object(
-        POINT_CLOUD,
-        json!({
-            "timestamp": time(),
-            "frame_id": { "type": "string" },
-            "pose": pose(),
-            "point_stride": { "type": "integer", "minimum": 0 },
-            "fields": { "type": "array", "items": field },
-            "data": { "type": "string", "contentEncoding": "base64" }
-        }),
-        &["timestamp", "frame_id", "pose", "point_stride", "fields", "data"],
-    )
 }
 
 fn graph() -> Value {
@@ -520,23 +273,37 @@ mod tests {
     use super::*;
 
     #[test]
-    fn every_schema_is_json_titled_by_its_name() {
-        for name in [
-            RAW_IMAGE,
-            CAMERA_CALIBRATION,
-            FRAME_TRANSFORM,
-            SCENE_UPDATE,
-            IMAGE_ANNOTATIONS,
-            POINT_CLOUD,
-            GRAPH,
-            FRAME,
-            HEALTH,
-            INPUT_POSE,
-        ] {
+    fn every_op3dsg_schema_is_json_titled_by_its_name() {
+        for name in [GRAPH, FRAME, HEALTH, INPUT_POSE, LLM_EXCHANGE] {
             let text = schema_text(name).unwrap();
             let value: Value = serde_json::from_str(&text).unwrap();
             assert_eq!(value["title"], name);
+            let channel = channel_schema(name).unwrap();
+            assert_eq!((channel.encoding, channel.message_encoding), (SCHEMA_ENCODING, MESSAGE_ENCODING));
+            assert_eq!(&*channel.data, text.as_bytes());
         }
-        assert!(schema_text("foxglove.Nope").is_none());
+        assert!(schema_text(RAW_IMAGE).is_none(), "foxglove.* schemas are the foxglove crate's");
+        assert!(channel_schema("foxglove.Nope").is_none());
+    }
+
+    #[test]
+    fn every_foxglove_schema_is_the_foxglove_crates_descriptor_of_that_name() {
+        let names = [
+            (RAW_IMAGE, RawImage::get_schema()),
+            (COMPRESSED_IMAGE, CompressedImage::get_schema()),
+            (CAMERA_CALIBRATION, CameraCalibration::get_schema()),
+            (FRAME_TRANSFORM, FrameTransform::get_schema()),
+            (SCENE_UPDATE, SceneUpdate::get_schema()),
+            (IMAGE_ANNOTATIONS, ImageAnnotations::get_schema()),
+            (POINT_CLOUD, PointCloud::get_schema()),
+        ];
+        for (name, schema) in names {
+            let schema = schema.unwrap();
+            assert_eq!(schema.name, name, "the generated type of {name}");
+            let channel = channel_schema(name).unwrap();
+            assert_eq!((channel.encoding, channel.message_encoding), (PROTOBUF, PROTOBUF), "{name}");
+            assert_eq!(channel.data, schema.data, "{name}");
+            assert!(!channel.data.is_empty(), "{name}: a FileDescriptorSet");
+        }
     }
 }

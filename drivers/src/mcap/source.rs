@@ -5,7 +5,9 @@ use std::time::{Duration, Instant};
 
 use tracing::{info, warn};
 
-use super::messages::{CameraCalibration, CompressedImageIn, FrameMeta, InputPose, RawImageIn};
+use super::messages::{
+    CompressedImageIn, FOXGLOVE_ENCODINGS, FrameMeta, InputPose, RawImageIn, calibration_intrinsics,
+};
 use super::reader::{ChannelInfo, Item, McapReader, MessageAt, ReadError};
 use super::{McapReplayConfig, TOPIC_CALIBRATION, TOPIC_COLOUR, TOPIC_DEPTH, TOPIC_FRAME, TOPIC_INPUT_POSE, schemas};
 use crate::frame::{Frame, Intrinsics};
@@ -14,14 +16,16 @@ use crate::source::{
     FrameSource, MAX_BLOCK, PlaybackMode, SourceError, SourceKind, SourceStatus, StampClock, StepControl,
 };
 
-/// Receives a side channel's message of each frame (the bytes of the JSON message) after the
-/// frame's pixels and meta are in place; an error stops the replay naming the channel.
-pub type SideChannelHandler = Box<dyn FnMut(&mut Frame, &[u8]) -> Result<(), String> + Send>;
+/// Receives a side channel's message of each frame (the message's bytes and its channel's
+/// message encoding) after the frame's pixels and meta are in place; an error stops the replay
+/// naming the channel.
+pub type SideChannelHandler = Box<dyn FnMut(&mut Frame, &[u8], &str) -> Result<(), String> + Send>;
 
 struct SideChannel {
     topic: String,
     handler: SideChannelHandler,
     data: Vec<u8>,
+    message_encoding: String,
     present: bool,
 }
 
@@ -33,7 +37,10 @@ struct Staged {
     colour_at: Option<MessageAt>,
     /// The colour came as a `foxglove.CompressedImage` (jpeg or png).
     colour_compressed: bool,
+    /// The colour's message encoding (`protobuf`, or `json` in earlier recordings).
+    colour_encoding: &'static str,
     depth: Vec<u8>,
+    depth_encoding: &'static str,
     depth_at: Option<MessageAt>,
     /// Input poses read before this frame.
     poses: Vec<InputPose>,
@@ -93,25 +100,36 @@ fn at_error(path: &Path, channel: &ChannelInfo, at: MessageAt, reason: impl std:
     }
 }
 
-/// A channel the replay reads must have the schema and encoding the recorder writes.
+/// A channel the replay reads must have a schema and encoding the recorder writes: `foxglove.*`
+/// protobuf (or JSON, as earlier recordings hold them), `op3dsg.*` JSON.
 fn check_schema(path: &Path, channel: &ChannelInfo, at: MessageAt) -> Result<(), SourceError> {
-    if let Some(allowed) = expected_schema(&channel.topic)
-        && (!allowed.contains(&channel.schema_name.as_str()) || channel.message_encoding != schemas::MESSAGE_ENCODING)
-    {
-        let schema = allowed.join("\" or \"");
+    let Some(allowed) = expected_schema(&channel.topic) else { return Ok(()) };
+    let encodings: &[&str] =
+        if channel.schema_name.starts_with("foxglove.") { &FOXGLOVE_ENCODINGS } else { &[schemas::MESSAGE_ENCODING] };
+    if !allowed.contains(&channel.schema_name.as_str()) || !encodings.contains(&channel.message_encoding.as_str()) {
         return Err(at_error(
             path,
             channel,
             at,
             format!(
-                "schema \"{}\" encoded \"{}\", expected \"{schema}\" encoded \"{}\"",
+                "schema \"{}\" encoded \"{}\", expected \"{}\" encoded \"{}\"",
                 channel.schema_name,
                 channel.message_encoding,
-                schemas::MESSAGE_ENCODING
+                allowed.join("\" or \""),
+                if allowed[0].starts_with("foxglove.") {
+                    FOXGLOVE_ENCODINGS.join("\" or \"")
+                } else {
+                    schemas::MESSAGE_ENCODING.to_owned()
+                }
             ),
         ));
     }
     Ok(())
+}
+
+/// The message encoding of a checked `foxglove.*` channel, as one of [`FOXGLOVE_ENCODINGS`].
+fn foxglove_encoding(message_encoding: &str) -> &'static str {
+    FOXGLOVE_ENCODINGS.into_iter().find(|e| *e == message_encoding).unwrap_or(schemas::PROTOBUF)
 }
 
 /// The schemas a raw-input topic may have (colour: raw, or compressed with `record.colour`).
@@ -230,7 +248,13 @@ impl McapSource {
     /// recorded, e.g. the simulator's instance ids). A frame without one is delivered without
     /// calling it.
     pub fn with_side_channel(mut self, topic: &str, handler: SideChannelHandler) -> Self {
-        self.side_channels.push(SideChannel { topic: topic.to_owned(), handler, data: Vec::new(), present: false });
+        self.side_channels.push(SideChannel {
+            topic: topic.to_owned(),
+            handler,
+            data: Vec::new(),
+            message_encoding: String::new(),
+            present: false,
+        });
         self
     }
 
@@ -284,9 +308,8 @@ impl McapSource {
             check_schema(&path, &channel, at)?;
             match channel.topic.as_str() {
                 TOPIC_CALIBRATION => {
-                    let calib: CameraCalibration = serde_json::from_slice(&self.scratch)
-                        .map_err(|e| at_error(&path, &channel, at, format!("not a foxglove.CameraCalibration: {e}")))?;
-                    let k = calib.intrinsics().map_err(|e| at_error(&path, &channel, at, e))?;
+                    let k = calibration_intrinsics(&self.scratch, &channel.message_encoding)
+                        .map_err(|e| at_error(&path, &channel, at, e))?;
                     if let Some(expected) = expected
                         && k != expected
                     {
@@ -309,10 +332,12 @@ impl McapSource {
                     std::mem::swap(&mut self.staged.colour, &mut self.scratch);
                     self.staged.colour_at = Some(at);
                     self.staged.colour_compressed = channel.schema_name == schemas::COMPRESSED_IMAGE;
+                    self.staged.colour_encoding = foxglove_encoding(&channel.message_encoding);
                 }
                 TOPIC_DEPTH => {
                     std::mem::swap(&mut self.staged.depth, &mut self.scratch);
                     self.staged.depth_at = Some(at);
+                    self.staged.depth_encoding = foxglove_encoding(&channel.message_encoding);
                 }
                 TOPIC_FRAME => {
                     let meta: FrameMeta = serde_json::from_slice(&self.scratch)
@@ -324,6 +349,7 @@ impl McapSource {
                 topic => {
                     if let Some(side) = self.side_channels.iter_mut().find(|s| s.topic == topic) {
                         std::mem::swap(&mut side.data, &mut self.scratch);
+                        side.message_encoding.clone_from(&channel.message_encoding);
                         side.present = true;
                     }
                 }
@@ -407,12 +433,13 @@ impl McapSource {
         };
         if self.staged.colour_compressed {
             let at = self.staged.colour_at;
-            let image = CompressedImageIn::parse(&self.staged.colour).map_err(|e| image_error(TOPIC_COLOUR, at, e))?;
-            if image.timestamp.to_ns() != meta.stamp_ns {
+            let image = CompressedImageIn::parse(&self.staged.colour, self.staged.colour_encoding)
+                .map_err(|e| image_error(TOPIC_COLOUR, at, e))?;
+            if image.stamp_ns != meta.stamp_ns {
                 return Err(image_error(
                     TOPIC_COLOUR,
                     at,
-                    format!("image stamp {} ns, the frame's is {} ns", image.timestamp.to_ns(), meta.stamp_ns),
+                    format!("image stamp {} ns, the frame's is {} ns", image.stamp_ns, meta.stamp_ns),
                 ));
             }
             let k = self.intrinsics;
@@ -421,19 +448,20 @@ impl McapSource {
                 .map_err(|e| image_error(TOPIC_COLOUR, at, e))?;
         }
         let colour_raw = !self.staged.colour_compressed;
-        for (topic, bytes, at, encodings, bpp) in [
-            (TOPIC_COLOUR, &self.staged.colour, self.staged.colour_at, &["rgb8"][..], 3u32),
-            (TOPIC_DEPTH, &self.staged.depth, self.staged.depth_at, &["16UC1", "mono16"][..], 2u32),
+        let staged = &self.staged;
+        for (topic, bytes, message_encoding, at, encodings, bpp) in [
+            (TOPIC_COLOUR, &staged.colour, staged.colour_encoding, staged.colour_at, &["rgb8"][..], 3u32),
+            (TOPIC_DEPTH, &staged.depth, staged.depth_encoding, staged.depth_at, &["16UC1", "mono16"][..], 2u32),
         ]
         .into_iter()
         .filter(|(topic, ..)| colour_raw || *topic != TOPIC_COLOUR)
         {
-            let image = RawImageIn::parse(bytes).map_err(|e| image_error(topic, at, e))?;
-            if image.timestamp.to_ns() != meta.stamp_ns {
+            let image = RawImageIn::parse(bytes, message_encoding).map_err(|e| image_error(topic, at, e))?;
+            if image.stamp_ns != meta.stamp_ns {
                 return Err(image_error(
                     topic,
                     at,
-                    format!("image stamp {} ns, the frame's is {} ns", image.timestamp.to_ns(), meta.stamp_ns),
+                    format!("image stamp {} ns, the frame's is {} ns", image.stamp_ns, meta.stamp_ns),
                 ));
             }
             let out: &mut [u8] =
@@ -448,7 +476,7 @@ impl McapSource {
         frame.world_from_camera = meta.world_from_camera.as_ref().map(Isometry::from);
         for side in &mut self.side_channels {
             if side.present {
-                (side.handler)(frame, &side.data).map_err(|e| SourceError::File {
+                (side.handler)(frame, &side.data, &side.message_encoding).map_err(|e| SourceError::File {
                     path: path.display().to_string(),
                     reason: format!("channel {}: frame seq {}: {e}", side.topic, meta.seq),
                 })?;

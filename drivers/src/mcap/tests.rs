@@ -5,7 +5,10 @@ use std::collections::BTreeMap;
 use std::io::BufWriter;
 use std::path::Path;
 
-use super::messages::{CameraCalibration, FrameMeta, RawImageHeader, encode_raw_image};
+use base64::Engine as _;
+use base64::engine::general_purpose::STANDARD;
+
+use super::messages::{FrameMeta, RawImageHeader, calibration, encode, raw_image};
 use super::{McapReplayConfig, McapSource, TOPIC_CALIBRATION, TOPIC_COLOUR, TOPIC_DEPTH, TOPIC_FRAME, schemas};
 use crate::frame::{Frame, Intrinsics};
 use crate::pose::Isometry;
@@ -18,22 +21,31 @@ struct Writer {
     writer: mcap::Writer<BufWriter<std::fs::File>>,
     channels: BTreeMap<&'static str, u16>,
     seq: u32,
+    /// `foxglove.*` messages as JSON, as recordings before protobuf hold them.
+    json: bool,
+    /// The message encoding of the `foxglove.*` channels, when not the recorder's.
+    encoding: Option<&'static str>,
 }
 
 impl Writer {
     fn new(path: &Path, chunk: u64) -> Self {
         let file = std::fs::File::create(path).unwrap();
         let writer = mcap::WriteOptions::new().chunk_size(Some(chunk)).create(BufWriter::new(file)).unwrap();
-        Self { writer, channels: BTreeMap::new(), seq: 0 }
+        Self { writer, channels: BTreeMap::new(), seq: 0, json: false, encoding: None }
     }
 
     fn write(&mut self, topic: &'static str, schema: &str, data: &[u8]) {
         let id = match self.channels.get(topic) {
             Some(id) => *id,
             None => {
-                let text = schemas::schema_text(schema).unwrap_or_default();
-                let schema_id = self.writer.add_schema(schema, schemas::SCHEMA_ENCODING, text.as_bytes()).unwrap();
-                let id = self.writer.add_channel(schema_id, topic, "json", &BTreeMap::new()).unwrap();
+                let foxglove = schema.starts_with("foxglove.");
+                let (encoding, data, message_encoding) = match schemas::channel_schema(schema) {
+                    Some(s) if !(self.json && foxglove) => (s.encoding, s.data.into_owned(), s.message_encoding),
+                    _ => (schemas::SCHEMA_ENCODING, b"{}".to_vec(), schemas::MESSAGE_ENCODING),
+                };
+                let message_encoding = self.encoding.filter(|_| foxglove).unwrap_or(message_encoding);
+                let schema_id = self.writer.add_schema(schema, encoding, &data).unwrap();
+                let id = self.writer.add_channel(schema_id, topic, message_encoding, &BTreeMap::new()).unwrap();
                 self.channels.insert(topic, id);
                 id
             }
@@ -49,23 +61,47 @@ impl Writer {
     }
 
     fn calibration(&mut self) {
-        let text = serde_json::to_vec(&CameraCalibration::new(&K, 0)).unwrap();
-        self.write(TOPIC_CALIBRATION, schemas::CAMERA_CALIBRATION, &text);
+        let message = calibration(&K, 0);
+        let bytes = if self.json {
+            serde_json::to_vec(&serde_json::json!({
+                "timestamp": { "sec": 0, "nsec": 0 }, "frame_id": "camera", "width": K.width, "height": K.height,
+                "distortion_model": "", "D": [], "K": message.k, "R": message.r, "P": message.p
+            }))
+            .unwrap()
+        } else {
+            let mut out = Vec::new();
+            encode(&message, &mut out).unwrap();
+            out
+        };
+        self.write(TOPIC_CALIBRATION, schemas::CAMERA_CALIBRATION, &bytes);
+    }
+
+    /// A `foxglove.RawImage` as the recorder writes it, or as JSON in the earlier form.
+    fn image(&self, header: RawImageHeader<'_>, data: &[u8]) -> Vec<u8> {
+        if self.json {
+            let t = header.stamp_ns;
+            return serde_json::to_vec(&serde_json::json!({
+                "timestamp": { "sec": t / 1_000_000_000, "nsec": t % 1_000_000_000 },
+                "frame_id": header.frame_id, "width": header.width, "height": header.height,
+                "encoding": header.encoding, "step": header.step, "data": STANDARD.encode(data)
+            }))
+            .unwrap();
+        }
+        let mut out = Vec::new();
+        encode(&raw_image(header, data), &mut out).unwrap();
+        out
     }
 
     fn frame(&mut self, seq: u64, colour_schema: &str) {
         let stamp_ns = 1_000_000 * seq;
         let rgb: Vec<u8> = (0..K.pixel_count() * 3).map(|i| (i as u64 + seq) as u8).collect();
         let depth: Vec<u16> = (0..K.pixel_count()).map(|i| (i as u64 * 7 + seq) as u16).collect();
-        let mut out = Vec::new();
-        encode_raw_image(
-            &mut out,
+        let out = self.image(
             RawImageHeader { stamp_ns, frame_id: "camera", width: 16, height: 16, encoding: "rgb8", step: 48 },
             &rgb,
         );
         self.write(TOPIC_COLOUR, colour_schema, &out);
-        encode_raw_image(
-            &mut out,
+        let out = self.image(
             RawImageHeader { stamp_ns, frame_id: "camera", width: 16, height: 16, encoding: "16UC1", step: 32 },
             bytemuck::cast_slice(&depth),
         );
@@ -99,15 +135,22 @@ fn play(source: &mut McapSource) -> (Vec<Frame>, Option<String>) {
 
 #[test]
 fn a_recording_plays_back_exactly() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("good.mcap");
-    let mut w = Writer::new(&path, 4096);
-    w.calibration();
-    for seq in 0..5 {
-        w.frame(seq, schemas::RAW_IMAGE);
+    for json in [false, true] {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("good.mcap");
+        let mut w = Writer::new(&path, 4096);
+        w.json = json;
+        w.calibration();
+        for seq in 0..5 {
+            w.frame(seq, schemas::RAW_IMAGE);
+        }
+        w.finish();
+        plays_back_exactly(&path);
     }
-    w.finish();
-    let mut source = open(&path).unwrap();
+}
+
+fn plays_back_exactly(path: &Path) {
+    let mut source = open(path).unwrap();
     assert_eq!(source.intrinsics(), K);
     assert!(source.has_poses());
     let (frames, error) = play(&mut source);
@@ -181,6 +224,51 @@ fn a_wrong_schema_names_file_channel_and_message() {
     let error = open(&path).unwrap_err().to_string();
     assert!(error.starts_with(&path.display().to_string()), "{error}");
     assert!(error.contains("channel /camera/colour message 0: schema \"foxglove.PointCloud\""), "{error}");
+}
+
+#[test]
+fn a_foxglove_channel_in_another_encoding_or_a_bad_message_names_what_is_wrong() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("cdr.mcap");
+    let mut w = Writer::new(&path, 4096);
+    w.encoding = Some("cdr");
+    w.calibration();
+    w.frame(0, schemas::RAW_IMAGE);
+    w.finish();
+    let error = open(&path).unwrap_err().to_string();
+    assert!(
+        error.contains(
+            "channel /camera/calibration message 0: schema \"foxglove.CameraCalibration\" encoded \"cdr\", \
+             expected \"foxglove.CameraCalibration\" encoded \"protobuf\" or \"json\""
+        ),
+        "{error}"
+    );
+
+    // A depth image that is not protobuf: the frame and channel named.
+    let path = dir.path().join("bad.mcap");
+    let mut w = Writer::new(&path, 4096);
+    w.calibration();
+    w.frame(0, schemas::RAW_IMAGE);
+    let colour = w.image(
+        RawImageHeader { stamp_ns: 1_000_000, frame_id: "camera", width: 16, height: 16, encoding: "rgb8", step: 48 },
+        &[0; 16 * 16 * 3],
+    );
+    w.write(TOPIC_COLOUR, schemas::RAW_IMAGE, &colour);
+    w.write(TOPIC_DEPTH, schemas::RAW_IMAGE, b"\xff\xff\xff");
+    w.write(
+        TOPIC_FRAME,
+        schemas::FRAME,
+        br#"{"seq":1,"stamp_ns":1000000,"depth_units_per_m":1000.0,"world_from_camera":null}"#,
+    );
+    w.finish();
+    let mut source = open(&path).unwrap();
+    let (frames, error) = play(&mut source);
+    assert_eq!(frames.len(), 1);
+    let error = error.unwrap();
+    assert!(
+        error.contains("channel /camera/depth message 1: frame seq 1: not a foxglove.RawImage (protobuf)"),
+        "{error}"
+    );
 }
 
 #[test]

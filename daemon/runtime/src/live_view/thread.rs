@@ -14,11 +14,12 @@ use op3dsg_ipc_types::Health;
 use tracing::{debug, info, warn};
 
 use super::config::LiveViewConfig;
-use super::messages::{frame_transform, occupancy_grid, raw_images, scene_update};
+use super::messages::{occupancy_grid, raw_images};
 use crate::flow::{LiveImages, LiveIntake};
 use crate::graph::SceneGraph;
 use crate::occupancy::LatestOccupancy;
 use crate::queue::{Latest, Popped, QueueReceiver};
+use crate::record::scene::{frame_transform, scene_update};
 use crate::stats::StageStats;
 use crate::world::UpAxis;
 

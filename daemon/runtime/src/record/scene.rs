@@ -5,15 +5,19 @@
 //! between node centres: spatial edges grey, functional edges green, each kind one entity
 //! (`edges/spatial`, `edges/functional`) so Foxglove's topic settings can hide one.
 //!
-//! [`node_shapes`] and [`edge_lines`] hold these decisions once: the recorder writes them as
-//! JSON here, the live view (`crate::live_view`) sends them through the `foxglove` crate.
+//! [`node_shapes`] and [`edge_lines`] hold these decisions once, and [`scene_update`] makes them
+//! the `foxglove` crate's generated type: the recorder writes it (protobuf), the live view
+//! (`crate::live_view`) sends the same message.
 //!
 //! Each update first deletes every entity of the topic (`ALL`), so removed nodes disappear; the
 //! scene at any time is exactly the graph version written last.
 
-use serde::Serialize;
-
-use op3dsg_drivers::mcap::messages::Time;
+use foxglove::messages::{
+    Color, CubePrimitive, Duration, FrameTransform, KeyValuePair, LinePrimitive, Point3, Pose, Quaternion, SceneEntity,
+    SceneEntityDeletion, SceneUpdate, TextPrimitive, Vector3, line_primitive, scene_entity_deletion,
+};
+use op3dsg_drivers::mcap::messages::timestamp;
+use op3dsg_drivers::pose::Isometry;
 use op3dsg_ipc_types::{EdgeKind, NodeKind};
 
 use crate::graph::{SceneGraph, colours};
@@ -30,7 +34,7 @@ pub const FUNCTIONAL_EDGE_COLOUR: Colour = Colour::rgba(colours::FUNCTIONAL_EDGE
 const TEXT_COLOUR: Colour = Colour { r: 1.0, g: 1.0, b: 1.0, a: 1.0 };
 
 /// `foxglove.Color`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Colour {
     /// Red, 0..=1.
     pub r: f32,
@@ -46,134 +50,6 @@ impl Colour {
     const fn rgba([r, g, b, a]: [f32; 4]) -> Self {
         Self { r, g, b, a }
     }
-}
-
-#[derive(Debug, Serialize)]
-struct Vector3 {
-    x: f64,
-    y: f64,
-    z: f64,
-}
-
-#[derive(Debug, Serialize)]
-struct Quaternion {
-    x: f64,
-    y: f64,
-    z: f64,
-    w: f64,
-}
-
-#[derive(Debug, Serialize)]
-struct Pose {
-    position: Vector3,
-    orientation: Quaternion,
-}
-
-impl Pose {
-    fn at(position: [f64; 3]) -> Self {
-        Self::new(position, glam::DQuat::IDENTITY)
-    }
-
-    fn new(position: [f64; 3], rotation: glam::DQuat) -> Self {
-        let [x, y, z] = position;
-        let glam::DQuat { x: qx, y: qy, z: qz, w: qw } = rotation;
-        Self { position: Vector3 { x, y, z }, orientation: Quaternion { x: qx, y: qy, z: qz, w: qw } }
-    }
-}
-
-#[derive(Debug, Serialize)]
-struct Cube {
-    pose: Pose,
-    size: Vector3,
-    color: Colour,
-}
-
-#[derive(Debug, Serialize)]
-struct Text {
-    pose: Pose,
-    billboard: bool,
-    font_size: f64,
-    scale_invariant: bool,
-    color: Colour,
-    text: String,
-}
-
-#[derive(Debug, Serialize)]
-struct Line {
-    #[serde(rename = "type")]
-    kind: u8,
-    pose: Pose,
-    thickness: f64,
-    scale_invariant: bool,
-    points: Vec<Vector3>,
-    color: Colour,
-    colors: Vec<Colour>,
-    indices: Vec<u32>,
-}
-
-#[derive(Debug, Serialize)]
-struct KeyValue {
-    key: &'static str,
-    value: String,
-}
-
-#[derive(Debug, Serialize)]
-struct Duration {
-    sec: i64,
-    nsec: u32,
-}
-
-#[derive(Debug, Serialize)]
-struct Entity<'a> {
-    timestamp: Time,
-    frame_id: &'a str,
-    id: String,
-    lifetime: Duration,
-    frame_locked: bool,
-    metadata: Vec<KeyValue>,
-    arrows: [(); 0],
-    cubes: Vec<Cube>,
-    spheres: [(); 0],
-    cylinders: [(); 0],
-    lines: Vec<Line>,
-    triangles: [(); 0],
-    texts: Vec<Text>,
-    models: [(); 0],
-}
-
-impl<'a> Entity<'a> {
-    fn new(timestamp: Time, frame_id: &'a str, id: String) -> Self {
-        Self {
-            timestamp,
-            frame_id,
-            id,
-            lifetime: Duration { sec: 0, nsec: 0 },
-            frame_locked: false,
-            metadata: Vec::new(),
-            arrows: [],
-            cubes: Vec::new(),
-            spheres: [],
-            cylinders: [],
-            lines: Vec::new(),
-            triangles: [],
-            texts: Vec::new(),
-            models: [],
-        }
-    }
-}
-
-#[derive(Debug, Serialize)]
-struct Deletion {
-    timestamp: Time,
-    #[serde(rename = "type")]
-    kind: u8,
-    id: &'static str,
-}
-
-#[derive(Debug, Serialize)]
-struct SceneUpdate<'a> {
-    deletions: Vec<Deletion>,
-    entities: Vec<Entity<'a>>,
 }
 
 fn v3(p: [f32; 3]) -> [f64; 3] {
@@ -280,55 +156,90 @@ pub fn edge_lines(graph: &SceneGraph) -> [EdgeLines; 2] {
     })
 }
 
-fn vector([x, y, z]: [f64; 3]) -> Vector3 {
-    Vector3 { x, y, z }
+fn colour(c: Colour) -> Option<Color> {
+    Some(Color { r: f64::from(c.r), g: f64::from(c.g), b: f64::from(c.b), a: f64::from(c.a) })
 }
 
-/// Writes the `foxglove.SceneUpdate` JSON of `graph` into `out` (cleared first); `up_axis` is the
-/// world's (`world.up_axis`), about which the boxes' yaw turns, and every entity is in the frame
+/// A `foxglove.Pose` at `position` turned by `rotation`.
+pub fn pose([x, y, z]: [f64; 3], rotation: glam::DQuat) -> Option<Pose> {
+    let glam::DQuat { x: qx, y: qy, z: qz, w: qw } = rotation;
+    Some(Pose { position: Some(Vector3 { x, y, z }), orientation: Some(Quaternion { x: qx, y: qy, z: qz, w: qw }) })
+}
+
+/// The `foxglove.SceneUpdate` of `graph`: every entity deleted first (removed nodes go), then a
+/// cube and a label per node and the edges as two line lists; `up_axis` is the world's
+/// (`world.up_axis`), about which the boxes' yaw turns, and every entity is in the frame
 /// `world_frame` (`world.frame_id`).
-pub fn write_scene_update(graph: &SceneGraph, up_axis: UpAxis, world_frame: &str, out: &mut Vec<u8>) {
-    out.clear();
-    let timestamp = Time::from_ns(graph.stamp_ns);
+pub fn scene_update(graph: &SceneGraph, up_axis: UpAxis, world_frame: &str) -> SceneUpdate {
+    let stamp = Some(timestamp(graph.stamp_ns));
+    let entity = |id: String, metadata: Vec<KeyValuePair>| SceneEntity {
+        timestamp: stamp,
+        frame_id: world_frame.to_owned(),
+        id,
+        // Zero: the entity stays until the next update deletes it (said explicitly, as
+        // Foxglove's schema requires the field).
+        lifetime: Some(Duration::default()),
+        metadata,
+        ..SceneEntity::default()
+    };
     let mut entities = Vec::with_capacity(graph.nodes.len() + 2);
     for shape in node_shapes(graph, up_axis) {
-        let mut entity = Entity::new(timestamp, world_frame, shape.entity_id);
-        entity.metadata = shape.metadata.into_iter().map(|(key, value)| KeyValue { key, value }).collect();
-        entity.cubes.push(Cube {
-            pose: Pose::new(shape.centre_m, shape.rotation),
-            size: vector(shape.size_m),
-            color: shape.colour,
+        let metadata =
+            shape.metadata.into_iter().map(|(key, value)| KeyValuePair { key: key.to_owned(), value }).collect();
+        let mut e = entity(shape.entity_id, metadata);
+        let [x, y, z] = shape.size_m;
+        e.cubes.push(CubePrimitive {
+            pose: pose(shape.centre_m, shape.rotation),
+            size: Some(Vector3 { x, y, z }),
+            color: colour(shape.colour),
         });
-        entity.texts.push(Text {
-            pose: Pose::at(shape.label_position_m),
+        e.texts.push(TextPrimitive {
+            pose: pose(shape.label_position_m, glam::DQuat::IDENTITY),
             billboard: true,
             font_size: shape.font_size,
             scale_invariant: true,
-            color: TEXT_COLOUR,
+            color: colour(LABEL_COLOUR),
             text: shape.label,
         });
-        entities.push(entity);
+        entities.push(e);
     }
     for lines in edge_lines(graph) {
-        let mut entity = Entity::new(timestamp, world_frame, lines.entity_id.to_owned());
-        entity.metadata = vec![KeyValue { key: "graph_version", value: graph.version.to_string() }];
+        let version = KeyValuePair { key: "graph_version".to_owned(), value: graph.version.to_string() };
+        let mut e = entity(lines.entity_id.to_owned(), vec![version]);
         if !lines.points_m.is_empty() {
-            entity.lines.push(Line {
-                kind: 2, // LINE_LIST
-                pose: Pose::at([0.0; 3]),
+            e.lines.push(LinePrimitive {
+                r#type: line_primitive::Type::LineList as i32,
+                pose: pose([0.0; 3], glam::DQuat::IDENTITY),
                 thickness: lines.thickness,
                 scale_invariant: true,
-                points: lines.points_m.into_iter().map(vector).collect(),
-                color: lines.colour,
-                colors: Vec::new(),
-                indices: Vec::new(),
+                points: lines.points_m.into_iter().map(|[x, y, z]| Point3 { x, y, z }).collect(),
+                color: colour(lines.colour),
+                ..LinePrimitive::default()
             });
         }
-        entities.push(entity);
+        entities.push(e);
     }
-    let update = SceneUpdate { deletions: vec![Deletion { timestamp, kind: 1, id: "" }], entities };
-    // Serialising plain structs into a Vec cannot fail.
-    let _ = serde_json::to_writer(out, &update);
+    let all =
+        SceneEntityDeletion { timestamp: stamp, r#type: scene_entity_deletion::Type::All as i32, id: String::new() };
+    SceneUpdate { deletions: vec![all], entities }
+}
+
+/// `world_frame → camera_frame` at a keyframe.
+pub fn frame_transform(
+    stamp_ns: u64,
+    world_from_camera: &Isometry,
+    world_frame: &str,
+    camera_frame: &str,
+) -> FrameTransform {
+    let t = world_from_camera.translation;
+    let q = world_from_camera.rotation;
+    FrameTransform {
+        timestamp: Some(timestamp(stamp_ns)),
+        parent_frame_id: world_frame.to_owned(),
+        child_frame_id: camera_frame.to_owned(),
+        translation: Some(Vector3 { x: t.x, y: t.y, z: t.z }),
+        rotation: Some(Quaternion { x: q.x, y: q.y, z: q.z, w: q.w }),
+    }
 }
 
 #[cfg(test)]
@@ -390,35 +301,32 @@ mod tests {
                 },
             ],
         };
-        let mut out = Vec::new();
-        write_scene_update(&graph, UpAxis::Z, "map", &mut out);
-        let v: serde_json::Value = serde_json::from_slice(&out).unwrap();
-        assert_eq!(v["deletions"][0]["type"], 1);
-        let entities = v["entities"].as_array().unwrap();
+        let update = scene_update(&graph, UpAxis::Z, "map");
+        assert_eq!(update.deletions[0].r#type, scene_entity_deletion::Type::All as i32);
+        let entities = &update.entities;
         assert_eq!(entities.len(), 4);
-        let cube = &entities[0]["cubes"][0];
-        assert_eq!(cube["pose"]["position"]["y"], 1.0);
-        assert_eq!(cube["size"]["z"], 0.5);
-        assert_ne!(entities[0]["cubes"][0]["color"], entities[1]["cubes"][0]["color"], "parts apart from objects");
-        assert_eq!(entities[1]["texts"][0]["text"], "n2");
-        let metadata = |i: usize, key: &str| {
-            entities[i]["metadata"].as_array().unwrap().iter().find(|kv| kv["key"] == key).map(|kv| kv["value"].clone())
-        };
-        assert_eq!(metadata(1, "affordances"), Some("hook_pull:knowledge+llm,pinch_pull:llm".into()));
+        let cube = &entities[0].cubes[0];
+        assert_eq!(cube.pose.unwrap().position.unwrap().y, 1.0);
+        assert_eq!(cube.size.unwrap().z, 0.5);
+        assert_ne!(entities[0].cubes[0].color, entities[1].cubes[0].color, "parts apart from objects");
+        assert_eq!(entities[1].texts[0].text, "n2");
+        let metadata =
+            |i: usize, key: &str| entities[i].metadata.iter().find(|kv| kv.key == key).map(|kv| kv.value.as_str());
+        assert_eq!(metadata(1, "affordances"), Some("hook_pull:knowledge+llm,pinch_pull:llm"));
         assert_eq!(metadata(0, "affordances"), None, "no affordances, no entry");
-        assert_eq!(entities[2]["id"], "edges/spatial");
-        assert_eq!(entities[2]["lines"][0]["points"].as_array().unwrap().len(), 2);
-        assert_ne!(entities[2]["lines"][0]["color"], entities[3]["lines"][0]["color"]);
-        assert_eq!(entities[0]["timestamp"]["nsec"], 3);
-        assert!(entities.iter().all(|e| e["frame_id"] == "map"), "every entity in the configured world frame");
+        assert_eq!(entities[2].id, "edges/spatial");
+        assert_eq!(entities[2].lines[0].points.len(), 2);
+        assert_eq!(entities[2].lines[0].r#type, line_primitive::Type::LineList as i32);
+        assert_ne!(entities[2].lines[0].color, entities[3].lines[0].color);
+        assert_eq!(entities[0].timestamp.unwrap().nsec(), 3);
+        assert!(entities.iter().all(|e| e.frame_id == "map"), "every entity in the configured world frame");
     }
 
-    fn cube_axes(cube: &serde_json::Value) -> (glam::DVec3, [glam::DVec3; 3]) {
-        let p = &cube["pose"]["position"];
-        let q = &cube["pose"]["orientation"];
-        let f = |v: &serde_json::Value| v.as_f64().unwrap();
-        let rotation = glam::DQuat::from_xyzw(f(&q["x"]), f(&q["y"]), f(&q["z"]), f(&q["w"]));
-        let centre = glam::DVec3::new(f(&p["x"]), f(&p["y"]), f(&p["z"]));
+    fn cube_axes(cube: &CubePrimitive) -> (glam::DVec3, [glam::DVec3; 3]) {
+        let pose = cube.pose.unwrap();
+        let (p, q) = (pose.position.unwrap(), pose.orientation.unwrap());
+        let rotation = glam::DQuat::from_xyzw(q.x, q.y, q.z, q.w);
+        let centre = glam::DVec3::new(p.x, p.y, p.z);
         (centre, [glam::DVec3::X, glam::DVec3::Y, glam::DVec3::Z].map(|a| rotation * a))
     }
 
@@ -429,11 +337,9 @@ mod tests {
             let mut n = node(3, NodeKind::Object, [0.0; 3], [2.0, 2.0, 2.0]);
             n.obb = OrientedBox { centre_m: [1.0, 1.5, 0.5], size_m: [1.2, 0.4, 0.9], yaw_rad: yaw };
             let graph = SceneGraph { version: 1, stamp_ns: 0, nodes: vec![n.clone()], edges: vec![] };
-            let mut out = Vec::new();
-            write_scene_update(&graph, up_axis, "world", &mut out);
-            let v: serde_json::Value = serde_json::from_slice(&out).unwrap();
-            let cube = &v["entities"][0]["cubes"][0];
-            assert_eq!(cube["size"]["x"], f64::from(1.2f32));
+            let update = scene_update(&graph, up_axis, "world");
+            let cube = &update.entities[0].cubes[0];
+            assert_eq!(cube.size.unwrap().x, f64::from(1.2f32));
             let (centre, axes) = cube_axes(cube);
             assert_eq!(centre, glam::DVec3::from_array(n.obb.centre_m.map(f64::from)));
             // The cube's corners are the box's corners.
@@ -448,9 +354,8 @@ mod tests {
                 }
             }
             // The label sits above the box's top along up.
-            let text = &v["entities"][0]["texts"][0]["pose"]["position"];
-            let text =
-                glam::DVec3::new(text["x"].as_f64().unwrap(), text["y"].as_f64().unwrap(), text["z"].as_f64().unwrap());
+            let text = update.entities[0].texts[0].pose.unwrap().position.unwrap();
+            let text = glam::DVec3::new(text.x, text.y, text.z);
             assert!((text - centre).dot(axes[2]) > 0.45, "{up_axis:?}: label above the top");
         }
     }
@@ -460,12 +365,20 @@ mod tests {
         let mut n = node(4, NodeKind::Part, [1.0, 2.0, 3.0], [1.5, 2.5, 4.0]);
         n.obb = OrientedBox::default();
         let graph = SceneGraph { version: 1, stamp_ns: 0, nodes: vec![n], edges: vec![] };
-        let mut out = Vec::new();
-        write_scene_update(&graph, UpAxis::Z, "world", &mut out);
-        let v: serde_json::Value = serde_json::from_slice(&out).unwrap();
-        let cube = &v["entities"][0]["cubes"][0];
-        assert_eq!(cube["pose"]["position"]["z"], 3.5);
-        assert_eq!(cube["size"]["z"], 1.0);
-        assert_eq!(cube["pose"]["orientation"]["w"], 1.0);
+        let update = scene_update(&graph, UpAxis::Z, "world");
+        let cube = &update.entities[0].cubes[0];
+        assert_eq!(cube.pose.unwrap().position.unwrap().z, 3.5);
+        assert_eq!(cube.size.unwrap().z, 1.0);
+        assert_eq!(cube.pose.unwrap().orientation.unwrap().w, 1.0);
+    }
+
+    #[test]
+    fn the_camera_transform_is_world_to_camera() {
+        let pose =
+            Isometry { rotation: glam::DQuat::from_rotation_z(0.5), translation: glam::DVec3::new(1.0, 2.0, 3.0) };
+        let t = frame_transform(5, &pose, "map", "camera");
+        assert_eq!((t.parent_frame_id.as_str(), t.child_frame_id.as_str()), ("map", "camera"));
+        assert_eq!(t.translation.unwrap().z, 3.0);
+        assert_eq!(t.rotation.unwrap().w, pose.rotation.w, "the pose's own numbers");
     }
 }

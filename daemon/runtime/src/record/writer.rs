@@ -10,14 +10,12 @@ use std::time::{Duration, Instant};
 
 use mcap::records::{MessageHeader, Metadata};
 use op3dsg_drivers::frame::Intrinsics;
-use op3dsg_drivers::mcap::messages::{
-    CameraCalibration, FrameMeta, RawImageHeader, Time, encode_compressed_image, encode_raw_image,
-};
+use op3dsg_drivers::mcap::messages::{FrameMeta, RawImageHeader, calibration, compressed_image, encode, raw_image};
 use op3dsg_drivers::mcap::{self as topics, CAMERA_FRAME, schemas};
 use op3dsg_ipc_types::{Health, RECORDER_STATES, fixed_str};
 use tracing::{info, warn};
 
-use super::scene::write_scene_update;
+use super::scene::{frame_transform, scene_update};
 use super::{
     Channel, ColourEncoding, Event, RawFrame, RawInput, RecordCompression, RecordConfig, RecordThread, RecorderState,
     RecorderStats,
@@ -252,13 +250,13 @@ impl Recorder {
         let channel_id = match file.channels.get(topic) {
             Some(id) => *id,
             None => {
+                let declared = schemas::channel_schema(schema).ok_or_else(|| format!("no schema named {schema}"))?;
                 let schema_id = match file.schemas.get(schema) {
                     Some(id) => *id,
                     None => {
-                        let text = schemas::schema_text(schema).unwrap_or_default();
                         let id = file
                             .writer
-                            .add_schema(schema, schemas::SCHEMA_ENCODING, text.as_bytes())
+                            .add_schema(schema, declared.encoding, &declared.data)
                             .map_err(|e| e.to_string())?;
                         file.schemas.insert(schema, id);
                         id
@@ -266,7 +264,7 @@ impl Recorder {
                 };
                 let id = file
                     .writer
-                    .add_channel(schema_id, topic, schemas::MESSAGE_ENCODING, &BTreeMap::new())
+                    .add_channel(schema_id, topic, declared.message_encoding, &BTreeMap::new())
                     .map_err(|e| e.to_string())?;
                 file.channels.insert(topic.to_owned(), id);
                 id
@@ -288,9 +286,7 @@ impl Recorder {
         let calibrate =
             self.config.channels.calibration.enabled && self.file.as_ref().is_some_and(|f| f.calibration != Some(k));
         if calibrate {
-            self.bytes.clear();
-            serde_json::to_writer(&mut self.bytes, &CameraCalibration::new(&k, raw.stamp_ns))
-                .map_err(|e| e.to_string())?;
+            encode(&calibration(&k, raw.stamp_ns), &mut self.bytes)?;
             self.write(topics::TOPIC_CALIBRATION, schemas::CAMERA_CALIBRATION, t)?;
             if let Some(file) = self.file.as_mut() {
                 file.calibration = Some(k);
@@ -302,13 +298,8 @@ impl Recorder {
         {
             match encode_colour(self.config.colour, self.config.jpeg_quality, k, colour, &mut self.encoded) {
                 Ok(()) => {
-                    encode_compressed_image(
-                        &mut self.bytes,
-                        raw.stamp_ns,
-                        CAMERA_FRAME,
-                        self.config.colour.name(),
-                        &self.encoded,
-                    );
+                    let image = compressed_image(raw.stamp_ns, CAMERA_FRAME, self.config.colour.name(), &self.encoded);
+                    encode(&image, &mut self.bytes)?;
                     self.write(topics::TOPIC_COLOUR, schemas::COMPRESSED_IMAGE, t)?;
                 }
                 Err(e) => {
@@ -322,14 +313,14 @@ impl Recorder {
         } else if raw.has_colour
             && let Some(colour) = &raw.colour
         {
-            encode_raw_image(&mut self.bytes, image_header(raw, "rgb8", 3), colour);
+            encode(&raw_image(image_header(raw, "rgb8", 3), colour), &mut self.bytes)?;
             self.write(topics::TOPIC_COLOUR, schemas::RAW_IMAGE, t)?;
         }
         if raw.has_depth
             && let Some(depth) = &raw.depth
         {
             let bytes: &[u8] = bytemuck::cast_slice(depth);
-            encode_raw_image(&mut self.bytes, image_header(raw, "16UC1", 2), bytes);
+            encode(&raw_image(image_header(raw, "16UC1", 2), bytes), &mut self.bytes)?;
             self.write(topics::TOPIC_DEPTH, schemas::RAW_IMAGE, t)?;
         }
         for i in 0..raw.sides.len().min(self.side_topics.len()) {
@@ -338,7 +329,7 @@ impl Recorder {
                 continue;
             }
             let bytes: &[u8] = bytemuck::cast_slice(ids);
-            encode_raw_image(&mut self.bytes, image_header(raw, "16UC1", 2), bytes);
+            encode(&raw_image(image_header(raw, "16UC1", 2), bytes), &mut self.bytes)?;
             let topic = self.side_topics[i].clone();
             self.write(&topic, schemas::RAW_IMAGE, t)?;
         }
@@ -375,42 +366,22 @@ impl Recorder {
                     self.write(topics::TOPIC_GRAPH, schemas::GRAPH, log_time_ns)?;
                 }
                 if scene {
-                    let mut bytes = std::mem::take(&mut self.bytes);
-                    write_scene_update(&graph, self.up_axis, &self.world_frame, &mut bytes);
-                    self.bytes = bytes;
+                    encode(&scene_update(&graph, self.up_axis, &self.world_frame), &mut self.bytes)?;
                     self.write(topics::TOPIC_SCENE, schemas::SCENE_UPDATE, log_time_ns)?;
                 }
             }
             Event::Keyframe { log_time_ns, stamp_ns, world_from_camera } => {
-                let t = world_from_camera.translation;
-                let q = world_from_camera.rotation;
-                let value = serde_json::json!({
-                    "timestamp": Time::from_ns(stamp_ns),
-                    "parent_frame_id": self.world_frame,
-                    "child_frame_id": CAMERA_FRAME,
-                    "translation": { "x": t.x, "y": t.y, "z": t.z },
-                    "rotation": { "x": q.x, "y": q.y, "z": q.z, "w": q.w }
-                });
-                self.bytes.clear();
-                serde_json::to_writer(&mut self.bytes, &value).map_err(|e| e.to_string())?;
+                let transform = frame_transform(stamp_ns, &world_from_camera, &self.world_frame, CAMERA_FRAME);
+                encode(&transform, &mut self.bytes)?;
                 self.write(topics::TOPIC_TF, schemas::FRAME_TRANSFORM, log_time_ns)?;
             }
             Event::Detections { log_time_ns, stamp_ns, boxes } => {
-                let mut bytes = std::mem::take(&mut self.bytes);
-                super::annotations::write_detections(stamp_ns, &boxes, &mut bytes);
-                self.bytes = bytes;
+                encode(&super::annotations::detections(stamp_ns, &boxes), &mut self.bytes)?;
                 self.write(topics::TOPIC_DETECTIONS, schemas::IMAGE_ANNOTATIONS, log_time_ns)?;
             }
             Event::NodePoints { log_time_ns, stamp_ns, points } => {
-                let mut bytes = std::mem::take(&mut self.bytes);
-                super::annotations::write_node_points(
-                    stamp_ns,
-                    &points,
-                    &self.world_frame,
-                    &mut self.scratch,
-                    &mut bytes,
-                );
-                self.bytes = bytes;
+                let cloud = super::annotations::node_points(stamp_ns, &points, &self.world_frame, &mut self.scratch);
+                encode(&cloud, &mut self.bytes)?;
                 self.write(topics::TOPIC_NODE_POINTS, schemas::POINT_CLOUD, log_time_ns)?;
             }
             Event::LlmExchange { log_time_ns, exchange } => {

@@ -67,7 +67,7 @@ fn summarise(path: &Path) -> Result<FileSummary> {
                     && channel.topic == op3dsg_drivers::mcap::TOPIC_COLOUR
                 {
                     summary.colour = Some(if channel.schema_name == op3dsg_drivers::mcap::schemas::COMPRESSED_IMAGE {
-                        op3dsg_drivers::mcap::messages::CompressedImageIn::parse(&data)
+                        op3dsg_drivers::mcap::messages::CompressedImageIn::parse(&data, &channel.message_encoding)
                             .map_or_else(|e| format!("unreadable ({e})"), |image| image.format)
                     } else {
                         "raw".to_owned()
@@ -145,13 +145,19 @@ pub(super) fn info(files: &[PathBuf], json: bool) -> Result<()> {
         if let Some(error) = &s.error {
             println!("  read up to: {error}");
         }
-        println!("  {:<22} {:<28} {:>9} {:>8} {:>8}", "channel", "schema", "messages", "rate Hz", "dropped");
+        println!(
+            "  {:<22} {:<28} {:<9} {:>9} {:>8} {:>8}",
+            "channel", "schema", "encoding", "messages", "rate Hz", "dropped"
+        );
         for c in &s.channels {
             let span = seconds_between(c.first_log_time_ns, c.last_log_time_ns);
             let rate = if span > 0.0 { (c.messages.saturating_sub(1)) as f64 / span } else { 0.0 };
             // Per-channel drops are in the metadata of a finished file only.
             let dropped = s.recorder_metadata.get(&format!("{}.dropped", c.topic)).map_or("-", String::as_str);
-            println!("  {:<22} {:<28} {:>9} {:>8.1} {:>8}", c.topic, c.schema, c.messages, rate, dropped);
+            println!(
+                "  {:<22} {:<28} {:<9} {:>9} {:>8.1} {:>8}",
+                c.topic, c.schema, c.encoding, c.messages, rate, dropped
+            );
         }
         // Channels with drops but no message in the file.
         for (key, value) in &s.recorder_metadata {
@@ -159,7 +165,7 @@ pub(super) fn info(files: &[PathBuf], json: bool) -> Result<()> {
                 && value != "0"
                 && !s.channels.iter().any(|c| c.topic == topic)
             {
-                println!("  {topic:<22} {:<28} {:>9} {:>8} {value:>8}", "(none written)", 0, "-");
+                println!("  {topic:<22} {:<28} {:<9} {:>9} {:>8} {value:>8}", "(none written)", "-", 0, "-");
             }
         }
     }
