@@ -1,8 +1,8 @@
 //! `op3dsg watch` against a real daemon (the built-in synthetic profile): in a terminal (a
 //! detached tmux session) it is a full-screen view redrawn in place: the screen never holds more
 //! rows than the terminal, nothing scrolls into the history, it shows the stage table, it fits a
-//! resized terminal, and `q` quits with status 0 and the terminal restored. Into a pipe it prints
-//! one line per `--interval-ms`, as scripts read it.
+//! resized terminal, and `q` quits with status 0 and the terminal restored, as a panic does.
+//! Into a pipe it prints one line per `--interval-ms`, as scripts read it.
 //!
 //! Needs tmux (Debian: apt-get install tmux).
 
@@ -126,6 +126,46 @@ fn watch_on_a_terminal_redraws_in_place_fits_a_resize_and_quits_on_q() {
     assert_eq!(tmux.show("#{alternate_on}"), "0", "the terminal left the alternate screen");
     let after = tmux.capture().join("\n");
     assert!(!after.contains("op3dsg watch"), "the view is gone after q:\n{after}");
+}
+
+/// A panic inside the view (injected: `OP3DSG_WATCH_FAULT=panic`, a fault-hooks build) leaves
+/// the terminal as it found it: off the alternate screen, out of raw mode, cursor shown, and the
+/// panic's message readable.
+#[test]
+fn a_panic_in_watch_restores_the_terminal() {
+    assert!(
+        Command::new("tmux").arg("-V").output().is_ok_and(|o| o.status.success()),
+        "tmux not found: this test runs op3dsg watch in a tmux terminal (Debian: apt-get install tmux)"
+    );
+    let prefix = unique_prefix("watch-panic");
+    let _daemon = Daemon::start(&prefix, &["--set", "health.period_ms=250"]);
+    let dir = tempfile::tempdir().expect("temporary folder");
+    let tmux = Tmux { socket: dir.path().join("tmux.sock") };
+    let (status, modes) = (dir.path().join("status"), dir.path().join("stty"));
+    let command = format!(
+        "OP3DSG_WATCH_FAULT=panic {} --prefix {prefix} watch --interval-ms 200; echo $? > {}; stty -a > {}; sleep 600",
+        binary("op3dsg").display(),
+        status.display(),
+        modes.display()
+    );
+    tmux.run(&["new-session", "-d", "-s", "watch", "-x", "100", "-y", "30", &command]);
+    let code = wait_for(
+        "watch to end with the injected panic (op3dsg built with --features op3dsgd/fault-hooks, as scripts/test.sh builds it)",
+        Duration::from_secs(90),
+        || std::fs::read_to_string(&status).ok().filter(|s| s.ends_with('\n')),
+    );
+    let modes = wait_for("stty's report", Duration::from_secs(10), || {
+        std::fs::read_to_string(&modes).ok().filter(|s| s.contains("icanon"))
+    });
+    let screen = tmux.capture().join("\n");
+    assert_eq!(code.trim(), "101", "a panic's exit status:\n{screen}");
+    assert!(screen.contains("injected by OP3DSG_WATCH_FAULT=panic"), "the panic's message is readable:\n{screen}");
+    assert_eq!(tmux.show("#{alternate_on}"), "0", "the terminal left the alternate screen:\n{screen}");
+    assert_eq!(tmux.show("#{cursor_flag}"), "1", "the cursor is shown");
+    let flags: Vec<&str> = modes.split_whitespace().collect();
+    for cooked in ["icanon", "echo", "isig"] {
+        assert!(flags.contains(&cooked), "raw mode left on: no {cooked} in stty -a:\n{modes}");
+    }
 }
 
 #[test]

@@ -92,6 +92,12 @@ pub(super) fn run(feed: &mut Feed<'_>, interval: Duration, stop: &AtomicBool) ->
             };
             screen.terminal.draw(|frame| view::draw(frame, &view)).context("drawing the screen")?;
             (redraw, drawn) = (false, Instant::now());
+            // Test fault (`--features fault-hooks` only): a panic once a graph is on the screen,
+            // to show the terminal restored on that way out too.
+            #[cfg(feature = "fault-hooks")]
+            if feed.graph().is_some() && std::env::var_os("OP3DSG_WATCH_FAULT").is_some_and(|v| v == "panic") {
+                panic!("injected by OP3DSG_WATCH_FAULT=panic");
+            }
         }
         if event::poll(TICK).context("reading the terminal's keys")? {
             match event::read().context("reading the terminal's keys")? {
