@@ -7,7 +7,7 @@
 //! Needs tmux (Debian: apt-get install tmux).
 
 use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -19,6 +19,19 @@ struct Tmux {
 }
 
 impl Tmux {
+    /// Starts `command` in a detached session "watch" of a `width` x `height` terminal, on a
+    /// server whose socket lies in `dir`.
+    fn session(dir: &Path, width: usize, height: usize, command: &str) -> Tmux {
+        assert!(
+            Command::new("tmux").arg("-V").output().is_ok_and(|o| o.status.success()),
+            "tmux not found: this test runs op3dsg watch in a tmux terminal (Debian: apt-get install tmux)"
+        );
+        let tmux = Tmux { socket: dir.join("tmux.sock") };
+        let (width, height) = (width.to_string(), height.to_string());
+        tmux.run(&["new-session", "-d", "-s", "watch", "-x", &width, "-y", &height, command]);
+        tmux
+    }
+
     fn run(&self, args: &[&str]) -> String {
         let output = Command::new("tmux").arg("-S").arg(&self.socket).args(args).output().expect("run tmux");
         assert!(output.status.success(), "tmux {args:?}: {}", String::from_utf8_lossy(&output.stderr));
@@ -60,14 +73,9 @@ fn has_stage_table(screen: &[String]) -> bool {
 
 #[test]
 fn watch_on_a_terminal_redraws_in_place_fits_a_resize_and_quits_on_q() {
-    assert!(
-        Command::new("tmux").arg("-V").output().is_ok_and(|o| o.status.success()),
-        "tmux not found: this test runs op3dsg watch in a tmux terminal (Debian: apt-get install tmux)"
-    );
     let prefix = unique_prefix("watch-tty");
     let _daemon = Daemon::start(&prefix, &["--set", "health.period_ms=250"]);
     let dir = tempfile::tempdir().expect("temporary folder");
-    let tmux = Tmux { socket: dir.path().join("tmux.sock") };
     let status = dir.path().join("status");
     // The shell stays after watch exits, so the restored screen can be read.
     let command = format!(
@@ -76,7 +84,7 @@ fn watch_on_a_terminal_redraws_in_place_fits_a_resize_and_quits_on_q() {
         status.display()
     );
     let (width, height) = (110, 32);
-    tmux.run(&["new-session", "-d", "-s", "watch", "-x", &width.to_string(), "-y", &height.to_string(), &command]);
+    let tmux = Tmux::session(dir.path(), width, height, &command);
 
     let deadline = Instant::now() + Duration::from_secs(90);
     let first = loop {
@@ -133,14 +141,9 @@ fn watch_on_a_terminal_redraws_in_place_fits_a_resize_and_quits_on_q() {
 /// panic's message readable.
 #[test]
 fn a_panic_in_watch_restores_the_terminal() {
-    assert!(
-        Command::new("tmux").arg("-V").output().is_ok_and(|o| o.status.success()),
-        "tmux not found: this test runs op3dsg watch in a tmux terminal (Debian: apt-get install tmux)"
-    );
     let prefix = unique_prefix("watch-panic");
     let _daemon = Daemon::start(&prefix, &["--set", "health.period_ms=250"]);
     let dir = tempfile::tempdir().expect("temporary folder");
-    let tmux = Tmux { socket: dir.path().join("tmux.sock") };
     let (status, modes) = (dir.path().join("status"), dir.path().join("stty"));
     let command = format!(
         "OP3DSG_WATCH_FAULT=panic {} --prefix {prefix} watch --interval-ms 200; echo $? > {}; stty -a > {}; sleep 600",
@@ -148,7 +151,7 @@ fn a_panic_in_watch_restores_the_terminal() {
         status.display(),
         modes.display()
     );
-    tmux.run(&["new-session", "-d", "-s", "watch", "-x", "100", "-y", "30", &command]);
+    let tmux = Tmux::session(dir.path(), 100, 30, &command);
     let code = wait_for(
         "watch to end with the injected panic (op3dsg built with --features op3dsgd/fault-hooks, as scripts/test.sh builds it)",
         Duration::from_secs(90),
