@@ -42,7 +42,7 @@
 //! daemon can still open the service and be told who serves it), `ipc.subscriber_buffer` the
 //! graph buffer and `ipc.pose_buffer` the pose buffer. The pose row holds when op3dsg creates the
 //! service; a pose service someone else created keeps its own QoS (below). A test
-//! (`tests/tests/service_contract.rs`) reads this table and opens every service against a running
+//! (`tests/tests/it/service_contract.rs`) reads this table and opens every service against a running
 //! daemon with exactly these values.
 //!
 //! Clocks: `GraphHeader::stamp_ns` and `PoseStamped::stamp_ns` are on the clock of the frames of

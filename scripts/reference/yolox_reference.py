@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Reference for daemon/tests/yolox.rs: YOLOX-nano with onnxruntime's Python API.
+"""Reference for daemon/runtime/tests/it/yolox.rs: YOLOX-nano with onnxruntime's Python API.
 
 Runs the model on one ICL-NUIM frame with exactly the letterbox of
 daemon/runtime/src/perception/yolox.rs (float32 bilinear with half-pixel centres, rounded, BGR,

@@ -1,5 +1,5 @@
 """Reads an op3dsg MCAP recording with the independent PyPI `mcap` reader and prints a JSON
-summary for the cross-process tests (tests/tests/record_daemon.rs):
+summary for the cross-process tests (tests/tests/it/record_daemon.rs):
 
     .venv/bin/python tests/python/mcap_check.py FILE [--foxglove-schemas DIR] [--find TEXT]...
 

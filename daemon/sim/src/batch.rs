@@ -1,6 +1,6 @@
 //! The deterministic batch runner: source → keyframe gate → detector → fusion, synchronously on
 //! the calling thread, with no queues, no threads and no iceoryx2. For evaluation and tuning
-//! (`op3dsg fusion-eval`, `daemon/sim/tests/fusion_quality.rs`), not for serving.
+//! (`op3dsg fusion-eval`, `daemon/sim/tests/it/fusion_quality.rs`), not for serving.
 //!
 //! It opens the source and the detector with the backends the pipeline uses
 //! ([`crate::backends()`]), selects keyframes with the pipeline's [`KeyframeGate`], makes its
@@ -9,7 +9,7 @@
 //! [`fusion::fuse`], [`fusion::map_graph`], [`reasoner::enrich`]) in order, so its final graph
 //! is the one the threaded pipeline
 //! publishes last when no frame is dropped (`block` queues, as in `profiles/sim-batch.toml`);
-//! `daemon/sim/tests/batch_determinism.rs` checks this.
+//! `daemon/sim/tests/it/batch_determinism.rs` checks this.
 //!
 //! Besides the graph it counts, per ground-truth instance (synthetic sources only, read from
 //! the ground-truth side channel):

@@ -6,7 +6,7 @@ the message definitions of each ROS 2 distribution.
                                       decoded with the Humble and the Jazzy definitions
     rosbags_cdr.py rihs01 TYPE...     print {TYPE: RIHS01 hash} as Jazzy and Kilted compute them
 
-Used by drivers/ros2/tests/golden.rs. Written from the ROS 2 message definitions, not from the
+Used by drivers/ros2/tests/it/golden.rs. Written from the ROS 2 message definitions, not from the
 Rust code.
 """
 

@@ -17,7 +17,7 @@
 //! `max_detections`, boxes divided by `r` (image pixels, not clipped).
 //!
 //! `scripts/reference/yolox_reference.py` runs the same model with onnxruntime's Python API and
-//! the same letterbox on an ICL-NUIM frame; `daemon/tests/yolox.rs` checks these functions
+//! the same letterbox on an ICL-NUIM frame; `daemon/runtime/tests/it/yolox.rs` checks these functions
 //! against its numbers.
 //!
 //! Sliced inference ([`YoloxDetector::detect_sliced`], `tiles = [columns, rows]`): besides the

@@ -29,7 +29,7 @@
 //!   the score), `pred_boxes` float32 `[1, A, 4]` (`cx cy w h` normalised to the input).
 //!
 //! `scripts/reference/model_standins.py` writes a stand-in of each with these tensors and known
-//! answers; `daemon/sim/tests/model_families.rs` runs the families on them.
+//! answers; `daemon/sim/tests/it/model_families.rs` runs the families on them.
 //!
 //! # Model contract (`generic`)
 //!
@@ -75,7 +75,7 @@
 //! kept (up to 4096 texts). A keyframe with no tag and no listed object is not run.
 //!
 //! `scripts/reference/open_vocab_fixture.py` writes a tiny model with this contract and known
-//! answers; `daemon/sim/tests/open_vocab.rs` runs the adapter on it.
+//! answers; `daemon/sim/tests/it/open_vocab.rs` runs the adapter on it.
 //!
 //! | file | what |
 //! |---|---|

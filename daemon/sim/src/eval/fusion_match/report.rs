@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 
 use super::{FusionMatchReport, MissCounts, MissReason};
 
-/// Pass marks for a room (`daemon/tests/fusion_quality.rs`); a fusion must meet all of them.
+/// Pass marks for a room (`daemon/sim/tests/it/fusion_quality.rs`); a fusion must meet all of them.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct QualityTargets {
     /// Least matched fraction of eligible objects.

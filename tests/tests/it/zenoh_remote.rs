@@ -18,7 +18,7 @@ use op3dsg_ipc_types::services::IpcService;
 use op3dsg_tests::{Daemon, binary, health_where, latest_map, open_occupancy_service, unique_prefix};
 use serde_json::Value;
 
-mod zenoh_common;
+use crate::zenoh_common;
 use zenoh_common::{Consumer, assert_same_graph, dump, dump_with, free_port, instance_of, python, same_version};
 
 fn start_daemon(prefix: &str, port: u16, key_prefix: &str) -> Daemon {

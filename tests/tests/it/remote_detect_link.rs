@@ -23,7 +23,7 @@ use op3dsg_tests::netfaults::{Netns, Proxy};
 use op3dsg_tests::{Daemon, binary, health_where, is_root, unique_prefix, wait_for};
 use serde_json::Value;
 
-mod remote_common;
+use crate::remote_common;
 use remote_common::{Status, Worker, free_port, profile, remote_args};
 
 /// The daemon's remote-detection settings of both tests: the ICL replay (real detections, so

@@ -20,7 +20,7 @@ use std::time::Duration;
 use op3dsg_tests::{Daemon, binary, unique_prefix};
 use serde_json::Value;
 
-mod remote_common;
+use crate::remote_common;
 use remote_common::{Status, Worker, free_port, profile, remote_args};
 
 /// The final graph of a daemon on the ICL replay: waits until all 211 frames are captured and

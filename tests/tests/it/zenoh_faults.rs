@@ -16,7 +16,7 @@ use op3dsg_tests::netfaults::{Netns, Proxy};
 use op3dsg_tests::{Daemon, binary, is_root, unique_prefix, wait_for};
 use serde_json::Value;
 
-mod zenoh_common;
+use crate::zenoh_common;
 use zenoh_common::{Consumer, assert_same_graph, free_port, instance_of, same_version};
 
 /// Frames of the synthetic camera per run (20 s at its 30 Hz): the faults happen while it runs,

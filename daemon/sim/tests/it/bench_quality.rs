@@ -134,7 +134,7 @@ fn regression_guard(report: &benchmark::QualityReport) {
         .collect();
     if std::env::var_os("OP3DSG_WRITE_BASELINE").is_some_and(|v| v == "1") {
         let file = serde_json::json!({
-            "what": "R@3 percent of the CI-sized quality run (daemon/sim/tests/bench_quality.rs); written with OP3DSG_WRITE_BASELINE=1",
+            "what": "R@3 percent of the CI-sized quality run (daemon/sim/tests/it/bench_quality.rs); written with OP3DSG_WRITE_BASELINE=1",
             "rows": now,
         });
         std::fs::write(&path, serde_json::to_string_pretty(&file).expect("baseline JSON") + "\n")
@@ -143,7 +143,7 @@ fn regression_guard(report: &benchmark::QualityReport) {
     }
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
         panic!(
-            "{}: {e}; write it with OP3DSG_WRITE_BASELINE=1 cargo test -p op3dsg-sim --test bench_quality",
+            "{}: {e}; write it with OP3DSG_WRITE_BASELINE=1 cargo test -p op3dsg-sim --test it bench_quality::",
             path.display()
         )
     });

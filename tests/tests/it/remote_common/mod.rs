@@ -1,8 +1,6 @@
 //! What the remote detection tests share: `op3dsg-detectd` workers as child processes, the
 //! daemon's arguments for remote detection, and a Zenoh client of its `<prefix>/detect_status`.
 
-#![allow(dead_code)] // each test file uses its own part
-
 use std::net::TcpListener;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};

@@ -1,6 +1,6 @@
 //! The command line: exit status, `--root`, `--max-file-lines`, and this workspace's own crate.
 
-mod fixture;
+use crate::fixture;
 
 use std::path::Path;
 use std::process::Command;

@@ -40,7 +40,7 @@ fn rgb(index: u32) -> Vec<u8> {
     pixels
 }
 
-// YOLOX_REFERENCE_RGB_OUT=/tmp/frame180.rgb cargo test -p op3dsg-runtime --test yolox, then
+// YOLOX_REFERENCE_RGB_OUT=/tmp/frame180.rgb cargo test -p op3dsg-runtime --test it yolox::, then
 // PYTHONPATH=/tmp/ortpy python3 scripts/reference/yolox_reference.py 180 --rgb /tmp/frame180.rgb
 // (onnxruntime 1.31.1):
 // # frame 180: rgb byte sum 162981271

@@ -2,7 +2,7 @@
 //! updates, views of the received graph, contract checks, health without a graph slot, poses
 //! both ways, a client started before the daemon, and a subscriber in another process.
 
-mod common;
+use crate::common;
 
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -375,7 +375,7 @@ fn graph_reaches_a_subscriber_in_another_process() {
     let prefix = unique_prefix();
     assert_ne!(prefix, DEFAULT_PREFIX);
     let mut child = Command::new(std::env::current_exe().expect("test binary path"))
-        .args(["--ignored", "--exact", "child_process_reader", "--nocapture", "--test-threads=1"])
+        .args(["--ignored", "--exact", "client_over_iceoryx2::child_process_reader", "--nocapture", "--test-threads=1"])
         .env(CHILD_PREFIX_ENV, &prefix)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())

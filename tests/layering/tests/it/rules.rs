@@ -1,6 +1,6 @@
 //! The messages of `check` and the figures of `report`.
 
-mod fixture;
+use crate::fixture;
 
 use fixture::{app, check, lines};
 use op3dsg_layering::{model, report};

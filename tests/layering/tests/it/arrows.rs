@@ -1,6 +1,6 @@
 //! Which paths become arrows between top-level modules, and where they are reported.
 
-mod fixture;
+use crate::fixture;
 
 use fixture::{app, arrows, check};
 

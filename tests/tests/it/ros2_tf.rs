@@ -17,11 +17,10 @@ use std::time::Duration;
 use op3dsg_tests::{Daemon, health_where, unique_prefix};
 use serde_json::Value;
 
-#[expect(dead_code, reason = "the graph consumer of the Zenoh tests is not used here")]
-mod zenoh_common;
+use crate::zenoh_common;
 use zenoh_common::{dump, free_port, python};
 
-mod ros2_common;
+use crate::ros2_common;
 use ros2_common::{Killed, router, script};
 
 /// Frames of the replay in each run.
