@@ -9,10 +9,10 @@
 //! is mounted turned by 90°) while they are copied from the driver's buffers into the pooled
 //! [`op3dsg_drivers::frame::Frame`], with no per-frame buffer allocation.
 //!
-//! The librealsense part ([`device`]) is behind the crate feature `librealsense`, its
-//! registration with the runtime (`backend`) behind `backend` (what `op3dsgd --features
-//! realsense` turns on), so the default build needs no librealsense; the configuration, the
-//! rotation and the copy kernels (and their benchmark) always build.
+//! The librealsense part ([`device`]) is behind the crate feature `librealsense` (what `op3dsgd
+//! --features realsense` turns on), so the default build needs no librealsense; the
+//! configuration, the rotation and the copy kernels (and their benchmark) always build. The crate
+//! knows nothing of the runtime: `op3dsgd` registers it as `source.kind = "realsense"`.
 //!
 //! `unsafe` is in two files only, each use with its `// SAFETY:` argument: `device/ffi.rs`
 //! (librealsense's C API where `realsense-rust` stops short) and `unchecked.rs` (the entries into
@@ -30,8 +30,6 @@
 //! ```
 
 pub mod align;
-#[cfg(feature = "backend")]
-pub mod backend;
 pub mod config;
 #[cfg(feature = "librealsense")]
 pub mod device;

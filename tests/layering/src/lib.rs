@@ -23,7 +23,10 @@
 //! 2. with declared rows, an import of a module that is not in a lower row;
 //! 3. with `composition_only`, an import of such a submodule or item from outside its module
 //!    and the composition (`composition`, else the last row);
-//! 4. a product file over 700 lines (`--max-file-lines`): the module trees of each member's lib
+//! 4. with `[workspace.metadata.layers] crates` in the workspace's Cargo.toml, a member whose
+//!    `[dependencies]` or `[build-dependencies]` name a member of its own or a higher row
+//!    (`[dev-dependencies]` are the tests', not the product's);
+//! 5. a product file over 700 lines (`--max-file-lines`): the module trees of each member's lib
 //!    and binaries, `src/bin/**` and `examples/`; never `tests/` or `benches/`.
 //!
 //! A crate declares its rows in its own Cargo.toml; without `rows`, only circles are checked:
@@ -49,6 +52,7 @@
 //! `fusion` itself and `pipeline` may name `crate::fusion::thread` or `crate::fusion::FusionThread`.
 
 pub mod check;
+pub mod crates;
 pub mod cycles;
 pub mod error;
 pub mod manifest;

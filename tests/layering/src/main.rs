@@ -13,8 +13,10 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use op3dsg_layering::{check, manifest, model, report};
 
-/// Layers that point down: no import circle between a crate's top-level modules, no upward
-/// import where a crate declares `[package.metadata.layers] rows`, no oversized product file.
+/// Layers that point down: no crate depending on a crate of its own or a higher row where the
+/// workspace declares `[workspace.metadata.layers] crates`, no import circle between a crate's
+/// top-level modules, no upward import where a crate declares `[package.metadata.layers] rows`,
+/// no oversized product file.
 #[derive(Debug, Parser)]
 #[command(name = "op3dsg-layers", version)]
 struct Cli {
@@ -55,7 +57,14 @@ fn main() -> ExitCode {
     };
     match cli.command {
         Command::Check { max_file_lines } => {
-            let violations = check::violations(&crates, max_file_lines);
+            let mut violations = match op3dsg_layering::crates::violations(&root) {
+                Ok(violations) => violations,
+                Err(e) => {
+                    eprintln!("op3dsg-layers: {e}");
+                    return ExitCode::from(2);
+                }
+            };
+            violations.extend(check::violations(&crates, max_file_lines));
             for violation in &violations {
                 println!("{violation}");
             }

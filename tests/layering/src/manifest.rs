@@ -1,6 +1,8 @@
-//! The Cargo.toml files: the workspace's members, each member's name, targets and declared
-//! layers (`[package.metadata.layers]`).
+//! The Cargo.toml files: the workspace's members, each member's name, targets, dependencies and
+//! declared layers (`[package.metadata.layers]`), and the workspace's crate rows
+//! (`[workspace.metadata.layers]`).
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
@@ -35,6 +37,18 @@ pub struct Member {
     /// Roots of binaries and examples declared with an explicit `path`.
     pub declared_roots: Vec<PathBuf>,
     pub layers: Option<Layers>,
+    /// The packages of `[dependencies]` and `[build-dependencies]` (the package a renamed
+    /// dependency stands for), not `[dev-dependencies]`: what the product links.
+    pub dependencies: Vec<String>,
+}
+
+/// `[workspace.metadata.layers]` of the workspace's Cargo.toml.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WorkspaceLayers {
+    /// The members by package name, bottom first: a member may depend only on members of
+    /// earlier rows. Absent: crate dependencies are not checked.
+    pub crates: Option<Vec<Vec<String>>>,
 }
 
 #[derive(Deserialize)]
@@ -46,6 +60,12 @@ struct WorkspaceManifest {
 struct Workspace {
     #[serde(default)]
     members: Vec<String>,
+    metadata: Option<WorkspaceMetadata>,
+}
+
+#[derive(Deserialize)]
+struct WorkspaceMetadata {
+    layers: Option<WorkspaceLayers>,
 }
 
 #[derive(Deserialize)]
@@ -56,6 +76,10 @@ struct CrateManifest {
     bin: Vec<Target>,
     #[serde(default)]
     example: Vec<Target>,
+    #[serde(default)]
+    dependencies: BTreeMap<String, toml::Value>,
+    #[serde(default, rename = "build-dependencies")]
+    build_dependencies: BTreeMap<String, toml::Value>,
 }
 
 #[derive(Deserialize)]
@@ -81,6 +105,13 @@ pub fn is_workspace_root(dir: &Path) -> bool {
         .ok()
         .and_then(|text| toml::from_str::<WorkspaceManifest>(&text).ok())
         .is_some_and(|m| m.workspace.is_some())
+}
+
+/// `[workspace.metadata.layers]` of the workspace at `root` (the default when it has none).
+pub fn workspace_layers(root: &Path) -> Result<WorkspaceLayers, Error> {
+    let path = root.join("Cargo.toml");
+    let manifest: WorkspaceManifest = read_toml(&path)?;
+    Ok(manifest.workspace.and_then(|w| w.metadata).and_then(|m| m.layers).unwrap_or_default())
 }
 
 /// The members of the workspace at `root`, in the order `members` lists them. A member ending
@@ -119,6 +150,15 @@ fn member(dir: &Path) -> Result<Member, Error> {
     };
     let declared_roots =
         manifest.bin.iter().chain(&manifest.example).filter_map(|t| t.path.as_ref()).map(|p| dir.join(p)).collect();
+    let dependencies = manifest
+        .dependencies
+        .iter()
+        .chain(&manifest.build_dependencies)
+        .map(|(key, value)| match value.get("package").and_then(toml::Value::as_str) {
+            Some(package) => package.to_owned(),
+            None => key.clone(),
+        })
+        .collect();
     Ok(Member {
         name: manifest.package.name,
         dir: dir.to_path_buf(),
@@ -126,6 +166,7 @@ fn member(dir: &Path) -> Result<Member, Error> {
         lib,
         declared_roots,
         layers: manifest.package.metadata.and_then(|m| m.layers),
+        dependencies,
     })
 }
 

@@ -69,10 +69,7 @@ fn main() -> ExitCode {
     tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
     // With the camera's backend too, so a robot's profile (its [source.realsense]) loads here
     // unchanged: the worker uses only its [detector], [onnx] and [zenoh].
-    #[allow(unused_mut)] // registered into only with the feature `realsense`
-    let mut backends = op3dsg_sim::backends();
-    #[cfg(feature = "realsense")]
-    op3dsg_realsense::backend::register(&mut backends);
+    let backends = op3dsgd::backends();
     let loaded = match config::load_with(&backends, args.profile.as_deref(), &args.set) {
         Ok(loaded) => loaded,
         Err(e) => {

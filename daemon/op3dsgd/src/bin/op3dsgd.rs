@@ -67,10 +67,7 @@ fn main() -> ExitCode {
     iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);
 
     let overrides = profile_overrides(&args);
-    #[allow(unused_mut)] // registered into only with the feature `realsense`
-    let mut backends = op3dsg_sim::backends();
-    #[cfg(feature = "realsense")]
-    op3dsg_realsense::backend::register(&mut backends);
+    let backends = op3dsgd::backends();
     let loaded = match config::load_with(&backends, args.profile.as_deref(), &overrides) {
         Ok(loaded) => loaded,
         Err(e) => {

@@ -3,5 +3,6 @@
 
 mod arrows;
 mod binary;
+mod crates;
 mod fixture;
 mod rules;

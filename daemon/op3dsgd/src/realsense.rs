@@ -1,6 +1,7 @@
-//! `source.kind = "realsense"` for the runtime's backend registry: [`register`] adds it to a
-//! [`Backends`] (what `op3dsgd` built with `--features realsense` does), which then checks
-//! `[source.realsense]` when the profile loads and opens the camera or `.bag` at start.
+//! `source.kind = "realsense"` for the runtime's backend registry: [`register`] adds
+//! `op3dsg-realsense`'s source to a [`Backends`] (what the binaries built with `--features
+//! realsense` do), which then checks `[source.realsense]` when the profile loads and opens the
+//! camera or `.bag` at start.
 
 use std::sync::Arc;
 
@@ -9,7 +10,7 @@ use op3dsg_runtime::backend::{Backends, OpenedSource, SectionError, SourceBacken
 use op3dsg_runtime::config::Profile;
 use op3dsg_runtime::keyframe::PoseSourceKind;
 
-use crate::{REALSENSE_SOURCE, RealsenseConfig, RealsenseSource};
+use op3dsg_realsense::{REALSENSE_SOURCE, RealsenseConfig, RealsenseSource};
 
 /// Profile path of the section.
 pub const REALSENSE_SECTION: &str = "source.realsense";
