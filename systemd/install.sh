@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Builds op3dsg with the camera and installs it as a system service, into the same paths as the
 # Debian package (for distributions without dpkg; on Debian/Ubuntu prefer `cargo deb -p op3dsgd`):
-#   /usr/bin/op3dsgd, /usr/bin/op3dsg                   the daemon and the CLI (release, --features realsense)
+#   /usr/bin/op3dsgd, /usr/bin/op3dsg                   the daemon and the CLI (release, --features robot: the camera and Zenoh)
 #   /usr/bin/op3dsg-detectd                             the detection worker for a GPU computer
 #   /usr/sbin/op3dsg-service-user                       chooses the user the service runs as
 #   /lib/systemd/system/op3dsgd.service                 the unit (systemd/op3dsgd.service)
@@ -17,7 +17,7 @@
 # /var/lib/op3dsg (snapshots) and /var/log/op3dsg (recordings) are made by systemd from the unit.
 #
 # Usage: systemd/install.sh [--service-user USER] [--bin-dir DIR] [--no-build] [--destdir DIR]
-#   As yourself it builds (cargo build --release -p op3dsgd --features realsense, after
+#   As yourself it builds (cargo build --release -p op3dsgd --features robot, after
 #   ./scripts/setup-models.sh), then installs through sudo. As root it installs what is built.
 #   --service-user USER  run the service as USER (the robot's login user, e.g. hello-robot, so its
 #                        planners can attach): op3dsg-service-user USER after the install
@@ -54,13 +54,13 @@ elif [ "$build" = 1 ]; then
   if [ -d "$rs_lib/pkgconfig" ]; then
     export PKG_CONFIG_PATH="$rs_lib/pkgconfig${PKG_CONFIG_PATH:+:$PKG_CONFIG_PATH}"
   fi
-  cargo build --release --locked -p op3dsgd --features realsense
+  cargo build --release --locked -p op3dsgd --features robot
 fi
 
 for b in op3dsgd op3dsg op3dsg-detectd; do
   if [ ! -x "$bin_dir/$b" ]; then
     echo "install.sh: $bin_dir/$b not built; run systemd/install.sh as yourself (it builds), or:" >&2
-    echo "  cargo build --release -p op3dsgd --features realsense" >&2
+    echo "  cargo build --release -p op3dsgd --features robot" >&2
     exit 1
   fi
 done
@@ -69,8 +69,8 @@ version="$(LD_LIBRARY_PATH="$rs_lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}" "$bin_
   exit 1
 }
 case "$version" in
-  *realsense*) ;;
-  *) echo "install.sh: $bin_dir/op3dsgd has no camera ($version); build with --features realsense" >&2; exit 1 ;;
+  *realsense*zenoh*) ;;
+  *) echo "install.sh: $bin_dir/op3dsgd lacks the camera or Zenoh ($version); build with --features robot" >&2; exit 1 ;;
 esac
 for f in onnxruntime/libonnxruntime.so.1.31.1 minilm/model.onnx minilm/tokenizer.json clip/tokenizer.json; do
   if [ ! -f ".models/$f" ]; then

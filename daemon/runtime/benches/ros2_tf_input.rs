@@ -12,7 +12,7 @@
 //! publishing window and over the quiet one in the same run: the difference is the subscription's
 //! cost, also given per message.
 //!
-//! `cargo bench -p op3dsg-runtime --bench ros2_tf_input [-- --rate 100 --seconds 10]`
+//! `cargo bench -p op3dsg-runtime --features zenoh --bench ros2_tf_input [-- --rate 100 --seconds 10]`
 
 use std::io::{BufRead, BufReader, Write};
 use std::net::TcpListener;

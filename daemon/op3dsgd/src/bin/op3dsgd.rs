@@ -147,10 +147,11 @@ fn profile_overrides(args: &Args) -> Vec<String> {
 }
 
 /// The cargo features this binary was built with, as `--version` shows them
-/// (`op3dsgd 0.1.0 (features: realsense)`): `systemd/install.sh` refuses a binary without the
-/// camera.
+/// (`op3dsgd 0.1.0 (features: realsense, zenoh)`): `systemd/install.sh` refuses a binary without
+/// the camera or Zenoh.
 const FEATURES: &[(&str, bool)] = &[
     ("realsense", cfg!(feature = "realsense")),
+    ("zenoh", cfg!(feature = "zenoh")),
     ("cuda", cfg!(feature = "cuda")),
     ("openvino", cfg!(feature = "openvino")),
     ("fault-hooks", cfg!(feature = "fault-hooks")),

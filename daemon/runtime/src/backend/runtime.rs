@@ -17,7 +17,9 @@ use crate::knowledge::KnowledgeBase;
 use crate::onnx::{OnnxError, OnnxRuntime};
 use crate::perception::open_vocab::OpenVocabDetector;
 use crate::perception::region_encoder::{RegionEncoder, RegionEncoderConfig, WithRegionEncoder};
-use crate::perception::remote::{REMOTE_DETECTOR, RemoteClient, RemoteDetector};
+use crate::perception::remote::REMOTE_DETECTOR;
+#[cfg(feature = "zenoh")]
+use crate::perception::remote::{RemoteClient, RemoteDetector};
 use crate::perception::yolox::YoloxDetector;
 use crate::perception::{Detection, Detector, DetectorError, OPEN_VOCAB_DETECTOR, YOLOX_DETECTOR};
 
@@ -180,6 +182,7 @@ impl DetectorBackend for RemoteBackend {
 /// The remote detectors of `[detector.remote]`, sharing one session (the profile's `[zenoh]`
 /// settings; without its listeners when the Zenoh stage, which holds them, is on too), each
 /// with its own detector of `fallback`'s factory.
+#[cfg(feature = "zenoh")]
 pub(super) fn remote(profile: &Profile, fallback: Option<DetectorFactory>) -> Result<DetectorFactory, StartError> {
     let mut zenoh = profile.zenoh.clone();
     if zenoh.enabled {
@@ -191,6 +194,16 @@ pub(super) fn remote(profile: &Profile, fallback: Option<DetectorFactory>) -> Re
         let fallback = fallback.as_ref().map(|f| f(worker));
         Box::new(RemoteDetector::new(client.clone(), fallback)) as Box<dyn Detector>
     }))
+}
+
+/// Without the cargo feature `zenoh` there is no remote detection (`Profile::validate` refuses
+/// the profile before it gets here).
+#[cfg(not(feature = "zenoh"))]
+pub(super) fn remote(_profile: &Profile, _fallback: Option<DetectorFactory>) -> Result<DetectorFactory, StartError> {
+    Err(StartError::Zenoh(
+        "detector.kind = \"remote\" needs Zenoh, which this build leaves out: build with the cargo feature `zenoh`"
+            .to_owned(),
+    ))
 }
 
 /// The knowledge base of `reasoner.knowledge_dir`, else the built-in tables (the detectors' part

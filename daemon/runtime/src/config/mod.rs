@@ -256,10 +256,41 @@ impl Profile {
             self.health.validate("health"),
             self.run.validate("run"),
             self.world.validate("world"),
+            self.zenoh_in_build(),
         ]
         .into_iter()
         .collect::<Result<(), String>>()
         .map_err(split_message)
+    }
+
+    /// Without the cargo feature `zenoh` nothing that speaks Zenoh is built: a profile that
+    /// turns any of it on is refused, naming the key and the feature.
+    #[cfg(not(feature = "zenoh"))]
+    fn zenoh_in_build(&self) -> Result<(), String> {
+        let uses = [
+            (self.zenoh.enabled, "zenoh.enabled = true (the Zenoh stage)"),
+            (self.ros2.out.any(), "ros2.out (a ROS 2 topic)"),
+            (self.pose.source == crate::keyframe::PoseSourceKind::Ros2, "pose.source = \"ros2\" (poses from tf)"),
+            (
+                self.detector.kind == crate::perception::remote::REMOTE_DETECTOR,
+                "detector.kind = \"remote\" (remote detection)",
+            ),
+        ];
+        match uses.iter().find(|(on, _)| *on) {
+            Some((_, what)) => Err(format!(
+                "{}: {what} needs Zenoh, which this build leaves out: build with the cargo feature \
+                 `zenoh` (`cargo build --release --features op3dsgd/zenoh`; the Debian package and \
+                 scripts/test.sh have it)",
+                what.split(' ').next().unwrap_or(what)
+            )),
+            None => Ok(()),
+        }
+    }
+
+    /// With the cargo feature `zenoh` every Zenoh-speaking stage is built.
+    #[cfg(feature = "zenoh")]
+    fn zenoh_in_build(&self) -> Result<(), String> {
+        Ok(())
     }
 
     /// The section of a registered backend (`"source.synthetic"`), as loaded.

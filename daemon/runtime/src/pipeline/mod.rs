@@ -57,14 +57,16 @@ use tracing::{debug, error, info};
 
 use crate::backend::{Backends, OpenedSource, StartError};
 use crate::config::Profile;
-use crate::flow::RemoteFeed;
 use crate::keyframe::PoseSourceKind;
 use crate::query::QueryCounters;
 use crate::queue::Latest;
 use crate::reasoner::{EnricherError, EnricherSetup, GraphEnricher};
 
 mod counters;
+mod off_robot;
 mod stages;
+#[cfg(feature = "zenoh")]
+mod zenoh_stages;
 
 pub use counters::{Counters, RunSummary};
 use stages::{Queues, Stages};
@@ -161,19 +163,9 @@ impl Pipeline {
         let latest_occupancy = (profile.occupancy.enabled
             && (query_graph.is_some() || profile.zenoh.enabled || ros2_map || profile.live_view.enabled))
             .then(|| Arc::new(Latest::new()));
-        let mut remote = match (q.remote, counters.zenoh.as_ref()) {
-            (Some(queue), Some(zenoh)) => {
-                let shared = (remote_queries.clone(), latest_occupancy.clone());
-                Some(stages::zenoh(&mut s, profile, source.kind(), queue, zenoh, shared)?)
-            }
-            _ => None,
-        };
-        if let Some(queue) = q.ros2_out {
-            let map = if ros2_map { latest_occupancy.clone() } else { None };
-            let graphs = stages::ros2_out(&mut s, profile, queue, &counters, (map, &stop))?;
-            let feed = remote.get_or_insert_with(|| RemoteFeed { graphs: Vec::new(), health: Arc::new(Latest::new()) });
-            feed.graphs.push(graphs);
-        }
+        let shared = (remote_queries.clone(), latest_occupancy.clone());
+        let mut remote =
+            off_robot::stages(&mut s, profile, source.kind(), (q.remote, q.ros2_out), &counters, shared, &stop)?;
         // The live view, fed like the off-robot stages; the gate hands it poses and images.
         let inputs = (source.intrinsics(), latest_occupancy.clone());
         let live = stages::live_view(&mut s, profile, (q.live_view, &mut remote), inputs, &counters, &stop)?;
@@ -210,12 +202,7 @@ impl Pipeline {
         let recorder = recorder.map(|sender| (sender, side_taps));
         let gate = (q.frames.1, q.keyframes.0, q.poses.1);
         // The tf input hands poses to the gate and ends with it.
-        let gate_alive = if profile.pose.source == PoseSourceKind::Ros2 {
-            let upright = source.camera_from_upright();
-            Some(stages::ros2_tf(&mut s, profile, upright, q.poses.0.clone(), &counters, &stop)?)
-        } else {
-            None
-        };
+        let gate_alive = off_robot::tf_input(&mut s, profile, source.as_ref(), q.poses.0.clone(), &counters, &stop)?;
         let keyframe =
             stages::keyframe(profile, source.as_ref(), gate, &counters, &stop, recorder, (occupancy_feed, live));
         s.spawn("keyframe", move || {

@@ -4,6 +4,7 @@
 
 use std::str::FromStr;
 
+#[cfg(feature = "zenoh")]
 use ::zenoh::config::{Config, EndPoint};
 use op3dsg_ros2::keys::{Distro, KeyStyle, check_node_name, fully_qualified_topic, normalize_namespace};
 use serde::{Deserialize, Serialize};
@@ -141,6 +142,7 @@ impl Ros2Config {
                 "{path}.connect: needs the Zenoh endpoint of the ROS side (e.g. \"tcp/127.0.0.1:7447\")"
             ));
         }
+        #[cfg(feature = "zenoh")]
         for endpoint in &self.connect {
             EndPoint::from_str(endpoint).map_err(|e| {
                 format!("{path}.connect: {endpoint:?} is not a Zenoh endpoint (e.g. \"tcp/127.0.0.1:7447\"): {e}")
@@ -206,6 +208,7 @@ impl Ros2Config {
     }
 
     /// The Zenoh configuration of the session: a client of `connect`, multicast scouting off.
+    #[cfg(feature = "zenoh")]
     pub fn session_config(&self) -> Result<Config, String> {
         let mut config = Config::default();
         let endpoints = serde_json::to_string(&self.connect).unwrap_or_default();

@@ -10,9 +10,10 @@
 //! | file | what |
 //! |---|---|
 //! | `config.rs` | `[ros2]` and `[ros2.tf]` ([`Ros2Config`]) |
-//! | `tf_input.rs` | [`TfInputThread`] and its [`TfInputCounters`] |
+//! | `tf_input.rs` | [`TfInputThread`] (feature `zenoh`) |
 //! | `messages.rs` | the graph as `MarkerArray` and JSON, the map as `OccupancyGrid` |
-//! | `output.rs` | [`Ros2OutputThread`] (`[ros2.out]`) and its [`Ros2OutputCounters`] |
+//! | `output.rs` | [`Ros2OutputThread`] (`[ros2.out]`; feature `zenoh`) |
+//! | `counters.rs` | their [`TfInputCounters`] and [`Ros2OutputCounters`] |
 //!
 //! Out to ROS 2 (`[ros2.out]`, each topic off by default), `op3dsg-ros2-out` publishes the graph
 //! as markers for RViz, the occupancy map as a grid and the graph as JSON, from a latest-wins
@@ -22,11 +23,17 @@
 //! tokens, so `ros2 topic list` and RViz see them.
 
 mod config;
+mod counters;
 mod messages;
+#[cfg(feature = "zenoh")]
 mod output;
+#[cfg(feature = "zenoh")]
 mod tf_input;
 
 pub use config::{MAX_DOMAIN_ID, Ros2Config, Ros2OutConfig, TfInputConfig};
+pub use counters::{Ros2OutputCounters, TfInputCounters};
 pub use messages::{MarkerState, graph_json, marker_array, occupancy_grid};
-pub use output::{Ros2OutputCounters, Ros2OutputThread};
-pub use tf_input::{TfInputCounters, TfInputThread};
+#[cfg(feature = "zenoh")]
+pub use output::Ros2OutputThread;
+#[cfg(feature = "zenoh")]
+pub use tf_input::TfInputThread;

@@ -31,42 +31,15 @@ use op3dsg_ros2::{MessageType, RosMessage};
 use tracing::{debug, info};
 
 use super::config::Ros2Config;
+use super::counters::Ros2OutputCounters;
 use super::messages::{MarkerState, graph_json, marker_array, occupancy_grid};
 use crate::graph::SceneGraph;
 use crate::occupancy::LatestOccupancy;
 use crate::queue::{Popped, QueueReceiver};
-use crate::stats::StageStats;
 use crate::world::UpAxis;
 
 /// How long the thread waits for a graph before it looks at the map and the period again.
 const TICK: Duration = Duration::from_millis(50);
-
-/// The ROS output's figures.
-#[derive(Debug)]
-pub struct Ros2OutputCounters {
-    /// The stage `ros2_out`: one graph version or map encoded and put; a failed put is an error.
-    pub stage: Arc<StageStats>,
-    /// `MarkerArray` messages put.
-    pub marker_arrays: AtomicU64,
-    /// `OccupancyGrid` messages put.
-    pub occupancy_grids: AtomicU64,
-    /// Graph JSON messages put.
-    pub graph_jsons: AtomicU64,
-    /// Bytes put, every topic.
-    pub bytes: AtomicU64,
-}
-
-impl Default for Ros2OutputCounters {
-    fn default() -> Self {
-        Self {
-            stage: Arc::new(StageStats::new("ros2_out")),
-            marker_arrays: AtomicU64::new(0),
-            occupancy_grids: AtomicU64::new(0),
-            graph_jsons: AtomicU64::new(0),
-            bytes: AtomicU64::new(0),
-        }
-    }
-}
 
 /// The ROS output thread, built by the composition; [`Ros2OutputThread::run`] is its body. It
 /// opens its session itself and says on `ready` whether it could.

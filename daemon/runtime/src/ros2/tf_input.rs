@@ -19,24 +19,24 @@
 //! errors of the stage `ros2_tf`. Each reason is logged once (with the count at powers of two).
 
 use std::collections::{BTreeSet, HashSet};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, PoisonError};
 use std::time::{Duration, Instant};
 
 use ::zenoh::Wait;
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 use op3dsg_drivers::pose::Isometry;
-use op3dsg_ipc_types::{PoseKind, PoseStamped, TfHealth, write_fixed_str};
+use op3dsg_ipc_types::{PoseKind, PoseStamped};
 use op3dsg_ros2::keys::topic_keys;
 use op3dsg_ros2::msg::tf2_msgs::TFMessage;
-use op3dsg_ros2::{RosMessage, TfBuffer, TfConfig, TfError, TfInsertError, TfPath};
+use op3dsg_ros2::{RosMessage, TfBuffer, TfConfig, TfError, TfInsertError};
 use tracing::{debug, info, warn};
 use zenoh_ext::{AdvancedSubscriber, AdvancedSubscriberBuilderExt, HistoryConfig};
 
 use super::config::Ros2Config;
+use super::counters::TfInputCounters;
 use crate::flow::hand_over_pose;
 use crate::stats::PoseStats;
-use crate::stats::StageStats;
 
 /// Payloads waiting for the thread; more are dropped (and counted).
 const INTAKE_CAPACITY: usize = 1024;
@@ -44,71 +44,6 @@ const INTAKE_CAPACITY: usize = 1024;
 const TICK: Duration = Duration::from_millis(50);
 /// Stamps waiting for every link of the chain to catch up; the oldest go first.
 const MAX_PENDING: usize = 512;
-
-/// The tf input's figures (besides the pose counters it shares with the gate).
-#[derive(Debug)]
-pub struct TfInputCounters {
-    /// The stage `ros2_tf`: one tf message decoded and applied; payloads that are not a
-    /// TFMessage are its errors.
-    pub stage: Arc<StageStats>,
-    /// `/tf` messages received.
-    pub dynamic_messages: AtomicU64,
-    /// `/tf_static` messages received.
-    pub static_messages: AtomicU64,
-    /// Transforms refused by the buffer for other reasons than non-finite values or quaternions
-    /// (an empty frame id, a frame its own parent, a repeated or too old stamp, too many frames).
-    pub transforms_refused: AtomicU64,
-    /// Payloads dropped because the thread was behind.
-    pub intake_dropped: AtomicU64,
-    /// Poses handed to the keyframe gate (a full hand-over counts in `pose.queue_full` too).
-    pub poses: AtomicU64,
-    /// `/tf` messages stamped wholly before the window of what was held: tf's time went back and
-    /// the dynamic transforms were cleared.
-    pub time_jumps: AtomicU64,
-    /// The chain of the last successful lookup.
-    pub last_path: Mutex<Option<TfPath>>,
-}
-
-impl TfInputCounters {
-    /// The health record's `tf` entry.
-    pub fn health(&self) -> TfHealth {
-        let mut h = TfHealth {
-            active: 1,
-            dynamic_messages: self.dynamic_messages.load(Ordering::Relaxed),
-            static_messages: self.static_messages.load(Ordering::Relaxed),
-            transforms_refused: self.transforms_refused.load(Ordering::Relaxed),
-            time_jumps: self.time_jumps.load(Ordering::Relaxed),
-            ..TfHealth::default()
-        };
-        if let Some(path) = self.last_path.lock().unwrap_or_else(PoisonError::into_inner).as_ref() {
-            let text = path.frames.iter().rev().map(String::as_str).collect::<Vec<_>>().join(" -> ");
-            if !write_fixed_str(&mut h.path, &text) {
-                let keep = h.path.len() - 3;
-                write_fixed_str(&mut h.path[..keep], &text);
-                let end = h.path.iter().position(|&b| b == 0).unwrap_or(keep);
-                h.path[end..end + 3].copy_from_slice(b"...");
-            }
-            h.lookup_stamp_ns = path.stamp_ns;
-            h.newest_data_ns = path.newest_data_ns.unwrap_or(0);
-        }
-        h
-    }
-}
-
-impl Default for TfInputCounters {
-    fn default() -> Self {
-        Self {
-            stage: Arc::new(StageStats::new("ros2_tf")),
-            dynamic_messages: AtomicU64::new(0),
-            static_messages: AtomicU64::new(0),
-            transforms_refused: AtomicU64::new(0),
-            intake_dropped: AtomicU64::new(0),
-            poses: AtomicU64::new(0),
-            time_jumps: AtomicU64::new(0),
-            last_path: Mutex::new(None),
-        }
-    }
-}
 
 /// The tf input thread, built by the composition; [`TfInputThread::run`] is its body. It opens
 /// its session itself and says on `ready` whether it could.

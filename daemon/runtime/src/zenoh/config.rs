@@ -2,10 +2,15 @@
 //! mode, endpoints, scouting, an optional Zenoh configuration file, the key prefix and the full
 //! graph's period.
 
-use std::path::{Path, PathBuf};
+#[cfg(feature = "zenoh")]
+use std::path::Path;
+use std::path::PathBuf;
+#[cfg(feature = "zenoh")]
 use std::str::FromStr;
 
+#[cfg(feature = "zenoh")]
 use ::zenoh::config::{Config, EndPoint};
+#[cfg(feature = "zenoh")]
 use ::zenoh::key_expr::{KeyExpr, keyexpr};
 use serde::{Deserialize, Serialize};
 
@@ -80,8 +85,11 @@ impl Default for ZenohConfig {
 }
 
 impl ZenohConfig {
-    /// Range and syntax checks; errors are `path.field: message`.
+    /// Range and syntax checks; errors are `path.field: message`. Without the feature `zenoh`
+    /// the endpoints and the key prefix are not parsed (the library that knows their syntax is
+    /// not built); the profile cannot turn the stage on then (`Profile::validate`).
     pub fn validate(&self, path: &str) -> Result<(), String> {
+        #[cfg(feature = "zenoh")]
         for (field, endpoints) in [("connect", &self.connect), ("listen", &self.listen)] {
             for endpoint in endpoints {
                 EndPoint::from_str(endpoint).map_err(|e| {
@@ -89,6 +97,7 @@ impl ZenohConfig {
                 })?;
             }
         }
+        #[cfg(feature = "zenoh")]
         if !self.key_prefix.is_empty() {
             check_prefix(&self.key_prefix).map_err(|e| format!("{path}.key_prefix: {e}"))?;
         }
@@ -101,6 +110,7 @@ impl ZenohConfig {
         if self.enabled && self.mode == ZenohMode::Client && self.connect.is_empty() && self.config_file.is_none() {
             return Err(format!("{path}.connect: mode \"client\" needs an endpoint to connect to"));
         }
+        #[cfg(feature = "zenoh")]
         if let Some(file) = &self.config_file
             && self.enabled
         {
@@ -114,7 +124,11 @@ impl ZenohConfig {
         if self.key_prefix.is_empty() {
             let host = hostname();
             let prefix = format!("{DEFAULT_PREFIX_ROOT}/{host}");
-            if check_prefix(&prefix).is_ok() { prefix } else { format!("{DEFAULT_PREFIX_ROOT}/unnamed") }
+            #[cfg(feature = "zenoh")]
+            if check_prefix(&prefix).is_err() {
+                return format!("{DEFAULT_PREFIX_ROOT}/unnamed");
+            }
+            prefix
         } else {
             self.key_prefix.clone()
         }
@@ -122,6 +136,7 @@ impl ZenohConfig {
 
     /// The session's Zenoh configuration: `config_file` (or Zenoh's defaults), then this
     /// section's keys on top. Errors name the key (`zenoh.<key>: ...`).
+    #[cfg(feature = "zenoh")]
     pub fn session_config(&self) -> Result<Config, (String, String)> {
         match &self.config_file {
             Some(file) => self.session_config_from(file).map_err(|e| ("zenoh.config_file".to_owned(), e)),
@@ -129,6 +144,7 @@ impl ZenohConfig {
         }
     }
 
+    #[cfg(feature = "zenoh")]
     fn session_config_from(&self, file: &Path) -> Result<Config, String> {
         let config = Config::from_file(file).map_err(|e| format!("{}: {e}", file.display()))?;
         self.apply(config).map_err(|(key, e)| format!("{key}: {e}"))
@@ -136,6 +152,7 @@ impl ZenohConfig {
 
     /// This section's keys on top of `config`. Without a configuration file an empty `listen`
     /// means no listener at all (a Zenoh peer otherwise listens on every interface).
+    #[cfg(feature = "zenoh")]
     fn apply(&self, mut config: Config) -> Result<Config, (String, String)> {
         let mut set = |key: &str, zenoh_key: &str, value: String| {
             config.insert_json5(zenoh_key, &value).map_err(|e| (format!("zenoh.{key}"), e.to_string()))
@@ -152,12 +169,14 @@ impl ZenohConfig {
     }
 
     /// Listen endpoints that are reachable from beyond this computer (not loopback).
+    #[cfg(feature = "zenoh")]
     pub fn open_listeners(&self) -> Vec<&str> {
         self.listen.iter().map(String::as_str).filter(|e| !is_loopback_endpoint(e)).collect()
     }
 }
 
 /// Checks a publishing key prefix: a valid key expression without wildcards.
+#[cfg(feature = "zenoh")]
 pub fn check_prefix(prefix: &str) -> Result<(), String> {
     let key = KeyExpr::try_from(prefix).map_err(|e| format!("{prefix:?} is not a valid key expression: {e}"))?;
     if key.is_wild() {
@@ -167,11 +186,13 @@ pub fn check_prefix(prefix: &str) -> Result<(), String> {
     Ok(())
 }
 
+#[cfg(feature = "zenoh")]
 fn json_list(items: &[String]) -> String {
     serde_json::to_string(items).unwrap_or_else(|_| "[]".to_owned())
 }
 
 /// Whether an endpoint's address is loopback (`127.0.0.0/8`, `[::1]`, `localhost`).
+#[cfg(feature = "zenoh")]
 fn is_loopback_endpoint(endpoint: &str) -> bool {
     let Some((_, address)) = endpoint.split_once('/') else { return false };
     let address = address.split(['?', '#']).next().unwrap_or(address);
@@ -191,7 +212,7 @@ fn hostname() -> String {
         .unwrap_or_else(|| "unnamed".to_owned())
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "zenoh"))]
 mod tests {
     use super::*;
 

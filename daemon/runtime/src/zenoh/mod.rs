@@ -25,14 +25,21 @@
 //! |---|---|
 //! | `config.rs` | `[zenoh]` ([`ZenohConfig`]), the session's Zenoh configuration |
 //! | `codec.rs` | the envelope, full graphs, deltas, health and occupancy messages |
-//! | `thread.rs` | [`ZenohThread`] and its [`ZenohCounters`] |
+//! | `thread.rs` | [`ZenohThread`] (feature `zenoh`) |
+//! | `counters.rs` | its [`ZenohCounters`] |
 
 pub mod codec;
 mod config;
+mod counters;
+#[cfg(feature = "zenoh")]
 mod thread;
 
 #[cfg(test)]
 mod tests;
 
-pub use config::{ZenohConfig, ZenohMode, check_prefix};
-pub use thread::{ZenohCounters, ZenohThread};
+#[cfg(feature = "zenoh")]
+pub use config::check_prefix;
+pub use config::{ZenohConfig, ZenohMode};
+pub use counters::ZenohCounters;
+#[cfg(feature = "zenoh")]
+pub use thread::ZenohThread;

@@ -46,7 +46,9 @@ pub mod llm_hot_path;
 pub mod peer_fusion;
 pub mod pipeline_run;
 pub mod soak;
+#[cfg(feature = "zenoh")]
 pub mod zenoh_link;
+pub mod zenoh_report;
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -60,7 +62,7 @@ pub use ipc_peer::{Receipts, ipc_peer};
 pub use llm_hot_path::{LlmHotPath, SlowChatServer, StageComparison, llm_hot_path};
 pub use peer_fusion::{FusionCost, PeerFusionCost, peer_fusion_cost};
 pub use pipeline_run::{PipelineRun, RssSample, StageRow, pipeline_run};
-pub use zenoh_link::{ZenohOptions, ZenohSection};
+pub use zenoh_report::{ZenohOptions, ZenohSection};
 
 use op3dsg_runtime::stats::LatencyHistogram;
 
@@ -187,11 +189,7 @@ pub fn run(options: &PerfOptions) -> anyhow::Result<PerfReport> {
         );
         Some(peer_fusion_cost(options).context("peer fusion cost")?)
     };
-    let zenoh = if options.zenoh.nodes.is_empty() && !options.zenoh.stage {
-        None
-    } else {
-        Some(zenoh_link::zenoh_section(options).context("Zenoh")?)
-    };
+    let zenoh = if options.zenoh.nodes.is_empty() && !options.zenoh.stage { None } else { zenoh_section(options)? };
     Ok(PerfReport {
         schema: REPORT_SCHEMA.to_owned(),
         machine: Machine::current(),
@@ -504,6 +502,21 @@ fn peer_fusion_markdown(s: &mut String, peer: &PeerFusionCost) {
         );
     }
     let _ = writeln!(s);
+}
+
+/// The Zenoh section ([`zenoh_link`]).
+#[cfg(feature = "zenoh")]
+fn zenoh_section(options: &PerfOptions) -> anyhow::Result<Option<ZenohSection>> {
+    use anyhow::Context as _;
+    zenoh_link::zenoh_section(options).context("Zenoh").map(Some)
+}
+
+/// Without the cargo feature `zenoh` there is no Zenoh to measure: the section is left out, and
+/// the report says so where it would be.
+#[cfg(not(feature = "zenoh"))]
+fn zenoh_section(_options: &PerfOptions) -> anyhow::Result<Option<ZenohSection>> {
+    eprintln!("bench perf: no Zenoh section: this build leaves Zenoh out (cargo feature `zenoh`)");
+    Ok(None)
 }
 
 #[cfg(test)]

@@ -9,6 +9,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
+#[cfg(feature = "zenoh")]
 use op3dsg_ipc_types::client::RemoteGraphSubscriber;
 use op3dsg_ipc_types::{EdgeKind, Graph, GraphSubscriber, NodeView};
 use op3dsg_runtime::ipc::graph_to_scene_graph;
@@ -37,6 +38,7 @@ pub(super) enum DumpFormat {
 pub(super) fn dump(from: DaemonAt<'_>, format: DumpFormat, timeout: Duration, out: Option<&Path>) -> Result<()> {
     let graph = match from {
         DaemonAt::Iceoryx2 { prefix } => local_graph(prefix, timeout)?,
+        #[cfg(feature = "zenoh")]
         DaemonAt::Zenoh { endpoint, key_prefix } => {
             let mut remote = RemoteGraphSubscriber::connect(endpoint, key_prefix)?;
             remote.wait_graph(timeout)?

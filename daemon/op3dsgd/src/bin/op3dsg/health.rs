@@ -28,6 +28,7 @@ pub(super) fn health(prefix: &str, json: bool, timeout: Duration) -> Result<()> 
 
 /// `op3dsg health --zenoh`: the newest record from the queryable `<key_prefix>/health` of a
 /// daemon on another computer, printed as `op3dsg health` prints it.
+#[cfg(feature = "zenoh")]
 pub(super) fn remote(endpoint: &str, key_prefix: &str, json: bool, timeout: Duration) -> Result<()> {
     let remote = op3dsg_ipc_types::client::RemoteRequester::connect(endpoint, key_prefix)?;
     let (_, record) = remote.health(timeout)?;

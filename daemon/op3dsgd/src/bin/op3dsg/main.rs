@@ -368,7 +368,8 @@ enum DaemonAt<'a> {
         /// Their prefix.
         prefix: &'a str,
     },
-    /// A daemon's Zenoh keys, from another computer.
+    /// A daemon's Zenoh keys, from another computer (a build with the feature `zenoh`).
+    #[cfg(feature = "zenoh")]
     Zenoh {
         /// The endpoint to connect to as a client.
         endpoint: &'a str,
@@ -378,10 +379,16 @@ enum DaemonAt<'a> {
 }
 
 impl<'a> DaemonAt<'a> {
-    fn new(prefix: &'a str, remote: &'a Remote) -> Self {
+    fn new(prefix: &'a str, remote: &'a Remote) -> Result<Self> {
         match (&remote.zenoh, &remote.key_prefix) {
-            (Some(endpoint), Some(key_prefix)) => Self::Zenoh { endpoint, key_prefix },
-            _ => Self::Iceoryx2 { prefix },
+            #[cfg(feature = "zenoh")]
+            (Some(endpoint), Some(key_prefix)) => Ok(Self::Zenoh { endpoint, key_prefix }),
+            #[cfg(not(feature = "zenoh"))]
+            (Some(_), _) => anyhow::bail!(
+                "--zenoh: this op3dsg is built without Zenoh; build it with the cargo feature `zenoh` \
+                 (`cargo build --release --features op3dsgd/zenoh`; the Debian package has it)"
+            ),
+            _ => Ok(Self::Iceoryx2 { prefix }),
         }
     }
 }
@@ -391,26 +398,27 @@ fn run(cli: Cli) -> Result<()> {
     op3dsg_ipc_types::validate_prefix(&prefix).map_err(|e| anyhow::anyhow!("--prefix / {PREFIX_ENV}: {e}"))?;
     match cli.command {
         Command::Watch { interval_ms, remote } => {
-            watch::watch(DaemonAt::new(&prefix, &remote), Duration::from_millis(interval_ms))
+            watch::watch(DaemonAt::new(&prefix, &remote)?, Duration::from_millis(interval_ms))
         }
         Command::Dump { format, json, timeout_s, out, remote } => {
             let format = if json { dump::DumpFormat::Json } else { format };
-            let from = DaemonAt::new(&prefix, &remote);
+            let from = DaemonAt::new(&prefix, &remote)?;
             dump::dump(from, format, seconds(timeout_s)?, out.as_deref())
         }
-        Command::Health { json, timeout_s, remote } => match DaemonAt::new(&prefix, &remote) {
+        Command::Health { json, timeout_s, remote } => match DaemonAt::new(&prefix, &remote)? {
+            #[cfg(feature = "zenoh")]
             DaemonAt::Zenoh { endpoint, key_prefix } => health::remote(endpoint, key_prefix, json, seconds(timeout_s)?),
             DaemonAt::Iceoryx2 { prefix } => health::health(prefix, json, seconds(timeout_s)?),
         },
         Command::Query { text, k, json, timeout_s, remote } => {
-            let from = DaemonAt::new(&prefix, &remote);
+            let from = DaemonAt::new(&prefix, &remote)?;
             query::query(from, &text, k, json, seconds(timeout_s)?)
         }
         Command::Bench { command: BenchCommand::Query { rooms, json } } => {
             query::bench(rooms.profile.as_deref(), &rooms.sets(), rooms.seed, json.as_deref())
         }
         Command::Goal { target, json, timeout_s, remote } => {
-            let from = DaemonAt::new(&prefix, &remote);
+            let from = DaemonAt::new(&prefix, &remote)?;
             goal::goal(from, &target, json, seconds(timeout_s)?)
         }
         Command::Bench { command: BenchCommand::Nav { rooms, json } } => {

@@ -5,6 +5,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, bail};
+#[cfg(feature = "zenoh")]
 use op3dsg_ipc_types::client::RemoteRequester;
 use op3dsg_ipc_types::{QueryClient, QueryRequest, QueryResponse, QueryStatus};
 use serde::Serialize;
@@ -69,6 +70,7 @@ pub(super) fn ask(from: &DaemonAt<'_>, request: &QueryRequest, timeout: Duration
             let (client, left) = open_client(prefix, timeout)?;
             Ok((client.request(request, left)?, client.service_name().to_owned()))
         }
+        #[cfg(feature = "zenoh")]
         DaemonAt::Zenoh { endpoint, key_prefix } => {
             let remote = RemoteRequester::connect(endpoint, key_prefix)?;
             let response = remote.query(request, timeout)?;

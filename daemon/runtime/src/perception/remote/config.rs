@@ -72,6 +72,7 @@ impl RemoteConfig {
             return Err(format!("{path}.workers: \"auto\" stands alone (got {:?})", self.workers));
         }
         for key in self.workers.iter().filter(|w| *w != AUTO_WORKERS) {
+            #[cfg(feature = "zenoh")]
             ::zenoh::key_expr::KeyExpr::try_from(key.as_str())
                 .map_err(|e| format!("{path}.workers: {key:?} is not a Zenoh key expression: {e}"))?;
             if key.contains('*') || key.contains('$') {

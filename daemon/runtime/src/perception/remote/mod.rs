@@ -19,13 +19,15 @@
 //! | `wire.rs` | the request and reply bytes, checked field by field |
 //! | `config.rs` | `[detector.remote]` ([`RemoteConfig`]) |
 //! | `counters.rs` | per-worker figures ([`RemoteCounters`]) |
-//! | `client.rs` | [`RemoteClient`] (the session, the workers) and [`RemoteDetector`] |
+//! | `client.rs` | [`RemoteClient`] (the session, the workers) and [`RemoteDetector`] (feature `zenoh`) |
 
+#[cfg(feature = "zenoh")]
 mod client;
 mod config;
 mod counters;
 pub mod wire;
 
+#[cfg(feature = "zenoh")]
 pub use client::{RemoteClient, RemoteDetector, announce};
 pub use config::{AUTO_WORKERS, RemoteConfig, SKIP_FALLBACK};
 pub use counters::{Rejection, RemoteCounters, WorkerCounters};

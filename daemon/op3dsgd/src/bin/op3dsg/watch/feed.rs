@@ -6,6 +6,7 @@
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
+#[cfg(feature = "zenoh")]
 use op3dsg_ipc_types::client::RemoteGraphSubscriber;
 use op3dsg_ipc_types::{ClientError, Graph, GraphSubscriber, HealthSubscriber};
 use op3dsg_runtime::ipc::HealthReport;
@@ -30,6 +31,7 @@ pub(super) enum Feed<'a> {
         health: Option<HealthReport>,
     },
     /// The daemon's Zenoh keys, from another computer.
+    #[cfg(feature = "zenoh")]
     Remote {
         /// The endpoint connected to.
         endpoint: &'a str,
@@ -58,6 +60,7 @@ impl<'a> Feed<'a> {
     pub(super) fn open(from: DaemonAt<'a>) -> Result<Self> {
         Ok(match from {
             DaemonAt::Iceoryx2 { prefix } => Self::Local { prefix, subscribers: None, tried: None, health: None },
+            #[cfg(feature = "zenoh")]
             DaemonAt::Zenoh { endpoint, key_prefix } => Self::Remote {
                 endpoint,
                 key_prefix,
@@ -72,6 +75,7 @@ impl<'a> Feed<'a> {
     pub(super) fn describe(&self) -> String {
         match self {
             Self::Local { prefix, .. } => format!("op3dsgd under prefix {prefix}"),
+            #[cfg(feature = "zenoh")]
             Self::Remote { endpoint, key_prefix, .. } => format!("{key_prefix} on zenoh endpoint {endpoint}"),
         }
     }
@@ -80,6 +84,7 @@ impl<'a> Feed<'a> {
     pub(super) fn connected(&self) -> bool {
         match self {
             Self::Local { subscribers, .. } => subscribers.is_some(),
+            #[cfg(feature = "zenoh")]
             Self::Remote { .. } => true,
         }
     }
@@ -88,6 +93,7 @@ impl<'a> Feed<'a> {
     pub(super) fn graph(&self) -> Option<&Graph> {
         match self {
             Self::Local { subscribers, .. } => subscribers.as_deref().and_then(|(graphs, _)| graphs.graph()),
+            #[cfg(feature = "zenoh")]
             Self::Remote { graph, .. } => graph.as_deref(),
         }
     }
@@ -95,7 +101,9 @@ impl<'a> Feed<'a> {
     /// The newest health record, if any.
     pub(super) fn health(&self) -> Option<&HealthReport> {
         match self {
-            Self::Local { health, .. } | Self::Remote { health, .. } => health.as_ref(),
+            Self::Local { health, .. } => health.as_ref(),
+            #[cfg(feature = "zenoh")]
+            Self::Remote { health, .. } => health.as_ref(),
         }
     }
 
@@ -128,6 +136,7 @@ impl<'a> Feed<'a> {
                 }
                 Ok(changed)
             }
+            #[cfg(feature = "zenoh")]
             Self::Remote { remote, graph, health, .. } => {
                 let changed = remote.poll()?;
                 if changed {

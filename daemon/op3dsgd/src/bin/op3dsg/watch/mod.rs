@@ -107,6 +107,7 @@ pub(super) fn watch(from: DaemonAt<'_>, interval: Duration) -> Result<()> {
 /// The line form: waits for the daemon (saying so once on standard error), then prints the line
 /// at once and every `interval` after.
 fn lines(feed: &mut Feed<'_>, interval: Duration, stop: &AtomicBool) -> Result<()> {
+    #[cfg(feature = "zenoh")]
     if let Feed::Remote { endpoint, key_prefix, .. } = feed {
         eprintln!("following {key_prefix}/graph on zenoh endpoint {endpoint} (Ctrl-C to quit)");
     }
@@ -126,6 +127,8 @@ fn lines(feed: &mut Feed<'_>, interval: Duration, stop: &AtomicBool) -> Result<(
         }
         let now = Instant::now();
         let due = *next.get_or_insert_with(|| {
+            // The only kind of feed without the feature `zenoh`.
+            #[cfg_attr(not(feature = "zenoh"), allow(irrefutable_let_patterns))]
             if let Feed::Local { prefix, .. } = feed {
                 eprintln!("connected to op3dsgd under prefix {prefix} (Ctrl-C to quit)");
             }
