@@ -41,12 +41,23 @@ echo "== foxglove schemas =="
 # librealsense (from PyPI pyrealsense2 into .deps/realsense/; fast when already there): the
 # feature `realsense` of op3dsgd is built and tested with the rest, in the same debug build.
 # cargo-deb (crates.io, into .deps/cargo-deb/; kept between runs like the rest of .deps):
-# tests/tests/deb_package.rs packages the debug build below with it, installs the package into a
+# tests/tests/it/deb_package.rs packages the debug build below with it, installs the package into a
 # scratch root and starts the installed daemon.
 echo "== cargo-deb =="
 CARGO_DEB_VERSION=3.8.0
 if ! .deps/cargo-deb/bin/cargo-deb --version 2>/dev/null | grep -qx "cargo-deb $CARGO_DEB_VERSION"; then
   cargo install cargo-deb --locked --version "$CARGO_DEB_VERSION" --root .deps/cargo-deb
+fi
+
+# cargo-nextest runs the Rust tests (.config/nextest.toml: a timeout per test, retries printed).
+# This machine kind has it; elsewhere it is built from crates.io into .deps/cargo-nextest/ once.
+echo "== cargo-nextest =="
+CARGO_NEXTEST_VERSION=0.9.143
+if ! cargo nextest --version >/dev/null 2>&1; then
+  if ! .deps/cargo-nextest/bin/cargo-nextest nextest --version 2>/dev/null | grep -q "^cargo-nextest $CARGO_NEXTEST_VERSION"; then
+    cargo install cargo-nextest --locked --version "$CARGO_NEXTEST_VERSION" --root .deps/cargo-nextest
+  fi
+  export PATH="$PWD/.deps/cargo-nextest/bin:$PATH"
 fi
 
 echo "== librealsense sysroot =="
@@ -55,13 +66,14 @@ RS_LIB="$PWD/.deps/realsense/lib"
 export PKG_CONFIG_PATH="$RS_LIB/pkgconfig${PKG_CONFIG_PATH:+:$PKG_CONFIG_PATH}"
 # cargo does not put realsense-sys's -L folder on the run-time path of tests and binaries.
 export LD_LIBRARY_PATH="$RS_LIB${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
-# The test fault hooks (daemon/runtime, feature `fault-hooks`) go into this build only.
-FEATURES=(--features op3dsgd/realsense,op3dsgd/fault-hooks)
+# The robot's features (the camera, Zenoh: op3dsgd/robot, as the package) and the test fault hooks
+# (daemon/runtime, feature `fault-hooks`, this build only).
+FEATURES=(--features op3dsgd/robot,op3dsgd/fault-hooks)
 
 # iceoryx2 keeps its state in /tmp/op3dsg-<uid> and /dev/shm/op3dsg_*; every test uses its own service
 # prefix, so parallel tests and a daemon running on this machine do not interfere.
 export RUST_BACKTRACE=1
-# One build, used once: incremental state would only cost disk (gigabytes across ~50 binaries).
+# One build, used once: incremental state would only cost disk (gigabytes across the test binaries).
 export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 export OP3DSG_LOG="${OP3DSG_LOG:-warn}"
 
@@ -71,6 +83,10 @@ echo "== fmt =="
 cargo fmt --all -- --check
 echo "== clippy =="
 cargo clippy --workspace --all-targets --locked "${FEATURES[@]}" -- -D warnings
+# The build ./scripts/run.sh makes, without the optional features (no Zenoh): it must build and
+# be lint-clean too (its code paths differ where a feature is off).
+echo "== clippy (run.sh's build: no optional features) =="
+cargo clippy -p op3dsgd --lib --bins --locked -- -D warnings
 
 # Layers that point down (tests/layering): no import circle between a crate's top-level modules,
 # no upward import where a crate declares its rows, no product file over 700 lines. Cheap and
@@ -84,8 +100,12 @@ cargo build --workspace --all-targets --locked "${FEATURES[@]}"
 echo "== systemd unit =="
 ./scripts/check-systemd.sh target/debug/op3dsgd
 
+# One test binary per crate (tests/it/main.rs), each test in its own process. Doc examples are
+# not nextest's: cargo test --doc runs them after.
 echo "== tests =="
-cargo test --workspace --locked --no-fail-fast "${FEATURES[@]}"
+cargo nextest run --workspace --locked --no-fail-fast "${FEATURES[@]}"
+echo "== doc tests =="
+cargo test --doc --workspace --locked "${FEATURES[@]}"
 
 # The Python client (ipc_types/python) against the live debug daemon built above: its ctypes
 # mirror against the Rust layout, and real op3dsgd processes (a couple of minutes).
@@ -101,3 +121,5 @@ if [[ $OLDEST_PYTHON_TESTS -eq 1 ]]; then
 else
   echo "******** SKIPPED: the Python client's tests on Python 3.10 and NumPy 1.21 (no Python 3.10; see above) ********"
 fi
+
+echo "== scripts/test.sh: all checks passed (fmt, clippy, layering, systemd unit, Rust tests, doc tests, Python tests) =="
