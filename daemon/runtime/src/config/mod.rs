@@ -263,25 +263,27 @@ impl Profile {
         .map_err(split_message)
     }
 
+    /// The first key of this profile that needs Zenoh, and what it turns on (`None`: the
+    /// profile runs in a build without the feature `zenoh`).
+    pub fn needs_zenoh(&self) -> Option<(&'static str, &'static str)> {
+        let uses = [
+            (self.zenoh.enabled, "zenoh.enabled", "the Zenoh stage"),
+            (self.ros2.out.any(), "ros2.out", "a ROS 2 topic"),
+            (self.pose.source == crate::keyframe::PoseSourceKind::Ros2, "pose.source", "poses from ROS 2's tf"),
+            (self.detector.kind == crate::perception::remote::REMOTE_DETECTOR, "detector.kind", "remote detection"),
+        ];
+        uses.into_iter().find(|(on, _, _)| *on).map(|(_, key, what)| (key, what))
+    }
+
     /// Without the cargo feature `zenoh` nothing that speaks Zenoh is built: a profile that
     /// turns any of it on is refused, naming the key and the feature.
     #[cfg(not(feature = "zenoh"))]
     fn zenoh_in_build(&self) -> Result<(), String> {
-        let uses = [
-            (self.zenoh.enabled, "zenoh.enabled = true (the Zenoh stage)"),
-            (self.ros2.out.any(), "ros2.out (a ROS 2 topic)"),
-            (self.pose.source == crate::keyframe::PoseSourceKind::Ros2, "pose.source = \"ros2\" (poses from tf)"),
-            (
-                self.detector.kind == crate::perception::remote::REMOTE_DETECTOR,
-                "detector.kind = \"remote\" (remote detection)",
-            ),
-        ];
-        match uses.iter().find(|(on, _)| *on) {
-            Some((_, what)) => Err(format!(
-                "{}: {what} needs Zenoh, which this build leaves out: build with the cargo feature \
-                 `zenoh` (`cargo build --release --features op3dsgd/zenoh`; the Debian package and \
-                 scripts/test.sh have it)",
-                what.split(' ').next().unwrap_or(what)
+        match self.needs_zenoh() {
+            Some((key, what)) => Err(format!(
+                "{key}: {what} needs Zenoh, which this build leaves out: build op3dsgd with the cargo \
+                 feature `zenoh` (`cargo build --release -p op3dsgd --features zenoh`; the Debian \
+                 package and scripts/test.sh have it)"
             )),
             None => Ok(()),
         }

@@ -306,3 +306,23 @@ fn the_world_frame_defaults_to_world_and_a_bad_one_names_the_file_and_key() {
     let err = load(None, &["world.frame_id=\"\"".to_owned()]).unwrap_err();
     assert!(err.to_string().contains("world.frame_id: must not be empty"), "{err}");
 }
+
+#[test]
+fn what_needs_zenoh_is_named_by_its_key() {
+    // A build without the feature `zenoh` refuses exactly these, naming the key (Profile::validate).
+    let base = load(None, &[]).unwrap().profile;
+    assert_eq!(base.needs_zenoh(), None, "the built-in default runs without Zenoh");
+    type TurnOn = fn(&mut Profile);
+    let cases: [(&str, TurnOn); 5] = [
+        ("zenoh.enabled", |p| p.zenoh.enabled = true),
+        ("ros2.out", |p| p.ros2.out.markers = true),
+        ("ros2.out", |p| p.ros2.out.graph_json = true),
+        ("pose.source", |p| p.pose.source = crate::keyframe::PoseSourceKind::Ros2),
+        ("detector.kind", |p| p.detector.kind = crate::perception::remote::REMOTE_DETECTOR.to_owned()),
+    ];
+    for (key, turn_on) in cases {
+        let mut profile = base.clone();
+        turn_on(&mut profile);
+        assert_eq!(profile.needs_zenoh().map(|(k, _)| k), Some(key));
+    }
+}

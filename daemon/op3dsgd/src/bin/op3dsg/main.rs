@@ -386,7 +386,7 @@ impl<'a> DaemonAt<'a> {
             #[cfg(not(feature = "zenoh"))]
             (Some(_), _) => anyhow::bail!(
                 "--zenoh: this op3dsg is built without Zenoh; build it with the cargo feature `zenoh` \
-                 (`cargo build --release --features op3dsgd/zenoh`; the Debian package has it)"
+                 (`cargo build --release -p op3dsgd --features zenoh`; the Debian package has it)"
             ),
             _ => Ok(Self::Iceoryx2 { prefix }),
         }
