@@ -34,6 +34,31 @@ pub fn is_root() -> bool {
     op3dsg_ipc_types::access::effective_uid() == 0
 }
 
+/// Runs the calling test in a child process of its own iceoryx2 root, for tests whose daemon must
+/// be the only one in its root (a daemon cleans up the dead nodes of its whole root, so a daemon of
+/// a test running beside it could clean up first). Returns `true` in that child, which then runs
+/// the test's body; in the test runner's process it starts the child (this test binary,
+/// `--exact <test>`, `$OP3DSG_IPC_ROOT` a scratch folder), asserts that it passed and returns
+/// `false`. `test` is the test's path in its binary (`faults_planner::the_test`).
+pub fn in_own_ipc_root(test: &str) -> bool {
+    const CHILD: &str = "OP3DSG_TEST_OWN_ROOT";
+    if std::env::var_os(CHILD).is_some() {
+        return true;
+    }
+    let root = tempfile::tempdir().expect("a scratch iceoryx2 root");
+    // Only its owner may use an iceoryx2 root (op3dsg_ipc_types::access).
+    std::fs::set_permissions(root.path(), std::os::unix::fs::PermissionsExt::from_mode(0o700))
+        .expect("chmod 0700 the scratch root");
+    let status = Command::new(std::env::current_exe().expect("test binary path"))
+        .args(["--exact", test, "--nocapture", "--test-threads=1"])
+        .env(CHILD, "1")
+        .env(op3dsg_ipc_types::access::IPC_ROOT_ENV, root.path())
+        .status()
+        .expect("start the test in its own iceoryx2 root");
+    assert!(status.success(), "{test} in its own iceoryx2 root {}: {status}", root.path().display());
+    false
+}
+
 /// A prefix no other test or test run uses.
 pub fn unique_prefix(name: &str) -> String {
     iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);

@@ -3,14 +3,20 @@
 //! slots, and a planner that attaches and never reads. The daemon keeps publishing (health
 //! frames and graph versions keep rising), health shows the planners connected and the dead
 //! ones it cleaned up, and a new planner can still attach.
+//!
+//! The test runs in its own iceoryx2 root (`in_own_ipc_root`): in a shared root, the daemon of a
+//! test running beside this one could clean up the killed planners first and this one count none.
 
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use op3dsg_tests::{Daemon, binary, health_with_frames_above, unique_prefix, wait_for};
+use op3dsg_tests::{Daemon, binary, health_with_frames_above, in_own_ipc_root, unique_prefix, wait_for};
 
 #[test]
 fn planners_killed_mid_read_and_one_that_never_reads_do_not_stop_the_daemon() {
+    if !in_own_ipc_root("faults_planner::planners_killed_mid_read_and_one_that_never_reads_do_not_stop_the_daemon") {
+        return;
+    }
     let prefix = unique_prefix("planner-faults");
     // Three subscriber slots, one held by a planner that never reads: three planners killed in
     // turn are more than the two slots left, so a dead planner's slot must come back.
