@@ -88,14 +88,14 @@ cargo clippy --workspace --all-targets --locked "${FEATURES[@]}" -- -D warnings
 echo "== clippy (run.sh's build: no optional features) =="
 cargo clippy -p op3dsgd --lib --bins --locked -- -D warnings
 
-# Layers that point down (tests/layering): no import circle between a crate's top-level modules,
-# no upward import where a crate declares its rows, no product file over 700 lines. Cheap and
-# early, before the long build; `-p` builds only the checker, in the same debug profile.
-echo "== layering =="
-cargo run --locked --quiet -p op3dsg-layering -- check
-
 echo "== build (debug, all targets) =="
 cargo build --workspace --all-targets --locked "${FEATURES[@]}"
+
+# Layers that point down (tests/layering): no crate depending on a higher row, no import circle
+# between a crate's top-level modules, no upward import where a crate declares its rows, no
+# product file over 700 lines. The checker comes out of the build above.
+echo "== layering =="
+target/debug/op3dsg-layers check
 
 echo "== systemd unit =="
 ./scripts/check-systemd.sh target/debug/op3dsgd
