@@ -78,17 +78,21 @@ export CARGO_INCREMENTAL="${CARGO_INCREMENTAL:-0}"
 export OP3DSG_LOG="${OP3DSG_LOG:-warn}"
 
 # What review used to check by hand: formatting and lints (warnings are errors), before any
-# test runs (clippy type-checks the dependencies without generating code, a few minutes once).
+# test runs.
 echo "== fmt =="
 cargo fmt --all -- --check
-echo "== clippy =="
-cargo clippy --workspace --all-targets --locked "${FEATURES[@]}" -- -D warnings
 # The build ./scripts/run.sh makes, without the optional features (no Zenoh): it must build and
-# be lint-clean too (its code paths differ where a feature is off).
+# be lint-clean too (its code paths differ where a feature is off). Its dependencies have other
+# features than the full build's, so cargo checks them again (about two minutes once).
 echo "== clippy (run.sh's build: no optional features) =="
 cargo clippy -p op3dsgd --lib --bins --locked -- -D warnings
 
-echo "== build (debug, all targets) =="
+# Clippy and the debug build in one pass: cargo compiles the workspace's own crates through
+# clippy-driver (scripts/clippy-rustc.sh, warnings are errors), so every target is linted as
+# `cargo clippy --workspace --all-targets` lints it, without type-checking the dependencies a
+# second time. The tests below run under the same wrapper, so they reuse this build.
+export RUSTC_WORKSPACE_WRAPPER="$PWD/scripts/clippy-rustc.sh"
+echo "== clippy and build (debug, all targets) =="
 cargo build --workspace --all-targets --locked "${FEATURES[@]}"
 
 # Layers that point down (tests/layering): no crate depending on a higher row, no import circle
