@@ -81,11 +81,6 @@ export OP3DSG_LOG="${OP3DSG_LOG:-warn}"
 # test runs.
 echo "== fmt =="
 cargo fmt --all -- --check
-# The build ./scripts/run.sh makes, without the optional features (no Zenoh): it must build and
-# be lint-clean too (its code paths differ where a feature is off). Its dependencies have other
-# features than the full build's, so cargo checks them again (about two minutes once).
-echo "== clippy (run.sh's build: no optional features) =="
-cargo clippy -p op3dsgd --lib --bins --locked -- -D warnings
 
 # Clippy and the debug build in one pass: cargo compiles the workspace's own crates through
 # clippy-driver (scripts/clippy-rustc.sh, warnings are errors), so every target is linted as
@@ -94,6 +89,13 @@ cargo clippy -p op3dsgd --lib --bins --locked -- -D warnings
 export RUSTC_WORKSPACE_WRAPPER="$PWD/scripts/clippy-rustc.sh"
 echo "== clippy and build (debug, all targets) =="
 cargo build --workspace --all-targets --locked "${FEATURES[@]}"
+
+# The build ./scripts/run.sh makes, without the optional features (no Zenoh): it must build and
+# be lint-clean too (its code paths differ where a feature is off). Its dependencies have other
+# features than the full build's, so cargo checks them again (about two minutes once; after the
+# build, as the build scripts it shares with it have run).
+echo "== clippy (run.sh's build: no optional features) =="
+RUSTC_WORKSPACE_WRAPPER= cargo clippy -p op3dsgd --lib --bins --locked -- -D warnings
 
 # Layers that point down (tests/layering): no crate depending on a higher row, no import circle
 # between a crate's top-level modules, no upward import where a crate declares its rows, no
