@@ -65,7 +65,8 @@
 //! graph publisher, and `op3dsgd` reports that another daemon (with its pid) serves the prefix.
 //!
 //! - History 1: a client that starts after the daemon gets the current graph and health at once
-//!   (delivered when the daemon's publisher next updates its connections, every ~100 ms).
+//!   (delivered when the daemon's publisher next updates its connections, every 20 ms; opening
+//!   waits for it, [`ATTACH_HISTORY_WAIT`]).
 //! - Safe overflow: a slow client never blocks the daemon; a full buffer drops its oldest sample,
 //!   and every graph sample is complete, so losing older ones loses nothing.
 //! - Borrow 1: a subscriber holds at most one graph sample at a time, which bounds the shared
@@ -165,6 +166,13 @@ pub const POSE_MAX_SUBSCRIBERS: usize = 4;
 pub const QUATERNION_NORM_TOLERANCE: f64 = 1e-3;
 /// How often a client started before the daemon retries opening its services.
 pub const OPEN_RETRY_INTERVAL: Duration = Duration::from_millis(100);
+/// How long opening a subscriber of `graph`, `health` or `occupancy` waits for the service's
+/// history (the newest sample) to arrive. The daemon hands it over on its next connection
+/// update, at most 20 ms later, so a first read after opening returns it; only a daemon that has
+/// published nothing yet (it has just started) makes opening wait this long, and then gives none.
+pub const ATTACH_HISTORY_WAIT: Duration = Duration::from_secs(1);
+/// How often opening looks for the history sample while it waits ([`ATTACH_HISTORY_WAIT`]).
+pub const ATTACH_HISTORY_POLL: Duration = Duration::from_millis(2);
 
 /// Name of the query service after `<prefix>/`.
 pub const QUERY_SUFFIX: &str = "query";

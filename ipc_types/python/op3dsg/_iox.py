@@ -23,6 +23,11 @@ from .wire import DEFAULT_PREFIX, MAX_PREFIX_LEN, PREFIX_ENV
 
 #: How often a client started before the daemon retries opening its services (seconds).
 OPEN_RETRY_INTERVAL_S = 0.1
+#: How long opening a subscriber of ``graph``, ``health`` or ``occupancy`` waits for the service's
+#: history, the daemon's newest sample (seconds; the Rust client's ``ATTACH_HISTORY_WAIT``). The
+#: daemon hands it over within 20 ms; only a daemon that has published nothing yet makes opening
+#: wait this long, and then gives none.
+ATTACH_HISTORY_WAIT_S = 1.0
 
 _PREFIX_CHARS = re.compile(r"[A-Za-z0-9_\-./]")
 
@@ -143,6 +148,19 @@ def deadline_after(timeout_s: float) -> float:
 
 def left_until(deadline: float) -> float:
     return max(0.0, deadline - time.monotonic())
+
+
+def await_history(service: str, subscriber) -> None:
+    """Waits until a newly connected ``subscriber`` holds the service's history sample, up to
+    :data:`ATTACH_HISTORY_WAIT_S`, so a first ``latest()`` after opening returns it."""
+    deadline = time.monotonic() + ATTACH_HISTORY_WAIT_S
+    while time.monotonic() < deadline:
+        try:
+            if subscriber.has_samples():
+                return
+        except Exception as e:
+            raise open_error(service, e, "receive") from e
+        time.sleep(0.002)
 
 
 def retry_while_not_serving(timeout_s: float, open_fn: Callable[[], T]) -> T:

@@ -490,9 +490,10 @@ class GraphClient:
                 handles = graph.find_by_label("cabinet handle")
                 print(graph.version, graph.nodes["centre_m"][handles])
 
-    A client that joins late receives the current graph from the service's history when the
-    daemon next updates its connections (within ~100 ms), without an event: so call
-    :meth:`latest` after every :meth:`wait_for_update`, also when it timed out.
+    The constructor waits for the service's history, the daemon's newest graph (up to
+    ``ATTACH_HISTORY_WAIT_S``, one second; the daemon hands it over within 20 ms), so the first
+    :meth:`latest` returns it. Only a daemon that has published no graph yet gives none; its
+    first one then comes with an update event.
 
     ``prefix``: the daemon's service prefix; ``None`` takes ``$OP3DSG_PREFIX``, else ``op3dsg``
     (as the ``op3dsg`` command does). ``timeout`` (seconds): how long the constructor waits for a
@@ -511,6 +512,7 @@ class GraphClient:
         name = node_name or _iox.default_node_name("graph")
         self._node = _iox.retry_while_not_serving(timeout, lambda: _iox.create_node(prefix, self.service, name))
         self._subscriber, self._listener = _iox.retry_while_not_serving(_iox.left_until(deadline), self._open_ports)
+        _iox.await_history(self.service, self._subscriber)
         self._view: Optional[GraphView] = None
         self._last_instance = 0
         self._if_newer_instance = 0

@@ -18,8 +18,8 @@ from .wire import HISTORY_SIZE, SCHEMA_VERSION, Health
 class HealthClient(_iox.LatestClient):
     """Reads the daemon's :class:`~op3dsg.wire.Health` records.
 
-    A client that joins late receives the newest record from the service's history when the
-    daemon next updates its connections (within ~100 ms). ``timeout`` (seconds): how long the
+    The constructor waits for the service's history, the daemon's newest record (up to one
+    second; it comes within 20 ms), so the first :meth:`latest` returns it. ``timeout`` (seconds): how long the
     constructor waits for a daemon that is not up yet."""
 
     def __init__(self, prefix: Optional[str] = None, timeout: float = 0.0, node_name: Optional[str] = None):
@@ -29,6 +29,7 @@ class HealthClient(_iox.LatestClient):
         name = node_name or _iox.default_node_name("health")
         self._node = _iox.retry_while_not_serving(timeout, lambda: _iox.create_node(prefix, self.service, name))
         self._subscriber = _iox.retry_while_not_serving(_iox.left_until(deadline), self._open)
+        _iox.await_history(self.service, self._subscriber)
         self._latest: Optional[Health] = None
 
     def _open(self):

@@ -183,8 +183,8 @@ def occupancy_map(service: str, header_bytes: bytes, cells, version: Optional[in
 class OccupancyClient(_iox.LatestClient):
     """Reads ``<prefix>/occupancy`` over iceoryx2: :meth:`latest` gives the newest map as an
     :class:`OccupancyMap` with cells of its own (copied out of the shared memory, so it stays
-    valid). A client that joins late receives the newest map from the service's history.
-    ``timeout`` (seconds): how long the constructor waits for a daemon that is not up yet;
+    valid). The constructor waits for the service's history, the daemon's newest map (up to
+    one second; it comes within 20 ms), so the first :meth:`latest` returns it. ``timeout`` (seconds): how long the constructor waits for a daemon that is not up yet;
     a daemon with ``occupancy.enabled = false`` has no such service
     (:class:`~op3dsg.errors.NotServingError`)."""
 
@@ -195,6 +195,7 @@ class OccupancyClient(_iox.LatestClient):
         name = node_name or _iox.default_node_name("occupancy")
         self._node = _iox.retry_while_not_serving(timeout, lambda: _iox.create_node(prefix, self.service, name))
         self._subscriber = _iox.retry_while_not_serving(_iox.left_until(deadline), self._open)
+        _iox.await_history(self.service, self._subscriber)
         self._latest: Optional[OccupancyMap] = None
 
     def _open(self):

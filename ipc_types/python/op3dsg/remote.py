@@ -82,6 +82,11 @@ FULL_RETRY_S = 0.5
 #: Messages waiting for the follower thread; when it falls further behind the oldest give way,
 #: and the next delta shows the gap.
 RING_CAPACITY = 256
+#: How long the constructor of :class:`RemoteGraphClient` waits for the first full graph (seconds):
+#: the query goes out as soon as the session is up and is asked again every ``FULL_RETRY_S`` while
+#: the route to the daemon's queryable is still being made. Only a daemon that has no graph yet
+#: (or does not answer) makes it wait this long; ``latest()`` is then ``None`` until one comes.
+ATTACH_WAIT_S = 3.0
 #: How often a client started before the daemon retries connecting, seconds.
 CONNECT_RETRY_S = 0.1
 
@@ -437,7 +442,9 @@ class RemoteGraphClient(_RemoteSession):
 
     ``endpoint``: the daemon's ``zenoh.listen`` endpoint (or a Zenoh router's); ``key_prefix``:
     its ``zenoh.key_prefix``; ``timeout`` (seconds): how long the constructor waits for something
-    to listen at the endpoint (0: fail at once with :class:`~op3dsg.errors.RemoteError`).
+    to listen at the endpoint (0: fail at once with :class:`~op3dsg.errors.RemoteError`). Once
+    connected, it waits for the daemon's current graph (up to ``ATTACH_WAIT_S``, 3 s), so the first
+    :meth:`latest` returns it.
 
     A thread of the client follows the messages (:class:`RemoteFollower`). A message it cannot
     read is counted (``counters()["errors"]``), kept as :attr:`last_error` and logged on the
@@ -470,19 +477,30 @@ class RemoteGraphClient(_RemoteSession):
             raise RemoteError(self.key, "subscribe", str(e).split(" at /")[0], endpoint) from None
         self._thread = threading.Thread(target=self._run, name=f"op3dsg-remote {self.key}", daemon=True)
         self._thread.start()
+        # The first read after connecting returns the daemon's graph: wait for the first full one.
+        with self._changed:
+            self._changed.wait_for(lambda: self._follower.held() is not None, timeout=ATTACH_WAIT_S)
 
     def _run(self) -> None:
         while not self._stop.is_set():
             try:
-                if self._follower.held() is None and time.monotonic() >= self._next_fetch:
-                    self._next_fetch = time.monotonic() + FULL_RETRY_S
-                    self._fetch_full()
-                try:
-                    sample = self._subscriber.recv()  # ends with an error when the session closes
-                except Exception:
-                    if self._stop.is_set():
-                        return
-                    raise
+                if self._follower.held() is None:
+                    # No graph yet: ask the queryable every FULL_RETRY_S (a daemon that publishes
+                    # no new version sends nothing to wait for), looking for messages between.
+                    if time.monotonic() >= self._next_fetch:
+                        self._next_fetch = time.monotonic() + FULL_RETRY_S
+                        self._fetch_full()
+                    sample = self._subscriber.try_recv()
+                    if sample is None:
+                        time.sleep(0.02)
+                        continue
+                else:
+                    try:
+                        sample = self._subscriber.recv()  # ends with an error when the session closes
+                    except Exception:
+                        if self._stop.is_set():
+                            return
+                        raise
                 if str(sample.key_expr) in self._keys:
                     self._apply(sample.payload.to_bytes())
             except Exception as e:  # the thread must outlive anything a message or Zenoh does

@@ -10,7 +10,7 @@ use iceoryx2::service::builder::event::EventOpenError;
 use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
 
 use crate::client::{
-    ClientError, ErrorCause, Graph, GraphView, Operation, RootUse, create_node, retry_while_not_serving,
+    ClientError, ErrorCause, Graph, GraphView, Operation, RootUse, await_history, create_node, retry_while_not_serving,
 };
 use crate::publish::GraphPayload;
 use crate::services::{HISTORY_SIZE, IpcService, ServiceKind, ServiceNames, service_name};
@@ -32,9 +32,10 @@ use crate::{GraphHeader, GraphMessage};
 /// A daemon restart shows as a new [`Graph::instance_id`]: [`Self::latest_if_newer`] then returns
 /// the new daemon's graph whatever its version, and [`Self::restarted`] says so.
 ///
-/// A client that joins late receives the current graph from the service's history when the
-/// daemon next updates its connections (within ~100 ms), without a `graph_updated` event; so
-/// call [`Self::latest_if_newer`] after every [`Self::wait_for_update`], also when it timed out.
+/// Opening waits for the service's history, the daemon's newest graph (up to
+/// [`ATTACH_HISTORY_WAIT`](crate::services::ATTACH_HISTORY_WAIT); the daemon hands it over
+/// within 20 ms), so the first [`Self::latest`] after opening returns it. Only a daemon that has
+/// published no graph yet gives none; its first one then comes with a `graph_updated` event.
 #[derive(Debug)]
 pub struct GraphSubscriber {
     prefix: String,
@@ -80,6 +81,7 @@ impl GraphSubscriber {
         subscriber: Subscriber<IpcService, GraphPayload, GraphHeader>,
         listener: Listener<IpcService>,
     ) -> Self {
+        await_history(|| subscriber.has_samples().unwrap_or(true));
         Self {
             prefix: prefix.to_owned(),
             names: ServiceNames::new(prefix),

@@ -6,15 +6,16 @@ use iceoryx2::node::Node as IoxNode;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
 
-use crate::client::{ClientError, ErrorCause, Operation, RootUse, create_node, retry_while_not_serving};
+use crate::client::{ClientError, ErrorCause, Operation, RootUse, await_history, create_node, retry_while_not_serving};
 use crate::services::{HISTORY_SIZE, IpcService, ServiceKind, service_name};
 use crate::{Health, SCHEMA_VERSION};
 
 /// Reads the daemon's [`Health`] records. It opens `<prefix>/health` only, so a monitor works
 /// when every `graph` subscriber slot is taken, and it holds no 4.3 MiB graph sample.
 ///
-/// A client that joins late receives the newest record from the service's history when the
-/// daemon next updates its connections (within ~100 ms).
+/// Opening waits for the service's history, the daemon's newest record (up to
+/// [`ATTACH_HISTORY_WAIT`](crate::services::ATTACH_HISTORY_WAIT); it comes within 20 ms), so the
+/// first [`Self::latest`] after opening returns it.
 #[derive(Debug)]
 pub struct HealthSubscriber {
     prefix: String,
@@ -29,6 +30,7 @@ impl HealthSubscriber {
     pub fn open(prefix: &str, node_name: &str) -> Result<Self, ClientError> {
         let node = create_node(prefix, ServiceKind::Health, node_name, RootUse::Existing)?;
         let subscriber = open_subscriber(&node, prefix)?;
+        await_history(|| subscriber.has_samples().unwrap_or(true));
         Ok(Self { prefix: prefix.to_owned(), subscriber, latest: None, node })
     }
 
@@ -41,6 +43,7 @@ impl HealthSubscriber {
         })?;
         let timeout = deadline.saturating_duration_since(Instant::now());
         let subscriber = retry_while_not_serving(timeout, || open_subscriber(&node, prefix))?;
+        await_history(|| subscriber.has_samples().unwrap_or(true));
         Ok(Self { prefix: prefix.to_owned(), subscriber, latest: None, node })
     }
 

@@ -58,7 +58,19 @@ pub use sample_view::{EdgeRef, GraphView, NodeRef};
 pub use view::{EdgeView, Graph, NodeView, UnknownAffordance};
 
 use crate::access::{IpcRoot, RootError};
-use crate::services::{IpcService, OPEN_RETRY_INTERVAL, ServiceKind, validate_prefix};
+use crate::services::{
+    ATTACH_HISTORY_POLL, ATTACH_HISTORY_WAIT, IpcService, OPEN_RETRY_INTERVAL, ServiceKind, validate_prefix,
+};
+
+/// Waits until a newly connected subscriber holds the service's history sample
+/// (`has_samples` says so, or fails: the read reports the failure), up to
+/// [`ATTACH_HISTORY_WAIT`]. A daemon that has published nothing yet gives none.
+pub(crate) fn await_history(mut has_samples: impl FnMut() -> bool) {
+    let deadline = Instant::now() + ATTACH_HISTORY_WAIT;
+    while !has_samples() && Instant::now() < deadline {
+        std::thread::sleep(ATTACH_HISTORY_POLL);
+    }
+}
 
 /// Checks the prefix and creates the client's node; errors name `service`, the one being opened.
 pub(crate) fn create_node(

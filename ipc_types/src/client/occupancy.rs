@@ -8,7 +8,7 @@ use iceoryx2::node::Node as IoxNode;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
 
-use crate::client::{ClientError, ErrorCause, Operation, RootUse, create_node, retry_while_not_serving};
+use crate::client::{ClientError, ErrorCause, Operation, RootUse, await_history, create_node, retry_while_not_serving};
 use crate::services::{IpcService, OCCUPANCY_HISTORY_SIZE, ServiceKind, service_name};
 use crate::{
     OCCUPANCY_FREE_MAX_PERCENT, OCCUPANCY_MAX_SIDE_CELLS, OCCUPANCY_OCCUPIED_MIN_PERCENT, OCCUPANCY_SCHEMA_VERSION,
@@ -187,8 +187,10 @@ impl OccupancyMap {
 }
 
 /// Reads the daemon's occupancy map (`<prefix>/occupancy`, about once a second): [`Self::latest`]
-/// copies the newest map out of its sample into an [`OccupancyMap`] it keeps. A client that joins
-/// late receives the newest map from the service's history. A daemon with `occupancy.enabled =
+/// copies the newest map out of its sample into an [`OccupancyMap`] it keeps. Opening waits for
+/// the service's history, the daemon's newest map (up to
+/// [`ATTACH_HISTORY_WAIT`](crate::services::ATTACH_HISTORY_WAIT)), so the first [`Self::latest`]
+/// after opening returns it. A daemon with `occupancy.enabled =
 /// false` has no such service: opening it is a "not serving" error.
 #[derive(Debug)]
 pub struct OccupancySubscriber {
@@ -204,6 +206,7 @@ impl OccupancySubscriber {
     pub fn open(prefix: &str, node_name: &str) -> Result<Self, ClientError> {
         let node = create_node(prefix, ServiceKind::Occupancy, node_name, RootUse::Existing)?;
         let subscriber = open_subscriber(&node, prefix)?;
+        await_history(|| subscriber.has_samples().unwrap_or(true));
         Ok(Self { prefix: prefix.to_owned(), subscriber, latest: None, node })
     }
 
@@ -216,6 +219,7 @@ impl OccupancySubscriber {
         })?;
         let timeout = deadline.saturating_duration_since(Instant::now());
         let subscriber = retry_while_not_serving(timeout, || open_subscriber(&node, prefix))?;
+        await_history(|| subscriber.has_samples().unwrap_or(true));
         Ok(Self { prefix: prefix.to_owned(), subscriber, latest: None, node })
     }
 

@@ -23,9 +23,34 @@ impl std::fmt::Display for RemoteClientError {
 
 impl std::error::Error for RemoteClientError {}
 
+/// How long [`RemoteGraphSubscriber::connect`] waits for the daemon's current graph, so the first
+/// [`RemoteGraphSubscriber::latest`] returns it. Only a daemon that has no graph yet (or does not
+/// answer) makes connecting wait this long.
+pub const REMOTE_ATTACH_WAIT: Duration = Duration::from_secs(3);
+
+/// Refuses what is no Zenoh endpoint (`<protocol>/<address>`, e.g. `tcp/192.168.1.20:7447`),
+/// naming it and the form, before Zenoh's configuration parser would answer in its own terms.
+pub(super) fn check_endpoint(endpoint: &str) -> Result<(), RemoteClientError> {
+    let protocol = endpoint.split_once('/').map(|(protocol, address)| (protocol, address.is_empty()));
+    match protocol {
+        Some((protocol, false))
+            if !protocol.is_empty() && protocol.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'-') =>
+        {
+            Ok(())
+        }
+        _ => Err(RemoteClientError(format!(
+            "zenoh endpoint {endpoint:?}: not an endpoint; write <protocol>/<address>, e.g. tcp/{}",
+            if endpoint.contains(':') && !endpoint.contains('/') { endpoint } else { "192.168.1.20:7447" }
+        ))),
+    }
+}
+
 /// A Zenoh session in client mode to `endpoint` alone, multicast scouting off.
 pub(super) fn open_client_session(endpoint: &str) -> Result<zenoh::Session, RemoteClientError> {
-    let fail = |what: &str, e: &dyn std::fmt::Display| RemoteClientError(format!("{what}: {e}"));
+    let fail = |what: &str, e: &dyn std::fmt::Display| {
+        RemoteClientError(crate::without_source_locations(&format!("{what}: {e}")))
+    };
+    check_endpoint(endpoint)?;
     let mut config = zenoh::Config::default();
     let endpoints = format!("[{endpoint:?}]");
     for (key, value) in
@@ -63,9 +88,12 @@ impl std::fmt::Debug for RemoteGraphSubscriber {
 impl RemoteGraphSubscriber {
     /// Connects as a Zenoh client to `endpoint` (e.g. `tcp/192.168.1.20:7447`, the daemon's
     /// `zenoh.listen` or a router), multicast scouting off, and subscribes under `key_prefix`
-    /// (the daemon's `zenoh.key_prefix`) to the graph, its deltas and the health record.
+    /// (the daemon's `zenoh.key_prefix`) to the graph, its deltas and the health record; then
+    /// waits for the current graph (up to [`REMOTE_ATTACH_WAIT`]).
     pub fn connect(endpoint: &str, key_prefix: &str) -> Result<Self, RemoteClientError> {
-        let fail = |what: &str, e: &dyn std::fmt::Display| RemoteClientError(format!("{what}: {e}"));
+        let fail = |what: &str, e: &dyn std::fmt::Display| {
+            RemoteClientError(crate::without_source_locations(&format!("{what}: {e}")))
+        };
         let session = open_client_session(endpoint)?;
         let key = format!("{key_prefix}/graph");
         let subscribe = |key: String| {
@@ -73,7 +101,17 @@ impl RemoteGraphSubscriber {
         };
         let subscribers =
             [subscribe(format!("{key}/delta"))?, subscribe(key.clone())?, subscribe(format!("{key_prefix}/health"))?];
-        Ok(Self { session, key, subscribers, follower: RemoteFollower::new(), health: None, errors: 0 })
+        let mut remote = Self { session, key, subscribers, follower: RemoteFollower::new(), health: None, errors: 0 };
+        // The first read after connecting returns the daemon's graph: ask for it now, again while
+        // the route to the daemon's queryable is still being made, up to REMOTE_ATTACH_WAIT.
+        let deadline = Instant::now() + REMOTE_ATTACH_WAIT;
+        while remote.follower.held().is_none() && Instant::now() < deadline {
+            remote.fetch_full()?;
+            if remote.follower.held().is_none() {
+                std::thread::sleep(Duration::from_millis(50));
+            }
+        }
+        Ok(remote)
     }
 
     /// Applies what arrived since the last call (asking the queryable for a full graph when
@@ -143,12 +181,10 @@ impl RemoteGraphSubscriber {
     }
 
     fn fetch_full(&mut self) -> Result<(), RemoteClientError> {
-        let replies = self
-            .session
-            .get(self.key.as_str())
-            .timeout(Duration::from_secs(5))
-            .wait()
-            .map_err(|e| RemoteClientError(format!("querying {}: {e}", self.key)))?;
+        let replies =
+            self.session.get(self.key.as_str()).timeout(Duration::from_secs(5)).wait().map_err(|e| {
+                RemoteClientError(crate::without_source_locations(&format!("querying {}: {e}", self.key)))
+            })?;
         while let Ok(reply) = replies.recv() {
             if let Ok(sample) = reply.result()
                 && self.follower.apply(&sample.payload().to_bytes()).is_err()

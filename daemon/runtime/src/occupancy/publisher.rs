@@ -2,6 +2,7 @@
 //! the contract's QoS (`op3dsg_ipc_types::services`).
 
 use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::update_connections::UpdateConnections;
 use op3dsg_ipc_types::OccupancyHeader;
 use op3dsg_ipc_types::services::{
     OCCUPANCY_HISTORY_SIZE, OCCUPANCY_MAX_NODES, OCCUPANCY_MAX_PUBLISHERS, OCCUPANCY_MAX_SUBSCRIBERS,
@@ -54,6 +55,12 @@ impl OccupancyPublisher {
     /// The instance id stamped into every header (drawn at start).
     pub fn instance_id(&self) -> u64 {
         self.instance_id
+    }
+
+    /// Connects subscribers that joined since the last call and hands them the newest map (the
+    /// history), so a planner attaching between two publishes has it at once.
+    pub fn update_connections(&self) -> Result<(), IpcError> {
+        self.publisher.update_connections().map_err(|e| service_err(&self.service, "update connections", e))
     }
 
     /// Publishes `grid` with `header` as the caller made it (instance id, send time, the period's

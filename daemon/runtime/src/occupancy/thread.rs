@@ -27,7 +27,7 @@ use crossbeam_channel::{Receiver, RecvTimeoutError, Sender};
 use op3dsg_drivers::frame::Frame;
 use op3dsg_drivers::pose::Isometry;
 use op3dsg_ipc_types::OccupancyHeader;
-use tracing::warn;
+use tracing::{debug, warn};
 
 use super::persist::OccupancyStore;
 use super::{DepthScan, GridGeometry, OccupancyGrid, OccupancyPublisher, RobotPose};
@@ -230,6 +230,11 @@ fn run(mut thread: OccupancyThread) {
                 break;
             }
             std::thread::sleep(POLL);
+        }
+        // A late joiner gets the history sample when the publisher updates its connections: on
+        // every tick, not only once a period.
+        if let Err(e) = thread.publisher.update_connections() {
+            debug!(error = %e, "occupancy: update connections failed");
         }
         if last_publish.elapsed() >= thread.period {
             last_publish = Instant::now();
