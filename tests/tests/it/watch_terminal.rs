@@ -214,3 +214,99 @@ fn watch_into_a_pipe_prints_one_line_per_interval() {
         assert!(!line.contains('\u{1b}'), "no terminal control sequences into a pipe: {line:?}");
     }
 }
+
+/// The full-screen `watch` started in a tmux session of its own, its pid written to `pid`.
+fn watch_in_tmux(dir: &Path, prefix: &str) -> (Tmux, u32) {
+    let pid = dir.join("pid");
+    let command = format!(
+        "sh -c 'echo $$ > {}; exec {} --prefix {prefix} watch --interval-ms 200'",
+        pid.display(),
+        binary("op3dsg").display()
+    );
+    let tmux = Tmux::session(dir, 100, 30, &command);
+    // The pane stays after watch ends, so what it left on the terminal can be read.
+    tmux.run(&["set-option", "-g", "remain-on-exit", "on"]);
+    let pid = wait_for("watch's pid", Duration::from_secs(10), || {
+        std::fs::read_to_string(&pid).ok().and_then(|s| s.trim().parse::<u32>().ok())
+    });
+    wait_for("the view on the screen", Duration::from_secs(90), || has_stage_table(&tmux.capture()).then_some(()));
+    (tmux, pid)
+}
+
+/// How long process `pid` took to end, up to `limit` (`None`: still running).
+fn ended_within(pid: u32, limit: Duration) -> Option<Duration> {
+    let started = Instant::now();
+    while started.elapsed() < limit {
+        // A zombie (not yet reaped by tmux) has ended too.
+        match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
+            Err(_) => return Some(started.elapsed()),
+            Ok(stat) if stat.rsplit(')').next().is_some_and(|rest| rest.trim_start().starts_with('Z')) => {
+                return Some(started.elapsed());
+            }
+            Ok(_) => std::thread::sleep(Duration::from_millis(20)),
+        }
+    }
+    None
+}
+
+/// A terminal that goes away (its tmux session killed, as an SSH drop does on a robot) ends the
+/// view: it must not stay behind reading the dead terminal.
+#[test]
+fn watch_ends_when_its_terminal_goes_away() {
+    let prefix = unique_prefix("watch-hangup");
+    let _daemon = Daemon::start(&prefix, &["--set", "health.period_ms=250"]);
+    let dir = tempfile::tempdir().expect("temporary folder");
+    let (tmux, pid) = watch_in_tmux(dir.path(), &prefix);
+    tmux.run(&["kill-session", "-t", "watch"]);
+    let took = ended_within(pid, Duration::from_secs(2));
+    if took.is_none() {
+        let _ = Command::new("kill").args(["-KILL", &pid.to_string()]).status();
+    }
+    assert!(took.is_some(), "op3dsg watch (pid {pid}) still runs 2 s after its terminal went away");
+}
+
+/// SIGHUP, SIGTERM and SIGINT from another process end the view on a live terminal, which it
+/// leaves restored (off the alternate screen).
+#[test]
+fn watch_ends_on_sighup_sigterm_and_sigint() {
+    let prefix = unique_prefix("watch-signals");
+    let _daemon = Daemon::start(&prefix, &["--set", "health.period_ms=250"]);
+    for signal in ["HUP", "TERM", "INT"] {
+        let dir = tempfile::tempdir().expect("temporary folder");
+        let (tmux, pid) = watch_in_tmux(dir.path(), &prefix);
+        let sent = Command::new("kill").args([&format!("-{signal}"), &pid.to_string()]).status().expect("run kill");
+        assert!(sent.success(), "kill -{signal} {pid}");
+        let took = ended_within(pid, Duration::from_secs(2));
+        if took.is_none() {
+            let _ = Command::new("kill").args(["-KILL", &pid.to_string()]).status();
+        }
+        assert!(took.is_some(), "op3dsg watch still runs 2 s after SIG{signal}");
+        // The pane stays (remain-on-exit) with what the view left behind.
+        assert_eq!(tmux.show("#{alternate_on}"), "0", "SIG{signal}: the terminal was left on the alternate screen");
+    }
+}
+
+/// Into a pipe, a daemon that went away is marked on each line instead of its last graph
+/// repeated as if current.
+#[test]
+fn watch_into_a_pipe_marks_a_daemon_that_went_away() {
+    let prefix = unique_prefix("watch-stale");
+    let mut daemon = Daemon::start(&prefix, &["--set", "health.period_ms=250"]);
+    let mut watch = Command::new(binary("op3dsg"))
+        .args(["--prefix", &prefix, "watch", "--interval-ms", "500"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start op3dsg watch");
+    let mut stdout = BufReader::new(watch.stdout.take().expect("stdout")).lines();
+    let mut next = || stdout.next().and_then(Result::ok).expect("a line from watch");
+    let fresh = (0..200).map(|_| next()).find(|line| line.starts_with('v')).expect("a graph line");
+    assert!(!fresh.contains("STALE"), "{fresh}");
+    daemon.kill_9();
+    // Health came every 250 ms; after 3 s without, the lines say so.
+    let stale = (0..20).map(|_| next()).find(|line| line.starts_with("STALE"));
+    let _ = watch.kill();
+    let _ = watch.wait();
+    let stale = stale.expect("no STALE line within 10 s of the daemon's end");
+    assert!(stale.contains("nothing new from the daemon for") && stale.contains(" v"), "{stale}");
+}

@@ -7,6 +7,7 @@
 
 mod feed;
 mod screen;
+mod tty;
 mod view;
 mod warnings;
 
@@ -104,6 +105,11 @@ pub(super) fn watch(from: DaemonAt<'_>, interval: Duration) -> Result<()> {
     }
 }
 
+/// How long the line form waits for a new health record before it marks its line stale (or
+/// three times the time between the last two records, if longer): three periods of the default
+/// `health.period_ms` (1 s).
+const STALE_AFTER: Duration = Duration::from_secs(3);
+
 /// The line form: waits for the daemon (saying so once on standard error), then prints the line
 /// at once and every `interval` after.
 fn lines(feed: &mut Feed<'_>, interval: Duration, stop: &AtomicBool) -> Result<()> {
@@ -114,6 +120,8 @@ fn lines(feed: &mut Feed<'_>, interval: Duration, stop: &AtomicBool) -> Result<(
     let mut announced = false;
     let mut next: Option<Instant> = None;
     let mut connected = Instant::now();
+    // The newest health record's stamp, when it came, and the time between the last two.
+    let (mut last_stamp, mut fresh_at, mut period) = (None, Instant::now(), Duration::ZERO);
     let mut stdout = std::io::stdout().lock();
     while !stop.load(Ordering::SeqCst) {
         feed.poll()?;
@@ -138,7 +146,23 @@ fn lines(feed: &mut Feed<'_>, interval: Duration, stop: &AtomicBool) -> Result<(
         // The first line waits for the graph and the health record, one interval at most.
         let complete = feed.graph().is_some() && feed.health().is_some();
         if now >= due && (complete || now.saturating_duration_since(connected) >= interval) {
-            writeln!(stdout, "{}", watch_line(feed.graph(), feed.health())).context("writing to standard output")?;
+            // A daemon that went away leaves its last graph and health held: say so on the line.
+            let stamp = feed.health().map(|h| h.stamp_ns);
+            if stamp != last_stamp {
+                if last_stamp.is_some() {
+                    period = now.saturating_duration_since(fresh_at);
+                }
+                (last_stamp, fresh_at) = (stamp, now);
+            }
+            let silent = now.saturating_duration_since(fresh_at);
+            let line = watch_line(feed.graph(), feed.health());
+            if silent >= STALE_AFTER.max(period * 3) {
+                let seconds = silent.as_secs();
+                writeln!(stdout, "STALE: nothing new from the daemon for {seconds} s (stopped or restarting?) | {line}")
+            } else {
+                writeln!(stdout, "{line}")
+            }
+            .context("writing to standard output")?;
             stdout.flush().context("writing to standard output")?;
             // Every interval from the first line; after a stall, from now.
             let late = now.saturating_duration_since(due) >= interval;

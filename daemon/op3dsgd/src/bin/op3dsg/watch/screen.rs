@@ -11,6 +11,7 @@ use ratatui::DefaultTerminal;
 use ratatui::crossterm::event::{self, Event, KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
 
 use super::feed::Feed;
+use super::tty::{Readiness, Tty};
 use super::view::{self, View};
 use super::warnings::Warnings;
 
@@ -53,8 +54,33 @@ fn quits(key: &KeyEvent) -> bool {
         }
 }
 
-/// Runs the view until a quitting key or `stop` (SIGINT or SIGTERM from another process).
+/// Runs the view until a quitting key, `stop` (SIGINT, SIGTERM or SIGHUP from another process)
+/// or the terminal's hang-up; a guard thread ends the process if the view cannot end by itself
+/// within a second of being told to ([`Tty::guard`]).
 pub(super) fn run(feed: &mut Feed<'_>, interval: Duration, stop: &AtomicBool) -> Result<()> {
+    let tty = Tty::open()?;
+    let done = AtomicBool::new(false);
+    std::thread::scope(|scope| {
+        std::thread::Builder::new()
+            .name("op3dsg-watch-tty".into())
+            .spawn_scoped(scope, || tty.guard(stop, &done))
+            .context("starting the terminal guard thread")?;
+        // Set however the view ends, a panic included: the scope waits for the guard to end.
+        let _done = SetOnDrop(&done);
+        view_loop(feed, interval, stop, &tty)
+    })
+}
+
+/// Sets its flag when dropped.
+struct SetOnDrop<'a>(&'a AtomicBool);
+
+impl Drop for SetOnDrop<'_> {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::SeqCst);
+    }
+}
+
+fn view_loop(feed: &mut Feed<'_>, interval: Duration, stop: &AtomicBool, tty: &Tty) -> Result<()> {
     let source = feed.describe();
     let mut screen = Screen::enter()?;
     let mut warnings = Warnings::default();
@@ -99,9 +125,14 @@ pub(super) fn run(feed: &mut Feed<'_>, interval: Duration, stop: &AtomicBool) ->
                 panic!("injected by OP3DSG_WATCH_FAULT=panic");
             }
         }
-        if event::poll(TICK).context("reading the terminal's keys")? {
+        // Keys are read through crossterm only while the terminal is alive: on a hung-up one its
+        // reader never returns. A resize (SIGWINCH) comes through crossterm too, input or not.
+        if tty.wait(TICK) == Readiness::HungUp {
+            break;
+        }
+        while event::poll(Duration::ZERO).context("reading the terminal's keys")? {
             match event::read().context("reading the terminal's keys")? {
-                Event::Key(key) if quits(&key) => break,
+                Event::Key(key) if quits(&key) => return Ok(()),
                 // Drawing fits the new size; the next draw repaints the whole screen.
                 Event::Resize(..) => redraw = true,
                 _ => {}
