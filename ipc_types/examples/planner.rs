@@ -11,7 +11,19 @@ use op3dsg_ipc_types::GraphSubscriber;
 use op3dsg_ipc_types::iceoryx2;
 use op3dsg_ipc_types::services::DEFAULT_PREFIX;
 
-fn main() -> Result<(), Box<dyn std::error::Error>> {
+fn main() -> std::process::ExitCode {
+    // A planner prints its errors for a person: what failed and what to do (their Display), not
+    // the Debug form `main` returning an error would print.
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("planner: {e}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let arg = |flag: &str, env: &str| {
         let value = args.iter().position(|a| a == flag).and_then(|i| args.get(i + 1)).cloned();
@@ -19,7 +31,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let positional = args.first().filter(|a| !a.starts_with("--")).cloned();
     let prefix = positional.or_else(|| arg("--prefix", "OP3DSG_PREFIX")).unwrap_or_else(|| DEFAULT_PREFIX.to_owned());
-    let versions: Option<u64> = arg("--versions", "OP3DSG_VERSIONS").map(|n| n.parse()).transpose()?;
+    let versions: Option<u64> = arg("--versions", "OP3DSG_VERSIONS")
+        .map(|n| n.parse().map_err(|e| format!("--versions / OP3DSG_VERSIONS {n:?}: {e}; give a whole number")))
+        .transpose()?;
 
     // iceoryx2 warns at start when it finds no config file and uses its defaults (fine here).
     iceoryx2::prelude::set_log_level_from_env_or(iceoryx2::prelude::LogLevel::Error);

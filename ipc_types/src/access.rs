@@ -146,6 +146,22 @@ impl AccessDenied {
 }
 
 /// What to do when the daemon runs as `owner`: iceoryx2 lets only that user attach.
+/// The per-user roots (`/tmp/op3dsg-<uid>`) of users other than this process's, by uid.
+fn other_users_roots() -> Vec<(u32, PathBuf)> {
+    let me = effective_uid();
+    let Ok(entries) = std::fs::read_dir("/tmp") else { return Vec::new() };
+    let mut found: Vec<(u32, PathBuf)> = entries
+        .filter_map(Result::ok)
+        .filter_map(|entry| {
+            let uid: u32 = entry.file_name().to_str()?.strip_prefix("op3dsg-")?.parse().ok()?;
+            let meta = std::fs::symlink_metadata(entry.path()).ok()?;
+            (uid != me && meta.is_dir() && meta.uid() == uid).then(|| (uid, entry.path()))
+        })
+        .collect();
+    found.sort();
+    found
+}
+
 fn attach_fix(owner: u32) -> String {
     let name = match nix::unistd::User::from_uid(nix::unistd::Uid::from_raw(owner)) {
         Ok(Some(user)) => user.name,
@@ -291,18 +307,35 @@ impl IpcRoot {
     /// When this process found no daemon in its own root: a note about the installed service's
     /// root if another user owns it (the daemon this process was probably looking for), else
     /// `None`.
+    ///
+    /// Without such a service root, a note naming the per-user roots of other users
+    /// (`/tmp/op3dsg-<uid>`, daemons started by hand): this process cannot look inside them (they
+    /// are theirs alone), but one of them is where a daemon another user started serves.
     pub fn foreign_service_note(&self) -> Option<String> {
         if self.source == RootSource::Service || self.path == Path::new(SERVICE_ROOT) {
             return None;
         }
-        let meta = std::fs::symlink_metadata(SERVICE_ROOT).ok()?;
-        (meta.uid() != effective_uid()).then(|| {
-            format!(
+        if let Ok(meta) = std::fs::symlink_metadata(SERVICE_ROOT)
+            && meta.uid() != effective_uid()
+        {
+            return Some(format!(
                 "the installed service's root {SERVICE_ROOT} belongs to {}: {}",
                 user_name(meta.uid()),
                 attach_fix(meta.uid())
-            )
-        })
+            ));
+        }
+        if self.source != RootSource::PerUser {
+            return None;
+        }
+        let others = other_users_roots();
+        let (first, _) = others.first()?;
+        let listed: Vec<String> =
+            others.iter().map(|(uid, path)| format!("{} of {}", path.display(), user_name(*uid))).collect();
+        Some(format!(
+            "other users' roots exist ({}), where daemons they started by hand serve: {}",
+            listed.join(", "),
+            attach_fix(*first)
+        ))
     }
 
     fn check_path(&self) -> Result<(), RootError> {

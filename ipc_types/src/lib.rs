@@ -174,7 +174,7 @@ pub use query_types::{
     QueryResponse, QueryStatus,
 };
 pub use services::{IpcService, PrefixError, ServiceKind, ServiceNames, validate_prefix};
-pub use text::{fixed_str, write_fixed_str};
+pub use text::{fixed_str, without_source_locations, write_fixed_str};
 
 /// Version of this wire contract. Bumped whenever a type's layout or meaning changes; a client
 /// must check [`GraphHeader::schema_version`] and [`Health::schema_version`] before reading.

@@ -2,10 +2,12 @@
 //! planners, Python clients, Zenoh and ROS 2 peers and systemd read them. One test binary (a
 //! module per former file); cargo-nextest runs each test in its own process.
 
+mod attach;
 mod daemon_over_iceoryx2;
 mod deb_package;
 mod docs_commands;
 mod dump_picture;
+mod error_hygiene;
 mod example_planner;
 mod faults_llm;
 mod faults_planner;

@@ -66,7 +66,9 @@ struct Args {
 fn main() -> ExitCode {
     let args = Args::parse();
     let filter = tracing_subscriber::EnvFilter::try_new(&args.log).unwrap_or_else(|_| "info".into());
-    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).init();
+    // Colour only on a terminal: the journal or a pipe gets plain text.
+    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
+    tracing_subscriber::fmt().with_env_filter(filter).with_ansi(ansi).with_writer(std::io::stderr).init();
     // With the camera's backend too, so a robot's profile (its [source.realsense]) loads here
     // unchanged: the worker uses only its [detector], [onnx] and [zenoh].
     let backends = op3dsgd::backends();
@@ -108,7 +110,7 @@ fn main() -> ExitCode {
     match serve(&profile, &backends, &id, &prefixes) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            error!("cannot start: {e}");
+            error!("cannot start: {}", op3dsg_ipc_types::without_source_locations(&e));
             ExitCode::FAILURE
         }
     }

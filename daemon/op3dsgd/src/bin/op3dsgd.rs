@@ -15,8 +15,9 @@ use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use clap::Parser;
 use op3dsg_runtime::config;
+use op3dsg_runtime::ipc::card::DaemonCard;
 use op3dsg_runtime::pipeline::{Pipeline, RunSummary};
-use tracing::{error, info};
+use tracing::{error, info, warn};
 
 #[derive(Debug, Parser)]
 #[command(
@@ -41,8 +42,10 @@ struct Args {
     #[arg(long)]
     exit_at_end: bool,
 
-    /// iceoryx2 service prefix (overrides ipc.prefix).
-    #[arg(long, env = "OP3DSG_PREFIX")]
+    /// iceoryx2 service prefix: a shortcut for `--set ipc.prefix="PREFIX"`. Without it,
+    /// $OP3DSG_PREFIX (when set) overrides the profile's ipc.prefix; the command line overrides
+    /// both (--print-config says which layer set each value).
+    #[arg(long)]
     prefix: Option<String>,
 
     /// Record to MCAP files in DIR: a shortcut for `--set record.enabled=true --set
@@ -68,7 +71,7 @@ fn main() -> ExitCode {
 
     let overrides = profile_overrides(&args);
     let backends = op3dsgd::backends();
-    let loaded = match config::load_with(&backends, args.profile.as_deref(), &overrides) {
+    let loaded = match config::load_with_environment(&backends, args.profile.as_deref(), &environment(), &overrides) {
         Ok(loaded) => loaded,
         Err(e) => {
             eprintln!("op3dsgd: bad profile: {e}");
@@ -97,11 +100,17 @@ fn main() -> ExitCode {
     let pipeline = match Pipeline::start(profile, &backends, stop.clone()) {
         Ok(p) => p,
         Err(e) => {
-            error!("cannot start: {e}");
+            error!("cannot start: {}", op3dsg_ipc_types::without_source_locations(&e.to_string()));
             return ExitCode::FAILURE;
         }
     };
     info!(prefix = %profile.ipc.prefix, "serving");
+    // The card in the root tells `op3dsg map` (run without --dir) where this daemon's snapshots are.
+    let root = profile.ipc.ipc_root();
+    let snapshot_dir = profile.snapshot.resolve_dir().map(|dir| std::path::absolute(&dir).unwrap_or(dir));
+    if let Err(e) = DaemonCard::new(&profile.ipc.prefix, snapshot_dir).write(root.path()) {
+        warn!(error = %e, root = %root, "cannot write the daemon card (op3dsg map then needs --dir)");
+    }
     // READY=1 now: every stage runs and the graph service exists. Then STATUS= and the watchdog
     // (while the stages are alive), STOPPING=1 at the shutdown ladder (a no-op when not run by
     // systemd).
@@ -115,6 +124,7 @@ fn main() -> ExitCode {
     let result = pipeline.wait();
     notifier.stopping();
     drop(notifier);
+    DaemonCard::remove(root.path(), &profile.ipc.prefix);
     match result {
         Ok(summary) => report_stop(&summary),
         Err(stuck) => {
@@ -126,6 +136,16 @@ fn main() -> ExitCode {
 
 /// The profile overrides of the command line: `--set` values, then those `--max-frames`,
 /// `--exit-at-end`, `--record` and `--prefix` stand for.
+/// The profile values the environment sets, a layer between the profile files and the command
+/// line: `$OP3DSG_PREFIX` (when set and not empty) is `ipc.prefix`.
+fn environment() -> Vec<(String, String)> {
+    let prefix = std::env::var(PREFIX_ENV).ok().filter(|p| !p.is_empty());
+    prefix.map(|p| (PREFIX_ENV.to_owned(), format!("ipc.prefix={}", toml::Value::String(p)))).into_iter().collect()
+}
+
+/// The variable whose value is the iceoryx2 prefix when the command line sets none.
+const PREFIX_ENV: &str = op3dsg_ipc_types::services::PREFIX_ENV;
+
 fn profile_overrides(args: &Args) -> Vec<String> {
     let mut overrides = args.set.clone();
     if let Some(n) = args.max_frames {
@@ -141,7 +161,7 @@ fn profile_overrides(args: &Args) -> Vec<String> {
         overrides.push(format!("record.dir={}", toml::Value::String(dir)));
     }
     if let Some(prefix) = &args.prefix {
-        overrides.push(format!("ipc.prefix=\"{}\"", prefix.replace('"', "")));
+        overrides.push(format!("ipc.prefix={}", toml::Value::String(prefix.clone())));
     }
     overrides
 }
@@ -174,6 +194,15 @@ fn print_config(loaded: &config::LoadedProfile) -> ExitCode {
     match toml::to_string_pretty(&effective) {
         Ok(text) => {
             println!("# layers: {}", loaded.layers.join(" <- "));
+            // Where each value that is not the built-in base's came from (the last layer wins).
+            let set = loaded.set_values();
+            if !set.is_empty() {
+                println!("# set by a layer above the built-in base:");
+                let width = set.iter().map(|(key, _)| key.len()).max().unwrap_or(0);
+                for (key, layer) in set {
+                    println!("#   {key:width$}  <- {layer}");
+                }
+            }
             for note in notes {
                 println!("# {note}");
             }
@@ -240,6 +269,13 @@ fn init_logging(filter: &str) {
     // that names `foxglove` itself decides.
     let filter = match "foxglove::websocket::connected_client::poller=off".parse() {
         Ok(quiet) if !filter.to_string().contains("foxglove") => filter.add_directive(quiet),
+        _ => filter,
+    };
+    // Zenoh's own warnings repeat, with its source files, what the daemon reports in its words
+    // (a listener that cannot open: "cannot start: zenoh: ..."); its errors still show. A filter
+    // that names `zenoh` itself decides.
+    let filter = match "zenoh=error".parse() {
+        Ok(quiet) if !filter.to_string().contains("zenoh") => filter.add_directive(quiet),
         _ => filter,
     };
     let registry = tracing_subscriber::registry().with(filter);

@@ -35,8 +35,23 @@ pub struct LoadedProfile {
     pub profile: Profile,
     /// The merged TOML (for `--print-config`).
     pub effective: toml::Table,
-    /// The files in layer order (base first).
+    /// The layers in order (base first): the built-in base, the profile files, the environment
+    /// variables that set a key, `--set`.
     pub layers: Vec<String>,
+    /// The layer each value was last set by, per dotted key of a value (not of a table).
+    pub origins: BTreeMap<String, String>,
+}
+
+impl LoadedProfile {
+    /// The values set by a layer other than the built-in base, with that layer, in key order:
+    /// what `--print-config` lists so a reader sees where each came from.
+    pub fn set_values(&self) -> Vec<(&str, &str)> {
+        self.origins
+            .iter()
+            .filter(|(_, layer)| layer.as_str() != BASE_PROFILE_NAME)
+            .map(|(key, layer)| (key.as_str(), layer.as_str()))
+            .collect()
+    }
 }
 
 /// Loads the built-in base, the optional profile file (with its `extends` chain) and the
@@ -48,7 +63,20 @@ pub fn load_with(
     profile_path: Option<&Path>,
     overrides: &[String],
 ) -> Result<LoadedProfile, ProfileError> {
-    load_layers(Some(backends), profile_path, overrides)
+    load_layers(Some(backends), profile_path, &[], overrides)
+}
+
+/// [`load_with`] with a layer per environment variable between the profile files and `--set`:
+/// `environment` holds `(variable, "key=value")`, e.g. `("OP3DSG_PREFIX", "ipc.prefix=\"lab\"")`.
+/// So the rule is one: the command line over the environment over the profile files over the
+/// built-in base; errors in such a value name the variable.
+pub fn load_with_environment(
+    backends: &dyn SectionRegistry,
+    profile_path: Option<&Path>,
+    environment: &[(String, String)],
+    overrides: &[String],
+) -> Result<LoadedProfile, ProfileError> {
+    load_layers(Some(backends), profile_path, environment, overrides)
 }
 
 /// [`load_with`] without a registry: only the runtime's own sections are checked; the
@@ -56,12 +84,27 @@ pub fn load_with(
 /// checked when the pipeline opens them. For tools and tests that use a profile's runtime
 /// settings; `op3dsgd` loads with its registry.
 pub fn load(profile_path: Option<&Path>, overrides: &[String]) -> Result<LoadedProfile, ProfileError> {
-    load_layers(None, profile_path, overrides)
+    load_layers(None, profile_path, &[], overrides)
+}
+
+/// One layer of `key=value` settings (`--set`, an environment variable); errors name `layer`.
+fn settings_table(layer: &str, sets: &[String]) -> Result<toml::Table, ProfileError> {
+    let mut table = toml::Table::new();
+    for set in sets {
+        let (key, value) = set
+            .split_once('=')
+            .ok_or_else(|| ProfileError::new(layer, format!("'{set}': expected section.key=value")))?;
+        let value = parse_value(value.trim()).map_err(|e| ProfileError::new(layer, format!("{}: {e}", key.trim())))?;
+        insert_dotted(&mut table, key.trim(), value)
+            .map_err(|e| ProfileError::new(layer, format!("{}: {e}", key.trim())))?;
+    }
+    Ok(table)
 }
 
 fn load_layers(
     backends: Option<&dyn SectionRegistry>,
     profile_path: Option<&Path>,
+    environment: &[(String, String)],
     overrides: &[String],
 ) -> Result<LoadedProfile, ProfileError> {
     let mut layers: Vec<(String, toml::Table)> = Vec::new();
@@ -72,18 +115,12 @@ fn load_layers(
         chain.reverse();
         layers.extend(chain);
     }
+    let files: Vec<String> = layers.iter().skip(1).map(|(name, _)| name.clone()).collect();
+    for (variable, set) in environment {
+        layers.push((variable.clone(), settings_table(variable, std::slice::from_ref(set))?));
+    }
     if !overrides.is_empty() {
-        let mut table = toml::Table::new();
-        for set in overrides {
-            let (key, value) = set
-                .split_once('=')
-                .ok_or_else(|| ProfileError::new("--set", format!("'{set}': expected section.key=value")))?;
-            let value =
-                parse_value(value.trim()).map_err(|e| ProfileError::new("--set", format!("{}: {e}", key.trim())))?;
-            insert_dotted(&mut table, key.trim(), value)
-                .map_err(|e| ProfileError::new("--set", format!("{}: {e}", key.trim())))?;
-        }
-        layers.push(("--set".to_owned(), table));
+        layers.push(("--set".to_owned(), settings_table("--set", overrides)?));
     }
 
     let mut origins: BTreeMap<String, String> = BTreeMap::new();
@@ -106,7 +143,7 @@ fn load_layers(
         }
     };
 
-    resolve_paths(&mut merged, &origin_of);
+    resolve_paths(&mut merged, &origin_of, &files);
     let named = |(path, msg): (String, String)| ProfileError::new(origin_of(&path), format!("{path}: {msg}"));
     normalise_kinds(&mut merged);
     let sections = take_backend_sections(&mut merged, backends).map_err(named)?;
@@ -131,7 +168,8 @@ fn load_layers(
     if let Some(backends) = backends {
         backends.check_kinds(&profile).map_err(named)?;
     }
-    Ok(LoadedProfile { profile, effective, layers: layers.into_iter().map(|(n, _)| n).collect() })
+    origins.retain(|key, _| !key.starts_with("extends") && value_at(&effective, key).is_some_and(|v| !v.is_table()));
+    Ok(LoadedProfile { profile, effective, layers: layers.into_iter().map(|(n, _)| n).collect(), origins })
 }
 
 /// Sub-tables of `[source]`, `[detector]` and `[fusion]` that are the runtime's own typed sections
@@ -249,7 +287,14 @@ fn parse_value(text: &str) -> Result<toml::Value, String> {
         Err(_) if text.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '/' || c == '.') => {
             Ok(toml::Value::String(text.to_owned()))
         }
-        Err(e) => Err(format!("not a TOML value: {}", e.to_string().trim())),
+        // The parser's own words ("invalid boolean, expected `true`") describe its guess, not the
+        // value: say how to write one.
+        Err(_) => Err(format!(
+            "'{text}' is not a TOML value: quote a string ('key=\"{}\"') and write a list in brackets \
+             ('key=[\"{}\"]'), inside single quotes for the shell",
+            text.trim_matches('"'),
+            text.trim_matches(|c| c == '"' || c == '[' || c == ']')
+        )),
     }
 }
 
@@ -293,12 +338,24 @@ fn record_origins(table: &toml::Table, prefix: &str, file: &str, origins: &mut B
     }
 }
 
-/// Joins each relative path of [`PATH_KEYS`] to the folder of the profile file that set it; a path
-/// in the model store (`.models/...`, [`crate::install`]) stays as it is, found where the store is.
-fn resolve_paths(merged: &mut toml::Table, origin_of: &dyn Fn(&str) -> String) {
+/// The value at a dotted key of `table`, if any.
+fn value_at<'a>(table: &'a toml::Table, key: &str) -> Option<&'a toml::Value> {
+    let mut parts = key.split('.');
+    let mut value = table.get(parts.next()?)?;
+    for part in parts {
+        value = value.as_table()?.get(part)?;
+    }
+    Some(value)
+}
+
+/// Joins each relative path of [`PATH_KEYS`] to the folder of the profile file (of `files`) that
+/// set it; a path set on the command line or in the environment stays relative to the working
+/// directory, and one in the model store (`.models/...`, [`crate::install`]) stays as it is, found
+/// where the store is.
+fn resolve_paths(merged: &mut toml::Table, origin_of: &dyn Fn(&str) -> String, files: &[String]) {
     for key in PATH_KEYS {
         let origin = origin_of(key);
-        if origin == BASE_PROFILE_NAME || origin == "--set" {
+        if !files.contains(&origin) {
             continue;
         }
         let mut value = Some(&mut *merged);

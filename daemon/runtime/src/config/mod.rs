@@ -64,7 +64,7 @@ mod layers;
 mod tests;
 
 pub use files::LOOKUP_KEYS;
-pub use layers::{LoadedProfile, SectionError, SectionRegistry, load, load_with, merge};
+pub use layers::{LoadedProfile, SectionError, SectionRegistry, load, load_with, load_with_environment, merge};
 
 /// The built-in base profile.
 pub const BASE_PROFILE: &str = include_str!("../../../../profiles/base.toml");

@@ -271,10 +271,11 @@ enum Command {
     },
     /// The daemon's map snapshots (the map it restores after a restart): info, save now, reset.
     Map {
-        /// Snapshot directory (the daemon's snapshot.dir; under systemd
-        /// /var/lib/op3dsg/snapshots).
-        #[arg(long, global = true, env = "OP3DSG_SNAPSHOT_DIR", default_value = map::DEFAULT_DIR)]
-        dir: PathBuf,
+        /// Snapshot directory (the daemon's snapshot.dir). Without it: the folder of the daemon
+        /// serving --prefix (its card in the iceoryx2 root says), else the packaged unit's
+        /// /var/lib/op3dsg/snapshots.
+        #[arg(long, global = true, env = "OP3DSG_SNAPSHOT_DIR")]
+        dir: Option<PathBuf>,
         #[command(subcommand)]
         command: MapCommand,
     },
@@ -328,8 +329,10 @@ fn parse_room(name: &str) -> Result<RoomKind, String> {
 
 fn main() -> std::process::ExitCode {
     iceoryx2::prelude::set_log_level_from_env_or(LogLevel::Error);
+    // Colour only on a terminal: a log file or a pipe gets plain text.
     tracing_subscriber::fmt()
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_env_filter(
             tracing_subscriber::EnvFilter::try_from_default_env()
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
@@ -339,7 +342,9 @@ fn main() -> std::process::ExitCode {
     match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("op3dsg: error: {e:#}");
+            // What went wrong, not where in a dependency it was noticed (Zenoh's errors name
+            // their source files).
+            eprintln!("op3dsg: error: {}", op3dsg_ipc_types::without_source_locations(&format!("{e:#}")));
             std::process::ExitCode::FAILURE
         }
     }
@@ -443,9 +448,11 @@ fn run(cli: Cli) -> Result<()> {
         Command::Bench { command: BenchCommand::Soak(args) } => bench::soak(*args),
         Command::Bench { command: BenchCommand::Llm(args) } => bench::llm(*args),
         Command::Bench { command: BenchCommand::Remote(args) } => bench_remote::run(*args),
-        Command::Map { dir, command: MapCommand::Info { json } } => map::info(&dir, json),
-        Command::Map { dir, command: MapCommand::Save { timeout_s } } => map::save(&dir, seconds(timeout_s)?),
-        Command::Map { dir, command: MapCommand::Reset } => map::reset(&dir),
+        Command::Map { dir, command: MapCommand::Info { json } } => map::info(&map::dir_of(dir, &prefix)?, json),
+        Command::Map { dir, command: MapCommand::Save { timeout_s } } => {
+            map::save(&map::dir_of(dir, &prefix)?, seconds(timeout_s)?)
+        }
+        Command::Map { dir, command: MapCommand::Reset } => map::reset(&map::dir_of(dir, &prefix)?),
         Command::Bench { command: BenchCommand::Record(args) } => record::bench(*args),
         Command::Record { command: RecordCommand::Info { files, json } } => record::info(&files, json),
         Command::Bench { command: BenchCommand::IpcPeer { rounds } } => bench::ipc_peer(&prefix, rounds),
