@@ -10,6 +10,46 @@ use std::path::{Path, PathBuf};
 use mcap::records::Record;
 use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
 
+/// The metadata record `name` of a finished file, found through its summary section (the
+/// messages are not read): `Ok(None)` when the file has no summary (the recorder did not finish
+/// it) or no such record. Errors name the file.
+pub fn summary_metadata(path: &Path, name: &str) -> Result<Option<BTreeMap<String, String>>, ReadError> {
+    use std::io::{Seek, SeekFrom};
+
+    use mcap::sans_io::summary_reader::{SummaryReadEvent, SummaryReader};
+    let fail = |reason: String| ReadError { path: path.display().to_string(), reason, truncated: false };
+    let mut file = File::open(path).map_err(|e| fail(format!("cannot open: {e}")))?;
+    let mut reader = SummaryReader::new();
+    while let Some(event) = reader.next_event() {
+        match event {
+            Ok(SummaryReadEvent::ReadRequest(need)) => {
+                let read = file.read(reader.insert(need)).map_err(|e| fail(format!("reading the summary: {e}")))?;
+                reader.notify_read(read);
+            }
+            Ok(SummaryReadEvent::SeekRequest(to)) => {
+                let at = file.seek(to).map_err(|e| fail(format!("seeking to the summary: {e}")))?;
+                reader.notify_seeked(at);
+            }
+            // No footer or summary: a file the recorder did not finish.
+            Err(_) => return Ok(None),
+        }
+    }
+    let Some(summary) = reader.finish() else { return Ok(None) };
+    let Some(index) = summary.metadata_indexes.iter().find(|m| m.name == name) else { return Ok(None) };
+    // The index spans the whole record: opcode (1 byte), length (8), body.
+    let mut record = vec![0u8; usize::try_from(index.length).map_err(|_| fail("metadata record too long".into()))?];
+    file.seek(SeekFrom::Start(index.offset)).map_err(|e| fail(format!("seeking to metadata {name}: {e}")))?;
+    file.read_exact(&mut record).map_err(|e| fail(format!("reading metadata {name}: {e}")))?;
+    if record.len() < 9 {
+        return Err(fail(format!("metadata {name}: a record of {} bytes", record.len())));
+    }
+    match mcap::parse_record(record[0], &record[9..]) {
+        Ok(Record::Metadata(metadata)) => Ok(Some(metadata.metadata)),
+        Ok(_) => Err(fail(format!("metadata index of {name} points at another record"))),
+        Err(e) => Err(fail(format!("metadata {name}: {e}"))),
+    }
+}
+
 /// A channel as declared in the file.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ChannelInfo {

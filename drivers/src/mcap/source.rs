@@ -165,6 +165,38 @@ fn recording_files(path: &Path) -> Result<Vec<PathBuf>, SourceError> {
     Ok(files)
 }
 
+/// Warns when `file` lost messages while it was recorded (the recorder's metadata, read from the
+/// summary), naming the channels and counts, or when the recorder did not finish it: the replay
+/// then sees less than the robot did, and its graph is not the recorded one bit for bit.
+fn warn_of_drops(file: &Path) {
+    match super::reader::summary_metadata(file, super::METADATA_RECORDER) {
+        Ok(Some(entries)) => {
+            let dropped: u64 = entries.get("dropped_total").and_then(|v| v.parse().ok()).unwrap_or(0);
+            if dropped > 0 {
+                let channels: Vec<String> = entries
+                    .iter()
+                    .filter_map(|(key, n)| {
+                        key.strip_suffix(".dropped").filter(|_| n != "0").map(|t| format!("{t} {n}"))
+                    })
+                    .collect();
+                warn!(
+                    file = %file.display(),
+                    dropped,
+                    channels = %channels.join(", "),
+                    "this recording dropped messages while recording: the replay sees less than the robot did and \
+                     its graph is not the recorded one bit for bit (op3dsg record info FILE)"
+                );
+            }
+        }
+        Ok(None) => warn!(
+            file = %file.display(),
+            "the recorder did not finish this file (no summary): what it dropped is unknown, and the replay may \
+             not make the recorded graph bit for bit"
+        ),
+        Err(e) => warn!(error = %e, "cannot read the recorder's metadata"),
+    }
+}
+
 impl McapSource {
     /// Opens the recording and reads up to its first frame for the intrinsics (from
     /// `/camera/calibration`) and whether frames carry poses.
@@ -198,6 +230,9 @@ impl McapSource {
         source.staged = Staged::default();
         source.ready = false;
         info!(path = %config.path.display(), files = source.files.len(), "mcap recording opened");
+        for file in &source.files {
+            warn_of_drops(file);
+        }
         Ok(source)
     }
 

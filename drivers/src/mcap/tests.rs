@@ -284,3 +284,25 @@ fn a_missing_calibration_names_the_frame() {
         "{error}"
     );
 }
+
+#[test]
+fn the_recorders_metadata_is_read_from_the_summary_and_an_unfinished_file_has_none() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("finished.mcap");
+    let mut writer = mcap::WriteOptions::new().create(BufWriter::new(std::fs::File::create(&path).unwrap())).unwrap();
+    let entries: BTreeMap<String, String> =
+        [("dropped_total", "5"), ("/camera/colour.dropped", "5")].map(|(k, v)| (k.to_owned(), v.to_owned())).into();
+    writer.write_metadata(&mcap::records::Metadata { name: "other".into(), metadata: BTreeMap::new() }).unwrap();
+    writer
+        .write_metadata(&mcap::records::Metadata { name: super::METADATA_RECORDER.into(), metadata: entries.clone() })
+        .unwrap();
+    writer.finish().unwrap();
+    drop(writer);
+    assert_eq!(super::reader::summary_metadata(&path, super::METADATA_RECORDER).unwrap(), Some(entries));
+    assert_eq!(super::reader::summary_metadata(&path, "missing").unwrap(), None);
+    // Cut before its summary: what a recorder that did not finish leaves.
+    let bytes = std::fs::read(&path).unwrap();
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    assert_eq!(super::reader::summary_metadata(&cut, super::METADATA_RECORDER).unwrap(), None);
+}

@@ -12,6 +12,7 @@
 //! | [`codec`] | [`SceneGraph`](crate::graph::SceneGraph) ⇄ graph sample ([`GraphHeader`](op3dsg_ipc_types::GraphHeader) + node and edge records): [`GraphEncoder`], [`message_to_scene_graph`], [`graph_to_scene_graph`] |
 //! | [`server`] | [`GraphServer`]: graph, `graph_updated`, health, pose input |
 //! | [`health_report`] | [`HealthReport`]: the serialisable form of a health record (`op3dsg health --json`) |
+//! | [`card`] | [`card::DaemonCard`]: which process serves a prefix and where its snapshots are, a file in the root |
 //!
 //! ## Services and QoS
 //!
@@ -117,6 +118,7 @@
 //! iceoryx2 nodes are created with signal handling disabled: the daemon and the CLI install
 //! their own Ctrl-C handlers.
 
+pub mod card;
 pub mod codec;
 pub mod health_report;
 pub mod server;

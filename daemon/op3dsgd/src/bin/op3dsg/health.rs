@@ -149,8 +149,11 @@ fn write_counters(s: &mut String, h: &HealthReport) {
         "frames {}  keyframes {}  without pose {}  detections fused {}",
         h.frames_captured, h.keyframes, h.frames_without_pose, h.detections_fused
     );
-    let _ =
-        writeln!(s, "planners {} connected  dead processes cleaned up {}", h.graph_subscribers, h.dead_nodes_cleaned);
+    let _ = writeln!(
+        s,
+        "planners {} connected  dead processes cleaned up by the daemon {} (an attaching planner cleans up too)",
+        h.graph_subscribers, h.dead_nodes_cleaned
+    );
     let poses: Vec<String> = h.poses.iter().filter(|(_, n)| **n > 0).map(|(k, n)| format!("{k} {n}")).collect();
     let _ = writeln!(s, "poses  {}", if poses.is_empty() { "none received".to_owned() } else { poses.join("  ") });
     for m in &h.models {

@@ -7,17 +7,54 @@ use std::time::{Duration, Instant, SystemTime};
 
 use anyhow::{Context, Result, bail};
 use op3dsg_runtime::fusion::snapshot::{self, SAVE_REQUEST, SNAPSHOT_FILE, SnapshotError};
+use op3dsg_runtime::ipc::card::DaemonCard;
 use op3dsg_runtime::persist::PersistError;
 
 /// Where the packaged unit keeps snapshots (`StateDirectory=op3dsg` + `snapshots`).
 pub(super) const DEFAULT_DIR: &str = "/var/lib/op3dsg/snapshots";
 
+/// The snapshot folder to work on: `--dir` (or `$OP3DSG_SNAPSHOT_DIR`) when given; else the one
+/// the daemon serving `prefix` names on its card (in this user's iceoryx2 root, then in the
+/// installed service's); else [`DEFAULT_DIR`], saying on standard error why.
+pub(super) fn dir_of(dir: Option<PathBuf>, prefix: &str) -> Result<PathBuf> {
+    if let Some(dir) = dir {
+        return Ok(dir);
+    }
+    let own = op3dsg_ipc_types::IpcRoot::resolve();
+    let mut roots = vec![own.path().to_path_buf()];
+    if own.path() != Path::new(op3dsg_ipc_types::access::SERVICE_ROOT) {
+        roots.push(PathBuf::from(op3dsg_ipc_types::access::SERVICE_ROOT));
+    }
+    let mut why = Vec::new();
+    for root in &roots {
+        match DaemonCard::read(root, prefix) {
+            Ok(Some(card)) => {
+                return card.snapshot_dir.ok_or_else(|| {
+                    anyhow::anyhow!(
+                        "the op3dsgd serving prefix '{prefix}' (pid {}) keeps no snapshots: snapshot.enabled is \
+                         false, or it runs outside systemd without a snapshot.dir (set one, or pass --dir)",
+                        card.pid
+                    )
+                });
+            }
+            Ok(None) => why.push(format!("no op3dsgd serving prefix '{prefix}' left its card in {}", root.display())),
+            Err(e) => why.push(e),
+        }
+    }
+    eprintln!("op3dsg map: {}; using {DEFAULT_DIR} (pass --dir to choose)", why.join("; "));
+    Ok(PathBuf::from(DEFAULT_DIR))
+}
+
 /// `op3dsg map info`: checks the snapshot (header, checksum, decoding) and prints what it holds.
 pub(super) fn info(dir: &Path, json: bool) -> Result<()> {
     let path = dir.join(SNAPSHOT_FILE);
     if !path.exists() {
+        // After `map reset` (or a damaged file moved aside at start) the earlier maps are still
+        // here: name them, so nothing looks lost.
+        let aside = moved_aside(dir);
+        let listed: String = aside.iter().map(|p| format!("\nmoved aside    {}", p.display())).collect();
         bail!(
-            "{}: no map snapshot (the daemon writes one every snapshot.period_s once it has mapped something)",
+            "{}: no map snapshot (the daemon writes one every snapshot.period_s once it has mapped something){listed}",
             path.display()
         );
     }

@@ -38,6 +38,46 @@ struct FileSummary {
     error: Option<String>,
     /// How `/camera/colour` is stored: `raw`, `png` or `jpeg` (`None`: no colour channel).
     colour: Option<String>,
+    /// Whether a replay of this file makes the recorded graph bit for bit: the file finished,
+    /// complete (no read error), no message dropped, the profile recorded, lossless colour.
+    replays_bit_for_bit: bool,
+    /// Why it would not, when it would not (one reason per entry).
+    not_bit_for_bit: Vec<String>,
+}
+
+impl FileSummary {
+    /// The reasons a replay of this file would not be bit for bit (none: it would).
+    fn not_bit_for_bit(&self) -> Vec<String> {
+        let mut why = Vec::new();
+        match self.recorder_dropped {
+            None => why.push("the recorder did not finish the file (drops unknown)".to_owned()),
+            Some(0) => {}
+            Some(dropped) => {
+                let channels: Vec<String> = self
+                    .recorder_metadata
+                    .iter()
+                    .filter_map(|(key, n)| {
+                        key.strip_suffix(".dropped").filter(|_| n != "0").map(|t| format!("{t} {n}"))
+                    })
+                    .collect();
+                let per_channel =
+                    if channels.is_empty() { String::new() } else { format!(": {}", channels.join(", ")) };
+                why.push(format!("{dropped} messages dropped while recording{per_channel}"));
+            }
+        }
+        if let Some(error) = &self.error {
+            why.push(format!("the file is damaged ({error})"));
+        }
+        if !self.profile_recorded {
+            why.push("no profile recorded (op3dsg.profile metadata)".to_owned());
+        }
+        match self.colour.as_deref() {
+            None => why.push("no /camera/colour channel".to_owned()),
+            Some("raw" | "png") => {}
+            Some(other) => why.push(format!("colour stored as {other}, lossy")),
+        }
+        why
+    }
 }
 
 /// What `record info` says of the colour's storage.
@@ -46,8 +86,7 @@ fn colour_note(colour: &str) -> &'static str {
         "jpeg" | "jpg" => {
             "LOSSY: a replay sees other pixels, its graph is close to but not identical with the recorded run's"
         }
-        "png" => "lossless: replays bit for bit",
-        "raw" => "lossless: replays bit for bit",
+        "png" | "raw" => "lossless",
         _ => "unknown format: the replay refuses it",
     }
 }
@@ -103,6 +142,8 @@ fn summarise(path: &Path) -> Result<FileSummary> {
     }
     summary.channels = by_channel.into_values().collect();
     summary.channels.sort_by(|a, b| a.topic.cmp(&b.topic));
+    summary.not_bit_for_bit = summary.not_bit_for_bit();
+    summary.replays_bit_for_bit = summary.not_bit_for_bit.is_empty();
     Ok(summary)
 }
 
@@ -139,8 +180,15 @@ pub(super) fn info(files: &[PathBuf], json: bool) -> Result<()> {
         if let Some(colour) = &s.colour {
             println!("  colour    {colour} ({})", colour_note(colour));
         }
-        if !s.profile_recorded {
+        if s.profile_recorded {
+            println!("  profile   recorded (op3dsg.profile metadata: replay with it)");
+        } else {
             println!("  profile   missing (no op3dsg.profile metadata)");
+        }
+        if s.replays_bit_for_bit {
+            println!("  replay    bit for bit: complete channels, no drops, the profile recorded, lossless colour");
+        } else {
+            println!("  replay    NOT bit for bit: {}", s.not_bit_for_bit.join("; "));
         }
         if let Some(error) = &s.error {
             println!("  read up to: {error}");
