@@ -30,7 +30,8 @@ def main() -> None:
         if graph is None:
             continue
         if graph.restarted:
-            print(f"op3dsgd restarted (instance {graph.instance_id:#018x}): node ids start again")
+            # Versions count from 1 again; node ids stay when the daemon restored its map snapshot.
+            print(f"op3dsgd restarted (instance {graph.instance_id:#018x}): versions count again from {graph.version}")
         last_seen, printed = graph.version, printed + 1
         nodes = graph.nodes
         print(f"version {graph.version} objects {graph.objects().size} parts {graph.parts().size} edges {graph.edge_count}")
