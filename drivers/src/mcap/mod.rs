@@ -84,6 +84,15 @@ pub const METADATA_PROFILE: &str = "op3dsg.profile";
 /// `dropped_total`.
 pub const METADATA_RECORDER: &str = "op3dsg.recorder";
 
+/// The channels of the recorder's metadata ([`METADATA_RECORDER`]) that dropped messages, as
+/// `<topic> <count>` in topic order: what `record info` and a replay's warning name.
+pub fn dropped_channels(recorder: &std::collections::BTreeMap<String, String>) -> Vec<String> {
+    recorder
+        .iter()
+        .filter_map(|(key, n)| key.strip_suffix(".dropped").filter(|_| n != "0").map(|topic| format!("{topic} {n}")))
+        .collect()
+}
+
 /// Frame id of the camera (OpenCV axes: x right, y down, z forward).
 pub const CAMERA_FRAME: &str = "camera";
 

@@ -53,13 +53,7 @@ impl FileSummary {
             None => why.push("the recorder did not finish the file (drops unknown)".to_owned()),
             Some(0) => {}
             Some(dropped) => {
-                let channels: Vec<String> = self
-                    .recorder_metadata
-                    .iter()
-                    .filter_map(|(key, n)| {
-                        key.strip_suffix(".dropped").filter(|_| n != "0").map(|t| format!("{t} {n}"))
-                    })
-                    .collect();
+                let channels = op3dsg_drivers::mcap::dropped_channels(&self.recorder_metadata);
                 let per_channel =
                     if channels.is_empty() { String::new() } else { format!(": {}", channels.join(", ")) };
                 why.push(format!("{dropped} messages dropped while recording{per_channel}"));
