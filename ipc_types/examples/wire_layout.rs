@@ -210,6 +210,7 @@ fn health_layouts() -> Vec<String> {
             refiner,
             pose,
             model_count,
+            pose_source,
             reserved_models,
             models,
             recorder,

@@ -163,13 +163,23 @@ fn other_users_roots() -> Vec<(u32, PathBuf)> {
 }
 
 fn attach_fix(owner: u32) -> String {
-    let name = match nix::unistd::User::from_uid(nix::unistd::Uid::from_raw(owner)) {
-        Ok(Some(user)) => user.name,
-        _ => format!("#{owner}"),
-    };
+    attach_fix_any(&[owner])
+}
+
+/// [`attach_fix`] when the daemon may be any of `owners`' (which one, this process cannot see).
+fn attach_fix_any(owners: &[u32]) -> String {
+    let sudo: Vec<String> = owners
+        .iter()
+        .map(|&owner| match nix::unistd::User::from_uid(nix::unistd::Uid::from_raw(owner)) {
+            Ok(Some(user)) => format!("sudo -u {} ...", user.name),
+            _ => format!("sudo -u #{owner} ..."),
+        })
+        .collect();
+    let who = if owners.len() == 1 { "that user" } else { "the user whose daemon it is" };
     format!(
-        "iceoryx2 shares memory only between processes of one user, so run this as that user \
-         (sudo -u {name} ...) or make this user the service user (docs/robot.md, \"Who can attach\")"
+        "iceoryx2 shares memory only between processes of one user, so run this as {who} ({}) or make \
+         this user the service user (docs/robot.md, \"Who can attach\")",
+        sudo.join(" or ")
     )
 }
 
@@ -328,13 +338,16 @@ impl IpcRoot {
             return None;
         }
         let others = other_users_roots();
-        let (first, _) = others.first()?;
+        if others.is_empty() {
+            return None;
+        }
         let listed: Vec<String> =
             others.iter().map(|(uid, path)| format!("{} of {}", path.display(), user_name(*uid))).collect();
+        let owners: Vec<u32> = others.iter().map(|(uid, _)| *uid).collect();
         Some(format!(
             "other users' roots exist ({}), where daemons they started by hand serve: {}",
             listed.join(", "),
-            attach_fix(*first)
+            attach_fix_any(&owners)
         ))
     }
 

@@ -262,8 +262,12 @@ pub struct Health {
     pub pose: PoseHealth,
     /// Number of valid entries in `models`.
     pub model_count: u32,
+    /// Where the keyframe gate takes poses from, the profile's `pose.source`: a
+    /// [`POSE_SOURCES`] index (0 unknown, 1 `frame`: the frames carry their poses and
+    /// `<prefix>/pose` is not read, 2 `ipc`, 3 `ros2`).
+    pub pose_source: u8,
     /// Reserved, zero.
-    pub reserved_models: u32,
+    pub reserved_models: [u8; 3],
     /// The execution provider each model's sessions run on.
     pub models: [ModelHealth; MAX_MODELS],
     /// The MCAP recorder (`[record]`).
@@ -361,7 +365,8 @@ impl Default for Health {
             refiner: RefinerHealth::default(),
             pose: PoseHealth::default(),
             model_count: 0,
-            reserved_models: 0,
+            pose_source: 0,
+            reserved_models: [0; 3],
             models: [ModelHealth::default(); MAX_MODELS],
             recorder: RecorderHealth::default(),
             snapshot: SnapshotHealth::default(),
@@ -394,7 +399,15 @@ impl Health {
     pub fn world_frame_str(&self) -> &str {
         crate::fixed_str(&self.world_frame)
     }
+    /// [`Self::pose_source`] by name ([`POSE_SOURCES`]); a value this build does not know reads
+    /// as `unknown`.
+    pub fn pose_source_name(&self) -> &'static str {
+        POSE_SOURCES.get(self.pose_source as usize).copied().unwrap_or(POSE_SOURCES[0])
+    }
 }
+
+/// [`Health::pose_source`] values by index: where the keyframe gate takes poses from.
+pub const POSE_SOURCES: [&str; 4] = ["unknown", "frame", "ipc", "ros2"];
 
 /// The most detection workers [`RemoteHealth`] reports (the first seen; `<prefix>/detect_status`
 /// over Zenoh lists every one).

@@ -160,9 +160,10 @@ pub use graph_types::{
 };
 pub use health_types::{
     EXECUTION_PROVIDERS, FIXED_STAGES, FUTURE_POSE_LIMIT_NS, Health, MAX_MODELS, MAX_QUEUES, MAX_REMOTE_WORKERS,
-    MAX_STAGES, MAX_WORKERS, ModelHealth, PoseHealth, QueueHealth, RECORDER_STATES, REFINER_ERRORS, REFINER_FORMATS,
-    REFINER_REJECTIONS, REFINER_STATES, REMOTE_KEY_CAPACITY_BYTES, REMOTE_REJECTIONS, RecorderHealth, RefinerHealth,
-    RemoteHealth, RemoteWorkerHealth, SNAPSHOT_STATES, SnapshotHealth, StageHealth, TF_PATH_CAPACITY_BYTES, TfHealth,
+    MAX_STAGES, MAX_WORKERS, ModelHealth, POSE_SOURCES, PoseHealth, QueueHealth, RECORDER_STATES, REFINER_ERRORS,
+    REFINER_FORMATS, REFINER_REJECTIONS, REFINER_STATES, REMOTE_KEY_CAPACITY_BYTES, REMOTE_REJECTIONS, RecorderHealth,
+    RefinerHealth, RemoteHealth, RemoteWorkerHealth, SNAPSHOT_STATES, SnapshotHealth, StageHealth,
+    TF_PATH_CAPACITY_BYTES, TfHealth,
 };
 pub use occupancy_types::{
     OCCUPANCY_FREE_MAX_PERCENT, OCCUPANCY_MAX_SIDE_CELLS, OCCUPANCY_OCCUPIED_MIN_PERCENT, OCCUPANCY_SCHEMA_VERSION,
@@ -212,7 +213,11 @@ pub use text::{fixed_str, without_source_locations, write_fixed_str};
 /// 11: [`Health`] grew by [`RemoteHealth`] (1,752 bytes) after `tf`: remote detection's fallback
 /// and its workers' requests, replies, timeouts, rejections by reason, bytes and round trips.
 /// The graph's layout is unchanged.
-pub const SCHEMA_VERSION: u32 = 11;
+///
+/// 12: [`Health`]'s `reserved_models` (u32 after `model_count`) became `pose_source` (u8: where
+/// the keyframe gate takes poses from, [`POSE_SOURCES`]) and 3 reserved bytes; its size and
+/// every offset are unchanged, and so is the graph's layout.
+pub const SCHEMA_VERSION: u32 = 12;
 
 /// Bytes in a frame id (`PoseStamped::frame_id`), a stage or a queue name.
 pub const NAME_CAPACITY_BYTES: usize = 32;

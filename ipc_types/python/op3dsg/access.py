@@ -18,7 +18,7 @@ import errno
 import os
 import pwd
 import stat
-from typing import Optional, Tuple
+from typing import List, Optional, Tuple
 
 #: Environment variable naming the iceoryx2 root folder.
 IPC_ROOT_ENV = "OP3DSG_IPC_ROOT"
@@ -43,13 +43,22 @@ def user_name(uid: int) -> str:
 
 
 def attach_fix(owner: int) -> str:
-    try:
-        name = pwd.getpwuid(owner).pw_name
-    except KeyError:
-        name = f"#{owner}"
+    return attach_fix_any([owner])
+
+
+def attach_fix_any(owners: List[int]) -> str:
+    """:func:`attach_fix` when the daemon may be any of ``owners``' (which one, this process
+    cannot see)."""
+    sudo = []
+    for owner in owners:
+        try:
+            sudo.append(f"sudo -u {pwd.getpwuid(owner).pw_name} ...")
+        except KeyError:
+            sudo.append(f"sudo -u #{owner} ...")
+    who = "that user" if len(owners) == 1 else "the user whose daemon it is"
     return (
-        "iceoryx2 shares memory only between processes of one user, so run this as that user "
-        f'(sudo -u {name} ...) or make this user the service user (docs/robot.md, "Who can attach")'
+        f"iceoryx2 shares memory only between processes of one user, so run this as {who} "
+        f'({" or ".join(sudo)}) or make this user the service user (docs/robot.md, "Who can attach")'
     )
 
 
@@ -121,18 +130,55 @@ def prepare_root(root: str) -> None:
     check_root(root)
 
 
-def foreign_service_note(root: str) -> Optional[str]:
-    """When no daemon was found in ``root``: a note about the installed service's root if another
-    user owns it (the daemon the caller was probably looking for)."""
-    if root == SERVICE_ROOT:
+def other_users_roots() -> List[Tuple[int, str]]:
+    """The per-user roots (``/tmp/op3dsg-<uid>``) of users other than this process's, by uid."""
+    me = os.geteuid()
+    found = []
+    try:
+        names = os.listdir("/tmp")
+    except OSError:
+        return []
+    for name in names:
+        if not name.startswith("op3dsg-"):
+            continue
+        try:
+            uid = int(name[len("op3dsg-"):])
+        except ValueError:
+            continue
+        path = os.path.join("/tmp", name)
+        try:
+            st = os.lstat(path)
+        except OSError:
+            continue
+        if uid != me and stat.S_ISDIR(st.st_mode) and st.st_uid == uid:
+            found.append((uid, path))
+    return sorted(found)
+
+
+def foreign_service_note(root: str, source: str = "per-user") -> Optional[str]:
+    """When no daemon was found in ``root`` (chosen for ``source``, as :func:`resolve_root` says):
+    a note about the installed service's root if another user owns it (the daemon the caller was
+    probably looking for); without one, for a per-user root, a note naming the per-user roots of
+    other users (``/tmp/op3dsg-<uid>``, daemons started by hand), which this process cannot look
+    into. The same rule as the Rust crate's ``IpcRoot::foreign_service_note``."""
+    if source == "service" or root == SERVICE_ROOT:
         return None
     try:
         st = os.lstat(SERVICE_ROOT)
+        if st.st_uid != os.geteuid():
+            return f"the installed service's root {SERVICE_ROOT} belongs to {user_name(st.st_uid)}: {attach_fix(st.st_uid)}"
     except OSError:
+        pass
+    if source != "per-user":
         return None
-    if st.st_uid == os.geteuid():
+    others = other_users_roots()
+    if not others:
         return None
-    return f"the installed service's root {SERVICE_ROOT} belongs to {user_name(st.st_uid)}: {attach_fix(st.st_uid)}"
+    listed = ", ".join(f"{path} of {user_name(uid)}" for uid, path in others)
+    return (
+        f"other users' roots exist ({listed}), where daemons they started by hand serve: "
+        f"{attach_fix_any([uid for uid, _ in others])}"
+    )
 
 
 def config(root: str):

@@ -28,9 +28,9 @@ class NotServingError(Op3dsgError):
         from .access import foreign_service_note, resolve_root
 
         prefix = service.rsplit("/", 1)[0]
-        root, _ = resolve_root()
+        root, source = resolve_root()
         cause = f"no op3dsgd is serving under prefix '{prefix}' in IPC root {root} (service {service} not found)"
-        note = foreign_service_note(root)
+        note = foreign_service_note(root, source)
         super().__init__(service, operation, f"{cause}; {note}" if note else cause)
 
 

@@ -20,7 +20,7 @@ from typing import Dict, Iterator, List, Optional
 import numpy as np
 
 #: Version of the wire contract this package reads (``SCHEMA_VERSION`` in ``ipc_types/src/lib.rs``).
-SCHEMA_VERSION = 11
+SCHEMA_VERSION = 12
 
 #: Bytes in a node label buffer.
 LABEL_CAPACITY_BYTES = 48
@@ -85,6 +85,9 @@ EXECUTION_PROVIDERS = ("unknown", "cpu", "cuda", "openvino")
 REFINER_STATES = ("off", "idle", "calling", "backoff", "breaker_open", "budget_exhausted")
 RECORDER_STATES = ("off", "recording", "failed", "finished")
 SNAPSHOT_STATES = ("off", "started_empty", "restored", "moved_aside")
+#: ``Health.pose_source`` values: where the keyframe gate takes poses from (the profile's
+#: ``pose.source``). With ``frame`` the daemon does not read ``<prefix>/pose``.
+POSE_SOURCES = ("unknown", "frame", "ipc", "ros2")
 #: ``GraphHeader.source_kind`` / ``Health.source_kind`` values: what the daemon reads its frames
 #: from. ``unknown`` (0) is also what a value this package does not know reads as.
 SOURCE_KINDS = ("unknown", "live_camera", "replay", "synthetic")
@@ -533,7 +536,8 @@ class Health(_Wire):
         ("refiner", RefinerHealth),
         ("pose", PoseHealth),
         ("model_count", _u32),
-        ("reserved_models", _u32),
+        ("pose_source", _u8),
+        ("reserved_models", _u8 * 3),
         ("models", ModelHealth * MAX_MODELS),
         ("recorder", RecorderHealth),
         ("snapshot", SnapshotHealth),
@@ -604,6 +608,7 @@ class Health(_Wire):
                 for q in self.valid_queues()
             ],
             "pose": self.pose.counters(),
+            "pose_source": _name_of(POSE_SOURCES, self.pose_source),
             "recorder": {
                 "state": _name_of(RECORDER_STATES, self.recorder.state),
                 "files": self.recorder.files,

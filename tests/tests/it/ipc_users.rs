@@ -1,4 +1,4 @@
-//! Who can attach to the daemon, with real processes of three identities made with `setpriv`
+//! Who can attach to the daemon, with real processes of four identities made with `setpriv`
 //! (no accounts needed; the test runs as root, as CI does):
 //!
 //! - the daemon runs as uid A in its own IPC root (made 0700 for A, as the unit's
@@ -13,7 +13,9 @@
 //!   leaves root-owned files that would block A;
 //! - nothing of A's in the root or in `/dev/shm` is open to other users, but iceoryx2's 16-byte
 //!   node counter (`*.global_mgmt`, 0666 by design);
-//! - `kill -9` and a restart as A: the attached planner sees the new instance.
+//! - `kill -9` and a restart as A: the attached planner sees the new instance;
+//! - a daemon uid D started by hand serves in D's per-user root `/tmp/op3dsg-<D>`: a planner of
+//!   C (the command line, the Python client) finds none in its own root and is told of D's.
 //!
 //! The binaries, the ONNX Runtime library, the text-encoder model, the librealsense libraries
 //! and the Python packages are linked (or copied) into a scratch folder every identity can read,
@@ -31,6 +33,8 @@ use op3dsg_tests::{binary, is_root, unique_prefix};
 const A: u32 = 47_101;
 const B: u32 = 47_102;
 const C: u32 = 47_103;
+/// A user who starts a daemon by hand, in its per-user root `/tmp/op3dsg-<uid>`.
+const D: u32 = 47_104;
 
 const REPO: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
 
@@ -126,6 +130,92 @@ fn only_the_daemons_user_attaches_and_nothing_is_open_to_others() {
     let next = lines.next().expect("the follower's second line").expect("read");
     assert!(next.starts_with("restarted ") && next != first.replace("instance", "restarted"), "{first} / {next}");
     assert!(follower.0.wait().expect("follower").success());
+}
+
+/// A daemon another user started by hand serves in that user's per-user root
+/// (`/tmp/op3dsg-<uid>`); a planner of this user finds nothing in its own and is told where to
+/// look: the Rust command line and the Python client both name the other user's root and the fix.
+#[test]
+fn a_planner_of_another_user_is_told_whose_root_serves() {
+    assert!(
+        is_root(),
+        "this test starts processes as other users with setpriv and must run as root (CI does); \
+         run it with sudo, or leave it out with --skip ipc_users"
+    );
+    let scratch = Scratch::new();
+    let home = scratch.path.join("home");
+    std::os::unix::fs::chown(&home, Some(D), Some(D)).expect("test set-up");
+    let _cleanup = [D, C].map(|uid| RemoveOnDrop(PathBuf::from(format!("/tmp/op3dsg-{uid}"))));
+    let prefix = unique_prefix("byhand");
+    let in_own_root = |uid: u32, argv: &[&str]| {
+        let mut command = scratch.command_as(uid, None, argv);
+        command.env_remove("OP3DSG_IPC_ROOT");
+        command
+    };
+    let _daemon = Killed(
+        in_own_root(D, &[&scratch.bin("op3dsgd"), "--prefix", &prefix])
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .spawn()
+            .expect("start op3dsgd as uid D"),
+    );
+    // The daemon serves in D's own root.
+    let started = Instant::now();
+    loop {
+        let out = in_own_root(D, &[&scratch.bin("op3dsg"), "--prefix", &prefix, "dump", "--timeout-s", "2"])
+            .output()
+            .expect("setpriv");
+        if out.status.success() {
+            break;
+        }
+        assert!(started.elapsed() < Duration::from_secs(60), "{}", String::from_utf8_lossy(&out.stderr));
+        std::thread::sleep(Duration::from_millis(300));
+    }
+    let expected = "other users' roots exist (";
+    let names_d = format!("/tmp/op3dsg-{D} of uid {D}");
+    let service_root_exists = Path::new("/run/op3dsg").exists();
+
+    let out = in_own_root(C, &[&scratch.bin("op3dsg"), "--prefix", &prefix, "dump", "--timeout-s", "2"])
+        .output()
+        .expect("setpriv");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "uid {C} has no daemon in its own root: {stderr}");
+    assert!(
+        stderr.contains(&format!("no op3dsgd is serving under prefix '{prefix}' in IPC root /tmp/op3dsg-{C}")),
+        "{stderr}"
+    );
+    if service_root_exists {
+        assert!(stderr.contains("the installed service's root /run/op3dsg belongs to"), "{stderr}");
+    } else {
+        assert!(stderr.contains(expected) && stderr.contains(&names_d), "{stderr}");
+        assert!(stderr.contains(&format!("sudo -u #{D}")), "{stderr}");
+    }
+
+    let python = if Path::new("/usr/bin/python3").exists() {
+        "/usr/bin/python3".to_owned()
+    } else {
+        Path::new(REPO).join(".venv/bin/python").to_string_lossy().into_owned()
+    };
+    let script = format!("import op3dsg; op3dsg.GraphClient({prefix:?}, timeout=2)");
+    let out = in_own_root(C, &[&python, "-c", &script]).output().expect("setpriv");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && stderr.contains("NotServingError"), "{stderr}");
+    assert!(stderr.contains(&format!("in IPC root /tmp/op3dsg-{C}")), "{stderr}");
+    if service_root_exists {
+        assert!(stderr.contains("the installed service's root /run/op3dsg belongs to"), "{stderr}");
+    } else {
+        assert!(stderr.contains(expected) && stderr.contains(&names_d), "{stderr}");
+        assert!(stderr.contains(&format!("sudo -u #{D}")), "{stderr}");
+    }
+}
+
+/// A folder removed (with what is in it) when dropped, also when the test fails.
+struct RemoveOnDrop(PathBuf);
+
+impl Drop for RemoveOnDrop {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
 }
 
 /// A child process killed (SIGKILL) and reaped when dropped, also when the test fails.

@@ -56,6 +56,11 @@ pub struct HealthReport {
     /// `non_unit_quaternion`, `no_base_from_camera`, `out_of_order`, `stale`, `future`,
     /// `queue_full`; see `op3dsg_ipc_types::PoseHealth`).
     pub poses: std::collections::BTreeMap<String, u64>,
+    /// Where the keyframe gate takes poses from (the profile's `pose.source`: `frame`, `ipc`,
+    /// `ros2`; `unknown` from a daemon that does not say). With `frame` the daemon does not read
+    /// `<prefix>/pose`, so `poses` stays zero whatever is sent there.
+    #[serde(default)]
+    pub pose_source: String,
     /// The execution provider each model's sessions run on.
     pub models: Vec<ModelReport>,
     /// The MCAP recorder (see `op3dsg_ipc_types::RecorderHealth`).
@@ -458,6 +463,7 @@ impl From<&Health> for HealthReport {
             tf: TfReport::from_health(h),
             remote: RemoteReport::from_health(h),
             poses: pose_counters(&h.pose).iter().map(|(name, n)| ((*name).to_owned(), *n)).collect(),
+            pose_source: h.pose_source_name().to_owned(),
             models: h
                 .valid_models()
                 .iter()

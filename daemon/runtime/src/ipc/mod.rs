@@ -92,7 +92,7 @@
 //! subscriber = service.subscriber_builder().create()
 //! sample = subscriber.receive()            # None until the daemon has published
 //! if sample is not None:
-//!     header = sample.user_header().contents   # check header.schema_version == 11 first
+//!     header = sample.user_header().contents   # check header.schema_version == 12 first
 //!     # node_count records of 144 bytes, then edge_count records of 64 bytes (numpy dtypes
 //!     # mirroring Node and Edge view them without copying)
 //! ```

@@ -21,6 +21,15 @@ impl PoseSourceKind {
     pub fn is_received(self) -> bool {
         matches!(self, Self::Ipc | Self::Ros2)
     }
+
+    /// The health record's `pose_source` value ([`op3dsg_ipc_types::POSE_SOURCES`]).
+    pub fn wire(self) -> u8 {
+        match self {
+            Self::Frame => 1,
+            Self::Ipc => 2,
+            Self::Ros2 => 3,
+        }
+    }
 }
 
 /// A fixed transform in the profile.

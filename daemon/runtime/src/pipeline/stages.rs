@@ -226,6 +226,7 @@ pub(super) fn publisher(
     let thread = PublishThread {
         ipc: profile.ipc.clone(),
         origin: GraphOrigin::new(source_kind, &profile.world.frame_id),
+        pose_source: profile.pose.source.wire(),
         ready,
         graph_rx,
         pose_tx: (profile.pose.source == PoseSourceKind::Ipc).then_some(pose_tx),

@@ -40,6 +40,9 @@ pub struct PublishThread {
     /// The opened source's kind and the world frame's name, in every graph header and health
     /// record.
     pub origin: GraphOrigin,
+    /// Where the keyframe gate takes poses from (`pose.source`), as health's `pose_source`
+    /// ([`op3dsg_ipc_types::POSE_SOURCES`]).
+    pub pose_source: u8,
     /// Told once the services exist, or why they could not be made.
     pub ready: Sender<Result<(), String>>,
     /// From fusion.
@@ -192,6 +195,7 @@ impl PublishThread {
         let mut health = self.health.health();
         server.planner_health(&mut health);
         self.origin.stamp_health(&mut health);
+        health.pose_source = self.pose_source;
         health
     }
 

@@ -154,8 +154,7 @@ fn write_counters(s: &mut String, h: &HealthReport) {
         "planners {} connected  dead processes cleaned up by the daemon {} (an attaching planner cleans up too)",
         h.graph_subscribers, h.dead_nodes_cleaned
     );
-    let poses: Vec<String> = h.poses.iter().filter(|(_, n)| **n > 0).map(|(k, n)| format!("{k} {n}")).collect();
-    let _ = writeln!(s, "poses  {}", if poses.is_empty() { "none received".to_owned() } else { poses.join("  ") });
+    let _ = writeln!(s, "poses  {}", pose_line(h));
     for m in &h.models {
         let fallback = if m.provider == m.requested_provider {
             String::new()
@@ -164,6 +163,17 @@ fn write_counters(s: &mut String, h: &HealthReport) {
         };
         let _ = writeln!(s, "model {} on {}{} ({} sessions)", m.name, m.provider, fallback, m.sessions);
     }
+}
+
+/// The pose input's line: what it received by outcome, or why it receives nothing.
+pub(super) fn pose_line(h: &HealthReport) -> String {
+    let poses: Vec<String> = h.poses.iter().filter(|(_, n)| **n > 0).map(|(k, n)| format!("{k} {n}")).collect();
+    if h.pose_source == "frame" {
+        return "not read: pose.source = \"frame\" takes the pose each frame carries, so poses sent to \
+                <prefix>/pose are ignored (pose.source = \"ipc\" uses them)"
+            .to_owned();
+    }
+    if poses.is_empty() { "none received".to_owned() } else { poses.join("  ") }
 }
 
 /// A table of the stages and one of the queues.
@@ -277,6 +287,22 @@ mod tests {
         assert!(text.contains("failures 6 (timeouts 0, 429 0, last refused)"), "{text}");
         let json = serde_json::to_value(HealthReport::from(&health)).unwrap();
         assert_eq!(json["refiner"]["rejections"]["unknown_node"], 2);
+    }
+
+    #[test]
+    fn health_text_says_why_no_pose_arrives_when_the_frames_carry_them() {
+        // pose.source = "frame": what a PosePublisher sends is not read, and the line says so.
+        let mut health = Health { pose_source: 1, ..Health::default() };
+        let text = health_text(&HealthReport::from(&health));
+        assert!(text.contains("poses  not read: pose.source = \"frame\" takes the pose each frame carries"), "{text}");
+        assert!(!text.contains("none received"), "{text}");
+        // From the pose input: what it received, or that nothing came yet.
+        health.pose_source = 2;
+        assert!(health_text(&HealthReport::from(&health)).contains("poses  none received\n"));
+        health.pose.accepted = 3;
+        assert!(health_text(&HealthReport::from(&health)).contains("poses  accepted 3\n"));
+        let json = serde_json::to_value(HealthReport::from(&health)).unwrap();
+        assert_eq!(json["pose_source"], "ipc");
     }
 
     #[test]

@@ -247,7 +247,9 @@ fn state_lines(health: Option<&HealthReport>) -> Vec<Line<'static>> {
     let accepted = h.poses.get("accepted").copied().unwrap_or(0);
     let refused: Vec<String> =
         h.poses.iter().filter(|(k, n)| *k != "accepted" && **n > 0).map(|(k, n)| format!("{k} {n}")).collect();
-    let pose = if accepted == 0 && refused.is_empty() {
+    let pose = if h.pose_source == "frame" {
+        "not read (pose.source = \"frame\": each frame carries its pose)".to_owned()
+    } else if accepted == 0 && refused.is_empty() {
         format!("none received   frames without a pose {}", h.frames_without_pose)
     } else {
         let refused = if refused.is_empty() { "none".to_owned() } else { refused.join(", ") };
