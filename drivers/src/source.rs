@@ -127,6 +127,15 @@ pub trait FrameSource: Send {
         false
     }
 
+    /// Whether the pipeline should wait for this source rather than drop any of its frames: a
+    /// recording replayed to reproduce what the robot made (an MCAP replay with
+    /// `source.mcap.lossless`). The pipeline then makes its queues up to fusion block, whatever
+    /// the profile's policies, so every frame is processed as often as the replay runs. A live
+    /// camera cannot wait. Default: `false`.
+    fn lossless(&self) -> bool {
+        false
+    }
+
     /// `camera_from_upright`: the physical camera's optical frame from the frames' camera, when
     /// the source turns its images upright (a camera turned in its mount); identity otherwise.
     /// A pose of the physical camera (tf's camera frame) composed with it is the frames' pose.

@@ -81,8 +81,28 @@ pub const TOPIC_LLM: &str = "/op3dsg/llm";
 pub const METADATA_PROFILE: &str = "op3dsg.profile";
 /// Metadata record the recorder writes when it finishes a file: per channel `<topic>.written`
 /// and `<topic>.dropped` (messages the recorder had no room or no disk for), and
-/// `dropped_total`.
+/// `dropped_total`; in the daemon also `pipeline_dropped.<queue>` for the pipeline's queues after
+/// the keyframe gate (`keyframes`, `detections`: items their policy dropped while the file was
+/// open) and [`PIPELINE_DROPPED_TOTAL`].
 pub const METADATA_RECORDER: &str = "op3dsg.recorder";
+
+/// Key of [`METADATA_RECORDER`]: what the pipeline dropped after the keyframe gate while the
+/// file was open (absent in files of earlier recorders and of `bench record`).
+pub const PIPELINE_DROPPED_TOTAL: &str = "pipeline_dropped_total";
+
+/// What the pipeline dropped after the gate while the file was open, from the recorder's
+/// metadata: the total and `<queue> <count>` for each queue that dropped; `None` when the file
+/// does not say (an earlier recorder).
+pub fn pipeline_drops(recorder: &std::collections::BTreeMap<String, String>) -> Option<(u64, Vec<String>)> {
+    let total = recorder.get(PIPELINE_DROPPED_TOTAL)?.parse().ok()?;
+    let queues = recorder
+        .iter()
+        .filter_map(|(key, n)| {
+            key.strip_prefix("pipeline_dropped.").filter(|_| n != "0").map(|queue| format!("{queue} {n}"))
+        })
+        .collect();
+    Some((total, queues))
+}
 
 /// The channels of the recorder's metadata ([`METADATA_RECORDER`]) that dropped messages, as
 /// `<topic> <count>` in topic order: what `record info` and a replay's warning name.
@@ -107,6 +127,16 @@ pub struct McapReplayConfig {
     /// Pacing: `recorded` (by the frames' stamps), `fast`, or `stepped`, as the TUM replay.
     #[serde(default)]
     pub mode: PlaybackMode,
+    /// The pipeline waits for the replay instead of dropping frames: the queues up to fusion
+    /// block, whatever `[queues]` says, so the replay gives the recorded graph bit for bit
+    /// ([`crate::source::FrameSource::lossless`]). `false` keeps the profile's policies (to
+    /// reproduce an overload: the replay then drops as the robot may have).
+    #[serde(default = "lossless_default")]
+    pub lossless: bool,
+}
+
+fn lossless_default() -> bool {
+    true
 }
 
 impl McapReplayConfig {

@@ -172,13 +172,17 @@ fn warn_of_drops(file: &Path) {
     match super::reader::summary_metadata(file, super::METADATA_RECORDER) {
         Ok(Some(entries)) => {
             let dropped: u64 = entries.get("dropped_total").and_then(|v| v.parse().ok()).unwrap_or(0);
+            if let Some((lost, queues)) = super::pipeline_drops(&entries).filter(|(n, _)| *n > 0) {
+                warn!(
+                    file = %file.display(),
+                    dropped = lost,
+                    queues = %queues.join(", "),
+                    "the pipeline dropped keyframes or results after the keyframe gate while this was recorded: the \
+                     replay processes them, so its graph is not the recorded one bit for bit (op3dsg record info FILE)"
+                );
+            }
             if dropped > 0 {
-                let channels: Vec<String> = entries
-                    .iter()
-                    .filter_map(|(key, n)| {
-                        key.strip_suffix(".dropped").filter(|_| n != "0").map(|t| format!("{t} {n}"))
-                    })
-                    .collect();
+                let channels = super::dropped_channels(&entries);
                 warn!(
                     file = %file.display(),
                     dropped,
@@ -540,6 +544,10 @@ impl FrameSource for McapSource {
 
     fn has_poses(&self) -> bool {
         self.has_poses
+    }
+
+    fn lossless(&self) -> bool {
+        self.config.lossless
     }
 
     fn next_frame(&mut self, frame: &mut Frame) -> Result<SourceStatus, SourceError> {

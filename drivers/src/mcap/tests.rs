@@ -117,7 +117,7 @@ impl Writer {
 }
 
 fn open(path: &Path) -> Result<McapSource, crate::source::SourceError> {
-    McapSource::new(&McapReplayConfig { path: path.to_owned(), mode: PlaybackMode::Fast })
+    McapSource::new(&McapReplayConfig { path: path.to_owned(), mode: PlaybackMode::Fast, lossless: true })
 }
 
 fn play(source: &mut McapSource) -> (Vec<Frame>, Option<String>) {

@@ -40,6 +40,13 @@ const DETERMINISTIC: &[&str] = &[
     "queues.graph.policy=block",
 ];
 
+/// Fusion slowed by 100 ms a keyframe (the `fault-hooks` build's `OP3DSG_TEST_FUSION_DELAY_MS`).
+const SLOW_FUSION: &[(&str, &str)] = &[("OP3DSG_TEST_FUSION_DELAY_MS", "100")];
+
+/// Slower still for the replays (300 ms): reading a file is far faster than fusing it, however
+/// loaded the machine, so the replay that keeps the profile's policies surely drops.
+const SLOWER_FUSION: &[(&str, &str)] = &[("OP3DSG_TEST_FUSION_DELAY_MS", "300")];
+
 /// The recording run's and the replay's final graph JSON (from `mcap_check.py`) are the same
 /// bytes, and the graph is not trivially empty.
 fn assert_same_final_graph(recorded: &Value, replayed: &Value) {
@@ -73,31 +80,74 @@ fn replay_args<'a>(replay_path: &'a str, out_dir: &'a str, extra: &[&'a str]) ->
 }
 
 fn run_to_end(prefix: &str, args: &[&str]) {
+    run_to_end_with(prefix, args, &[]);
+}
+
+/// A recording whose pipeline dropped keyframes after the gate (the default latest_wins queues,
+/// a source faster than a slowed fusion): `record info` says it will not replay bit for bit and
+/// why, and its replay warns, naming the queue and the count.
+#[test]
+fn a_recording_whose_pipeline_dropped_says_so_and_its_replay_warns() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec_dir = dir.path().join("rec");
+    let mut args = vec!["--set", "source.synthetic.frame_count=45", "--record", rec_dir.to_str().unwrap()];
+    args.extend_from_slice(&["--set", "source.rate_hz=0", "--set", "queues.detections.capacity=1"]);
+    args.extend_from_slice(&["--set", "source.pool_headroom=32", "--set", "record.frame_queue=48"]);
+    run_to_end_with(&unique_prefix("rec-drop"), &args, SLOWER_FUSION);
+    let files = mcap_files(&rec_dir);
+    assert_eq!(files.len(), 1, "{files:?}");
+    let info = record_info(&files[0]);
+    assert!(info.contains("  pipeline  dropped "), "{info}");
+    assert!(info.contains("  replay    NOT bit for bit: "), "{info}");
+    assert!(info.contains("after the gate while recording (keyframes "), "{info}");
+
+    let replay_path = format!("source.mcap.path=\"{}\"", files[0].display());
+    let args = ["--set", "source.kind=mcap", "--set", "source.rate_hz=0", "--set", &replay_path];
+    let stderr = run_to_end_with(&unique_prefix("rec-drop-b"), &args, &[]);
+    assert!(
+        stderr.contains("the pipeline dropped keyframes or results after the keyframe gate while this was recorded"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("queues=keyframes "), "{stderr}");
+}
+
+/// [`run_to_end`] with environment variables (the test fault hooks).
+fn run_to_end_with(prefix: &str, args: &[&str], env: &[(&str, &str)]) -> String {
     let output = Command::new(binary("op3dsgd"))
         .arg("--prefix")
         .arg(prefix)
         .args(args)
         .arg("--exit-at-end")
         .env("OP3DSG_LOG", "warn")
+        .envs(env.iter().copied())
         .stdin(Stdio::null())
         .output()
         .expect("run op3dsgd");
-    assert!(output.status.success(), "op3dsgd {args:?} failed: {}", String::from_utf8_lossy(&output.stderr));
+    let stderr = String::from_utf8_lossy(&output.stderr).into_owned();
+    assert!(output.status.success(), "op3dsgd {args:?} failed: {stderr}");
+    stderr
 }
 
 #[test]
-fn synthetic_kitchen_recorded_then_replayed_gives_the_identical_graph() {
+fn synthetic_kitchen_recorded_then_replayed_gives_the_identical_graph_five_times() {
     let dir = tempfile::tempdir().unwrap();
     let first_dir = dir.path().join("first");
     let first = first_dir.to_str().unwrap();
+    // The default profile's queues (keyframes and graph latest_wins) and two workers. Paced below
+    // what the recorder of a debug build keeps up with, and a deep frame queue: the recording
+    // must hold every frame the pipeline used (checked below: no drops); every frame reaches the
+    // gate (`queues.frames` blocks) so that all 45 are counted. The world frame is named as a
+    // robot's navigation stack names it; the replays below keep the default.
+    // Fusion is slowed to 100 ms a keyframe (the fault hook, as on a slower computer), the
+    // detections queue holds one result and the frame pool has room to spare (so the capture
+    // thread is not held back by it): at 8 Hz the robot keeps up, a replay as fast as it reads
+    // overruns what the latest_wins queues hold.
     let mut args = vec!["--set", "source.synthetic.frame_count=45", "--record", first];
-    args.extend_from_slice(DETERMINISTIC);
-    // Paced below what the recorder of a debug build keeps up with, and a deep frame queue: the
-    // recording must hold every frame the pipeline used (checked below: no drops). The world
-    // frame is named as a robot's navigation stack names it; the replay below keeps the default.
     args.extend_from_slice(&["--set", "source.rate_hz=8", "--set", "record.frame_queue=32"]);
-    args.extend_from_slice(&["--set", "world.frame_id=\"map\""]);
-    run_to_end(&unique_prefix("rec-a"), &args);
+    args.extend_from_slice(&["--set", "queues.frames.policy=block", "--set", "detector.workers=2"]);
+    args.extend_from_slice(&["--set", "queues.detections.capacity=1", "--set", "world.frame_id=\"map\""]);
+    args.extend_from_slice(&["--set", "source.pool_headroom=32"]);
+    run_to_end_with(&unique_prefix("rec-a"), &args, SLOW_FUSION);
     let files = mcap_files(&first_dir);
     assert_eq!(files.len(), 1, "one file: {files:?}");
     let recorded = check(&files[0]);
@@ -171,18 +221,68 @@ fn synthetic_kitchen_recorded_then_replayed_gives_the_identical_graph() {
     // The recording names the world frame as the profile does, as the graph header does.
     assert_world_frames(&recorded, "map");
 
-    // Replay through source.kind = "mcap" with the same profile and detector, recording again.
-    let second_dir = dir.path().join("second");
-    let replay_path = format!("source.mcap.path=\"{}\"", files[0].display());
-    let args = replay_args(&replay_path, second_dir.to_str().expect("utf-8 temp path"), &[]);
-    run_to_end(&unique_prefix("rec-b"), &args);
-    let files = mcap_files(&second_dir);
-    assert_eq!(files.len(), 1, "{files:?}");
-    let replayed = check(&files[0]);
-    assert_eq!(replayed["error"], Value::Null, "{replayed}");
-    assert_same_final_graph(&recorded, &replayed);
-    // The world frame's name is the replaying profile's (here the default): it changes no graph.
-    assert_world_frames(&replayed, "world");
+    // record info's verdict: nothing lost by the recorder or by the pipeline after the gate.
+    let info = record_info(&files[0]);
+    assert!(info.contains("  pipeline  dropped nothing after the keyframe gate while recording"), "{info}");
+    assert!(info.contains("  replay    bit for bit: "), "{info}");
+
+    // The documented replay command (docs/recording.md) in its fast mode, five runs at once so
+    // that they load the machine, with the recording's profile (queues, detections capacity 1,
+    // two workers) and a slower fusion still: the profile's latest_wins queues would drop; the replay
+    // blocks instead (source.mcap.lossless, the default). Each records again, for its graph. A
+    // sixth with `source.mcap.lossless = false` shows that the profile's policies do drop here.
+    let outs = replays_at_once(&files[0], dir.path());
+    // The control: the gate took the same keyframes, the pipeline dropped some after it.
+    let control = check(&mcap_files(&outs[5])[0]);
+    let version = |run: &Value| {
+        let graph: Value = serde_json::from_str(run["last_graph"].as_str().expect("a last graph")).expect("JSON");
+        graph["graph_version"].as_u64().expect("graph_version")
+    };
+    assert!(
+        version(&control) < version(&recorded),
+        "with the profile's latest_wins queues the fast replay drops keyframes (its last version {}, the \
+         recording's {}): else this test shows nothing",
+        version(&control),
+        version(&recorded)
+    );
+    for out in &outs[..5] {
+        let files = mcap_files(out);
+        assert_eq!(files.len(), 1, "{files:?}");
+        let replayed = check(&files[0]);
+        assert_eq!(replayed["error"], Value::Null, "{replayed}");
+        assert_eq!(replayed["channels"]["/op3dsg/frame"]["count"], 45, "every recorded frame replayed");
+        assert_eq!(replayed["channels"]["/tf"]["count"], keyframes, "the recorded keyframes, no more, no fewer");
+        assert_same_final_graph(&recorded, &replayed);
+        // The world frame's name is the replaying profile's (here the default): it changes no graph.
+        assert_world_frames(&replayed, "world");
+    }
+}
+
+/// Replays of `file` (fast, each recording into a folder under `dir`, returned): five at once
+/// with the documented command, then alone a sixth with `source.mcap.lossless = false` (alone, so
+/// that nothing slows its reading down to the pipeline's pace).
+fn replays_at_once(file: &Path, dir: &Path) -> Vec<PathBuf> {
+    let replay_path = format!("source.mcap.path=\"{}\"", file.display());
+    let outs: Vec<PathBuf> = (0..6).map(|i| dir.join(format!("replay-{i}"))).collect();
+    let replay = |i: usize, out: &Path| {
+        let out = out.to_str().expect("utf-8 temp path");
+        let mut args = vec!["--set", "source.kind=mcap", "--set", "source.rate_hz=0", "--set", &replay_path];
+        args.extend_from_slice(&["--set", "source.mcap.mode=\"fast\""]);
+        args.extend_from_slice(&["--set", "detector.workers=2", "--set", "queues.detections.capacity=1"]);
+        args.extend_from_slice(&["--set", "source.pool_headroom=32"]);
+        args.extend_from_slice(&["--record", out, "--set", "record.frame_queue=48"]);
+        if i == 5 {
+            args.extend_from_slice(&["--set", "source.mcap.lossless=false"]);
+        }
+        run_to_end_with(&unique_prefix(&format!("rec-b{i}")), &args, SLOWER_FUSION);
+    };
+    std::thread::scope(|scope| {
+        for (i, out) in outs[..5].iter().enumerate() {
+            scope.spawn(move || replay(i, out));
+        }
+    });
+    replay(5, &outs[5]);
+    outs
 }
 
 /// Every world frame name the recording uses (`/tf` parents, scene entities, node point clouds,

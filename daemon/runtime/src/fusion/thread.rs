@@ -23,6 +23,12 @@ use crate::world::clock::unix_ms;
 #[cfg(feature = "fault-hooks")]
 pub const TEST_STALL_FILE_ENV: &str = "OP3DSG_TEST_STALL_FUSION_FILE";
 
+/// Test-only fault hook (`fault-hooks` feature): milliseconds the fusion thread sleeps after
+/// each keyframe it fuses, as on a slower computer, so that a test can load the pipeline until
+/// its queues' policies matter (the replay test: latest-wins queues drop, a lossless replay waits).
+#[cfg(feature = "fault-hooks")]
+pub const TEST_FUSION_DELAY_ENV: &str = "OP3DSG_TEST_FUSION_DELAY_MS";
+
 /// Where the map starts: the version and stamp of a restored snapshot.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Resume {
@@ -76,6 +82,8 @@ struct Progress {
     /// Changed since the last published version.
     dirty: bool,
     last_publish: Option<Instant>,
+    /// The sleep after each keyframe of the `OP3DSG_TEST_FUSION_DELAY_MS` fault hook (zero: none).
+    test_delay: Duration,
 }
 
 impl FusionThread {
@@ -93,6 +101,7 @@ impl FusionThread {
             // A restored map is published at once: planners see it again before the first keyframe.
             dirty: self.resume.restored,
             last_publish: None,
+            test_delay: test_fusion_delay(),
         };
         loop {
             self.liveness.beat(WatchedStage::Fusion);
@@ -111,8 +120,7 @@ impl FusionThread {
                 Popped::Finished => true,
             };
             self.apply_in_order(&mut progress, finished);
-            let due = progress.last_publish.is_none_or(|t| t.elapsed() >= self.min_interval);
-            if progress.dirty && (due || finished) {
+            if progress.dirty && (self.publish_due(&progress) || finished) {
                 self.publish(&mut progress);
             }
             if !finished {
@@ -133,8 +141,17 @@ impl FusionThread {
         self.liveness.ended(WatchedStage::Fusion);
     }
 
+    /// Whether `run.min_publish_interval_ms` has passed since the last published version.
+    fn publish_due(&self, progress: &Progress) -> bool {
+        progress.last_publish.is_none_or(|t| t.elapsed() >= self.min_interval)
+    }
+
     /// Applies results in ticket order; at the end, what is left in order (a gap can only come
-    /// from a worker that gave up during shutdown).
+    /// from a worker that gave up during shutdown). A version is published after each result
+    /// that changed the map once one is due, not once per call: with
+    /// `run.min_publish_interval_ms = 0` the versions then follow the keyframes, however many
+    /// results arrived together (several workers finish out of order), so a replay numbers them
+    /// as the recorded run did.
     fn apply_in_order(&mut self, progress: &mut Progress, finished: bool) {
         while let Some(batch) = progress
             .pending
@@ -153,6 +170,9 @@ impl FusionThread {
             progress.stamp_ns = progress.stamp_ns.max(batch.frame.stamp_ns);
             progress.newest_capture = progress.newest_capture.max(Some(batch.captured_at));
             self.counters.stage.record(started);
+            if !progress.test_delay.is_zero() {
+                std::thread::sleep(progress.test_delay);
+            }
             tracing::trace!(
                 frame_seq = batch.frame.seq,
                 merged = report.merged,
@@ -161,6 +181,9 @@ impl FusionThread {
                 "fused"
             );
             progress.dirty |= fused.changed();
+            if progress.dirty && self.publish_due(progress) {
+                self.publish(progress);
+            }
         }
     }
 
@@ -202,6 +225,16 @@ impl FusionThread {
 
 fn take_snapshot(fusion: &dyn Fusion, version: u64, stamp_ns: u64) -> Option<Snapshot> {
     fusion.export_state().map(|map| Snapshot { graph_version: version, stamp_ns, taken_unix_ms: unix_ms(), map })
+}
+
+/// The delay of [`TEST_FUSION_DELAY_ENV`]; always zero without the `fault-hooks` feature.
+fn test_fusion_delay() -> Duration {
+    #[cfg(feature = "fault-hooks")]
+    if let Some(ms) = std::env::var(TEST_FUSION_DELAY_ENV).ok().and_then(|v| v.parse::<u64>().ok()) {
+        tracing::warn!(ms, "test fault hook {TEST_FUSION_DELAY_ENV} set: fusion sleeps after each keyframe");
+        return Duration::from_millis(ms);
+    }
+    Duration::ZERO
 }
 
 /// The file of [`TEST_STALL_FILE_ENV`]; always `None` without the `fault-hooks` feature.

@@ -132,7 +132,7 @@ impl Pipeline {
             "starting pipeline"
         );
         let step_control = source.step_control();
-        let q = Queues::new(profile, &stop);
+        let q = Queues::new(profile, &stop, source.lossless());
         // Before the counters: the LLM refiner (if any) owns its own.
         let enricher = make_enricher(profile)?;
         let refiner = enricher.as_ref().and_then(GraphEnricher::refiner_stats).unwrap_or_default();
@@ -146,6 +146,13 @@ impl Pipeline {
         counters.live_view = profile.live_view.enabled.then(Arc::default);
         let counters = Arc::new(counters);
         let stages::RestoredMap { fusion, resume, snapshots } = stages::restored_map(profile, backends, &counters)?;
+        if resume.restored && source.lossless() {
+            tracing::warn!(
+                graph_version = resume.graph_version,
+                "this replay starts from the map restored from the snapshot folder, not from the recording's start, \
+                 so its graph is not the recorded one (snapshot.enabled = false replays from an empty map)"
+            );
+        }
         let (snapshot_sink, snapshot_writer) = snapshots.unzip();
         let mut s = Stages::new();
         // The recorder first, so it is there before anything is produced; it ends after the last

@@ -107,8 +107,30 @@ const LIVE_VIEW_QUEUE: usize = 2;
 pub(super) type RemoteQueue = (QueueSender<(Arc<SceneGraph>, u64)>, QueueReceiver<(Arc<SceneGraph>, u64)>);
 
 impl Queues {
-    pub(super) fn new(profile: &Profile, stop: &Arc<std::sync::atomic::AtomicBool>) -> Self {
-        let q = &profile.queues;
+    /// The queues of `profile`; with a `lossless` source ([`FrameSource::lossless`]: a replay
+    /// that reproduces its recording) the four up to the publisher block whatever their policy,
+    /// so no frame, keyframe, result or graph version is dropped for lack of time.
+    pub(super) fn new(profile: &Profile, stop: &Arc<std::sync::atomic::AtomicBool>, lossless: bool) -> Self {
+        let mut q = profile.queues.clone();
+        if lossless {
+            let blocking = [&mut q.frames, &mut q.keyframes, &mut q.detections, &mut q.graph];
+            let changed: Vec<&str> = ["frames", "keyframes", "detections", "graph"]
+                .into_iter()
+                .zip(blocking)
+                .filter(|(_, queue)| queue.policy != OverflowPolicy::Block)
+                .map(|(name, queue)| {
+                    queue.policy = OverflowPolicy::Block;
+                    name
+                })
+                .collect();
+            if !changed.is_empty() {
+                info!(
+                    queues = %changed.join(", "),
+                    "a lossless replay (source.mcap.lossless): these queues block instead of dropping, so every \
+                     recorded frame is processed and the replay makes the recorded graph"
+                );
+            }
+        }
         let (frames_tx, frames_rx, frames) = queue::<CapturedFrame>("frames", q.frames, stop.clone());
         let (kf_tx, kf_rx, keyframes) = queue::<KeyframeItem>("keyframes", q.keyframes, stop.clone());
         let (det_tx, det_rx, detections) = queue::<DetectionBatch>("detections", q.detections, stop.clone());
@@ -205,7 +227,11 @@ pub(super) fn recorder(
         side_topics,
         counters.recorder.clone(),
     )
-    .map(Some)
+    .map(|(sender, thread)| {
+        let after_gate =
+            counters.queues.iter().filter(|q| matches!(q.name, "keyframes" | "detections")).cloned().collect();
+        Some((sender, thread.noting_pipeline_drops(after_gate)))
+    })
     .map_err(|e| StartError::Incompatible { field: "record.dir", reason: e.to_string() })
 }
 

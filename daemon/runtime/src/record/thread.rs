@@ -10,6 +10,7 @@ use op3dsg_ipc_types::RecorderHealth;
 
 use super::sender::{Limiter, RecordSender};
 use super::{Event, RawFrame, RawInput, RecordConfig, RecorderState, RecorderStats};
+use crate::queue::QueueStats;
 use crate::world::{UpAxis, WorldConfig};
 
 /// The recorder thread `op3dsg-record`, made with its producers' sender by
@@ -25,6 +26,20 @@ pub struct RecordThread {
     pub(super) events_rx: Receiver<Event>,
     pub(super) pool_tx: Sender<Box<RawFrame>>,
     pub(super) stats: Arc<RecorderStats>,
+    /// The pipeline's queues after the keyframe gate (keyframes, detections): what they drop
+    /// while a file is open is written into its metadata ([`RecordThread::noting_pipeline_drops`]).
+    pub(super) pipeline_queues: Vec<Arc<QueueStats>>,
+}
+
+impl RecordThread {
+    /// Notes in each file's `op3dsg.recorder` metadata what `queues` dropped while it was open
+    /// (`pipeline_dropped.<queue>`, `pipeline_dropped_total`): the pipeline's queues after the
+    /// keyframe gate, whose drops a replay does not repeat, so `op3dsg record info` can tell
+    /// whether the recorded graph is one a replay reproduces.
+    pub fn noting_pipeline_drops(mut self, queues: Vec<Arc<QueueStats>>) -> Self {
+        self.pipeline_queues = queues;
+        self
+    }
 }
 
 impl std::fmt::Debug for RecordThread {
@@ -117,6 +132,7 @@ impl RecordThread {
             events_rx,
             pool_tx,
             stats,
+            pipeline_queues: Vec::new(),
         };
         Ok((sender, thread))
     }

@@ -33,6 +33,8 @@ struct OpenFile {
     written: BTreeMap<String, u64>,
     dropped_at_open: u64,
     dropped_by_at_open: [(Channel, u64); super::CHANNEL_COUNT],
+    /// What each of the pipeline's queues after the gate had dropped when the file opened.
+    pipeline_dropped_at_open: Vec<u64>,
     calibration: Option<Intrinsics>,
 }
 
@@ -102,6 +104,7 @@ struct Recorder {
     profile_toml: String,
     side_topics: Vec<String>,
     stats: std::sync::Arc<RecorderStats>,
+    pipeline_queues: Vec<std::sync::Arc<crate::queue::QueueStats>>,
     file: Option<OpenFile>,
     failed: bool,
     last_log_ns: u64,
@@ -228,6 +231,7 @@ impl Recorder {
             written: BTreeMap::new(),
             dropped_at_open: self.stats.dropped.load(Ordering::Relaxed),
             dropped_by_at_open: self.stats.dropped_by_channel(),
+            pipeline_dropped_at_open: self.pipeline_queues.iter().map(|q| q.dropped.load(Ordering::Relaxed)).collect(),
             calibration: None,
         });
         Ok(())
@@ -439,6 +443,17 @@ impl Recorder {
             }
         }
         entries.insert("dropped_total".to_owned(), dropped.to_string());
+        // What the pipeline lost after the gate while this file was open: keyframes a replay
+        // would process, so the recorded graph is not one it reproduces.
+        if !self.pipeline_queues.is_empty() {
+            let mut total = 0;
+            for (queue, at_open) in self.pipeline_queues.iter().zip(&file.pipeline_dropped_at_open) {
+                let n = queue.dropped.load(Ordering::Relaxed).saturating_sub(*at_open);
+                total += n;
+                entries.insert(format!("pipeline_dropped.{}", queue.name), n.to_string());
+            }
+            entries.insert(op3dsg_drivers::mcap::PIPELINE_DROPPED_TOTAL.to_owned(), total.to_string());
+        }
         entries.insert("finished_utc".to_owned(), utc_stamp(super::now_ns()));
         let metadata = Metadata { name: topics::METADATA_RECORDER.to_owned(), metadata: entries };
         let err = |e: String| (path.clone(), e);
@@ -455,8 +470,18 @@ impl Recorder {
 }
 
 pub(super) fn recorder_loop(thread: RecordThread) {
-    let RecordThread { config, up_axis, world_frame, profile_toml, side_topics, frames_rx, events_rx, pool_tx, stats } =
-        thread;
+    let RecordThread {
+        config,
+        up_axis,
+        world_frame,
+        profile_toml,
+        side_topics,
+        frames_rx,
+        events_rx,
+        pool_tx,
+        stats,
+        pipeline_queues,
+    } = thread;
     let flush_every = Duration::from_millis(config.flush_interval_ms);
     let mut rec = Recorder {
         config,
@@ -465,6 +490,7 @@ pub(super) fn recorder_loop(thread: RecordThread) {
         profile_toml,
         side_topics,
         stats,
+        pipeline_queues,
         file: None,
         failed: false,
         last_log_ns: 0,

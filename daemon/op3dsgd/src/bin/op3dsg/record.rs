@@ -34,12 +34,23 @@ struct FileSummary {
     recorder_dropped: Option<u64>,
     recorder_metadata: BTreeMap<String, String>,
     profile_recorded: bool,
+    /// What the pipeline dropped after the keyframe gate while recording (`None`: the file does
+    /// not say, an earlier recorder or an unfinished file).
+    pipeline_dropped: Option<u64>,
+    /// The recorded profile's settings that make a replay's graph differ (one per entry).
+    #[serde(skip)]
+    profile_reasons: Vec<String>,
+    /// `graph_version` of the file's first `/op3dsg/graph` message (1: the map started empty
+    /// with this file).
+    first_graph_version: Option<u64>,
     /// Why reading stopped early (a truncated or damaged file), if it did.
     error: Option<String>,
     /// How `/camera/colour` is stored: `raw`, `png` or `jpeg` (`None`: no colour channel).
     colour: Option<String>,
     /// Whether a replay of this file makes the recorded graph bit for bit: the file finished,
-    /// complete (no read error), no message dropped, the profile recorded, lossless colour.
+    /// complete (no read error), no message dropped by the recorder nor keyframe by the pipeline,
+    /// the profile recorded with nothing in it that a replay cannot repeat, lossless colour, and
+    /// the map started empty with the file.
     replays_bit_for_bit: bool,
     /// Why it would not, when it would not (one reason per entry).
     not_bit_for_bit: Vec<String>,
@@ -59,11 +70,33 @@ impl FileSummary {
                 why.push(format!("{dropped} messages dropped while recording{per_channel}"));
             }
         }
+        if self.recorder_dropped.is_some() {
+            match op3dsg_drivers::mcap::pipeline_drops(&self.recorder_metadata) {
+                None => why.push(
+                    "the file does not say whether the pipeline dropped keyframes while recording (an earlier \
+                     recorder)"
+                        .to_owned(),
+                ),
+                Some((0, _)) => {}
+                Some((dropped, queues)) => why.push(format!(
+                    "the pipeline dropped {dropped} keyframes or results after the gate while recording ({}; \
+                     [queues] latest_wins under load), which a replay processes",
+                    queues.join(", ")
+                )),
+            }
+        }
         if let Some(error) = &self.error {
             why.push(format!("the file is damaged ({error})"));
         }
         if !self.profile_recorded {
             why.push("no profile recorded (op3dsg.profile metadata)".to_owned());
+        }
+        why.extend(self.profile_reasons.iter().cloned());
+        if let Some(version) = self.first_graph_version.filter(|v| *v != 1) {
+            why.push(format!(
+                "its first graph is version {version}: the map did not start empty with this file (a restored \
+                 snapshot, or an earlier file of the same run: replay the folder), and a replay starts empty"
+            ));
         }
         match self.colour.as_deref() {
             None => why.push("no /camera/colour channel".to_owned()),
@@ -72,6 +105,44 @@ impl FileSummary {
         }
         why
     }
+}
+
+/// The settings of a recorded profile that keep a replay from making the recorded graph bit for
+/// bit, one sentence each: the channels the replay needs, limited or off; a publish interval,
+/// which numbers versions by the clock; the LLM refiner, whose answers arrive when they arrive.
+fn profile_reasons(toml_text: &str) -> Vec<String> {
+    let Ok(profile) = toml::from_str::<toml::Table>(toml_text) else {
+        return vec!["the recorded profile is not valid TOML".to_owned()];
+    };
+    let get = |path: &str| {
+        path.split('.').try_fold(toml::Value::Table(profile.clone()), |v, key| v.as_table()?.get(key).cloned())
+    };
+    let mut why = Vec::new();
+    let mut needed = vec!["colour", "depth", "frame", "calibration"];
+    if get("pose.source").and_then(|v| v.as_str().map(str::to_owned)).as_deref() == Some("ipc") {
+        needed.push("input_poses");
+    }
+    if get("source.kind").and_then(|v| v.as_str().map(str::to_owned)).as_deref() == Some("synthetic") {
+        needed.push("side_channels");
+    }
+    for channel in needed {
+        let key = format!("record.channels.{channel}");
+        if get(&format!("{key}.enabled")).and_then(|v| v.as_bool()) == Some(false) {
+            why.push(format!("{key} was off: the replay has no such input"));
+        } else if let Some(rate) = get(&format!("{key}.max_rate_hz")).and_then(|v| v.as_float()).filter(|r| *r > 0.0) {
+            why.push(format!("{key} was limited to {rate} Hz: the replay refuses a frame without it"));
+        }
+    }
+    if let Some(ms) = get("run.min_publish_interval_ms").and_then(|v| v.as_integer()).filter(|ms| *ms > 0) {
+        why.push(format!(
+            "run.min_publish_interval_ms = {ms}: versions were published by the clock, so a replay's graph has the \
+             same content but other version numbers"
+        ));
+    }
+    if get("reasoner.kind").and_then(|v| v.as_str().map(str::to_owned)).as_deref() == Some("llm") {
+        why.push("reasoner.kind = \"llm\": the LLM's refinements arrive when they arrive".to_owned());
+    }
+    why
 }
 
 /// What `record info` says of the colour's storage.
@@ -95,6 +166,13 @@ fn summarise(path: &Path) -> Result<FileSummary> {
         match reader.next(&mut data) {
             Ok(None) => break,
             Ok(Some(Item::Message(at))) => {
+                if summary.first_graph_version.is_none()
+                    && reader.channel(at.channel_id).is_some_and(|c| c.topic == op3dsg_drivers::mcap::TOPIC_GRAPH)
+                {
+                    summary.first_graph_version = serde_json::from_slice::<serde_json::Value>(&data)
+                        .ok()
+                        .and_then(|graph| graph["graph_version"].as_u64());
+                }
                 if summary.colour.is_none()
                     && let Some(channel) = reader.channel(at.channel_id)
                     && channel.topic == op3dsg_drivers::mcap::TOPIC_COLOUR
@@ -117,9 +195,11 @@ fn summarise(path: &Path) -> Result<FileSummary> {
             Ok(Some(Item::Metadata { name, entries })) => {
                 if name == METADATA_RECORDER {
                     summary.recorder_dropped = entries.get("dropped_total").and_then(|v| v.parse().ok());
+                    summary.pipeline_dropped = op3dsg_drivers::mcap::pipeline_drops(&entries).map(|(n, _)| n);
                     summary.recorder_metadata = entries;
                 } else if name == METADATA_PROFILE {
                     summary.profile_recorded = true;
+                    summary.profile_reasons = entries.get("toml").map_or_else(Vec::new, |t| profile_reasons(t));
                 }
             }
             Err(e) => {
@@ -171,6 +251,11 @@ pub(super) fn info(files: &[PathBuf], json: bool) -> Result<()> {
             Some(dropped) => println!("  recorder  finished; dropped {dropped} messages while recording"),
             None => println!("  recorder  not finished (no op3dsg.recorder metadata): drops unknown"),
         }
+        match s.pipeline_dropped {
+            Some(0) => println!("  pipeline  dropped nothing after the keyframe gate while recording"),
+            Some(n) => println!("  pipeline  dropped {n} keyframes or results after the keyframe gate while recording"),
+            None => {}
+        }
         if let Some(colour) = &s.colour {
             println!("  colour    {colour} ({})", colour_note(colour));
         }
@@ -180,7 +265,10 @@ pub(super) fn info(files: &[PathBuf], json: bool) -> Result<()> {
             println!("  profile   missing (no op3dsg.profile metadata)");
         }
         if s.replays_bit_for_bit {
-            println!("  replay    bit for bit: complete channels, no drops, the profile recorded, lossless colour");
+            println!(
+                "  replay    bit for bit: complete channels, no drops, the profile recorded, lossless colour (with \
+                 source.mcap.lossless, the default)"
+            );
         } else {
             println!("  replay    NOT bit for bit: {}", s.not_bit_for_bit.join("; "));
         }
@@ -427,4 +515,62 @@ fn bench_graph(nodes: usize) -> op3dsg_runtime::graph::SceneGraph {
         }
     }
     graph
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn finished(metadata: &[(&str, &str)]) -> FileSummary {
+        FileSummary {
+            recorder_dropped: metadata.iter().find(|(k, _)| *k == "dropped_total").and_then(|(_, v)| v.parse().ok()),
+            recorder_metadata: metadata.iter().map(|(k, v)| ((*k).to_owned(), (*v).to_owned())).collect(),
+            profile_recorded: true,
+            colour: Some("raw".to_owned()),
+            first_graph_version: Some(1),
+            ..FileSummary::default()
+        }
+    }
+
+    #[test]
+    fn a_complete_recording_replays_bit_for_bit_and_each_loss_is_named() {
+        let clean = [("dropped_total", "0"), ("pipeline_dropped_total", "0"), ("pipeline_dropped.keyframes", "0")];
+        assert_eq!(finished(&clean).not_bit_for_bit(), Vec::<String>::new());
+
+        let lossy = finished(&[
+            ("dropped_total", "3"),
+            ("/camera/colour.dropped", "3"),
+            ("pipeline_dropped_total", "2"),
+            ("pipeline_dropped.keyframes", "2"),
+            ("pipeline_dropped.detections", "0"),
+        ]);
+        let why = lossy.not_bit_for_bit().join("; ");
+        assert!(why.contains("3 messages dropped while recording: /camera/colour 3"), "{why}");
+        assert!(
+            why.contains("the pipeline dropped 2 keyframes or results after the gate while recording (keyframes 2;"),
+            "{why}"
+        );
+
+        // A file of an earlier recorder does not say what the pipeline dropped: not claimed.
+        let earlier = finished(&[("dropped_total", "0")]);
+        assert!(earlier.not_bit_for_bit().join("; ").contains("does not say whether the pipeline dropped"));
+
+        // A file that continues a map (a restored snapshot, a later file of a rotation).
+        let continued = FileSummary { first_graph_version: Some(41), ..finished(&clean) };
+        assert!(continued.not_bit_for_bit().join("; ").contains("its first graph is version 41"));
+    }
+
+    #[test]
+    fn the_recorded_profile_names_what_a_replay_cannot_repeat() {
+        assert_eq!(profile_reasons("[run]\nmin_publish_interval_ms = 0\n"), Vec::<String>::new());
+        let text = "[pose]\nsource = \"ipc\"\n[run]\nmin_publish_interval_ms = 200\n[reasoner]\nkind = \"llm\"\n\
+                    [record.channels]\ncolour = { enabled = true, max_rate_hz = 5.0 }\n\
+                    input_poses = { enabled = false, max_rate_hz = 0.0 }\n";
+        let why = profile_reasons(text).join("; ");
+        assert!(why.contains("record.channels.colour was limited to 5 Hz"), "{why}");
+        assert!(why.contains("record.channels.input_poses was off"), "{why}");
+        assert!(why.contains("run.min_publish_interval_ms = 200"), "{why}");
+        assert!(why.contains("reasoner.kind = \"llm\""), "{why}");
+        assert_eq!(profile_reasons("not = [toml"), vec!["the recorded profile is not valid TOML".to_owned()]);
+    }
 }
