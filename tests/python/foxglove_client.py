@@ -4,7 +4,8 @@
 
 The spec names the v1 subprotocol `foxglove.websocket.v1`; Foxglove's SDK servers (the
 `foxglove` crate, foxglove_bridge 3) negotiate the same v1 messages under the name
-`foxglove.sdk.v1` and refuse the old name with HTTP 400, so that is the name offered here.
+`foxglove.sdk.v1`. The daemon takes both (and `foxglove.sdk.v1.1`); the new name is the one
+offered here unless `--offer` says otherwise.
 
 What it speaks: the server's text messages are JSON with an `op` (`serverInfo`, `advertise`,
 `unadvertise`, `status`, ...); the client subscribes with `{"op": "subscribe", "subscriptions":
@@ -25,6 +26,10 @@ Modes:
   churn --url URL --clients K --cycles C
       C times: K clients connect, subscribe to every channel, each reads one message, all close;
       prints one JSON line with the messages read.
+  handshake --url URL --offer NAMES
+      connects offering the comma-separated subprotocols NAMES (empty: no header) and prints one
+      JSON line: the HTTP status, the subprotocol the server picked, the first text message's
+      `op` and the topics of the first `advertise` (or, when refused, the answer's body).
 """
 
 import argparse
@@ -176,9 +181,30 @@ async def churn(url, clients, cycles):
     print(json.dumps({"cycles": cycles, "clients": clients, "messages_read": read}), flush=True)
 
 
+async def handshake(url, offer, timeout_s):
+    offered = [name for name in offer.split(",") if name] or None
+    try:
+        ws = await websockets.connect(url, subprotocols=offered, max_size=None)
+    except websockets.exceptions.InvalidStatus as refused:
+        response = refused.response
+        print(json.dumps({"status": response.status_code, "body": response.body.decode(errors="replace")}), flush=True)
+        return
+    async with ws:
+        first = json.loads(await asyncio.wait_for(ws.recv(), timeout_s))
+        channels = await advertised(ws, timeout_s) if first.get("op") != "advertise" else {
+            c["topic"]: c for c in first["channels"]
+        }
+        print(
+            json.dumps({"status": 101, "subprotocol": ws.subprotocol, "first_op": first.get("op"),
+                        "topics": sorted(channels)}),
+            flush=True,
+        )
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("mode", choices=["scene", "stall", "churn"])
+    parser.add_argument("mode", choices=["scene", "stall", "churn", "handshake"])
+    parser.add_argument("--offer", default=SUBPROTOCOL)
     parser.add_argument("--url", required=True)
     parser.add_argument("--count", type=int, default=1)
     parser.add_argument("--timeout-s", type=float, default=30.0)
@@ -189,6 +215,8 @@ def main():
         asyncio.run(scene(args.url, args.count, args.timeout_s))
     elif args.mode == "stall":
         asyncio.run(stall(args.url))
+    elif args.mode == "handshake":
+        asyncio.run(handshake(args.url, args.offer, args.timeout_s))
     else:
         asyncio.run(churn(args.url, args.clients, args.cycles))
 

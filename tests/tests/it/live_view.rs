@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 
 use op3dsg_ipc_types::{Health, HealthSubscriber, fixed_str};
 use op3dsg_tests::{Daemon, binary, health_where, unique_prefix, wait_for};
-use serde_json::Value;
+use serde_json::{Value, json};
 
 fn python() -> PathBuf {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../.venv/bin/python");
@@ -149,6 +149,51 @@ fn a_foxglove_client_sees_the_boxes_of_the_graph_of_the_same_version() {
             break;
         }
         assert!(Instant::now() < deadline, "the scene and the dump never met at one version");
+    }
+}
+
+/// What `foxglove_client.py handshake` saw when offering `offer` (comma-separated names).
+fn handshake(port: u16, offer: &str) -> Value {
+    let output = Command::new(python())
+        .arg(client())
+        .args(["handshake", "--url", &url(port), "--offer", offer, "--timeout-s", "30"])
+        .output()
+        .expect("run foxglove_client.py");
+    assert!(output.status.success(), "foxglove_client.py handshake: {}", String::from_utf8_lossy(&output.stderr));
+    serde_json::from_slice(&output.stdout).expect("handshake JSON")
+}
+
+/// A client offering the protocol's first name (`foxglove.websocket.v1`, all that Foxglove Studio
+/// and Lichtblick releases offer), the SDK's (`foxglove.sdk.v1`) or both connects, gets the name
+/// it offered (the newest of several) and the channels; any other offer is refused with HTTP 400
+/// naming the accepted ones. The client is PyPI `websockets`, which checks that the server picked
+/// a subprotocol the client offered.
+#[test]
+fn a_foxglove_client_connects_with_either_name_of_the_protocol() {
+    let port = free_port();
+    let _daemon = start_daemon("live-view-names", port, 60, &[]);
+    for (offer, picked) in [
+        ("foxglove.websocket.v1", "foxglove.websocket.v1"),
+        ("foxglove.sdk.v1", "foxglove.sdk.v1"),
+        ("foxglove.websocket.v1,foxglove.sdk.v1", "foxglove.sdk.v1"),
+        ("foxglove.sdk.v1,foxglove.websocket.v1", "foxglove.sdk.v1"),
+    ] {
+        let seen = handshake(port, offer);
+        assert_eq!((&seen["status"], &seen["subprotocol"]), (&json!(101), &json!(picked)), "{offer}: {seen}");
+        assert_eq!(seen["first_op"], "serverInfo", "{offer}: {seen}");
+        let topics = seen["topics"].as_array().expect("topics");
+        for topic in ["/op3dsg/scene", "/tf", "/op3dsg/health"] {
+            assert!(topics.contains(&json!(topic)), "{offer}: {topic} advertised: {seen}");
+        }
+    }
+    for offer in ["chat", ""] {
+        let seen = handshake(port, offer);
+        assert_eq!(seen["status"], 400, "{offer:?}: {seen}");
+        let body = seen["body"].as_str().expect("body");
+        assert!(
+            body.contains("foxglove.sdk.v1.1, foxglove.sdk.v1 or foxglove.websocket.v1"),
+            "{offer:?}: the answer names the accepted subprotocols: {body}"
+        );
     }
 }
 

@@ -22,10 +22,12 @@
 //! | file | what |
 //! |---|---|
 //! | `config.rs` | `[live_view]` ([`LiveViewConfig`]) |
+//! | `handshake.rs` | the layer before the server that takes `foxglove.websocket.v1` as well as the SDK's names |
 //! | `messages.rs` | the graph, the pose, the map and the images in Foxglove's types |
 //! | `thread.rs` | [`LiveViewThread`] and its [`LiveViewCounters`] |
 
 mod config;
+pub mod handshake;
 pub mod messages;
 mod thread;
 

@@ -194,15 +194,22 @@ impl LiveViewThread {
         let images = self.config.images;
         let colour = images.then(|| ctx.channel_builder(topics::TOPIC_COLOUR).build::<RawImage>());
         let depth = images.then(|| ctx.channel_builder(topics::TOPIC_DEPTH).build::<RawImage>());
+        // The address the profile names is the handshake layer's (it takes both names of the
+        // protocol, `super::handshake`); the crate's server listens on a loopback port of its own.
+        let listener = runtime
+            .block_on(tokio::net::TcpListener::bind(address))
+            .map_err(|e| format!("live_view.bind: cannot listen on {}: {e}", self.config.bind))?;
+        let port = listener.local_addr().map_err(|e| format!("live_view.bind: {e}"))?.port();
         let handle = WebSocketServer::new()
             .name("op3dsg")
-            .bind(address.ip().to_string(), address.port())
+            .bind("127.0.0.1", 0)
             .context(&ctx)
             .message_backlog_size(self.config.backlog)
             .tokio_runtime(runtime.handle())
             .start_blocking()
-            .map_err(|e| format!("live_view.bind: cannot listen on {}: {e}", self.config.bind))?;
-        let port = handle.port();
+            .map_err(|e| format!("live_view: cannot start the WebSocket server on a loopback port: {e}"))?;
+        let server = std::net::SocketAddr::from(([127, 0, 0, 1], handle.port()));
+        runtime.spawn(super::handshake::accept(listener, server));
         self.counters.port.store(u64::from(port), Ordering::Relaxed);
         if self.config.open_beyond_loopback() {
             warn!(bind = %self.config.bind, "the live view listens beyond loopback: anyone who reaches it watches the robot");
