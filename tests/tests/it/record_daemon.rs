@@ -100,6 +100,33 @@ fn assert_the_pipelines_drops_are_named(file: &Path) {
     assert!(stderr.contains("queues=keyframes "), "{stderr}");
 }
 
+/// A recording whose recorder fell behind (the fixture copied by PyPI `mcap` with the drop
+/// counts of `op3dsg.recorder` set, `tests/python/mcap_set_drops.py`): `record info` says it
+/// will not replay bit for bit, naming the channel and count, and its replay warns with both.
+#[test]
+fn a_recording_with_recorder_drops_says_so_and_its_replay_warns() {
+    let fixture = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/recording-json-ee322aa.mcap");
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("dropped.mcap");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/mcap_set_drops.py");
+    let output = Command::new(python())
+        .arg(script)
+        .arg(&fixture)
+        .arg(&file)
+        .args(["/camera/colour.dropped=3", "dropped_total=3"])
+        .output()
+        .expect("run mcap_set_drops.py");
+    assert!(output.status.success(), "mcap_set_drops.py: {}", String::from_utf8_lossy(&output.stderr));
+    let info = record_info(&file);
+    assert!(info.contains("  recorder  finished; dropped 3 messages while recording"), "{info}");
+    assert!(info.contains("NOT bit for bit: 3 messages dropped while recording: /camera/colour 3"), "{info}");
+    let replay_path = format!("source.mcap.path=\"{}\"", file.display());
+    let args = ["--set", "source.kind=mcap", "--set", "source.rate_hz=0", "--set", &replay_path];
+    let stderr = run_to_end_with(&unique_prefix("rec-recorder-drop"), &args, &[]);
+    assert!(stderr.contains("this recording dropped messages while recording"), "{stderr}");
+    assert!(stderr.contains("channels=/camera/colour 3"), "{stderr}");
+}
+
 /// [`run_to_end`] with environment variables (the test fault hooks).
 fn run_to_end_with(prefix: &str, args: &[&str], env: &[(&str, &str)]) -> String {
     let output = Command::new(binary("op3dsgd"))
@@ -215,11 +242,12 @@ fn synthetic_kitchen_recorded_then_replayed_gives_the_identical_graph_five_times
     assert!(info.contains("  pipeline  dropped nothing after the keyframe gate while recording"), "{info}");
     assert!(info.contains("  replay    bit for bit: "), "{info}");
 
-    // The documented replay command (docs/recording.md) in its fast mode, five runs at once so
-    // that they load the machine, with the recording's profile (queues, detections capacity 1,
-    // two workers) and a slower fusion still: the profile's latest_wins queues would drop; the replay
-    // blocks instead (source.mcap.lossless, the default). Each records again, for its graph. A
-    // sixth with `source.mcap.lossless = false` shows that the profile's policies do drop here.
+    // The documented replay command (docs/recording.md), five runs at once so that they load the
+    // machine (three at the recorded pace, two in the fast mode), with the recording's profile
+    // (queues, detections capacity 1, two workers) and a slower fusion still: the profile's
+    // latest_wins queues would drop; the replay blocks instead (source.mcap.lossless, the
+    // default). Each records again, for its graph. A sixth, fast, with `source.mcap.lossless =
+    // false` shows that the profile's policies do drop here.
     let outs = replays_at_once(&files[0], dir.path());
     // The control: the gate took the same keyframes, the pipeline dropped some after it; its own
     // recording says so, and a replay of that warns.
@@ -250,16 +278,21 @@ fn synthetic_kitchen_recorded_then_replayed_gives_the_identical_graph_five_times
     }
 }
 
-/// Replays of `file` (fast, each recording into a folder under `dir`, returned): five at once
-/// with the documented command, then alone a sixth with `source.mcap.lossless = false` (alone, so
-/// that nothing slows its reading down to the pipeline's pace).
+/// Replays of `file`, each recording into a folder under `dir` (returned): five at once, three
+/// with the documented command as written (at the recorded pace) and two in the fast mode, then
+/// alone a sixth, fast, with `source.mcap.lossless = false` (alone, so that nothing slows its
+/// reading down to the pipeline's pace).
 fn replays_at_once(file: &Path, dir: &Path) -> Vec<PathBuf> {
     let replay_path = format!("source.mcap.path=\"{}\"", file.display());
     let outs: Vec<PathBuf> = (0..6).map(|i| dir.join(format!("replay-{i}"))).collect();
     let replay = |i: usize, out: &Path| {
         let out = out.to_str().expect("utf-8 temp path");
         let mut args = vec!["--set", "source.kind=mcap", "--set", "source.rate_hz=0", "--set", &replay_path];
-        args.extend_from_slice(&["--set", "source.mcap.mode=\"fast\""]);
+        // 0..=2 as the docs write the command (the default mode: at the recorded pace), the rest
+        // as fast as the file reads.
+        if i >= 3 {
+            args.extend_from_slice(&["--set", "source.mcap.mode=\"fast\""]);
+        }
         args.extend_from_slice(&["--set", "detector.workers=2", "--set", "queues.detections.capacity=1"]);
         args.extend_from_slice(&["--set", "source.pool_headroom=32"]);
         args.extend_from_slice(&["--record", out, "--set", "record.frame_queue=48"]);
