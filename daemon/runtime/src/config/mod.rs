@@ -257,6 +257,7 @@ impl Profile {
             self.run.validate("run"),
             self.world.validate("world"),
             self.zenoh_in_build(),
+            self.zenoh_reachable(),
         ]
         .into_iter()
         .collect::<Result<(), String>>()
@@ -273,6 +274,35 @@ impl Profile {
             (self.detector.kind == crate::perception::remote::REMOTE_DETECTOR, "detector.kind", "remote detection"),
         ];
         uses.into_iter().find(|(on, _, _)| *on).map(|(_, key, what)| (key, what))
+    }
+
+    /// The daemon's `[zenoh]` session (the Zenoh stage, remote detection) must be reachable: a
+    /// session that neither listens nor connects, without multicast scouting or a Zenoh
+    /// configuration file, can reach nothing and nothing can reach it, so a profile that needs
+    /// one is refused naming the keys instead of starting silent.
+    fn zenoh_reachable(&self) -> Result<(), String> {
+        let z = &self.zenoh;
+        let remote = self.detector.kind == crate::perception::remote::REMOTE_DETECTOR;
+        let users: Vec<&str> =
+            [(z.enabled, "zenoh.enabled (the graph off this computer)"), (remote, "detector.kind = \"remote\"")]
+                .into_iter()
+                .filter_map(|(on, what)| on.then_some(what))
+                .collect();
+        if users.is_empty()
+            || z.config_file.is_some()
+            || !z.listen.is_empty()
+            || !z.connect.is_empty()
+            || z.multicast_scouting
+        {
+            return Ok(());
+        }
+        Err(format!(
+            "zenoh.listen: {} speaks Zenoh, but the session neither listens (zenoh.listen) nor connects \
+             (zenoh.connect) and zenoh.multicast_scouting is off, so nothing can reach it: set zenoh.listen \
+             (e.g. [\"tcp/127.0.0.1:7447\"]) for consumers and detection workers to connect to, or \
+             zenoh.connect to a router, worker or consumer that listens",
+            users.join(" and ")
+        ))
     }
 
     /// Without the cargo feature `zenoh` nothing that speaks Zenoh is built: a profile that

@@ -307,6 +307,27 @@ fn the_world_frame_defaults_to_world_and_a_bad_one_names_the_file_and_key() {
     assert!(err.to_string().contains("world.frame_id: must not be empty"), "{err}");
 }
 
+// With the feature: without it, a profile that needs Zenoh is refused for that first.
+#[cfg(feature = "zenoh")]
+#[test]
+fn a_zenoh_session_that_can_reach_nothing_is_refused_naming_the_keys() {
+    for turn_on in ["zenoh.enabled=true", "detector.kind=\"remote\""] {
+        let err = load(None, &[turn_on.to_owned()]).unwrap_err().to_string();
+        assert!(err.contains("zenoh.listen: "), "{turn_on}: {err}");
+        assert!(err.contains("neither listens (zenoh.listen) nor connects (zenoh.connect)"), "{turn_on}: {err}");
+        // Either direction, or scouting, makes it reachable.
+        for reach in [
+            "zenoh.listen=[\"tcp/127.0.0.1:7447\"]",
+            "zenoh.connect=[\"tcp/127.0.0.1:7447\"]",
+            "zenoh.multicast_scouting=true",
+        ] {
+            let loaded = load(None, &[turn_on.to_owned(), reach.to_owned()]);
+            assert!(loaded.is_ok(), "{turn_on} with {reach}: {:?}", loaded.err().map(|e| e.to_string()));
+        }
+    }
+    assert!(load(None, &[]).is_ok(), "nothing speaks Zenoh by default");
+}
+
 #[test]
 fn what_needs_zenoh_is_named_by_its_key() {
     // A build without the feature `zenoh` refuses exactly these, naming the key (Profile::validate).
