@@ -90,6 +90,10 @@ pub const METADATA_RECORDER: &str = "op3dsg.recorder";
 /// file was open (absent in files of earlier recorders and of `bench record`).
 pub const PIPELINE_DROPPED_TOTAL: &str = "pipeline_dropped_total";
 
+/// Keys of [`METADATA_RECORDER`] that start with this and go on with a queue's name: what that
+/// queue dropped while the file was open.
+pub const PIPELINE_DROPPED_PREFIX: &str = "pipeline_dropped.";
+
 /// What the pipeline dropped after the gate while the file was open, from the recorder's
 /// metadata: the total and `<queue> <count>` for each queue that dropped; `None` when the file
 /// does not say (an earlier recorder).
@@ -98,7 +102,7 @@ pub fn pipeline_drops(recorder: &std::collections::BTreeMap<String, String>) -> 
     let queues = recorder
         .iter()
         .filter_map(|(key, n)| {
-            key.strip_prefix("pipeline_dropped.").filter(|_| n != "0").map(|queue| format!("{queue} {n}"))
+            key.strip_prefix(PIPELINE_DROPPED_PREFIX).filter(|_| n != "0").map(|queue| format!("{queue} {n}"))
         })
         .collect();
     Some((total, queues))

@@ -40,11 +40,6 @@ const REPO: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
 
 #[test]
 fn only_the_daemons_user_attaches_and_nothing_is_open_to_others() {
-    assert!(
-        is_root(),
-        "this test starts processes as other users with setpriv and must run as root (CI does); \
-         run it with sudo, or leave it out with --skip ipc_users"
-    );
     let scratch = Scratch::new();
     let prefix = unique_prefix("users");
     let mut daemon = Killed(scratch.daemon(&prefix));
@@ -137,11 +132,6 @@ fn only_the_daemons_user_attaches_and_nothing_is_open_to_others() {
 /// look: the Rust command line and the Python client both name the other user's root and the fix.
 #[test]
 fn a_planner_of_another_user_is_told_whose_root_serves() {
-    assert!(
-        is_root(),
-        "this test starts processes as other users with setpriv and must run as root (CI does); \
-         run it with sudo, or leave it out with --skip ipc_users"
-    );
     let scratch = Scratch::new();
     let home = scratch.path.join("home");
     std::os::unix::fs::chown(&home, Some(D), Some(D)).expect("test set-up");
@@ -191,11 +181,7 @@ fn a_planner_of_another_user_is_told_whose_root_serves() {
         assert!(stderr.contains(&format!("sudo -u #{D}")), "{stderr}");
     }
 
-    let python = if Path::new("/usr/bin/python3").exists() {
-        "/usr/bin/python3".to_owned()
-    } else {
-        Path::new(REPO).join(".venv/bin/python").to_string_lossy().into_owned()
-    };
+    let python = python();
     let script = format!("import op3dsg; op3dsg.GraphClient({prefix:?}, timeout=2)");
     let out = in_own_root(C, &[&python, "-c", &script]).output().expect("setpriv");
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -286,7 +272,14 @@ struct Scratch {
 }
 
 impl Scratch {
+    /// The scratch folder; the tests that use one start processes as other users, so they
+    /// must run as root.
     fn new() -> Self {
+        assert!(
+            is_root(),
+            "this test starts processes as other users with setpriv and must run as root (CI does); \
+             run it with sudo, or leave it out with --skip ipc_users"
+        );
         let dir = tempfile::tempdir().expect("scratch folder");
         let path = dir.path().to_path_buf();
         std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o755)).expect("test set-up");
@@ -400,11 +393,7 @@ impl Scratch {
     /// The Python client as A: the graph equal to the dump, a query answered, a pose (NaN: the
     /// daemon counts it on receipt, whether or not frames still come) sent; as C it is refused with the owner's name.
     fn python_as_a(&self, prefix: &str, dumped: &serde_json::Value) {
-        let python = if Path::new("/usr/bin/python3").exists() {
-            "/usr/bin/python3".to_owned()
-        } else {
-            Path::new(REPO).join(".venv/bin/python").to_string_lossy().into_owned()
-        };
+        let python = python();
         let script = format!(
             r#"
 import json, sys, time, op3dsg
@@ -456,6 +445,15 @@ print("pose sent")
             self.run_as(C, &[&python, "-c", &format!("import op3dsg; op3dsg.GraphClient({prefix:?}, timeout=2)")]);
         assert!(!refused.ok && refused.stderr.contains("AccessDeniedError"), "{refused:?}");
         assert!(refused.stderr.contains(&format!("belongs to uid {A}")), "{}", refused.stderr);
+    }
+}
+
+/// A Python every identity can run: the system's, else the project venv's.
+fn python() -> String {
+    if Path::new("/usr/bin/python3").exists() {
+        "/usr/bin/python3".to_owned()
+    } else {
+        Path::new(REPO).join(".venv/bin/python").to_string_lossy().into_owned()
     }
 }
 

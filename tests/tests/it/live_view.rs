@@ -154,13 +154,14 @@ fn a_foxglove_client_sees_the_boxes_of_the_graph_of_the_same_version() {
 
 /// What `foxglove_client.py handshake` saw when offering `offer` (comma-separated names).
 fn handshake(port: u16, offer: &str) -> Value {
-    let output = Command::new(python())
-        .arg(client())
-        .args(["handshake", "--url", &url(port), "--offer", offer, "--timeout-s", "30"])
-        .output()
-        .expect("run foxglove_client.py");
-    assert!(output.status.success(), "foxglove_client.py handshake: {}", String::from_utf8_lossy(&output.stderr));
-    serde_json::from_slice(&output.stdout).expect("handshake JSON")
+    client_json(&["handshake", "--url", &url(port), "--offer", offer, "--timeout-s", "30"])
+}
+
+/// The one JSON line `foxglove_client.py` prints for `args` (its mode first).
+fn client_json(args: &[&str]) -> Value {
+    let output = Command::new(python()).arg(client()).args(args).output().expect("run foxglove_client.py");
+    assert!(output.status.success(), "foxglove_client.py {}: {}", args[0], String::from_utf8_lossy(&output.stderr));
+    serde_json::from_slice(&output.stdout).unwrap_or_else(|e| panic!("foxglove_client.py {}: JSON: {e}", args[0]))
 }
 
 /// A client offering the protocol's first name (`foxglove.websocket.v1`, all that Foxglove Studio
@@ -273,13 +274,7 @@ fn rss_kib(pid: u32) -> u64 {
 }
 
 fn churn(port: u16, cycles: u32) -> Value {
-    let output = Command::new(python())
-        .arg(client())
-        .args(["churn", "--url", &url(port), "--clients", "5", "--cycles", &cycles.to_string()])
-        .output()
-        .expect("run foxglove_client.py churn");
-    assert!(output.status.success(), "foxglove_client.py churn: {}", String::from_utf8_lossy(&output.stderr));
-    serde_json::from_slice(&output.stdout).expect("churn JSON")
+    client_json(&["churn", "--url", &url(port), "--clients", "5", "--cycles", &cycles.to_string()])
 }
 
 #[test]

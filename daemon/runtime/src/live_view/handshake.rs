@@ -34,8 +34,8 @@ use tracing::{debug, warn};
 pub const LEGACY_SUBPROTOCOL: &str = "foxglove.websocket.v1";
 /// The names the `foxglove` crate's server negotiates, newest first.
 pub const SDK_SUBPROTOCOLS: [&str; 2] = ["foxglove.sdk.v1.1", "foxglove.sdk.v1"];
-/// What the legacy name is offered to the server as.
-const SDK_V1: &str = "foxglove.sdk.v1";
+/// What the legacy name is offered to the server as: the SDK's name of the same v1.
+const SDK_V1: &str = SDK_SUBPROTOCOLS[1];
 
 /// The longest HTTP request or response head taken.
 pub const MAX_HEAD_BYTES: usize = 16 * 1024;
@@ -53,13 +53,17 @@ pub enum Decision {
     Refuse(String),
 }
 
+/// The value of `line` when it is a `Sec-WebSocket-Protocol` header (names are case-insensitive).
+fn protocol_header(line: &str) -> Option<&str> {
+    line.split_once(':').filter(|(name, _)| name.trim().eq_ignore_ascii_case("sec-websocket-protocol")).map(|(_, v)| v)
+}
+
 /// The subprotocols a request head offers (every `Sec-WebSocket-Protocol` header, comma lists).
 fn offered(head: &str) -> Vec<String> {
     head.split("\r\n")
         .skip(1)
-        .filter_map(|line| line.split_once(':'))
-        .filter(|(name, _)| name.trim().eq_ignore_ascii_case("sec-websocket-protocol"))
-        .flat_map(|(_, value)| value.split(',').map(|v| v.trim().to_owned()))
+        .filter_map(protocol_header)
+        .flat_map(|value| value.split(',').map(|v| v.trim().to_owned()))
         .filter(|v| !v.is_empty())
         .collect()
 }
@@ -83,9 +87,7 @@ fn with_subprotocol(head: &str, value: &str) -> String {
     let mut out = String::with_capacity(head.len());
     let mut replaced = false;
     for (i, line) in head.split("\r\n").enumerate() {
-        let is_protocol = i > 0
-            && line.split_once(':').is_some_and(|(name, _)| name.trim().eq_ignore_ascii_case("sec-websocket-protocol"));
-        if is_protocol {
+        if i > 0 && protocol_header(line).is_some() {
             if !replaced {
                 out.push_str("Sec-WebSocket-Protocol: ");
                 out.push_str(value);

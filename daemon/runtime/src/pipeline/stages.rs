@@ -113,16 +113,19 @@ impl Queues {
     pub(super) fn new(profile: &Profile, stop: &Arc<std::sync::atomic::AtomicBool>, lossless: bool) -> Self {
         let mut q = profile.queues.clone();
         if lossless {
-            let blocking = [&mut q.frames, &mut q.keyframes, &mut q.detections, &mut q.graph];
-            let changed: Vec<&str> = ["frames", "keyframes", "detections", "graph"]
-                .into_iter()
-                .zip(blocking)
-                .filter(|(_, queue)| queue.policy != OverflowPolicy::Block)
-                .map(|(name, queue)| {
+            let mut changed = Vec::new();
+            let queues = [
+                ("frames", &mut q.frames),
+                ("keyframes", &mut q.keyframes),
+                ("detections", &mut q.detections),
+                ("graph", &mut q.graph),
+            ];
+            for (name, queue) in queues {
+                if queue.policy != OverflowPolicy::Block {
                     queue.policy = OverflowPolicy::Block;
-                    name
-                })
-                .collect();
+                    changed.push(name);
+                }
+            }
             if !changed.is_empty() {
                 info!(
                     queues = %changed.join(", "),

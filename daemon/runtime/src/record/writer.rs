@@ -450,7 +450,8 @@ impl Recorder {
             for (queue, at_open) in self.pipeline_queues.iter().zip(&file.pipeline_dropped_at_open) {
                 let n = queue.dropped.load(Ordering::Relaxed).saturating_sub(*at_open);
                 total += n;
-                entries.insert(format!("pipeline_dropped.{}", queue.name), n.to_string());
+                entries
+                    .insert(format!("{}{}", op3dsg_drivers::mcap::PIPELINE_DROPPED_PREFIX, queue.name), n.to_string());
             }
             entries.insert(op3dsg_drivers::mcap::PIPELINE_DROPPED_TOTAL.to_owned(), total.to_string());
         }

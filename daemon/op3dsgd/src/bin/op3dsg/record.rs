@@ -115,31 +115,39 @@ fn profile_reasons(toml_text: &str) -> Vec<String> {
         return vec!["the recorded profile is not valid TOML".to_owned()];
     };
     let get = |path: &str| {
-        path.split('.').try_fold(toml::Value::Table(profile.clone()), |v, key| v.as_table()?.get(key).cloned())
+        let (tables, key) = path.rsplit_once('.').unwrap_or(("", path));
+        let table = tables
+            .split('.')
+            .filter(|t| !t.is_empty())
+            .try_fold(&profile, |table, name| table.get(name)?.as_table())?;
+        table.get(key)
     };
+    let is = |path: &str, value: &str| get(path).and_then(toml::Value::as_str) == Some(value);
     let mut why = Vec::new();
     let mut needed = vec!["colour", "depth", "frame", "calibration"];
-    if get("pose.source").and_then(|v| v.as_str().map(str::to_owned)).as_deref() == Some("ipc") {
+    if is("pose.source", "ipc") {
         needed.push("input_poses");
     }
-    if get("source.kind").and_then(|v| v.as_str().map(str::to_owned)).as_deref() == Some("synthetic") {
+    if is("source.kind", "synthetic") {
         needed.push("side_channels");
     }
     for channel in needed {
         let key = format!("record.channels.{channel}");
-        if get(&format!("{key}.enabled")).and_then(|v| v.as_bool()) == Some(false) {
+        if get(&format!("{key}.enabled")).and_then(toml::Value::as_bool) == Some(false) {
             why.push(format!("{key} was off: the replay has no such input"));
-        } else if let Some(rate) = get(&format!("{key}.max_rate_hz")).and_then(|v| v.as_float()).filter(|r| *r > 0.0) {
+        } else if let Some(rate) =
+            get(&format!("{key}.max_rate_hz")).and_then(toml::Value::as_float).filter(|r| *r > 0.0)
+        {
             why.push(format!("{key} was limited to {rate} Hz: the replay refuses a frame without it"));
         }
     }
-    if let Some(ms) = get("run.min_publish_interval_ms").and_then(|v| v.as_integer()).filter(|ms| *ms > 0) {
+    if let Some(ms) = get("run.min_publish_interval_ms").and_then(toml::Value::as_integer).filter(|ms| *ms > 0) {
         why.push(format!(
             "run.min_publish_interval_ms = {ms}: versions were published by the clock, so a replay's graph has the \
              same content but other version numbers"
         ));
     }
-    if get("reasoner.kind").and_then(|v| v.as_str().map(str::to_owned)).as_deref() == Some("llm") {
+    if is("reasoner.kind", "llm") {
         why.push("reasoner.kind = \"llm\": the LLM's refinements arrive when they arrive".to_owned());
     }
     why
