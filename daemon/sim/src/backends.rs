@@ -508,7 +508,7 @@ mod tests {
     fn the_oracle_reads_ground_truth_from_the_synthetic_source_only() {
         let profile = load_profile(None, &["source.synthetic.frame_count=3".to_owned()]).unwrap().profile;
         let backends = backends();
-        let (opened, _) = backends.open(&profile).unwrap();
+        let (opened, _) = backends.open(&profile, None).unwrap();
         assert!(ground_truth(&opened).is_some_and(|truth| !truth.scene.instances().is_empty()));
         let err = load_profile(None, &["detector.kind=oracle_v2".to_owned()]).unwrap_err();
         assert!(

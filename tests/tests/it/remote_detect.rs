@@ -6,6 +6,9 @@
 //!   keyframe answered remotely and both workers used.
 //! - On the synthetic kitchen (endless): killing one worker moves its keyframes to the other;
 //!   killing both switches to the local fallback, and a returning worker takes over again.
+//! - With the Zenoh stage on as well, the two share the daemon's one session: a worker that
+//!   connects to the daemon and one the daemon connects to both answer, and an outside Zenoh
+//!   consumer holds the same graph.
 //! - Workers that answer garbage, late, for another request, with a mask outside the image or
 //!   with embeddings of another dimension are rejected and counted by reason
 //!   (`OP3DSG_DETECTD_FAULT`, built with `--features op3dsgd/fault-hooks`).
@@ -15,6 +18,8 @@
 
 use std::path::Path;
 use std::process::Command;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use op3dsg_tests::{Daemon, binary, unique_prefix};
@@ -48,6 +53,43 @@ fn dump(prefix: &str) -> Value {
         .expect("run op3dsg dump");
     assert!(output.status.success(), "op3dsg dump: {}", String::from_utf8_lossy(&output.stderr));
     serde_json::from_slice(&output.stdout).expect("dump JSON")
+}
+
+/// The daemon's remote-detection figures read while it runs, the newest kept: its
+/// `detect_status` queryable goes when the sequence's last keyframe is detected.
+struct StatusWatch {
+    latest: Arc<Mutex<Value>>,
+    watching: Arc<AtomicBool>,
+    thread: std::thread::JoinHandle<()>,
+}
+
+impl StatusWatch {
+    fn start(status: Status) -> Self {
+        let latest = Arc::new(Mutex::new(Value::Null));
+        let watching = Arc::new(AtomicBool::new(true));
+        let thread = {
+            let (latest, watching) = (latest.clone(), watching.clone());
+            std::thread::Builder::new()
+                .name("detect-status".to_owned())
+                .spawn(move || {
+                    while watching.load(Ordering::Relaxed) {
+                        if let Some(figures) = status.try_read() {
+                            *latest.lock().expect("lock") = figures;
+                        }
+                        std::thread::sleep(Duration::from_millis(100));
+                    }
+                })
+                .expect("spawn the status watcher")
+        };
+        Self { latest, watching, thread }
+    }
+
+    /// Stops watching; the newest figures read.
+    fn finish(self) -> Value {
+        self.watching.store(false, Ordering::Relaxed);
+        self.thread.join().expect("status watcher");
+        self.latest.lock().expect("lock").clone()
+    }
 }
 
 /// A node as compared: id, label, kind, centre.
@@ -101,29 +143,9 @@ fn two_remote_yolox_workers_give_the_graph_of_the_local_detector() {
     ));
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     let remote = Daemon::start(&unique_prefix("remote"), &args);
-    // The detection session closes when the sequence's last keyframe is detected: its figures
-    // are read while it runs, the newest kept.
-    let status = Status::connect(port, &key_prefix);
-    let latest = std::sync::Arc::new(std::sync::Mutex::new(Value::Null));
-    let watching = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(true));
-    let watcher = {
-        let (latest, watching) = (latest.clone(), watching.clone());
-        std::thread::Builder::new()
-            .name("detect-status".to_owned())
-            .spawn(move || {
-                while watching.load(std::sync::atomic::Ordering::Relaxed) {
-                    if let Some(figures) = status.try_read() {
-                        *latest.lock().expect("lock") = figures;
-                    }
-                    std::thread::sleep(Duration::from_millis(100));
-                }
-            })
-            .expect("spawn the status watcher")
-    };
+    let watch = StatusWatch::start(Status::connect(port, &key_prefix));
     let remote_graph = final_graph(&remote);
-    watching.store(false, std::sync::atomic::Ordering::Relaxed);
-    watcher.join().expect("status watcher");
-    let status = latest.lock().expect("lock").clone();
+    let status = watch.finish();
     println!("local: {}\nremote: {}\nfigures: {status}", shape(&local_graph).0.len(), shape(&remote_graph).0.len());
 
     let (local_nodes, local_edges) = shape(&local_graph);
@@ -144,6 +166,49 @@ fn two_remote_yolox_workers_give_the_graph_of_the_local_detector() {
         assert!(figures["replies"].as_u64().unwrap_or(0) > 0, "worker {w} answered: {status}");
         assert!(figures["bytes_per_keyframe"].as_u64().unwrap_or(0) > 1000, "{status}");
     }
+}
+
+/// With the Zenoh stage on too (`zenoh.enabled`), remote detection and the graph share the one
+/// session of `[zenoh]`, in both directions at once: worker w1 connects to the daemon's
+/// `zenoh.listen`, worker w2 listens where the daemon's `zenoh.connect` points. Both answer,
+/// no keyframe goes to the fallback, and an outside Zenoh consumer (PyPI `eclipse-zenoh`)
+/// connected to the daemon's listener holds the graph `op3dsg dump --json` gives.
+#[test]
+fn remote_detection_and_the_zenoh_stage_share_one_session_whichever_side_listens() {
+    let Some(profile) = profile() else { return };
+    let (daemon_port, worker_port) = (free_port(), free_port());
+    let key_prefix = format!("rz{}", std::process::id());
+    let listening = format!("zenoh.listen=[\"tcp/127.0.0.1:{worker_port}\"]");
+    let w1 = Worker::start(&profile, daemon_port, &key_prefix, "w1", &[]);
+    let w2 = Worker::start_with(&profile, daemon_port, &key_prefix, "w2", &["zenoh.connect=[]", &listening]);
+    let connect = format!("zenoh.connect=[\"tcp/127.0.0.1:{worker_port}\"]");
+    let mut args = vec!["--profile".to_owned(), profile.display().to_string()];
+    args.extend(remote_args(
+        daemon_port,
+        &key_prefix,
+        &["w1", "w2"],
+        &["zenoh.enabled=true", &connect, "detector.remote.timeout_ms=30000", "run.exit_at_end=false"],
+    ));
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let daemon = Daemon::start(&unique_prefix("remote-zenoh"), &args);
+    let watch = StatusWatch::start(Status::connect(daemon_port, &key_prefix));
+    let mut consumer = crate::zenoh_common::Consumer::start(daemon_port, &key_prefix);
+    let graph = final_graph(&daemon);
+    let figures = watch.finish();
+    let instance_id = crate::zenoh_common::instance_of(&daemon);
+    let (dumped, held) = crate::zenoh_common::same_version(&daemon, &mut consumer, instance_id);
+    println!("nodes: {}\nfigures: {figures}", shape(&graph).0.len());
+    crate::zenoh_common::assert_same_graph(&dumped, &held);
+    assert_eq!(figures["fallback_keyframes"], 0, "no keyframe to the fallback: {figures}");
+    for w in ["w1", "w2"] {
+        let replies = figures["workers"][format!("{key_prefix}/detect/{w}")]["replies"].as_u64().unwrap_or(0);
+        assert!(replies > 0, "worker {w} answered: {figures}");
+    }
+    let labels: Vec<&str> = graph["nodes"].as_array().expect("nodes").iter().filter_map(|n| n["label"].as_str()).collect();
+    for label in ["chair", "tv"] {
+        assert!(labels.contains(&label), "the ICL replay's {label} is in the graph: {labels:?}");
+    }
+    drop((w1, w2));
 }
 
 /// The stand-in of an open-vocabulary family (`.models/standins/`, `scripts/setup-standins.sh`).

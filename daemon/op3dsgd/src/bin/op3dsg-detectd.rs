@@ -187,7 +187,7 @@ fn serve(
 ) -> Result<(), String> {
     let opened = OpenedSource { source: Box::new(NoFrames), side_channel: None };
     let factory: DetectorFactory =
-        backends.prepare_detectors(profile, &profile.detector.kind, &opened).map_err(|e| e.to_string())?;
+        backends.prepare_detectors(profile, &profile.detector.kind, &opened, None).map_err(|e| e.to_string())?;
     let serves = Arc::new(Serves::of(profile));
     let workers = profile.detector.workers;
     let session_config = profile.zenoh.session_config().map_err(|(key, e)| format!("{key}: {e}"))?;

@@ -28,6 +28,7 @@ pub use crate::config::SectionError;
 use crate::config::{Profile, SectionRegistry};
 use crate::fusion::Fusion;
 use crate::fusion::snapshot::SnapshotError;
+use crate::zenoh::ZenohSession;
 use crate::onnx::OnnxError;
 use crate::perception::Detector;
 use crate::perception::remote::{REMOTE_DETECTOR, SKIP_FALLBACK};
@@ -71,6 +72,16 @@ pub enum StartError {
         /// OS error.
         reason: String,
     },
+}
+
+/// The process's one Zenoh session on the robot's network (`[zenoh]`), opened when the Zenoh
+/// stage (`zenoh.enabled`) or remote detection (`detector.kind = "remote"`) needs it: both use
+/// it, so the listeners and connections of `[zenoh]` serve both. `None` when nothing needs it.
+pub fn zenoh_session(profile: &Profile) -> Result<Option<ZenohSession>, StartError> {
+    if !(profile.zenoh.enabled || profile.detector.kind == REMOTE_DETECTOR) {
+        return Ok(None);
+    }
+    ZenohSession::open(&profile.zenoh).map(Some).map_err(StartError::Zenoh)
 }
 
 /// Makes one detector per worker (the argument is the worker index, for logs only).
@@ -253,10 +264,15 @@ impl Backends {
     }
 
     /// Opens the profile's source and prepares its detectors, as the pipeline and the batch
-    /// runner both do.
-    pub fn open(&self, profile: &Profile) -> Result<(OpenedSource, DetectorFactory), StartError> {
+    /// runner both do. Remote detection uses `zenoh`, the process's session
+    /// ([`zenoh_session`]), or opens one when there is none.
+    pub fn open(
+        &self,
+        profile: &Profile,
+        zenoh: Option<&ZenohSession>,
+    ) -> Result<(OpenedSource, DetectorFactory), StartError> {
         let opened = self.source(&profile.source.kind)?.open(profile)?;
-        let factory = self.prepare_detectors(profile, &profile.detector.kind, &opened)?;
+        let factory = self.prepare_detectors(profile, &profile.detector.kind, &opened, zenoh)?;
         Ok((opened, factory))
     }
 
@@ -269,12 +285,14 @@ impl Backends {
         profile: &Profile,
         kind: &str,
         opened: &OpenedSource,
+        zenoh: Option<&ZenohSession>,
     ) -> Result<DetectorFactory, StartError> {
         if kind == REMOTE_DETECTOR {
             let fallback = &profile.detector.remote.fallback;
-            let fallback =
-                (fallback != SKIP_FALLBACK).then(|| self.prepare_detectors(profile, fallback, opened)).transpose()?;
-            return runtime::remote(profile, fallback);
+            let fallback = (fallback != SKIP_FALLBACK)
+                .then(|| self.prepare_detectors(profile, fallback, opened, zenoh))
+                .transpose()?;
+            return runtime::remote(profile, zenoh, fallback);
         }
         let factory = self.detector(kind)?.prepare(profile, opened)?;
         Ok(match &profile.detector.region_encoder {

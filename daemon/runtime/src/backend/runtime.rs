@@ -21,6 +21,7 @@ use crate::perception::remote::REMOTE_DETECTOR;
 #[cfg(feature = "zenoh")]
 use crate::perception::remote::{RemoteClient, RemoteDetector};
 use crate::perception::yolox::YoloxDetector;
+use crate::zenoh::ZenohSession;
 use crate::perception::{Detection, Detector, DetectorError, OPEN_VOCAB_DETECTOR, YOLOX_DETECTOR};
 
 pub(super) fn sources() -> Vec<Arc<dyn SourceBackend>> {
@@ -175,21 +176,25 @@ impl DetectorBackend for RemoteBackend {
     }
 
     fn prepare(&self, profile: &Profile, _source: &OpenedSource) -> Result<DetectorFactory, StartError> {
-        remote(profile, None)
+        remote(profile, None, None)
     }
 }
 
-/// The remote detectors of `[detector.remote]`, sharing one session (the profile's `[zenoh]`
-/// settings; without its listeners when the Zenoh stage, which holds them, is on too), each
-/// with its own detector of `fallback`'s factory.
+/// The remote detectors of `[detector.remote]` on `session` (the process's session of
+/// `[zenoh]`, which the Zenoh stage shares; opened here when the caller has none), each with its
+/// own detector of `fallback`'s factory.
 #[cfg(feature = "zenoh")]
-pub(super) fn remote(profile: &Profile, fallback: Option<DetectorFactory>) -> Result<DetectorFactory, StartError> {
-    let mut zenoh = profile.zenoh.clone();
-    if zenoh.enabled {
-        zenoh.listen.clear();
-    }
-    let session = zenoh.session_config().map_err(|(key, e)| StartError::Zenoh(format!("{key}: {e}")))?;
-    let client = RemoteClient::open(session, &zenoh.prefix(), &profile.detector.remote).map_err(StartError::Zenoh)?;
+pub(super) fn remote(
+    profile: &Profile,
+    session: Option<&ZenohSession>,
+    fallback: Option<DetectorFactory>,
+) -> Result<DetectorFactory, StartError> {
+    let session = match session {
+        Some(session) => session.clone(),
+        None => ZenohSession::open(&profile.zenoh).map_err(StartError::Zenoh)?,
+    };
+    let client = RemoteClient::open(session.session().clone(), &profile.zenoh.prefix(), &profile.detector.remote)
+        .map_err(StartError::Zenoh)?;
     Ok(Arc::new(move |worker| {
         let fallback = fallback.as_ref().map(|f| f(worker));
         Box::new(RemoteDetector::new(client.clone(), fallback)) as Box<dyn Detector>
@@ -199,7 +204,11 @@ pub(super) fn remote(profile: &Profile, fallback: Option<DetectorFactory>) -> Re
 /// Without the cargo feature `zenoh` there is no remote detection (`Profile::validate` refuses
 /// the profile before it gets here).
 #[cfg(not(feature = "zenoh"))]
-pub(super) fn remote(_profile: &Profile, _fallback: Option<DetectorFactory>) -> Result<DetectorFactory, StartError> {
+pub(super) fn remote(
+    _profile: &Profile,
+    _session: Option<&ZenohSession>,
+    _fallback: Option<DetectorFactory>,
+) -> Result<DetectorFactory, StartError> {
     Err(StartError::Zenoh(
         "detector.kind = \"remote\" needs Zenoh, which this build leaves out: build with the cargo feature `zenoh`"
             .to_owned(),

@@ -61,6 +61,7 @@ use crate::keyframe::PoseSourceKind;
 use crate::query::QueryCounters;
 use crate::queue::Latest;
 use crate::reasoner::{EnricherError, EnricherSetup, GraphEnricher};
+use crate::zenoh::ZenohSession;
 
 mod counters;
 mod off_robot;
@@ -79,6 +80,8 @@ pub struct Pipeline {
     counters: Arc<Counters>,
     stages: Stages,
     shutdown_timeout: Duration,
+    /// The process's Zenoh session, closed once every stage has ended.
+    zenoh: Option<ZenohSession>,
 }
 
 impl std::fmt::Debug for Pipeline {
@@ -120,7 +123,9 @@ impl Pipeline {
     /// detector and fusion `backends` the profile names. Returns once the services exist (the
     /// daemon may then report ready).
     pub fn start(profile: &Profile, backends: &Backends, stop: Arc<AtomicBool>) -> Result<Self, StartError> {
-        let (opened, detector_factory) = backends.open(profile)?;
+        // One Zenoh session for the Zenoh stage and remote detection alike.
+        let zenoh = crate::backend::zenoh_session(profile)?;
+        let (opened, detector_factory) = backends.open(profile, zenoh.as_ref())?;
         let side_taps = backends.source(&profile.source.kind)?.side_channel_taps(&opened);
         let OpenedSource { source, .. } = opened;
         check_pose_source(profile, source.as_ref())?;
@@ -170,7 +175,7 @@ impl Pipeline {
         let latest_occupancy = (profile.occupancy.enabled
             && (query_graph.is_some() || profile.zenoh.enabled || ros2_map || profile.live_view.enabled))
             .then(|| Arc::new(Latest::new()));
-        let shared = (remote_queries.clone(), latest_occupancy.clone());
+        let shared = (remote_queries.clone(), latest_occupancy.clone(), zenoh.clone());
         let mut remote =
             off_robot::stages(&mut s, profile, source.kind(), (q.remote, q.ros2_out), &counters, shared, &stop)?;
         // The live view, fed like the off-robot stages; the gate hands it poses and images.
@@ -220,7 +225,7 @@ impl Pipeline {
         let capture = stages::capture(profile, source, q.frames.0, q.poses.0, &counters, &stop);
         s.spawn("capture", move || capture.run())?;
         let shutdown_timeout = Duration::from_secs_f64(profile.run.shutdown_timeout_s);
-        Ok(Self { stop, query_counters, step_control, counters, stages: s, shutdown_timeout })
+        Ok(Self { stop, query_counters, step_control, counters, stages: s, shutdown_timeout, zenoh })
     }
 
     /// The handle that releases frames of a stepped source (`[source.replay] mode = "stepped"`):
@@ -260,6 +265,9 @@ impl Pipeline {
         }
         for handle in self.stages.handles.drain(..) {
             let _ = handle.join();
+        }
+        if let Some(session) = self.zenoh.take() {
+            session.close();
         }
         Ok(RunSummary::of(&self.counters))
     }

@@ -16,8 +16,14 @@ use crate::backend::StartError;
 use crate::config::Profile;
 use crate::flow::{RemoteFeed, RemoteQueries};
 use crate::occupancy::LatestOccupancy;
+use crate::zenoh::ZenohSession;
 
-/// The Zenoh stage (`[zenoh] enabled`) and the ROS output (a topic of `[ros2.out]` on), each
+/// What the off-robot stages share with the rest of the pipeline: the query service's intake,
+/// the occupancy thread's newest map, and the process's Zenoh session (`None` when nothing
+/// needs one).
+pub(super) type Shared = (RemoteQueries, Option<Arc<LatestOccupancy>>, Option<ZenohSession>);
+
+/// The Zenoh stage (`[zenoh] enabled`, on the process's session) and the ROS output (a topic of `[ros2.out]` on), each
 /// started once its session is open; the publisher's feed of both (`None` with neither).
 #[cfg(feature = "zenoh")]
 pub(super) fn stages(
@@ -26,15 +32,15 @@ pub(super) fn stages(
     source_kind: SourceKind,
     (zenoh_queue, ros2_queue): (Option<RemoteQueue>, Option<RemoteQueue>),
     counters: &Counters,
-    (queries, occupancy): (RemoteQueries, Option<Arc<LatestOccupancy>>),
+    (queries, occupancy, session): Shared,
     stop: &Arc<AtomicBool>,
 ) -> Result<Option<RemoteFeed>, StartError> {
     use super::zenoh_stages;
     use crate::queue::Latest;
 
-    let mut remote = match (zenoh_queue, counters.zenoh.as_ref()) {
-        (Some(queue), Some(zenoh)) => {
-            let shared = (queries, occupancy.clone());
+    let mut remote = match (zenoh_queue, counters.zenoh.as_ref(), session) {
+        (Some(queue), Some(zenoh), Some(session)) => {
+            let shared = (queries, occupancy.clone(), session);
             Some(zenoh_stages::zenoh(stages, profile, source_kind, queue, zenoh, shared)?)
         }
         _ => None,
@@ -56,7 +62,7 @@ pub(super) fn stages(
     _source_kind: SourceKind,
     _queues: (Option<RemoteQueue>, Option<RemoteQueue>),
     _counters: &Counters,
-    _shared: (RemoteQueries, Option<Arc<LatestOccupancy>>),
+    _shared: Shared,
     _stop: &Arc<AtomicBool>,
 ) -> Result<Option<RemoteFeed>, StartError> {
     Ok(None)

@@ -18,23 +18,24 @@ use crate::ipc::{GraphCapacity, GraphOrigin};
 use crate::occupancy::LatestOccupancy;
 use crate::queue::{Latest, QueueSender};
 use crate::ros2::{Ros2OutputThread, TfInputThread};
-use crate::zenoh::{ZenohCounters, ZenohThread};
+use crate::zenoh::{ZenohCounters, ZenohSession, ZenohThread};
 
-/// The Zenoh stage (`[zenoh] enabled`), started once its session is open; returns the
-/// publisher's end of its hand-over.
+/// The Zenoh stage (`[zenoh] enabled`) on the process's session, started once its keys are
+/// declared; returns the publisher's end of its hand-over.
 pub(super) fn zenoh(
     stages: &mut Stages,
     profile: &Profile,
     source_kind: SourceKind,
     queue: RemoteQueue,
     counters: &Arc<ZenohCounters>,
-    (queries, occupancy): (RemoteQueries, Option<Arc<LatestOccupancy>>),
+    (queries, occupancy, session): (RemoteQueries, Option<Arc<LatestOccupancy>>, ZenohSession),
 ) -> Result<RemoteFeed, StartError> {
     let (ready, ready_rx) = crossbeam_channel::bounded(1);
     let (graphs_tx, graphs_rx) = queue;
     let health = Arc::new(Latest::new());
     let thread = ZenohThread {
         config: profile.zenoh.clone(),
+        session,
         capacity: GraphCapacity { max_nodes: profile.ipc.max_nodes, max_edges: profile.ipc.max_edges },
         origin: GraphOrigin::new(source_kind, &profile.world.frame_id),
         graphs: graphs_rx,

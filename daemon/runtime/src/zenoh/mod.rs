@@ -1,7 +1,8 @@
 //! # Zenoh: the graph, its changes and its health for consumers off the robot's computer
 //!
 //! Inside the computer planners read the graph over iceoryx2 (`crate::publish`); everything that
-//! leaves it goes through the one Zenoh session of this stage (`[zenoh]`, off by default). The
+//! leaves it goes through the process's one Zenoh session (`[zenoh]`, off by default,
+//! [`ZenohSession`]), which remote detection shares. The
 //! publisher hands each graph version it sent to this stage's thread on a bounded latest-wins
 //! queue (`crate::flow::RemoteFeed`) and never waits for it; puts use congestion control
 //! `drop`, so a slow or absent network loses messages here, not time on the hot path.
@@ -24,6 +25,7 @@
 //! | file | what |
 //! |---|---|
 //! | `config.rs` | `[zenoh]` ([`ZenohConfig`]), the session's Zenoh configuration |
+//! | `session.rs` | [`ZenohSession`]: the process's one session, shared with remote detection |
 //! | `codec.rs` | the envelope, full graphs, deltas, health and occupancy messages |
 //! | `thread.rs` | [`ZenohThread`] (feature `zenoh`) |
 //! | `counters.rs` | its [`ZenohCounters`] |
@@ -31,6 +33,7 @@
 pub mod codec;
 mod config;
 mod counters;
+mod session;
 #[cfg(feature = "zenoh")]
 mod thread;
 
@@ -41,5 +44,6 @@ mod tests;
 pub use config::check_prefix;
 pub use config::{ZenohConfig, ZenohMode};
 pub use counters::ZenohCounters;
+pub use session::ZenohSession;
 #[cfg(feature = "zenoh")]
 pub use thread::ZenohThread;

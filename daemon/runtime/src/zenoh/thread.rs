@@ -1,4 +1,4 @@
-//! The thread `op3dsg-zenoh`: owns the Zenoh session, publishes `<prefix>/graph`,
+//! The thread `op3dsg-zenoh`: on the process's Zenoh session, publishes `<prefix>/graph`,
 //! `<prefix>/graph/delta`, `<prefix>/health` and `<prefix>/occupancy`, and answers the
 //! queryables `<prefix>/graph` (the newest full graph), `<prefix>/health` (the newest health
 //! record), `<prefix>/occupancy` (the newest map) and `<prefix>/query` (handed to the language
@@ -14,11 +14,12 @@ use ::zenoh::qos::CongestionControl;
 use ::zenoh::query::{Query, Queryable};
 use crossbeam_channel::Sender;
 use op3dsg_ipc_types::{Health, QueryRequest, QueryResponse, QueryStatus};
-use tracing::{debug, info, warn};
+use tracing::{debug, info};
 
 use super::codec::{DeltaEncoder, encode_full, encode_health, encode_occupancy};
 use super::config::ZenohConfig;
 use super::counters::ZenohCounters;
+use super::session::ZenohSession;
 use crate::flow::RemoteQueries;
 use crate::graph::SceneGraph;
 use crate::ipc::{GraphCapacity, GraphEncoder, GraphOrigin, HealthReport};
@@ -29,11 +30,13 @@ use crate::queue::{Latest, Popped, QueueReceiver};
 /// graph's period again.
 const TICK: Duration = Duration::from_millis(50);
 
-/// The Zenoh thread, built by the composition; [`ZenohThread::run`] is its body. It opens the
-/// session itself and says on `ready` whether it could.
+/// The Zenoh thread, built by the composition; [`ZenohThread::run`] is its body. It declares
+/// its publishers and queryables on the process's session and says on `ready` whether it could.
 pub struct ZenohThread {
     /// `[zenoh]`.
     pub config: ZenohConfig,
+    /// The process's session (opened by the composition, shared with remote detection).
+    pub session: ZenohSession,
     /// The most nodes and edges a graph holds (`ipc.max_nodes`, `ipc.max_edges`: the same
     /// selection as the iceoryx2 graph).
     pub capacity: GraphCapacity,
@@ -62,9 +65,8 @@ impl std::fmt::Debug for ZenohThread {
 /// How a queryable answers a query: the key to reply on, and the query.
 type Answer = Box<dyn Fn(&str, Query) + Send + Sync>;
 
-/// The open session and what was declared on it.
+/// What was declared on the session.
 struct Session {
-    session: ::zenoh::Session,
     graph: Publisher<'static>,
     delta: Publisher<'static>,
     health: Publisher<'static>,
@@ -73,10 +75,10 @@ struct Session {
 }
 
 impl ZenohThread {
-    /// Opens the session, then publishes until the publisher has ended.
+    /// Declares its keys on the session, then publishes until the publisher has ended.
     pub fn run(self) {
         let latest = Encoded::default();
-        let session = match self.open(&latest) {
+        let session = match self.declare(&latest) {
             Ok(session) => {
                 let _ = self.ready.send(Ok(()));
                 session
@@ -113,18 +115,14 @@ impl ZenohThread {
             occupancy_maps = self.counters.occupancies.load(Ordering::Relaxed),
             queries = self.counters.queries.load(Ordering::Relaxed),
             language_queries = self.counters.language_queries.load(Ordering::Relaxed),
-            "zenoh session closing"
+            "zenoh stage ending"
         );
-        if let Err(e) = session.session.close().wait() {
-            debug!(error = %e, "zenoh session close failed");
-        }
+        // The declarations go with `session`; the session itself is the composition's to close.
+        drop(session);
     }
 
-    fn open(&self, latest: &Encoded) -> Result<Session, String> {
-        let config = self.config.session_config().map_err(|(key, e)| format!("{key}: {e}"))?;
-        let session = ::zenoh::open(config).wait().map_err(|e| {
-            format!("zenoh: the session did not open (zenoh.listen, zenoh.connect, zenoh.config_file): {e}")
-        })?;
+    fn declare(&self, latest: &Encoded) -> Result<Session, String> {
+        let session = self.session.session();
         let prefix = self.config.prefix();
         let publisher = |suffix: &str| {
             session
@@ -185,12 +183,8 @@ impl ZenohThread {
                 }),
             )?);
         }
-        let open = self.config.open_listeners();
-        if !open.is_empty() {
-            warn!(endpoints = ?open, "zenoh listens beyond loopback: anyone who reaches these endpoints reads the graph");
-        }
-        info!(prefix = %prefix, mode = self.config.mode.as_str(), zid = %session.zid(), "zenoh session open");
-        Ok(Session { session, graph, delta, health, occupancy, _queryables: queryables })
+        info!(prefix = %prefix, "zenoh stage serving");
+        Ok(Session { graph, delta, health, occupancy, _queryables: queryables })
     }
 
     fn send_graph(

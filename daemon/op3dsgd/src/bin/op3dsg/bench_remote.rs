@@ -64,7 +64,10 @@ fn keyframes(args: &RemoteBenchArgs) -> Result<Vec<Frame>> {
     let backends = op3dsg_sim::backends();
     let loaded =
         config::load_with(&backends, args.profile.as_deref(), &overrides).map_err(|e| anyhow::anyhow!("{e}"))?;
-    let (opened, _) = backends.open(&loaded.profile).context("opening the profile's source")?;
+    let opened = backends
+        .source(&loaded.profile.source.kind)
+        .and_then(|b| b.open(&loaded.profile))
+        .context("opening the profile's source")?;
     let mut source = opened.source;
     let mut frame = Frame::new(source.intrinsics());
     let mut out = Vec::with_capacity(args.keyframes);

@@ -1,5 +1,5 @@
-//! The robot's side: one Zenoh session shared by the detection worker threads, the workers it
-//! knows, and the detector each thread runs.
+//! The robot's side: the process's Zenoh session shared by the detection worker threads, the
+//! workers it knows, and the detector each thread runs.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -57,12 +57,9 @@ impl std::fmt::Debug for RemoteClient {
 }
 
 impl RemoteClient {
-    /// Opens the session (`session_config`: the profile's `[zenoh]`) and finds the workers under
-    /// `prefix`; errors name the key.
-    pub fn open(session_config: ::zenoh::Config, prefix: &str, config: &RemoteConfig) -> Result<Arc<Self>, String> {
-        let session = ::zenoh::open(session_config)
-            .wait()
-            .map_err(|e| format!("detector.remote: the Zenoh session did not open ([zenoh] listen, connect): {e}"))?;
+    /// Finds the workers under `prefix` on `session` (the process's session of `[zenoh]`, which
+    /// the Zenoh stage shares); errors name the key.
+    pub fn open(session: ::zenoh::Session, prefix: &str, config: &RemoteConfig) -> Result<Arc<Self>, String> {
         let counters = Arc::new(RemoteCounters::default());
         let workers = if config.auto() {
             Vec::new()
@@ -126,7 +123,7 @@ impl RemoteClient {
         if config.auto() && client._liveliness.is_none() {
             return Err(format!("zenoh.key_prefix: cannot follow the workers' liveliness under {prefix}/detect/"));
         }
-        info!(workers = ?config.workers, prefix, timeout_ms = config.timeout_ms, "remote detection session open");
+        info!(workers = ?config.workers, prefix, timeout_ms = config.timeout_ms, "remote detection ready");
         client.wait_for_workers(prefix);
         Ok(client)
     }
