@@ -21,7 +21,9 @@ summary for the cross-process tests (tests/tests/it/record_daemon.rs):
   "foxglove_validated": {schema: int},  # foxglove.* messages validated against Foxglove's schema
   "foxglove_errors": [str],          # every violation (first 50): "topic[index]: path: what"
   "embedded_validated": int,         # messages validated against the schema text in the file
-  "embedded_errors": [str],          # violations of the file's own schemas (first 50)
+  "embedded_errors": [str],          # violations of the file's own schemas (first 50), applied
+                                     #   strictly like Foxglove's: a field they do not describe
+                                     #   is an error
   "world_frames": {topic: [str]},    # the world frame names used: /tf parents, scene entities,
                                      #   node point clouds, health records (sorted, distinct)
   "error": str | null                # why reading stopped before the end (truncated file)
@@ -295,7 +297,7 @@ def main(path, schema_dir, needles=()):
                             report("foxglove_errors", [f"{where}: data: not base64: {e}"])
                 if schema is not None and schema.encoding == "jsonschema":
                     if schema.id not in embedded:
-                        embedded[schema.id] = Draft7Validator(json.loads(schema.data))
+                        embedded[schema.id] = Draft7Validator(strict(json.loads(schema.data)))
                     report("embedded_errors", violations(embedded[schema.id], decoded, where))
                     out["embedded_validated"] += 1
                 s = stamp(decoded)

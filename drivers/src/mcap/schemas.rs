@@ -102,24 +102,57 @@ fn object(title: &str, properties: Value, required: &[&str]) -> Value {
     json!({ "title": title, "type": "object", "properties": properties, "required": required })
 }
 
+/// `object` with fields that may be `null` (`nullable`: name and the schema of its non-null
+/// value). Foxglove's JSON-schema reader takes one `type` per field and no `null`, so these
+/// fields are described under `patternProperties` (each name anchored), which that reader
+/// skips and every JSON Schema validator checks: the file's own schema still validates each
+/// message, and Foxglove's panels see every other field typed.
+fn object_with_nullable(title: &str, properties: Value, nullable: &[(&str, Value)], required: &[&str]) -> Value {
+    let mut schema = object(title, properties, required);
+    let patterns: serde_json::Map<String, Value> = nullable
+        .iter()
+        .map(|(name, value)| (format!("^{name}$"), json!({ "oneOf": [value, { "type": "null" }] })))
+        .collect();
+    schema["patternProperties"] = Value::Object(patterns);
+    schema
+}
+
+/// A string out of `values`.
+fn string_enum(values: &[&str]) -> Value {
+    json!({ "type": "string", "enum": values })
+}
+
+/// A JSON object used as a map from any key to `value` (no fixed fields).
+fn map_of(value: Value) -> Value {
+    json!({ "type": "object", "properties": {}, "additionalProperties": value })
+}
+
+fn numbers(count: usize) -> Value {
+    json!({ "type": "array", "items": { "type": "number" }, "minItems": count, "maxItems": count })
+}
+
 fn graph() -> Value {
-    let xyz = json!({ "type": "array", "items": { "type": "number" }, "minItems": 3, "maxItems": 3 });
-    let node = object(
+    let xyz = numbers(3);
+    let obb = object(
+        "op3dsg.OrientedBox",
+        json!({ "centre_m": xyz, "size_m": xyz, "yaw_rad": { "type": "number" } }),
+        &["centre_m", "size_m", "yaw_rad"],
+    );
+    let node = object_with_nullable(
         "op3dsg.Node",
         json!({
             "id": { "type": "integer", "minimum": 0 },
             "label": { "type": "string" },
-            "kind": { "enum": ["object", "part"] },
-            "parent": { "type": ["integer", "null"] },
+            "kind": string_enum(&["object", "part"]),
             "centre_m": xyz, "box_min_m": xyz, "box_max_m": xyz,
             "affordances": { "type": "array", "items": { "type": "string" } },
-            "affordance_origins": {
-                "type": "object",
-                "additionalProperties": { "enum": ["geometry", "knowledge", "llm", "knowledge+llm"] }
-            },
+            "obb": obb,
+            "affordance_origins": map_of(string_enum(&crate::graph_json::AFFORDANCE_ORIGINS)),
             "confidence": { "type": "number" },
-            "observation_count": { "type": "integer", "minimum": 0 }
+            "observation_count": { "type": "integer", "minimum": 0 },
+            "seen_keyframes": { "type": "integer", "minimum": 0 }
         }),
+        &[("parent", json!({ "type": "integer", "minimum": 0 }))],
         &[
             "id",
             "label",
@@ -137,7 +170,7 @@ fn graph() -> Value {
         "op3dsg.Edge",
         json!({
             "source": { "type": "integer" }, "target": { "type": "integer" },
-            "kind": { "enum": ["spatial", "functional"] },
+            "kind": string_enum(&["spatial", "functional"]),
             "relation": { "type": "string" },
             "confidence": { "type": "number" },
             "origin": { "type": "string" }
@@ -147,10 +180,12 @@ fn graph() -> Value {
     let mut schema = object(
         GRAPH,
         json!({
-            "schema": { "const": crate::graph_json::GRAPH_JSON_SCHEMA },
+            "schema": { "type": "string", "const": crate::graph_json::GRAPH_JSON_SCHEMA },
             "source": { "type": "string" },
             "graph_version": { "type": "integer", "minimum": 0 },
             "stamp_ns": { "type": "integer", "minimum": 0 },
+            "source_kind": { "type": "string" },
+            "world_frame": { "type": "string" },
             "nodes": { "type": "array", "items": node },
             "edges": { "type": "array", "items": edge }
         }),
@@ -163,20 +198,17 @@ fn graph() -> Value {
 fn frame() -> Value {
     let pose = object(
         "op3dsg.Isometry",
-        json!({
-            "translation_m": { "type": "array", "items": { "type": "number" }, "minItems": 3, "maxItems": 3 },
-            "rotation_xyzw": { "type": "array", "items": { "type": "number" }, "minItems": 4, "maxItems": 4 }
-        }),
+        json!({ "translation_m": numbers(3), "rotation_xyzw": numbers(4) }),
         &["translation_m", "rotation_xyzw"],
     );
-    object(
+    object_with_nullable(
         FRAME,
         json!({
             "seq": { "type": "integer", "minimum": 0 },
             "stamp_ns": { "type": "integer", "minimum": 0 },
-            "depth_units_per_m": { "type": "number" },
-            "world_from_camera": { "oneOf": [pose, { "type": "null" }] }
+            "depth_units_per_m": { "type": "number" }
         }),
+        &[("world_from_camera", pose)],
         &["seq", "stamp_ns", "depth_units_per_m", "world_from_camera"],
     )
 }
@@ -186,10 +218,10 @@ fn input_pose() -> Value {
         INPUT_POSE,
         json!({
             "stamp_ns": { "type": "integer", "minimum": 0 },
-            "kind": { "enum": ["world_from_camera", "world_from_base"] },
+            "kind": string_enum(&["world_from_camera", "world_from_base"]),
             "frame_id": { "type": "string" },
-            "translation_m": { "type": "array", "items": { "type": "number" }, "minItems": 3, "maxItems": 3 },
-            "rotation_xyzw": { "type": "array", "items": { "type": "number" }, "minItems": 4, "maxItems": 4 }
+            "translation_m": numbers(3),
+            "rotation_xyzw": numbers(4)
         }),
         &["stamp_ns", "kind", "frame_id", "translation_m", "rotation_xyzw"],
     );
@@ -198,10 +230,9 @@ fn input_pose() -> Value {
 }
 
 fn llm_exchange() -> Value {
-    let nullable_string = json!({ "type": ["string", "null"] });
     let message = object(
         "op3dsg.ChatMessage",
-        json!({ "role": { "enum": ["system", "user"] }, "content": { "type": "string" } }),
+        json!({ "role": string_enum(&["system", "user"]), "content": { "type": "string" } }),
         &["role", "content"],
     );
     let verdict = object(
@@ -209,24 +240,22 @@ fn llm_exchange() -> Value {
         json!({
             "parsed": { "type": "boolean" },
             "accepted": { "type": "integer", "minimum": 0 },
-            "rejected": { "type": "object", "additionalProperties": { "type": "integer", "minimum": 1 } }
+            "rejected": map_of(json!({ "type": "integer", "minimum": 1 }))
         }),
         &["parsed", "accepted", "rejected"],
     );
-    let mut schema = object(
+    let mut schema = object_with_nullable(
         LLM_EXCHANGE,
         json!({
             "graph_version": { "type": "integer", "minimum": 0 },
-            "agent": { "enum": ["local_relations", "remote_relations", "affordances"] },
+            "agent": string_enum(&["local_relations", "remote_relations", "affordances"]),
             "model": { "type": "string" },
             "messages": { "type": "array", "items": message },
             "attempts": { "type": "integer", "minimum": 0 },
             "latency_ms": { "type": "number", "minimum": 0 },
-            "total_ms": { "type": "number", "minimum": 0 },
-            "answer": nullable_string,
-            "error": nullable_string,
-            "verdict": { "oneOf": [verdict, { "type": "null" }] }
+            "total_ms": { "type": "number", "minimum": 0 }
         }),
+        &[("answer", json!({ "type": "string" })), ("error", json!({ "type": "string" })), ("verdict", verdict)],
         &[
             "graph_version",
             "agent",
@@ -247,20 +276,68 @@ fn llm_exchange() -> Value {
 }
 
 fn health() -> Value {
+    let integer = || json!({ "type": "integer", "minimum": 0 });
+    let stage = object(
+        "op3dsg.StageHealth",
+        json!({
+            "name": { "type": "string" },
+            "processed": integer(),
+            "rate_hz": { "type": "number" },
+            "latency_p50_us": integer(),
+            "latency_p99_us": integer(),
+            "errors": integer()
+        }),
+        &["name", "processed", "rate_hz", "latency_p50_us", "latency_p99_us", "errors"],
+    );
+    let queue = object(
+        "op3dsg.QueueHealth",
+        json!({
+            "name": { "type": "string" },
+            "depth": integer(),
+            "capacity": integer(),
+            "dropped": integer(),
+            "pushed": integer()
+        }),
+        &["name", "depth", "capacity", "dropped", "pushed"],
+    );
+    let pose = object(
+        "op3dsg.PoseHealth",
+        json!({ "accepted": integer(), "stale": integer(), "queue_full": integer() }),
+        &["accepted", "stale", "queue_full"],
+    );
+    let recorder = object(
+        "op3dsg.RecorderHealth",
+        json!({
+            "state": { "type": "string" },
+            "files": integer(),
+            "messages_written": integer(),
+            "messages_dropped": integer(),
+            "bytes_written": integer(),
+            "cpu_ns": integer()
+        }),
+        &["state", "files", "messages_written", "messages_dropped", "bytes_written", "cpu_ns"],
+    );
     let mut schema = object(
         HEALTH,
         json!({
-            "stamp_ns": { "type": "integer" },
-            "uptime_ns": { "type": "integer" },
-            "frames_captured": { "type": "integer" },
-            "keyframes": { "type": "integer" },
-            "graph_version": { "type": "integer" },
-            "map_node_count": { "type": "integer" },
-            "source_kind": { "enum": ["unknown", "live_camera", "replay", "synthetic"] },
+            "stamp_ns": integer(),
+            "uptime_ns": integer(),
+            "frames_captured": integer(),
+            "keyframes": integer(),
+            "frames_without_pose": integer(),
+            "detections_fused": integer(),
+            "graph_version": integer(),
+            "map_node_count": integer(),
+            "map_memory_bytes": integer(),
+            "source_connected": { "type": "boolean" },
+            "source_kind": string_enum(&["unknown", "live_camera", "replay", "synthetic"]),
             "world_frame": { "type": "string" },
-            "stages": { "type": "array", "items": { "type": "object" } },
-            "queues": { "type": "array", "items": { "type": "object" } },
-            "recorder": { "type": "object" }
+            "graph_subscribers": integer(),
+            "dead_nodes_cleaned": integer(),
+            "stages": { "type": "array", "items": stage },
+            "queues": { "type": "array", "items": queue },
+            "pose": pose,
+            "recorder": recorder
         }),
         &["stamp_ns", "frames_captured", "keyframes", "graph_version", "stages", "queues", "recorder"],
     );
@@ -284,6 +361,61 @@ mod tests {
         }
         assert!(schema_text(RAW_IMAGE).is_none(), "foxglove.* schemas are the foxglove crate's");
         assert!(channel_schema("foxglove.Nope").is_none());
+    }
+
+    /// The rules of Foxglove's JSON-schema reader (`parseJsonSchema` of Foxglove Studio and
+    /// Lichtblick, which every JSON channel's schema goes through before a panel sees it): an
+    /// object has `"type": "object"` and `properties`; each property is a `oneOf` of numeric
+    /// `const`s or has one `type` of boolean, string, number, integer, object or array; an
+    /// array's `items` has one of those types (no arrays of arrays). Errors name the path.
+    fn foxglove_reads(schema: &Value, path: &str) -> Result<(), String> {
+        if schema["type"] != "object" {
+            return Err(format!("{path}: expected \"type\": \"object\""));
+        }
+        let properties = schema["properties"].as_object().ok_or_else(|| format!("{path}: no \"properties\""))?;
+        for (name, field) in properties {
+            let at = format!("{path}.{name}");
+            if let Some(alternatives) = field["oneOf"].as_array() {
+                if alternatives.iter().all(|a| a["const"].is_number()) {
+                    continue;
+                }
+                return Err(format!("{at}: oneOf alternatives must be numeric consts"));
+            }
+            match field["type"].as_str() {
+                Some("boolean" | "string" | "number" | "integer") => {}
+                Some("object") => foxglove_reads(field, &at)?,
+                Some("array") => match field["items"]["type"].as_str() {
+                    Some("boolean" | "string" | "number" | "integer") => {}
+                    Some("object") => foxglove_reads(&field["items"], &format!("{at}[]"))?,
+                    other => return Err(format!("{at}: unsupported item type {other:?}")),
+                },
+                _ => return Err(format!("{at}: unsupported type {}", field["type"])),
+            }
+        }
+        Ok(())
+    }
+
+    #[test]
+    fn foxglove_reads_every_op3dsg_schema() {
+        for name in [GRAPH, FRAME, HEALTH, INPUT_POSE, LLM_EXCHANGE] {
+            let schema: Value = serde_json::from_str(&schema_text(name).unwrap()).unwrap();
+            foxglove_reads(&schema, name).unwrap_or_else(|e| panic!("{e}"));
+        }
+    }
+
+    #[test]
+    fn the_reader_rules_refuse_what_foxglove_refuses() {
+        let bad = [
+            json!({ "type": "object", "properties": { "q": { "type": "object" } } }),
+            json!({ "type": "object", "properties": { "k": { "enum": ["a", "b"] } } }),
+            json!({ "type": "object", "properties": { "p": { "type": ["integer", "null"] } } }),
+            json!({ "type": "object", "properties": { "v": { "oneOf": [{ "type": "object" }, { "type": "null" }] } } }),
+            json!({ "type": "object", "properties": { "m": { "type": "array", "items": { "type": "array" } } } }),
+            json!({ "type": "object", "properties": { "s": { "const": "x" } } }),
+        ];
+        for schema in bad {
+            assert!(foxglove_reads(&schema, "t").is_err(), "{schema}");
+        }
     }
 
     #[test]

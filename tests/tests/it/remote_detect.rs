@@ -204,7 +204,8 @@ fn remote_detection_and_the_zenoh_stage_share_one_session_whichever_side_listens
         let replies = figures["workers"][format!("{key_prefix}/detect/{w}")]["replies"].as_u64().unwrap_or(0);
         assert!(replies > 0, "worker {w} answered: {figures}");
     }
-    let labels: Vec<&str> = graph["nodes"].as_array().expect("nodes").iter().filter_map(|n| n["label"].as_str()).collect();
+    let labels: Vec<&str> =
+        graph["nodes"].as_array().expect("nodes").iter().filter_map(|n| n["label"].as_str()).collect();
     for label in ["chair", "tv"] {
         assert!(labels.contains(&label), "the ICL replay's {label} is in the graph: {labels:?}");
     }

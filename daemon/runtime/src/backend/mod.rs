@@ -28,11 +28,11 @@ pub use crate::config::SectionError;
 use crate::config::{Profile, SectionRegistry};
 use crate::fusion::Fusion;
 use crate::fusion::snapshot::SnapshotError;
-use crate::zenoh::ZenohSession;
 use crate::onnx::OnnxError;
 use crate::perception::Detector;
 use crate::perception::remote::{REMOTE_DETECTOR, SKIP_FALLBACK};
 use crate::record::SideChannelTap;
+use crate::zenoh::ZenohSession;
 
 mod runtime;
 

@@ -21,8 +21,8 @@ use crate::perception::remote::REMOTE_DETECTOR;
 #[cfg(feature = "zenoh")]
 use crate::perception::remote::{RemoteClient, RemoteDetector};
 use crate::perception::yolox::YoloxDetector;
-use crate::zenoh::ZenohSession;
 use crate::perception::{Detection, Detector, DetectorError, OPEN_VOCAB_DETECTOR, YOLOX_DETECTOR};
+use crate::zenoh::ZenohSession;
 
 pub(super) fn sources() -> Vec<Arc<dyn SourceBackend>> {
     vec![Arc::new(ReplayBackend), Arc::new(McapBackend)]
