@@ -12,6 +12,7 @@ mod example_planner;
 mod faults_llm;
 mod faults_planner;
 mod faults_replay;
+mod full_configuration;
 mod goal_service;
 mod graph_view_live;
 mod ipc_users;

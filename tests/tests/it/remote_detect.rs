@@ -18,15 +18,13 @@
 
 use std::path::Path;
 use std::process::Command;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use op3dsg_tests::{Daemon, binary, unique_prefix};
 use serde_json::Value;
 
 use crate::remote_common;
-use remote_common::{Status, Worker, free_port, profile, remote_args};
+use remote_common::{Status, StatusWatch, Worker, free_port, profile, remote_args};
 
 /// The final graph of a daemon on the ICL replay: waits until all 211 frames are captured and
 /// the graph version holds still, then `op3dsg dump --json`.
@@ -53,43 +51,6 @@ fn dump(prefix: &str) -> Value {
         .expect("run op3dsg dump");
     assert!(output.status.success(), "op3dsg dump: {}", String::from_utf8_lossy(&output.stderr));
     serde_json::from_slice(&output.stdout).expect("dump JSON")
-}
-
-/// The daemon's remote-detection figures read while it runs, the newest kept: its
-/// `detect_status` queryable goes when the sequence's last keyframe is detected.
-struct StatusWatch {
-    latest: Arc<Mutex<Value>>,
-    watching: Arc<AtomicBool>,
-    thread: std::thread::JoinHandle<()>,
-}
-
-impl StatusWatch {
-    fn start(status: Status) -> Self {
-        let latest = Arc::new(Mutex::new(Value::Null));
-        let watching = Arc::new(AtomicBool::new(true));
-        let thread = {
-            let (latest, watching) = (latest.clone(), watching.clone());
-            std::thread::Builder::new()
-                .name("detect-status".to_owned())
-                .spawn(move || {
-                    while watching.load(Ordering::Relaxed) {
-                        if let Some(figures) = status.try_read() {
-                            *latest.lock().expect("lock") = figures;
-                        }
-                        std::thread::sleep(Duration::from_millis(100));
-                    }
-                })
-                .expect("spawn the status watcher")
-        };
-        Self { latest, watching, thread }
-    }
-
-    /// Stops watching; the newest figures read.
-    fn finish(self) -> Value {
-        self.watching.store(false, Ordering::Relaxed);
-        self.thread.join().expect("status watcher");
-        self.latest.lock().expect("lock").clone()
-    }
 }
 
 /// A node as compared: id, label, kind, centre.

@@ -9,7 +9,6 @@
 //! frame, a broken chain and future stamps are refused and counted by reason, and fusion resumes
 //! when good transforms do.
 
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::Duration;
@@ -18,10 +17,10 @@ use op3dsg_tests::{Daemon, health_where, unique_prefix};
 use serde_json::Value;
 
 use crate::zenoh_common;
-use zenoh_common::{dump, free_port, python};
+use zenoh_common::{dump, free_port};
 
 use crate::ros2_common;
-use ros2_common::{Killed, router, script};
+use ros2_common::{Killed, publish, router, static_publisher, trajectory};
 
 /// Frames of the replay in each run.
 const FRAMES: u64 = 90;
@@ -29,25 +28,6 @@ const FRAMES: u64 = 90;
 fn icl_dir() -> Option<PathBuf> {
     op3dsg_shared_data::shared_data("rgbd/icl_livingroom1/rgb.txt")?;
     op3dsg_shared_data::shared_data("rgbd/icl_livingroom1").map(|dir| dir.canonicalize().expect("canonical path"))
-}
-
-/// The ground truth of the recording as the publisher's trajectory (`world_from_camera` per
-/// stamp), written from the TUM `groundtruth.txt` format.
-fn trajectory(icl: &Path, out: &Path) {
-    let text = std::fs::read_to_string(icl.join("groundtruth.txt")).expect("groundtruth.txt");
-    let poses: Vec<Value> = text
-        .lines()
-        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
-        .map(|l| {
-            let v: Vec<&str> = l.split_whitespace().collect();
-            let (sec, frac) = v[0].split_once('.').unwrap_or((v[0], "0"));
-            let stamp_ns = sec.parse::<u64>().expect("seconds") * 1_000_000_000
-                + format!("{frac:0<9}")[..9].parse::<u64>().expect("fraction");
-            let f = |i: usize| v[i].parse::<f64>().expect("number");
-            serde_json::json!({"stamp_ns": stamp_ns, "translation_m": [f(1), f(2), f(3)], "rotation_xyzw": [f(4), f(5), f(6), f(7)]})
-        })
-        .collect();
-    std::fs::write(out, serde_json::to_string(&poses).expect("JSON")).expect("write the trajectory");
 }
 
 /// What both tests stand on: the recording's trajectory file and a router on a free port.
@@ -111,40 +91,6 @@ fn assert_logged_once(log: &str, reason: &str, error_text: &str, count: u64) {
     let counted = lines.iter().filter(|l| l.contains("count=") && l.contains(reason)).count() as u64;
     assert_eq!(counted, u64::from(count.ilog2()), "{reason}: the rest at powers of two up to {count}: {lines:#?}");
     assert_eq!(first, 1, "{reason}: the first warning: {lines:#?}");
-}
-
-/// A static broadcaster started before the daemon: publishes `/tf_static` once and keeps it in
-/// its cache (transient local) until dropped; the daemon must fetch it when it subscribes.
-fn static_publisher(port: u16, style: &str, traj: &Path) -> Killed {
-    let mut child = Command::new(python())
-        .arg(script("ros2_tf_publisher.py"))
-        .args(["--key-style", style, "--distro", "humble", "--static-only", "--linger-s", "600"])
-        .args(["--connect", &format!("tcp/127.0.0.1:{port}")])
-        .arg("--trajectory")
-        .arg(traj)
-        .stdout(Stdio::piped())
-        .spawn()
-        .expect("start ros2_tf_publisher.py --static-only");
-    let stdout = BufReader::new(child.stdout.take().expect("stdout"));
-    let done = stdout.lines().map_while(Result::ok).any(|line| line.contains("\"done\""));
-    assert!(done, "ros2_tf_publisher.py --static-only ended before publishing");
-    Killed(child)
-}
-
-/// Runs the publisher to the end of the trajectory; its last line.
-fn publish(port: u16, style: &str, traj: &Path, faults: &[&str]) -> Value {
-    let output = Command::new(python())
-        .arg(script("ros2_tf_publisher.py"))
-        .args(["--key-style", style, "--distro", "humble", "--rate", "0", "--linger-s", "1"])
-        .args(["--connect", &format!("tcp/127.0.0.1:{port}")])
-        .arg("--trajectory")
-        .arg(traj)
-        .args(faults)
-        .output()
-        .expect("run ros2_tf_publisher.py");
-    assert!(output.status.success(), "ros2_tf_publisher.py: {}", String::from_utf8_lossy(&output.stderr));
-    let text = String::from_utf8_lossy(&output.stdout);
-    serde_json::from_str(text.lines().last().unwrap_or_default()).expect("publisher JSON")
 }
 
 fn ros2_args(port: u16, style: &str) -> Vec<String> {

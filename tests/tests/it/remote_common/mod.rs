@@ -4,6 +4,8 @@
 use std::net::TcpListener;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use op3dsg_tests::{binary, wait_for};
@@ -161,5 +163,42 @@ impl Status {
             Some(self.read()).filter(&pick)
         });
         (status, started.elapsed())
+    }
+}
+
+/// The daemon's remote-detection figures read while it runs, the newest kept: its
+/// `detect_status` queryable goes when the sequence's last keyframe is detected.
+pub struct StatusWatch {
+    latest: Arc<Mutex<Value>>,
+    watching: Arc<AtomicBool>,
+    thread: std::thread::JoinHandle<()>,
+}
+
+impl StatusWatch {
+    pub fn start(status: Status) -> Self {
+        let latest = Arc::new(Mutex::new(Value::Null));
+        let watching = Arc::new(AtomicBool::new(true));
+        let thread = {
+            let (latest, watching) = (latest.clone(), watching.clone());
+            std::thread::Builder::new()
+                .name("detect-status".to_owned())
+                .spawn(move || {
+                    while watching.load(Ordering::Relaxed) {
+                        if let Some(figures) = status.try_read() {
+                            *latest.lock().expect("lock") = figures;
+                        }
+                        std::thread::sleep(Duration::from_millis(100));
+                    }
+                })
+                .expect("spawn the status watcher")
+        };
+        Self { latest, watching, thread }
+    }
+
+    /// Stops watching; the newest figures read.
+    pub fn finish(self) -> Value {
+        self.watching.store(false, Ordering::Relaxed);
+        self.thread.join().expect("status watcher");
+        self.latest.lock().expect("lock").clone()
     }
 }
