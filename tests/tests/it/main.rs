@@ -17,6 +17,7 @@ mod goal_service;
 mod graph_view_live;
 mod ipc_users;
 mod live_view;
+mod live_view_app;
 mod pose_and_health;
 mod pose_stream;
 mod profile_errors;
