@@ -34,12 +34,12 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use op3dsg_tests::{Daemon, health_where, unique_prefix};
+use op3dsg_tests::{Daemon, unique_prefix};
 use serde_json::Value;
 
 use crate::remote_common::{self, Status, StatusWatch, Worker, remote_args};
 use crate::ros2_common::{publish, router, script, static_publisher, trajectory};
-use crate::zenoh_common::{self, Consumer, assert_same_graph, dump, python};
+use crate::zenoh_common::{self, Consumer, assert_same_graph, python};
 
 /// Frames of the ICL living-room recording.
 const FRAMES: u64 = 211;
@@ -271,21 +271,6 @@ impl Setup<'_> {
     }
 }
 
-/// Waits until every frame is captured and the graph version holds still; the dump then.
-fn settled(daemon: &Daemon, timeout: Duration) -> Value {
-    let mut health = daemon.health_subscriber("full-run-health");
-    health_where(&mut health, "every frame of the recording captured", timeout, |h| h.frames_captured >= FRAMES);
-    let mut last = dump(&daemon.prefix);
-    loop {
-        std::thread::sleep(Duration::from_secs(3));
-        let now = dump(&daemon.prefix);
-        if now["graph_version"] == last["graph_version"] {
-            return now;
-        }
-        last = now;
-    }
-}
-
 fn health_json(prefix: &str) -> Value {
     zenoh_common::dump_with(&["--prefix", prefix, "health", "--json"])
 }
@@ -316,7 +301,7 @@ fn bench_bare(setup: &Setup<'_>, seconds: f64, (cpu_full, wall): (f64, f64)) {
         Daemon::start(&unique_prefix("bare-run"), &setup.args(false).iter().map(String::as_str).collect::<Vec<_>>());
     let cpu_at_start = cpu_seconds(bare.child.id());
     let bare_started = Instant::now();
-    settled(&bare, Duration::from_secs_f64(seconds * 3.0 + 120.0));
+    remote_common::final_graph(&bare, FRAMES, Duration::from_secs_f64(seconds * 3.0 + 120.0));
     let cpu_bare = cpu_seconds(bare.child.id()) - cpu_at_start;
     let bare_wall = bare_started.elapsed().as_secs_f64();
     println!(
@@ -376,7 +361,7 @@ fn the_stretch_configuration_with_every_feature_on_serves_one_graph_to_every_cli
     let planner = Planner::start(&prefix);
     let viewer = LiveViewer::start(live_port);
 
-    let dumped = settled(&daemon, Duration::from_secs_f64(seconds * 3.0 + 120.0));
+    let dumped = remote_common::final_graph(&daemon, FRAMES, Duration::from_secs_f64(seconds * 3.0 + 120.0));
     let sent = tf.join().expect("tf publisher");
     assert_eq!(sent["published"].as_u64(), Some(FRAMES), "{sent}");
     let cpu_full = cpu_seconds(daemon.child.id()) - cpu_at_start;

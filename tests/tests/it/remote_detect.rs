@@ -26,31 +26,9 @@ use serde_json::Value;
 use crate::remote_common;
 use remote_common::{Status, StatusWatch, Worker, free_port, profile, remote_args};
 
-/// The final graph of a daemon on the ICL replay: waits until all 211 frames are captured and
-/// the graph version holds still, then `op3dsg dump --json`.
+/// The final graph of a daemon on the ICL replay (211 frames).
 fn final_graph(daemon: &Daemon) -> Value {
-    let mut health = daemon.health_subscriber("remote-detect-health");
-    op3dsg_tests::health_where(&mut health, "all 211 frames captured", Duration::from_secs(240), |h| {
-        h.frames_captured >= 211
-    });
-    let mut last = dump(&daemon.prefix);
-    loop {
-        std::thread::sleep(Duration::from_secs(2));
-        let now = dump(&daemon.prefix);
-        if now["graph_version"] == last["graph_version"] {
-            return now;
-        }
-        last = now;
-    }
-}
-
-fn dump(prefix: &str) -> Value {
-    let output = Command::new(binary("op3dsg"))
-        .args(["--prefix", prefix, "dump", "--json", "--timeout-s", "30"])
-        .output()
-        .expect("run op3dsg dump");
-    assert!(output.status.success(), "op3dsg dump: {}", String::from_utf8_lossy(&output.stderr));
-    serde_json::from_slice(&output.stdout).expect("dump JSON")
+    remote_common::final_graph(daemon, 211, Duration::from_secs(240))
 }
 
 /// A node as compared: id, label, kind, centre.

@@ -202,3 +202,21 @@ impl StatusWatch {
         self.latest.lock().expect("lock").clone()
     }
 }
+
+/// The final graph of a daemon on a finite recording: waits up to `timeout` until `frames`
+/// frames are captured, then until the graph version holds still; `op3dsg dump --json` then.
+pub fn final_graph(daemon: &op3dsg_tests::Daemon, frames: u64, timeout: Duration) -> Value {
+    let mut health = daemon.health_subscriber("final-graph-health");
+    op3dsg_tests::health_where(&mut health, "every frame of the recording captured", timeout, |h| {
+        h.frames_captured >= frames
+    });
+    let mut last = crate::zenoh_common::dump(&daemon.prefix);
+    loop {
+        std::thread::sleep(Duration::from_secs(2));
+        let now = crate::zenoh_common::dump(&daemon.prefix);
+        if now["graph_version"] == last["graph_version"] {
+            return now;
+        }
+        last = now;
+    }
+}
