@@ -161,7 +161,7 @@ impl SourceBackend for SyntheticBackend {
                 check((0.0..=1.0).contains(&v), &format!("{p}.{name}"), || format!("must be within [0, 1], got {v}"))?;
             }
         }
-        Ok(())
+        check_change_script(&syn)
     }
 
     fn open(&self, profile: &Profile) -> Result<OpenedSource, StartError> {
@@ -172,6 +172,22 @@ impl SourceBackend for SyntheticBackend {
 
     fn side_channel_taps(&self, opened: &OpenedSource) -> Vec<Box<dyn SideChannelTap>> {
         instance_id_taps(opened)
+    }
+}
+
+/// Checks `[[source.synthetic.changes]]` against the room it changes (generated here, with its
+/// camera path), so a bad script stops the profile's load naming `changes[i].<key>`.
+fn check_change_script(syn: &SyntheticConfig) -> Result<(), SectionError> {
+    if syn.changes.is_empty() {
+        return Ok(());
+    }
+    match syn.final_scene() {
+        Ok(_) => Ok(()),
+        Err(op3dsg_drivers::source::SourceError::Config(message)) => Err(match message.split_once(": ") {
+            Some((field, reason)) => (field.to_owned(), reason.to_owned()),
+            None => ("changes".to_owned(), message),
+        }),
+        Err(other) => Err(("changes".to_owned(), other.to_string())),
     }
 }
 
@@ -502,6 +518,26 @@ mod tests {
         assert_eq!(err.to_string(), "--set: source.synthetic.frame_rate_hz: must be within (0, 1000], got 0");
         let err = load_profile(None, &["source.synthetic.sead=3".to_owned()]).unwrap_err();
         assert!(err.message.starts_with("source.synthetic.sead: unknown field `sead`"), "{err}");
+    }
+
+    #[test]
+    fn a_bad_change_script_stops_the_load_naming_the_entry_and_key() {
+        let set = |value: &str| vec![format!("source.synthetic.changes={value}")];
+        let err = load_profile(None, &set("[{ at_lap = 1, remove = 9999 }]")).unwrap_err();
+        assert!(err.message.starts_with("source.synthetic.changes[0].remove: no instance 9999"), "{err}");
+        assert!(err.message.contains("op3dsg gt --room kitchen --seed 1"), "{err}");
+        let err = load_profile(None, &set("[{ at_lap = 1, remove = 1 }, { remove = 2 }]")).unwrap_err();
+        assert!(err.message.starts_with("source.synthetic.changes[1].at_frame: "), "{err}");
+        let err = load_profile(None, &set("[{ at_lap = 1, remvoe = 2 }]")).unwrap_err();
+        assert!(err.message.starts_with("source.synthetic.changes[0]"), "{err}");
+        assert!(err.message.contains("unknown field `remvoe`"), "{err}");
+        let loaded = load_profile(None, &set("[{ at_lap = 1, hide_depth = 1 }]")).unwrap();
+        let config = synthetic_config(&loaded.profile).unwrap();
+        assert_eq!(config.changes.len(), 1);
+        let (opened, _) = backends().open(&loaded.profile, None).unwrap();
+        let truth = ground_truth(&opened).unwrap();
+        assert_eq!(truth.scene.depthless(), [1]);
+        assert_eq!(truth.changes.len(), 1);
     }
 
     #[test]

@@ -32,6 +32,9 @@ use serde::{Deserialize, Serialize};
 use op3dsg_drivers::frame::Intrinsics;
 
 mod catalog;
+pub mod change;
+#[cfg(test)]
+mod change_tests;
 pub mod noise;
 mod path;
 mod render;
@@ -43,6 +46,7 @@ mod tests;
 pub mod truth;
 
 pub use catalog::{FUNCTIONAL_RELATIONS, SPATIAL_RELATIONS};
+pub use change::{AppliedChange, ChangeKind, SceneChange};
 pub use path::{CameraPath, inside_furniture, look_rotation};
 pub use render::{Renderer, render};
 pub use scene::{Axis, CEILING_HEIGHT_M, GtEdge, Material, Primitive, Scene, Shape};
@@ -144,6 +148,10 @@ pub struct SyntheticConfig {
     pub frame_rate_hz: f64,
     /// Depth noise; `None` renders exact depth.
     pub depth_noise: Option<DepthNoiseConfig>,
+    /// The change script (`[[source.synthetic.changes]]`): how the world changes during the
+    /// run ([`change`]); empty: the room stays as generated.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub changes: Vec<SceneChange>,
 }
 
 impl Default for SyntheticConfig {
@@ -155,7 +163,23 @@ impl Default for SyntheticConfig {
             intrinsics: Intrinsics::d435i_640x480(),
             frame_rate_hz: 30.0,
             depth_noise: Some(DepthNoiseConfig::default()),
+            changes: Vec::new(),
         }
+    }
+}
+
+impl SyntheticConfig {
+    /// The room after every change of [`SyntheticConfig::changes`] (the generated room without
+    /// changes), without rendering: what [`GroundTruth::scene`] of a source made from this
+    /// config holds. Checks the change script as [`SyntheticSource::new`] does.
+    pub fn final_scene(&self) -> Result<Scene, op3dsg_drivers::source::SourceError> {
+        let scene = Scene::generate(self.room, self.seed);
+        if self.changes.is_empty() {
+            return Ok(scene);
+        }
+        let path = CameraPath::new(&scene, self.seed, self.frame_rate_hz);
+        let mut script = change::apply(&scene, &self.changes, &path, self.frame_count)?;
+        Ok(script.epochs.pop().map_or(scene, |(_, last)| last))
     }
 }
 

@@ -13,6 +13,11 @@
 //! The result is quantised to `units_per_m` (millimetres). Instance ids are never touched. The
 //! noise is a pure function of the clean depth and the random generator's state: every pixel
 //! consumes exactly one uniform and one normal sample, in row-major order.
+//!
+//! A change script's `degrade_depth_beyond_m` ([`degrade_beyond`]) then makes depth beyond a
+//! range garbage: every pixel with depth whose exact depth is beyond it gets an error of sigma
+//! [`FAR_SIGMA_M`], and [`FAR_OUTLIER_SHARE`] of them read [`FAR_OUTLIER_M`] too far besides (a
+//! revisit from beyond the trusted range), drawing from the same generator after the noise.
 
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
@@ -65,6 +70,34 @@ pub fn apply(
             let noisy = z + sigma_at(config, z) * n;
             out[i] = quantise(noisy, units_per_m);
         }
+    }
+}
+
+/// Standard deviation of the error of depth beyond a change script's
+/// `degrade_depth_beyond_m`, metres.
+pub const FAR_SIGMA_M: f32 = 0.25;
+/// Share of the pixels beyond `degrade_depth_beyond_m` that read much too far.
+pub const FAR_OUTLIER_SHARE: f32 = 0.3;
+/// How much too far those pixels read, metres (uniform in the range).
+pub const FAR_OUTLIER_M: (f32, f32) = (0.3, 1.0);
+
+/// Replaces the depth of every pixel whose exact depth `clean` (metres) is beyond `range_m` and
+/// that has depth in `out` by garbage: `z + FAR_SIGMA_M * n`, plus `FAR_OUTLIER_M` for a share
+/// `FAR_OUTLIER_SHARE` of them (0 where that is not in front of the camera). Each such pixel
+/// consumes one normal and two uniform samples, in row-major order.
+pub fn degrade_beyond(range_m: f32, rng: &mut ChaCha8Rng, clean: &[f32], units_per_m: f32, out: &mut [u16]) {
+    debug_assert_eq!(clean.len(), out.len());
+    for (d, &z) in out.iter_mut().zip(clean) {
+        if *d == 0 || z <= range_m {
+            continue;
+        }
+        let n: f32 = rng.sample(StandardNormal);
+        let u: f32 = rng.random();
+        let v: f32 = rng.random();
+        let outlier =
+            if u < FAR_OUTLIER_SHARE { FAR_OUTLIER_M.0 + (FAR_OUTLIER_M.1 - FAR_OUTLIER_M.0) * v } else { 0.0 };
+        let garbage = z + FAR_SIGMA_M * n + outlier;
+        *d = if garbage > 0.05 { quantise(garbage, units_per_m) } else { 0 };
     }
 }
 

@@ -10,6 +10,7 @@
 //! Blinn-Phong highlights from both, so shiny parts facing the camera go near white.
 
 use glam::{Mat3, Vec3};
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::DepthNoiseConfig;
@@ -31,6 +32,8 @@ pub struct Renderer {
     near: Vec<f32>,
     order: Vec<(f32, u32)>,
     clean_depth: Vec<f32>,
+    /// Pixels of the scene's depthless instances ([`Scene::depthless`]).
+    hidden: Vec<bool>,
 }
 
 impl Renderer {
@@ -41,13 +44,36 @@ impl Renderer {
 
     /// Renders one view into `frame` (RGB, depth in millimetres, pose and intrinsics) and,
     /// when given, the per-pixel instance ids (ground truth, kept out of the frame) into
-    /// `instance_ids`; exact depth when `noise` is `None`.
+    /// `instance_ids`; exact depth when `noise` is `None`. The scene's depth controls apply
+    /// last: no depth on [`Scene::depthless`] instances' pixels, garbage beyond
+    /// [`Scene::unreliable_beyond_m`] (drawn from `noise`'s generator after the noise; without
+    /// noise from a generator seeded by the scene's seed).
     pub fn render(
         &mut self,
         scene: &Scene,
         world_from_camera: &Isometry,
         intrinsics: &Intrinsics,
         noise: Option<(&DepthNoiseConfig, &mut ChaCha8Rng)>,
+        frame: &mut Frame,
+        instance_ids: Option<&mut Vec<u16>>,
+    ) {
+        self.trace(scene, world_from_camera, intrinsics, frame, instance_ids);
+        match noise {
+            Some((config, rng)) => self.write_depth(scene, Some(config), rng, frame),
+            None => {
+                let mut rng = ChaCha8Rng::seed_from_u64(scene.seed ^ 0xFA2D_E97B_0000_0001);
+                self.write_depth(scene, None, &mut rng, frame);
+            }
+        }
+    }
+
+    /// Casts every pixel's ray: colour, pose and intrinsics into `frame`, ids into
+    /// `instance_ids`, exact depth kept for [`Renderer::write_depth`].
+    pub(crate) fn trace(
+        &mut self,
+        scene: &Scene,
+        world_from_camera: &Isometry,
+        intrinsics: &Intrinsics,
         frame: &mut Frame,
         mut instance_ids: Option<&mut Vec<u16>>,
     ) {
@@ -63,6 +89,10 @@ impl Renderer {
             ids.resize(n, 0);
         }
         self.clean_depth.resize(n, 0.0);
+        let hide = !scene.depthless.is_empty();
+        if hide {
+            self.hidden.resize(n, false);
+        }
         self.bin(scene, world_from_camera, intrinsics);
 
         let rot = Mat3::from_quat(world_from_camera.rotation.as_quat());
@@ -81,6 +111,9 @@ impl Renderer {
                 if let Some(ids) = instance_ids.as_deref_mut() {
                     ids[i] = hit.instance;
                 }
+                if hide {
+                    self.hidden[i] = scene.depthless.contains(&hit.instance);
+                }
                 if hit.t.is_finite() {
                     self.clean_depth[i] = hit.t;
                     let colour = shade(hit.material, origin + dir * hit.t, hit.normal, -dir.normalize(), light);
@@ -93,12 +126,36 @@ impl Renderer {
                 }
             }
         }
+    }
 
+    /// Writes the depth of the view [`Renderer::trace`] cast into `frame`: exact, or with
+    /// `noise` drawn from `rng`; then the change script's depth controls: garbage beyond
+    /// [`Scene::unreliable_beyond_m`] (drawn from `rng` after the noise), no depth on the pixels
+    /// of [`Scene::depthless`] instances.
+    pub(crate) fn write_depth(
+        &self,
+        scene: &Scene,
+        noise: Option<&DepthNoiseConfig>,
+        rng: &mut ChaCha8Rng,
+        frame: &mut Frame,
+    ) {
+        let (w, h) = (frame.intrinsics.width as usize, frame.intrinsics.height as usize);
+        let depth = &mut frame.depth;
         match noise {
-            Some((config, rng)) => noise::apply(config, rng, &self.clean_depth, w, h, 1000.0, &mut frame.depth),
+            Some(config) => noise::apply(config, rng, &self.clean_depth, w, h, 1000.0, depth),
             None => {
-                for (d, &z) in frame.depth.iter_mut().zip(&self.clean_depth) {
+                for (d, &z) in depth.iter_mut().zip(&self.clean_depth) {
                     *d = if z > 0.0 { noise::quantise(z, 1000.0) } else { 0 };
+                }
+            }
+        }
+        if let Some(range_m) = scene.unreliable_beyond_m {
+            noise::degrade_beyond(range_m, rng, &self.clean_depth, 1000.0, depth);
+        }
+        if !scene.depthless.is_empty() {
+            for (d, &hidden) in depth.iter_mut().zip(&self.hidden) {
+                if hidden {
+                    *d = 0;
                 }
             }
         }

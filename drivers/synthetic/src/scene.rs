@@ -230,6 +230,13 @@ pub struct Scene {
     pub(crate) structure: [Material; 3],
     pub(crate) light_m: Vec3,
     pub(crate) deviations: Vec<crate::truth::SceneDeviation>,
+    /// Instances removed by the change script (they keep their entry in `instances`, without
+    /// primitives).
+    pub(crate) removed: Vec<u16>,
+    /// Instances whose pixels read no depth (the change script's `hide_depth`).
+    pub(crate) depthless: Vec<u16>,
+    /// Depth beyond this range is unreliable (the change script's `degrade_depth_beyond_m`).
+    pub(crate) unreliable_beyond_m: Option<f32>,
 }
 
 impl Scene {
@@ -243,9 +250,33 @@ impl Scene {
         self.seed
     }
 
-    /// Objects and parts; `instances()[k - 1].id == k`.
+    /// Objects and parts; `instances()[k - 1].id == k`. Every instance that ever existed in
+    /// this scene, including those a change script removed (they keep their last box and have
+    /// no primitives: [`Scene::is_present`]) and those it added (new ids after the catalog's).
     pub fn instances(&self) -> &[InstanceInfo] {
         &self.instances
+    }
+
+    /// Whether instance `id` exists and has not been removed by a change script.
+    pub fn is_present(&self, id: u16) -> bool {
+        self.instance(id).is_some() && !self.removed.contains(&id)
+    }
+
+    /// The instances that are in the room (not removed), in id order: the ground truth's nodes.
+    pub fn present_instances(&self) -> impl Iterator<Item = &InstanceInfo> {
+        self.instances.iter().filter(|i| !self.removed.contains(&i.id))
+    }
+
+    /// Instances whose pixels read no depth (colour and instance ids unchanged): the change
+    /// script's `hide_depth`.
+    pub fn depthless(&self) -> &[u16] {
+        &self.depthless
+    }
+
+    /// Range beyond which the rendered depth is garbage (the change script's
+    /// `degrade_depth_beyond_m`); `None`: the normal noise model everywhere.
+    pub fn unreliable_beyond_m(&self) -> Option<f32> {
+        self.unreliable_beyond_m
     }
 
     /// The instance with id `id` (1-based).
@@ -294,11 +325,12 @@ impl Scene {
         format!("synthetic {} seed {}", self.room.as_str(), self.seed)
     }
 
-    /// The ground-truth scene graph: every instance as a node (id = instance id), `part of`
-    /// edges, true object–object spatial relations, and functional relations.
+    /// The ground-truth scene graph: every present instance as a node (id = instance id),
+    /// `part of` edges, true object–object spatial relations, and functional relations. Removed
+    /// instances and every edge touching them are left out.
     pub fn ground_truth(&self) -> GraphJson {
         let mut graph = GraphJson::new(self.describe());
-        for info in &self.instances {
+        for info in self.present_instances() {
             let centre = (info.box_min_m + info.box_max_m) * 0.5;
             graph.nodes.push(NodeJson {
                 id: u32::from(info.id),
@@ -319,7 +351,7 @@ impl Scene {
                 seen_keyframes: None,
             });
         }
-        for edge in &self.edges {
+        for edge in self.edges.iter().filter(|e| self.is_present(e.source) && self.is_present(e.target)) {
             graph.edges.push(EdgeJson {
                 source: u32::from(edge.source),
                 target: u32::from(edge.target),

@@ -83,10 +83,16 @@ impl InstanceIdChannel {
 /// to the oracle detector and to evaluation.
 #[derive(Debug, Clone)]
 pub struct GroundTruth {
-    /// The generated room.
+    /// The room as the source ends it: after every change of the change script (the
+    /// generated room without one). Its [`crate::Scene::instances`] hold every instance that
+    /// ever existed (removed ones too), its ground truth only the present ones.
     pub scene: crate::Scene,
     /// Instance ids of each delivered frame.
     pub instance_ids: InstanceIdChannel,
+    /// The generated room, before the first change; `None` without a change script.
+    pub initial: Option<crate::Scene>,
+    /// What each change of the script did, in the order applied (frame order).
+    pub changes: Vec<crate::AppliedChange>,
 }
 
 #[cfg(test)]

@@ -1,8 +1,10 @@
-//! [`SyntheticSource`]: renders frame `k` of the camera path of a generated room.
+//! [`SyntheticSource`]: renders frame `k` of the camera path of a generated room, as the
+//! change script ([`crate::change`]) left it by frame `k`.
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
+use super::change::{self, AppliedChange};
 use super::path::CameraPath;
 use super::render::Renderer;
 use super::scene::Scene;
@@ -15,7 +17,10 @@ use op3dsg_drivers::source::{FrameSource, SourceError, SourceKind, SourceStatus,
 #[derive(Debug)]
 pub struct SyntheticSource {
     config: SyntheticConfig,
-    scene: Scene,
+    /// `(first frame, scene)` in frame order; the first is the generated room from frame 0.
+    epochs: Vec<(u64, Scene)>,
+    /// What the change script did.
+    applied: Vec<AppliedChange>,
     path: CameraPath,
     renderer: Renderer,
     instance_ids: InstanceIdChannel,
@@ -82,7 +87,9 @@ fn check_noise(n: &DepthNoiseConfig) -> Result<(), SourceError> {
 }
 
 impl SyntheticSource {
-    /// Generates the room and plans the camera path; `Config` errors name the bad field.
+    /// Generates the room, plans the camera path (on the generated room) and applies the
+    /// change script; `Config` errors name the bad field (`changes[i].<key>: ...` for the
+    /// script).
     pub fn new(config: &SyntheticConfig) -> Result<Self, SourceError> {
         check_intrinsics(&config.intrinsics)?;
         check_positive("frame_rate_hz", config.frame_rate_hz)?;
@@ -91,9 +98,11 @@ impl SyntheticSource {
         }
         let scene = Scene::generate(config.room, config.seed);
         let path = CameraPath::new(&scene, config.seed, config.frame_rate_hz);
+        let script = change::apply(&scene, &config.changes, &path, config.frame_count)?;
         Ok(Self {
             config: config.clone(),
-            scene,
+            epochs: script.epochs,
+            applied: script.applied,
             path,
             renderer: Renderer::new(),
             instance_ids: InstanceIdChannel::new(),
@@ -101,9 +110,25 @@ impl SyntheticSource {
         })
     }
 
-    /// The generated room.
+    /// The generated room (before any change).
     pub fn scene(&self) -> &Scene {
-        &self.scene
+        &self.epochs[0].1
+    }
+
+    /// The room as frame `k` shows it (absolute frame number).
+    pub fn scene_at(&self, k: u64) -> &Scene {
+        epoch_at(&self.epochs, k)
+    }
+
+    /// The room after every change.
+    pub fn final_scene(&self) -> &Scene {
+        self.epochs.last().map_or(&self.epochs[0].1, |(_, scene)| scene)
+    }
+
+    /// The scenes of the change script: `(first frame, scene)` in frame order, the first being
+    /// the generated room from frame 0.
+    pub fn epochs(&self) -> &[(u64, Scene)] {
+        &self.epochs
     }
 
     /// The camera path.
@@ -111,10 +136,17 @@ impl SyntheticSource {
         &self.path
     }
 
-    /// The ground truth of what this source renders: the scene and the channel that receives
-    /// each delivered frame's instance ids.
+    /// The ground truth of what this source renders: the final scene (after every change),
+    /// the channel that receives each delivered frame's instance ids, and with a change script
+    /// the scene before it and what each change did.
     pub fn ground_truth(&self) -> GroundTruth {
-        GroundTruth { scene: self.scene.clone(), instance_ids: self.instance_ids.clone() }
+        let changed = self.epochs.len() > 1;
+        GroundTruth {
+            scene: self.final_scene().clone(),
+            instance_ids: self.instance_ids.clone(),
+            initial: changed.then(|| self.scene().clone()),
+            changes: self.applied.clone(),
+        }
     }
 
     /// Camera pose of frame `k` (the path repeats when the source is endless).
@@ -161,11 +193,14 @@ impl FrameSource for SyntheticSource {
         let k = self.next;
         let pose = self.pose_of(k);
         let mut rng = self.noise_rng(k);
-        let noise = self.config.depth_noise.as_ref().map(|n| (n, &mut rng));
+        let noise = self.config.depth_noise.as_ref();
         let stamp_ns = self.stamp_of(k);
-        let (scene, renderer, intrinsics) = (&self.scene, &mut self.renderer, &self.config.intrinsics);
+        let scene = epoch_at(&self.epochs, k);
+        let (renderer, intrinsics) = (&mut self.renderer, &self.config.intrinsics);
         self.instance_ids.write(frame, |frame, ids| {
-            renderer.render(scene, &pose, intrinsics, noise, frame, Some(ids));
+            renderer.trace(scene, &pose, intrinsics, frame, Some(ids));
+            // The frame's generator also draws the change script's far-depth garbage without noise.
+            renderer.write_depth(scene, noise, &mut rng, frame);
             frame.seq = k;
             frame.stamp_ns = stamp_ns;
         });
@@ -195,6 +230,12 @@ impl FrameSource for SyntheticSource {
     }
 
     fn describe(&self) -> String {
-        self.scene.describe()
+        self.scene().describe()
     }
+}
+
+/// The scene of the last epoch starting at or before frame `k`.
+fn epoch_at(epochs: &[(u64, Scene)], k: u64) -> &Scene {
+    let index = epochs.partition_point(|(start, _)| *start <= k).saturating_sub(1);
+    &epochs[index].1
 }

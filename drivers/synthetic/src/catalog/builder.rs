@@ -279,6 +279,9 @@ impl Builder {
             structure,
             light_m,
             deviations: self.deviations,
+            removed: Vec::new(),
+            depthless: Vec::new(),
+            unreliable_beyond_m: None,
         }
     }
 }
