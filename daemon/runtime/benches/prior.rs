@@ -42,6 +42,8 @@ fn graph(kb: &KnowledgeBase) -> SceneGraph {
             observation_count: 5,
             affordance_bits: 0,
             last_seen_stamp_ns: 0,
+            first_seen_stamp_ns: 0,
+            missing: false,
             ..Default::default()
         });
     }

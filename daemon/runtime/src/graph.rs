@@ -54,6 +54,10 @@ pub struct GraphNode {
     pub affordance_llm_bits: u16,
     /// Stamp of the last keyframe that saw it, nanoseconds.
     pub last_seen_stamp_ns: u64,
+    /// Stamp of the first keyframe that saw it, nanoseconds (kept across restarts and moves).
+    pub first_seen_stamp_ns: u64,
+    /// The depth of recent keyframes says it is gone; not removed yet (`[fusion.change]`).
+    pub missing: bool,
 }
 
 impl GraphNode {

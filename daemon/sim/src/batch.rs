@@ -125,6 +125,11 @@ pub struct BatchRun {
     /// Per keyframe: the cost of subsampling its depth and integrating it into the map,
     /// microseconds (empty without the map).
     pub occupancy_integrate_us: Vec<u32>,
+    /// Per keyframe in order (fusion's keyframe counter `i + 1`): its frame's sequence number
+    /// and its true camera pose (before any oracle pose noise).
+    pub keyframe_poses: Vec<(u64, Isometry)>,
+    /// The changes this run's fusion found (`[fusion.change]`), oldest first.
+    pub changes: Vec<fusion::change::ChangeEvent>,
 }
 
 impl BatchRun {
@@ -269,7 +274,9 @@ pub fn run_lanes(
     let mut keyframes = KeyframeReader::new(source, profile);
     let mut timing = BatchTiming::default();
     let mut detections = Vec::new();
+    let mut keyframe_poses = Vec::new();
     while let Some(world_from_camera) = keyframes.next_keyframe(&mut frame, &mut timing)? {
+        keyframe_poses.push((frame.seq, world_from_camera));
         occupancy.integrate(&frame, &world_from_camera);
         if instances.id_count() > 0 {
             let t = Instant::now();
@@ -295,6 +302,7 @@ pub fn run_lanes(
         visible_keyframes: instances.visible_keyframes,
         occupancy,
         timing,
+        keyframe_poses,
     };
     let mut out = Vec::with_capacity(lanes.len());
     for (lane, lane_run) in lanes.iter_mut().zip(&lane_runs) {
@@ -626,6 +634,7 @@ struct RunTotals {
     occupancy: OccupancyRun,
     /// Source, gate and ground-truth times; the lanes add their own.
     timing: BatchTiming,
+    keyframe_poses: Vec<(u64, Isometry)>,
 }
 
 impl RunTotals {
@@ -645,6 +654,8 @@ impl RunTotals {
             if let Some(enricher) = enricher.as_deref_mut() {
                 reasoner::enrich(enricher, &mut graph, Refinement::Await(llm_wait));
             }
+            let mut changes = Vec::new();
+            fusion.take_changes(&mut changes);
             let timing = BatchTiming {
                 detect: lane_run.detect_time,
                 fusion: lane_run.fusion_time[i],
@@ -667,6 +678,8 @@ impl RunTotals {
                 timing,
                 occupancy: self.occupancy.grid.clone(),
                 occupancy_integrate_us: self.occupancy.integrate_us.clone(),
+                keyframe_poses: self.keyframe_poses.clone(),
+                changes,
             });
         }
         runs

@@ -244,6 +244,8 @@ mod tests {
             observation_count: 3,
             affordance_bits: 0,
             last_seen_stamp_ns: 0,
+            first_seen_stamp_ns: 0,
+            missing: false,
             ..Default::default()
         }
     }

@@ -51,6 +51,8 @@ fn cabinet_graph(version: u64) -> SceneGraph {
                 observation_count: 12,
                 affordance_bits: 0,
                 last_seen_stamp_ns: 1_000,
+                first_seen_stamp_ns: 0,
+                missing: false,
                 ..Default::default()
             },
             GraphNode {
@@ -64,6 +66,8 @@ fn cabinet_graph(version: u64) -> SceneGraph {
                 box_max_m: [1.05, 0.63, 0.72],
                 obb: Default::default(),
                 observation_count: 5,
+                first_seen_stamp_ns: 0,
+                missing: false,
                 affordance_bits: op3dsg_ipc_types::affordance_bits(["hook_pull"]).expect("canonical"),
                 last_seen_stamp_ns: 1_000,
                 ..Default::default()

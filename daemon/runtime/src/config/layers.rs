@@ -174,11 +174,11 @@ fn load_layers(
 
 /// Sub-tables of `[source]`, `[detector]` and `[fusion]` that are the runtime's own typed sections
 /// (`region_encoder` goes with every detector kind, `remote` with `detector.kind = "remote"`,
-/// `colour` is the OP3DSG fusion's); any other sub-table is a registered backend's.
+// `colour` and `change` are the OP3DSG fusion's); any other sub-table is a registered backend's.
 const RUNTIME_SECTIONS: [(&str, &[&str]); 3] = [
     ("source", &["replay"]),
     ("detector", &["yolox", "open_vocab", "region_encoder", "remote"]),
-    ("fusion", &["colour"]),
+    ("fusion", &["colour", "change"]),
 ];
 
 /// `detector.kind = "onnx"` is the older name of `"yolox"`.

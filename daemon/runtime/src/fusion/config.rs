@@ -99,6 +99,9 @@ pub struct FusionConfig {
     /// A part attaches to an object whose box, grown by this margin, contains the part centre,
     /// metres.
     pub part_attach_margin_m: f32,
+    /// `[fusion.change]`: removed and moved nodes from each keyframe's depth.
+    #[serde(default)]
+    pub change: super::change::ChangeConfig,
 }
 
 impl FusionConfig {
@@ -172,6 +175,7 @@ impl FusionConfig {
                 ));
             }
         }
-        self.colour.validate(&format!("{path}.colour"))
+        self.colour.validate(&format!("{path}.colour"))?;
+        self.change.validate(&format!("{path}.change"))
     }
 }

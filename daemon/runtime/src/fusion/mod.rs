@@ -25,6 +25,7 @@
 //! | file | what |
 //! |---|---|
 //! | `config.rs` | `[fusion]` ([`FusionConfig`]) |
+//! | `change/` | `[fusion.change]`: removals, moves and appearances from each keyframe's depth |
 //! | `multiview/`, `colour.rs` | the OP3DSG fusion and its colour features |
 //! | `snapshot/` | `[snapshot]`: the map's file, its directory, its writer thread |
 //! | `counters.rs` | [`FusionCounters`] |
@@ -37,6 +38,7 @@ use crate::flow::Detection;
 use crate::graph::{NodePoint, SceneGraph};
 use crate::world::UpAxis;
 
+pub mod change;
 pub mod colour;
 mod config;
 mod counters;
@@ -61,6 +63,10 @@ pub struct FusionReport {
     pub maintenance_merged: u32,
     /// Unconfirmed nodes pruned by maintenance.
     pub pruned: u32,
+    /// Nodes removed on change evidence (`[fusion.change]`), parts with their objects included.
+    pub removed: u32,
+    /// Nodes that became missing, or present again, in this keyframe.
+    pub state_changes: u32,
 }
 
 /// A map that fuses keyframe detections.
@@ -90,6 +96,17 @@ pub trait Fusion: Send {
         None
     }
 
+    /// Moves the changes found since the last call (`[fusion.change]`) into `out`, oldest
+    /// first. Default: none.
+    fn take_changes(&mut self, out: &mut Vec<change::ChangeEvent>) {
+        let _ = out;
+    }
+
+    /// The removed nodes it remembers, oldest first. Default: none.
+    fn removed_nodes(&self) -> Vec<change::RemovedNode> {
+        Vec::new()
+    }
+
     /// Replaces the map with a saved one; the message says why it does not fit.
     fn restore_state(&mut self, state: &multiview::MapState) -> Result<(), String> {
         let _ = state;
@@ -113,7 +130,7 @@ pub struct Fused {
 impl Fused {
     /// Whether the map gained or updated a node, so that a new graph version is due.
     pub fn changed(&self) -> bool {
-        self.report.merged + self.report.created > 0
+        self.report.merged + self.report.created + self.report.removed + self.report.state_changes > 0
     }
 }
 

@@ -467,6 +467,8 @@ fn node_from_wire(n: &WireNode) -> GraphNode {
         affordance_knowledge_bits: n.affordance_knowledge_bits & n.affordance_bits,
         affordance_llm_bits: n.affordance_llm_bits & n.affordance_bits,
         last_seen_stamp_ns: n.last_seen_stamp_ns,
+        first_seen_stamp_ns: 0,
+        missing: false,
     }
 }
 

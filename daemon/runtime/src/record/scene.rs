@@ -263,6 +263,8 @@ mod tests {
             observation_count: 1,
             affordance_bits: 0,
             last_seen_stamp_ns: 0,
+            first_seen_stamp_ns: 0,
+            missing: false,
             obb: OrientedBox::axis_aligned(min, max, UpAxis::Z),
             ..Default::default()
         }

@@ -134,6 +134,8 @@ pub fn knowledge_answer_with(
             observation_count: profile.fusion.min_observations.max(1),
             affordance_bits: 0,
             last_seen_stamp_ns: 0,
+            first_seen_stamp_ns: 0,
+            missing: false,
             ..Default::default()
         })
         .collect();

@@ -13,6 +13,7 @@
 pub mod ablation;
 pub mod agreement;
 pub mod benchmark;
+pub mod change_bench;
 pub mod coverage;
 pub mod curves;
 pub mod fusion_match;

@@ -151,6 +151,8 @@ pub fn synthetic_graph(nodes: usize, version: u64) -> SceneGraph {
             observation_count: 5,
             affordance_bits: if part { 0b1 } else { 0 },
             last_seen_stamp_ns: u64::from(i),
+            first_seen_stamp_ns: 0,
+            missing: false,
             ..Default::default()
         });
         if !part {

@@ -375,6 +375,8 @@ fn node(id: u32, label: &str, kind: NodeKind, parent: Option<u32>, min: [f32; 3]
         observation_count: 5,
         affordance_bits: 0,
         last_seen_stamp_ns: 0,
+        first_seen_stamp_ns: 0,
+        missing: false,
         ..Default::default()
     }
 }

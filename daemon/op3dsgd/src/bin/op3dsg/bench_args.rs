@@ -106,6 +106,15 @@ pub(super) enum BenchCommand {
         #[arg(long, value_name = "FILE")]
         json: Option<PathBuf>,
     },
+    /// The change benchmark: per preset, 24 synthetic rooms mapped over one lap of the camera
+    /// path, changed at the second lap by a change script drawn from the room (removals, a move,
+    /// an addition, and controls that change nothing but make evidence hard: an occluder in
+    /// front of an unchanged object, a patch of missing depth on one, garbage depth beyond 3 m),
+    /// run with change handling on and off on the same keyframes: removals and moves reflected
+    /// in the final graph, moves linked, additions found, keyframes from first sight of a
+    /// changed place to the update (p50 / p90), unchanged nodes removed, ghosts left, controls
+    /// hit, and each goal met or missed. Deterministic.
+    Change(Box<super::bench_change::ChangeBenchArgs>),
     /// The subscriber process of `bench perf`'s IPC measurement (started by it).
     #[command(hide = true)]
     IpcPeer {

@@ -23,6 +23,7 @@
 mod annotate;
 mod bench;
 mod bench_args;
+mod bench_change;
 mod bench_remote;
 mod dump;
 mod eval;
@@ -168,6 +169,9 @@ enum Command {
         remote: Remote,
     },
     /// Write the ground-truth scene graph (JSON, schema op3dsg.graph/1) of a synthetic room.
+    /// With --profile or --set, of the room after the profile's change script
+    /// (`[[source.synthetic.changes]]`, applied to --room / --seed): the final scene, whose
+    /// instance ids are the generated room's plus one per added object.
     Gt {
         /// Room type.
         #[arg(long, value_parser = parse_room)]
@@ -185,11 +189,14 @@ enum Command {
         /// camera path and the keyframe gate decide what is seen
         #[arg(long)]
         frames: Option<u64>,
-        /// Profile of the run (`--frames`; default: the built-in base)
-        #[arg(long, requires = "frames")]
+        /// Profile of the run (`--frames`; default: the built-in base); its
+        /// `[source.synthetic]` change script, if any, is applied (its room and seed are
+        /// replaced by --room / --seed)
+        #[arg(long)]
         profile: Option<PathBuf>,
-        /// Profile overrides of the run, section.key=value (`--frames`)
-        #[arg(long = "set", value_name = "KEY=VALUE", requires = "frames")]
+        /// Profile overrides, section.key=value (of the run with `--frames`; a change script as
+        /// `source.synthetic.changes=[{ at_lap = 1, remove = 12 }]`)
+        #[arg(long = "set", value_name = "KEY=VALUE")]
         overrides: Vec<String>,
     },
     /// Write the ground truth (JSON, schema op3dsg.graph/1, as `op3dsg gt` writes) of a recorded
@@ -430,8 +437,8 @@ fn run(cli: Cli) -> Result<()> {
             goal::bench(rooms.profile.as_deref(), &rooms.sets(), rooms.seed, json.as_deref())
         }
         Command::Gt { room, seed, out, frames, profile, overrides } => {
-            let run = frames.map(|frames| gt::RunSeen { frames, profile, overrides });
-            gt::write_ground_truth(room, seed, run.as_ref(), out.as_deref())
+            let run = gt::RunSeen { frames, profile, overrides };
+            gt::write_ground_truth(room, seed, &run, out.as_deref())
         }
         Command::Annotate { annotation, sequence, out, preview } => {
             annotate::annotate(&annotation, sequence.as_deref(), out.as_deref(), preview.as_deref())
@@ -448,6 +455,7 @@ fn run(cli: Cli) -> Result<()> {
         Command::Bench { command: BenchCommand::Soak(args) } => bench::soak(*args),
         Command::Bench { command: BenchCommand::Llm(args) } => bench::llm(*args),
         Command::Bench { command: BenchCommand::Remote(args) } => bench_remote::run(*args),
+        Command::Bench { command: BenchCommand::Change(args) } => bench_change::run(*args),
         Command::Map { dir, command: MapCommand::Info { json } } => map::info(&map::dir_of(dir, &prefix)?, json),
         Command::Map { dir, command: MapCommand::Save { timeout_s } } => {
             map::save(&map::dir_of(dir, &prefix)?, seconds(timeout_s)?)

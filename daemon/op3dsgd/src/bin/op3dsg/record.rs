@@ -508,6 +508,8 @@ fn bench_graph(nodes: usize) -> op3dsg_runtime::graph::SceneGraph {
             observation_count: 5,
             affordance_bits: 0,
             last_seen_stamp_ns: 0,
+            first_seen_stamp_ns: 0,
+            missing: false,
             obb: Default::default(),
             ..Default::default()
         });

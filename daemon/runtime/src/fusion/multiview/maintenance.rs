@@ -174,6 +174,10 @@ impl MultiViewFusion {
         node.observation_count += taken.observation_count;
         node.last_keyframe = node.last_keyframe.max(taken.last_keyframe);
         node.last_seen_stamp_ns = node.last_seen_stamp_ns.max(taken.last_seen_stamp_ns);
+        node.first_seen_stamp_ns = node.first_seen_stamp_ns.min(taken.first_seen_stamp_ns);
+        node.first_keyframe = node.first_keyframe.min(taken.first_keyframe);
+        node.published |= taken.published;
+        node.appeared |= taken.appeared;
         node.dirty = true;
         // Put the (dead) node back so its buffers are reused by the next new node.
         taken.alive = true;

@@ -72,6 +72,7 @@ use op3dsg_drivers::pose::Isometry;
 use op3dsg_ipc_types::NodeKind;
 use rustc_hash::{FxHashMap, FxHashSet};
 
+use super::change::{ChangeEvent, RemovedHistory, RemovedNode};
 use super::colour::{self, ColourFeature};
 use super::{Fusion, FusionConfig, FusionReport};
 use crate::embedding::{dot, normalise};
@@ -83,6 +84,9 @@ use crate::world::UpAxis;
 mod attach;
 mod back_projection;
 mod cloud;
+mod evidence;
+#[cfg(test)]
+mod evidence_tests;
 mod index;
 mod maintenance;
 mod node;
@@ -95,7 +99,7 @@ use back_projection::inside_eroded;
 use cloud::{KindGeometry, NONE};
 use index::NodeIndex;
 use node::Node;
-pub use state::{MapGeometry, MapState, NodeState};
+pub use state::{MapGeometry, MapLife, MapState, NodeState};
 
 /// One detection of the current keyframe after back-projection.
 #[derive(Debug, Clone, Copy)]
@@ -146,6 +150,12 @@ pub struct MultiViewFusion {
     scratch: Scratch,
     /// Up axis of the nodes' gravity-aligned boxes.
     up_axis: UpAxis,
+    /// Removed nodes (`[fusion.change] history`).
+    history: RemovedHistory,
+    /// Changes not yet taken ([`Fusion::take_changes`]).
+    events: Vec<ChangeEvent>,
+    /// Past keyframes' views, thinned (for appearances).
+    views: std::collections::VecDeque<evidence::View>,
 }
 
 impl MultiViewFusion {
@@ -154,6 +164,7 @@ impl MultiViewFusion {
         let object = KindGeometry::new(config.object_voxel_m, config.object_nnr_radius_m);
         let part = KindGeometry::new(config.part_voxel_m, config.part_nnr_radius_m);
         let index = NodeIndex { cell_m: config.index_cell_m, ..NodeIndex::default() };
+        let history = RemovedHistory::new(config.change.history as usize);
         Self {
             config,
             object,
@@ -168,6 +179,9 @@ impl MultiViewFusion {
             keyframe: 0,
             scratch: Scratch::default(),
             up_axis: UpAxis::Z,
+            history,
+            events: Vec::new(),
+            views: Default::default(),
         }
     }
 
@@ -290,6 +304,10 @@ impl MultiViewFusion {
             node.score_sum = 0.0;
             node.observation_count = 0;
             node.cells = (IVec3::ZERO, IVec3::NEG_ONE);
+            node.first_seen_stamp_ns = stamp_ns;
+            node.first_keyframe = keyframe;
+            node.published = false;
+            node.appeared = false;
             self.alive += 1;
         }
         for &p in &self.scratch.points[obs.start..obs.end] {
@@ -321,6 +339,7 @@ impl MultiViewFusion {
         node.observation_count += 1;
         node.last_keyframe = keyframe;
         node.last_seen_stamp_ns = stamp_ns;
+        node.misses.count = 0;
         node.dirty = true;
         self.reindex(slot);
     }
@@ -478,6 +497,7 @@ impl Fusion for MultiViewFusion {
         self.score_candidates(detections);
         self.assign_greedily();
         self.update_and_create(frame, detections, &mut report);
+        self.evidence(frame, world_from_camera, detections, &mut report);
         let every = u64::from(self.config.maintenance_every_keyframes);
         if every > 0 && self.keyframe.is_multiple_of(every) {
             self.maintain(&mut report);
@@ -507,6 +527,8 @@ impl Fusion for MultiViewFusion {
                 observation_count: node.observation_count,
                 affordance_bits: 0,
                 last_seen_stamp_ns: node.last_seen_stamp_ns,
+                first_seen_stamp_ns: node.first_seen_stamp_ns,
+                missing: node.misses.count > 0,
                 ..Default::default()
             });
         }
@@ -534,6 +556,14 @@ impl Fusion for MultiViewFusion {
 
     fn restore_state(&mut self, state: &MapState) -> Result<(), String> {
         self.restore(state)
+    }
+
+    fn take_changes(&mut self, out: &mut Vec<ChangeEvent>) {
+        out.append(&mut self.events);
+    }
+
+    fn removed_nodes(&self) -> Vec<RemovedNode> {
+        self.history.iter().cloned().collect()
     }
 
     fn memory_bytes(&self) -> usize {

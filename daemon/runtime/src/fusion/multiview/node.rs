@@ -23,6 +23,15 @@ pub(super) struct Node {
     pub(super) observation_count: u32,
     pub(super) last_keyframe: u64,
     pub(super) last_seen_stamp_ns: u64,
+    /// Stamp and keyframe counter of its first detection.
+    pub(super) first_seen_stamp_ns: u64,
+    pub(super) first_keyframe: u64,
+    /// Confirmed once (published; the change rules apply from then on).
+    pub(super) published: bool,
+    /// Confirmed where the camera had looked before (logged as appeared; a move may link it).
+    pub(super) appeared: bool,
+    /// The current run of misses (`[fusion.change]`); a node with one is missing.
+    pub(super) misses: super::evidence::Misses,
     /// Index cells the node is registered in (inclusive range).
     pub(super) cells: (IVec3, IVec3),
     /// Changed since the last maintenance.
@@ -43,6 +52,11 @@ impl Node {
             observation_count: 0,
             last_keyframe: 0,
             last_seen_stamp_ns: 0,
+            first_seen_stamp_ns: 0,
+            first_keyframe: 0,
+            published: false,
+            appeared: false,
+            misses: Default::default(),
             cells: (IVec3::ZERO, IVec3::NEG_ONE),
             dirty: false,
         }

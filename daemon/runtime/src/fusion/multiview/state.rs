@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use super::MultiViewFusion;
 use super::node::Node;
+use crate::fusion::change::{RemovedHistory, RemovedNode};
 use crate::fusion::colour::{AB_BINS, CN_BINS, ColourFeature, OPP_BINS};
 
 /// The fusion parameters a saved map depends on: points were voxel-downsampled and compared
@@ -67,6 +68,18 @@ pub struct MapState {
     pub keyframes: u64,
     /// Every live node (confirmed or not), by id.
     pub nodes: Vec<NodeState>,
+    /// The nodes' first sightings and the removed nodes (snapshot format 2; `None` in a
+    /// format-1 file: the first sightings then read as the last ones).
+    pub life: Option<MapLife>,
+}
+
+/// When each node was first seen, and the history of removed nodes (`[fusion.change]`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct MapLife {
+    /// (node id, first-seen stamp ns, fusion keyframe counter at first sight), by id.
+    pub first_seen: Vec<(u32, u64, u64)>,
+    /// Removed nodes, oldest first.
+    pub removed: Vec<RemovedNode>,
 }
 
 impl MapState {
@@ -113,12 +126,17 @@ impl MultiViewFusion {
             })
             .collect();
         nodes.sort_unstable_by_key(|n| n.id);
+        let mut first_seen: Vec<(u32, u64, u64)> =
+            self.nodes.iter().filter(|n| n.alive).map(|n| (n.id, n.first_seen_stamp_ns, n.first_keyframe)).collect();
+        first_seen.sort_unstable_by_key(|f| f.0);
+        let life = MapLife { first_seen, removed: self.history.iter().cloned().collect() };
         MapState {
             geometry: self.map_geometry(),
             labels: self.labels.clone(),
             next_id: self.next_id,
             keyframes: self.keyframe,
             nodes,
+            life: Some(life),
         }
     }
 
@@ -183,6 +201,12 @@ impl MultiViewFusion {
         self.label_ids = state.labels.iter().enumerate().map(|(i, l)| (l.clone(), i as u32)).collect();
         self.next_id = state.next_id;
         self.keyframe = state.keyframes;
+        let life = state.life.as_ref();
+        if let Some(life) = life {
+            self.history = RemovedHistory::restored(self.config.change.history as usize, &life.removed);
+        }
+        let first_seen =
+            |id: u32| life.and_then(|l| l.first_seen.binary_search_by_key(&id, |f| f.0).ok().map(|i| l.first_seen[i]));
         for saved in &state.nodes {
             let slot = self.allocate_slot();
             let kind = NodeKind::from_u8(saved.kind).unwrap_or(NodeKind::Object);
@@ -210,11 +234,23 @@ impl MultiViewFusion {
             node.observation_count = saved.observation_count;
             node.last_keyframe = saved.last_keyframe;
             node.last_seen_stamp_ns = saved.last_seen_stamp_ns;
+            let (_, first_stamp, first_keyframe) =
+                first_seen(saved.id).unwrap_or((saved.id, saved.last_seen_stamp_ns, saved.last_keyframe));
+            node.first_seen_stamp_ns = first_stamp;
+            node.first_keyframe = first_keyframe;
+            node.published = false;
+            node.appeared = false;
+            node.misses = Default::default();
             node.cells = (IVec3::ZERO, IVec3::NEG_ONE);
             // Let the next maintenance compare restored nodes with their neighbours once.
             node.dirty = true;
             self.alive += 1;
             self.reindex(slot);
+        }
+        // Restored confirmed nodes were published before the restart: no appearance, no move.
+        for slot in 0..self.nodes.len() {
+            let confirmed = self.nodes[slot].alive && self.confirmed(&self.nodes[slot]);
+            self.nodes[slot].published = confirmed;
         }
         Ok(())
     }

@@ -7,8 +7,8 @@ use serde::{Deserialize, Serialize};
 use crate::fusion::multiview::MapState;
 use crate::persist::{PersistError, io};
 
-/// The format this build writes and reads.
-pub const FORMAT_VERSION: u32 = 1;
+/// The format this build writes; it reads this one and format 1 (before [`MapState::life`]).
+pub const FORMAT_VERSION: u32 = 2;
 const MAGIC: &[u8; 8] = b"OP3DSGMP";
 const HEADER_BYTES: usize = 8 + 4 + 8 + 4;
 
@@ -119,7 +119,7 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<Snapshot, SnapshotError> {
     }
     let u32_at = |at: usize| u32::from_le_bytes([bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]]);
     let format = u32_at(8);
-    if format != FORMAT_VERSION {
+    if format != FORMAT_VERSION && format != 1 {
         return Err(SnapshotError::UnsupportedFormat { path, found: format });
     }
     let mut len = [0u8; 8];
@@ -133,6 +133,14 @@ pub fn decode(bytes: &[u8], path: &Path) -> Result<Snapshot, SnapshotError> {
     let calculated = crc32fast::hash(payload);
     if saved != calculated {
         return Err(SnapshotError::BadChecksum { path, saved, calculated });
+    }
+    if format == 1 {
+        // Format 1 ends where format 2 appends `MapState::life`, an `Option`: a `None` byte
+        // makes it a format-2 payload.
+        let mut padded = Vec::with_capacity(payload.len() + 1);
+        padded.extend_from_slice(payload);
+        padded.push(0);
+        return postcard::from_bytes(&padded).map_err(|e| SnapshotError::Decode { path, reason: e.to_string() });
     }
     postcard::from_bytes(payload).map_err(|e| SnapshotError::Decode { path, reason: e.to_string() })
 }

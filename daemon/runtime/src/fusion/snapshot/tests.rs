@@ -2,7 +2,7 @@ use std::path::PathBuf;
 
 use super::*;
 use crate::fusion::multiview::MapState;
-use crate::fusion::multiview::{MapGeometry, NodeState};
+use crate::fusion::multiview::{MapGeometry, MapLife, NodeState};
 
 fn snapshot(nodes: u32) -> Snapshot {
     let node = |id: u32| NodeState {
@@ -34,6 +34,7 @@ fn snapshot(nodes: u32) -> Snapshot {
             next_id: nodes + 1,
             keyframes: 3,
             nodes: (1..=nodes).map(node).collect(),
+            life: Some(MapLife { first_seen: (1..=nodes).map(|id| (id, 2, 1)).collect(), removed: Vec::new() }),
         },
     }
 }
@@ -89,4 +90,26 @@ fn the_directory_defaults_to_the_systemd_state_directory() {
     let off = SnapshotConfig { enabled: false, ..set };
     assert_eq!(off.resolve_dir_with(Some("/var/lib/op3dsg".into())), None);
     assert!(SnapshotConfig { period_s: -1.0, ..SnapshotConfig::default() }.validate("snapshot").is_err());
+}
+
+#[test]
+fn a_format_1_file_reads_with_no_life_and_format_2_keeps_it() {
+    let path = PathBuf::from("map.op3dsgmap");
+    // Format 1: the same payload without `MapState::life` (its trailing `None` byte).
+    let mut old = snapshot(2);
+    old.map.life = None;
+    let mut payload = postcard::to_stdvec(&old).unwrap();
+    assert_eq!(payload.pop(), Some(0));
+    let mut bytes = Vec::new();
+    bytes.extend_from_slice(b"OP3DSGMP");
+    bytes.extend_from_slice(&1u32.to_le_bytes());
+    bytes.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+    bytes.extend_from_slice(&crc32fast::hash(&payload).to_le_bytes());
+    bytes.extend_from_slice(&payload);
+    let read = decode(&bytes, &path).unwrap();
+    assert_eq!(read, old);
+    let current = snapshot(2);
+    let read = decode(&encode(&current).unwrap(), &path).unwrap();
+    assert_eq!(read.map.life, current.map.life);
+    assert!(read.map.life.is_some());
 }

@@ -16,6 +16,8 @@ fn node(id: u32, kind: NodeKind, last_seen: u64) -> GraphNode {
         observation_count: 3,
         affordance_bits: 0,
         last_seen_stamp_ns: last_seen,
+        first_seen_stamp_ns: 0,
+        missing: false,
         ..Default::default()
     }
 }

@@ -330,6 +330,8 @@ pub(crate) mod tests {
             observation_count: 5,
             affordance_bits: 0,
             last_seen_stamp_ns: 0,
+            first_seen_stamp_ns: 0,
+            missing: false,
             ..Default::default()
         }
     }

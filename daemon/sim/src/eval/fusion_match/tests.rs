@@ -33,6 +33,8 @@ fn fused(id: u32, kind: NodeKind, label: &str, lo: [f32; 3], hi: [f32; 3]) -> Gr
         observation_count: 3,
         affordance_bits: 0,
         last_seen_stamp_ns: 0,
+        first_seen_stamp_ns: 0,
+        missing: false,
         ..Default::default()
     }
 }
