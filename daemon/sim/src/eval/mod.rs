@@ -18,5 +18,6 @@ pub mod coverage;
 pub mod curves;
 pub mod fusion_match;
 pub mod nav_bench;
+pub mod parallel;
 pub mod query_bench;
 pub mod recall;

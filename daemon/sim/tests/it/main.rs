@@ -6,6 +6,7 @@
 mod annotate_icl;
 mod batch_determinism;
 mod bench_quality;
+mod change_bench;
 mod colour_ablation;
 mod fusion_quality;
 mod knowledge_catalog;

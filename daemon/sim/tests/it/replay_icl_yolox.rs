@@ -222,3 +222,25 @@ fn icl_yolox_run_against_the_hand_annotation_finds_the_coco_objects_only() {
         assert!((0.25..=1.0).contains(&iou), "{} box IoU {iou}", n.label);
     }
 }
+
+/// Nothing changes in a recording: looped three times, the sequence's depth never removes a
+/// node and the change log stays empty (`[fusion.change]`, on by default).
+#[test]
+fn icl_looped_three_times_removes_nothing_and_logs_no_change() {
+    if op3dsg_shared_data::shared_data("rgbd/icl_livingroom1/rgb.txt").is_none()
+        || op3dsg_shared_data::shared_data("models/yolox_nano/yolox_nano.onnx").is_none()
+    {
+        println!("skipped: the shared data ({}) is absent", shared().display());
+        return;
+    }
+    let sets = ["source.replay.loop=true".to_owned(), "run.max_frames=633".to_owned()];
+    let profile = op3dsg_sim::load_profile(Some(&profile_path()), &sets).expect("profile").profile;
+    assert!(profile.fusion.change.enabled);
+    let run = batch::run(&profile, &batch::VisibilityThresholds::default()).expect("batch run");
+    print_run(&run);
+    assert_eq!(run.frames, 633);
+    assert!(run.changes.is_empty(), "change events on a static recording: {:#?}", run.changes);
+    for label in ["chair", "tv"] {
+        assert!(run.graph.nodes.iter().any(|n| n.label == label), "{label} is still mapped");
+    }
+}

@@ -75,8 +75,6 @@ pub use report::{Coverage, LOCO_ROWS, Loco, LocoCategory, Losses, QualityReport,
 pub use text::{loco_markdown, loco_text, markdown, missed_targets, mix_text, text};
 
 use std::collections::BTreeMap;
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicUsize, Ordering};
 
 use op3dsg_drivers::graph_json::GraphJson;
 use op3dsg_synthetic::RoomKind;
@@ -431,40 +429,10 @@ pub fn run_scenes(
     threads: usize,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<Vec<SceneRun>, String> {
-    let next = AtomicUsize::new(0);
-    let results: Mutex<Vec<Option<Result<SceneRun, String>>>> = Mutex::new((0..scenes).map(|_| None).collect());
-    std::thread::scope(|scope| {
-        let mut handles = Vec::new();
-        for t in 0..threads.clamp(1, scenes.max(1)) {
-            let (next, results) = (&next, &results);
-            let handle = std::thread::Builder::new().name(format!("op3dsg-bench-{t}")).spawn_scoped(scope, move || {
-                loop {
-                    let i = next.fetch_add(1, Ordering::SeqCst);
-                    if i >= scenes {
-                        break;
-                    }
-                    let (room, seed) = scene(i);
-                    let result = run_scene(base, room, seed);
-                    progress(&format!("{} seed {seed}", room.as_str()));
-                    let mut slots = results.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-                    slots[i] = Some(result);
-                }
-            });
-            match handle {
-                Ok(h) => handles.push(h),
-                Err(e) => return Err(format!("cannot start a benchmark thread: {e}")),
-            }
-        }
-        for h in handles {
-            h.join().map_err(|_| "a benchmark thread panicked".to_owned())?;
-        }
-        Ok(())
-    })?;
-    results
-        .into_inner()
-        .unwrap_or_else(std::sync::PoisonError::into_inner)
-        .into_iter()
-        .enumerate()
-        .map(|(i, r)| r.unwrap_or_else(|| Err(format!("scene {i} was not run"))))
-        .collect()
+    crate::eval::parallel::in_order(scenes, threads, "op3dsg-bench", &|i| {
+        let (room, seed) = scene(i);
+        let result = run_scene(base, room, seed);
+        progress(&format!("{} seed {seed}", room.as_str()));
+        result
+    })
 }

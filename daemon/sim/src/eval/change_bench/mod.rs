@@ -64,9 +64,6 @@ mod text;
 pub use score::{PresetReport, SceneScore, score_scene};
 pub use text::{goals_met, text};
 
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicUsize, Ordering};
-
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
@@ -268,39 +265,12 @@ pub fn run_scenes(
     threads: usize,
     progress: &(dyn Fn(&str) + Sync),
 ) -> Result<Vec<SceneRun>, String> {
-    let next = AtomicUsize::new(0);
-    let results: Mutex<Vec<Option<Result<SceneRun, String>>>> = Mutex::new((0..scenes).map(|_| None).collect());
-    std::thread::scope(|scope| {
-        let mut handles = Vec::new();
-        for t in 0..threads.clamp(1, scenes.max(1)) {
-            let (next, results) = (&next, &results);
-            let spawned =
-                std::thread::Builder::new().name(format!("op3dsg-change-{t}")).spawn_scoped(scope, move || {
-                    loop {
-                        let i = next.fetch_add(1, Ordering::SeqCst);
-                        if i >= scenes {
-                            break;
-                        }
-                        let (room, seed) = crate::eval::benchmark::scene(i);
-                        let result = run_scene(base, room, seed);
-                        progress(&format!("{} seed {seed}", room.as_str()));
-                        results.lock().unwrap_or_else(std::sync::PoisonError::into_inner)[i] = Some(result);
-                    }
-                });
-            handles.push(spawned.map_err(|e| format!("cannot start a benchmark thread: {e}"))?);
-        }
-        for h in handles {
-            h.join().map_err(|_| "a benchmark thread panicked".to_owned())?;
-        }
-        Ok::<(), String>(())
-    })?;
-    results
-        .into_inner()
-        .unwrap_or_else(std::sync::PoisonError::into_inner)
-        .into_iter()
-        .enumerate()
-        .map(|(i, r)| r.unwrap_or_else(|| Err(format!("scene {i} was not run"))))
-        .collect()
+    crate::eval::parallel::in_order(scenes, threads, "op3dsg-change", &|i| {
+        let (room, seed) = crate::eval::benchmark::scene(i);
+        let result = run_scene(base, room, seed);
+        progress(&format!("{} seed {seed}", room.as_str()));
+        result
+    })
 }
 
 #[cfg(test)]

@@ -92,6 +92,9 @@ pub struct SceneScore {
     pub events: [u32; 3],
     /// Every event (change handling on), oldest first.
     pub log: Vec<EventRecord>,
+    /// `Fusion::integrate` over the run, seconds, change handling on / off (same keyframes,
+    /// one after the other on the same thread).
+    pub fusion_s: [f64; 2],
 }
 
 /// One change event as the report lists it.
@@ -274,6 +277,7 @@ pub fn score_scene(run: &SceneRun) -> SceneScore {
         unchanged_nodes,
         ghosts,
         events,
+        fusion_s: [on.timing.fusion.as_secs_f64(), off.timing.fusion.as_secs_f64()],
         log: on
             .changes
             .iter()

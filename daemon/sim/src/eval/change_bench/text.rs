@@ -63,18 +63,24 @@ pub fn text(reports: &[PresetReport]) -> String {
         let events = r.scenes.iter().fold([0; 3], |a, s| [a[0] + s.events[0], a[1] + s.events[1], a[2] + s.events[2]]);
         let after: u32 = r.scenes.iter().map(|s| s.unchanged_removed_after).sum();
         let (unseen, unseen_reflected) = r.not_seen_again();
+        let fusion = r.scenes.iter().fold([0.0; 2], |a, s| [a[0] + s.fusion_s[0], a[1] + s.fusion_s[1]]);
+        let per_keyframe = |s: f64| 1e3 * s / keyframes.max(1) as f64;
         let _ = writeln!(
             out,
             "{}: {scenes} scenes, {keyframes} keyframes; {} removals and moves scored (mapped before the change and \
              their old place seen again within 3 m); left out: {} not mapped before, {unseen} not seen again within 3 \
              m ({unseen_reflected} of them reflected anyway); events {} appeared, {} removed, {} moved; unchanged \
-             removed after the change (under the far-depth control): {after}",
+             removed after the change (under the far-depth control): {after}; fusion per keyframe (mean) {:.2} ms \
+             on, {:.2} ms off (x{:.2})",
             r.preset,
             r.mapped(None).len(),
             r.not_mapped(),
             events[0],
             events[1],
             events[2],
+            per_keyframe(fusion[0]),
+            per_keyframe(fusion[1]),
+            fusion[0] / fusion[1].max(1e-9),
         );
     }
     for r in reports {
