@@ -67,6 +67,8 @@ pub struct FusionReport {
     pub removed: u32,
     /// Nodes that became missing, or present again, in this keyframe.
     pub state_changes: u32,
+    /// Time of the evidence step (`[fusion.change]`), nanoseconds.
+    pub evidence_ns: u64,
 }
 
 /// A map that fuses keyframe detections.
@@ -94,6 +96,12 @@ pub trait Fusion: Send {
     /// fusion cannot be saved.
     fn export_state(&self) -> Option<multiview::MapState> {
         None
+    }
+
+    /// Turns change handling (`[fusion.change] enabled`) on or off from the next keyframe on,
+    /// for measuring its cost on one map. Default: nothing to turn.
+    fn set_change_handling(&mut self, on: bool) {
+        let _ = on;
     }
 
     /// Moves the changes found since the last call (`[fusion.change]`) into `out`, oldest

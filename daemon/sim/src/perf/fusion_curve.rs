@@ -38,6 +38,13 @@ pub struct FusionPoint {
     pub memory_mib: f64,
     /// One step's latency.
     pub step: Percentiles,
+    /// The evidence step of `[fusion.change]` within it.
+    #[serde(default)]
+    pub evidence: Percentiles,
+    /// One step's latency with change handling off, on the same map (steps on and off taken
+    /// in turn).
+    #[serde(default)]
+    pub step_off: Percentiles,
 }
 
 /// The fusion section of the report.
@@ -78,23 +85,43 @@ pub fn fusion_curve(options: &PerfOptions) -> anyhow::Result<FusionCurve> {
         for _ in 0..WARMUP_STEPS {
             fusion.integrate(&step.frame, &step.pose, &step.detections);
         }
-        let mut times_ms: Vec<f64> = (0..options.fusion_steps.max(1))
-            .map(|_| {
+        let steps = options.fusion_steps.max(1);
+        let (mut on_ms, mut off_ms, mut evidence_ms) =
+            (Vec::with_capacity(steps), Vec::with_capacity(steps), Vec::with_capacity(steps));
+        let change = profile.fusion.change.enabled;
+        for _ in 0..steps {
+            for on in [true, false] {
+                fusion.set_change_handling(on && change);
                 let t = Instant::now();
-                fusion.integrate(&step.frame, &step.pose, &step.detections);
-                t.elapsed().as_secs_f64() * 1e3
-            })
-            .collect();
+                let report = fusion.integrate(&step.frame, &step.pose, &step.detections);
+                let ms = t.elapsed().as_secs_f64() * 1e3;
+                if on {
+                    on_ms.push(ms);
+                    evidence_ms.push(report.evidence_ns as f64 * 1e-6);
+                } else {
+                    off_ms.push(ms);
+                }
+            }
+        }
+        fusion.set_change_handling(change);
         let point = FusionPoint {
             target_nodes: target,
             nodes: fusion.node_count(),
             copies: next_copy,
             memory_mib: op3dsg_runtime::stats::mib(fusion.memory_bytes() as u64),
-            step: Percentiles::from_samples_ms(&mut times_ms),
+            step: Percentiles::from_samples_ms(&mut on_ms),
+            evidence: Percentiles::from_samples_ms(&mut evidence_ms),
+            step_off: Percentiles::from_samples_ms(&mut off_ms),
         };
         eprintln!(
-            "bench perf:   map {:>6} nodes: step p50 {:.3} ms, p99 {:.3} ms",
-            point.nodes, point.step.p50_ms, point.step.p99_ms
+            "bench perf:   map {:>6} nodes: step p50 {:.3} ms, p99 {:.3} ms (evidence p50 {:.3}, p99 {:.3}; change \
+             handling off: p99 {:.3} ms)",
+            point.nodes,
+            point.step.p50_ms,
+            point.step.p99_ms,
+            point.evidence.p50_ms,
+            point.evidence.p99_ms,
+            point.step_off.p99_ms
         );
         points.push(point);
     }
@@ -176,6 +203,8 @@ mod tests {
             copies: 1,
             memory_mib: 1.0,
             step: Percentiles { count: 10, p50_ms: p50, p99_ms: p50 * 1.5, mean_ms: p50, max_ms: p50 * 2.0 },
+            evidence: Percentiles::default(),
+            step_off: Percentiles::default(),
         };
         let curve = FusionCurve {
             detections: 40,

@@ -451,20 +451,31 @@ fn fusion_markdown(s: &mut String, fusion: &FusionCurve, plot: Option<&str>) {
         s,
         "**Fusion cost against map size**: one step of {} detections ({} objects, {} parts) of a \
          640x480 kitchen view into maps grown from copies of the kitchen 20 m apart; {} timed steps \
-         per size after {} warm-up ones, one thread.\n",
+         per size after {} warm-up ones, one thread. Each timed step runs twice on the same map, \
+         with change handling (`[fusion.change]`) on and then off; the evidence step is the part of \
+         the step with it on that reads the depth for removals.\n",
         fusion.detections, fusion.objects, fusion.parts, fusion.steps, fusion.warmup_steps
     );
-    let _ = writeln!(s, "| map nodes | kitchen copies | map MiB | step p50 ms | step p99 ms |");
-    let _ = writeln!(s, "|---|---|---|---|---|");
+    let _ = writeln!(
+        s,
+        "| map nodes | kitchen copies | map MiB | step p50 ms | step p99 ms | evidence p50 ms | evidence p99 ms | \
+         step p99 ms, change handling off | p99 on / off |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
     for p in &fusion.points {
+        let ratio =
+            if p.step_off.p99_ms > 0.0 { format!("{:.2}", p.step.p99_ms / p.step_off.p99_ms) } else { "-".to_owned() };
         let _ = writeln!(
             s,
-            "| {} | {} | {:.1} | {} | {} |",
+            "| {} | {} | {:.1} | {} | {} | {} | {} | {} | {ratio} |",
             p.nodes,
             p.copies,
             p.memory_mib,
             ms(p.step.p50_ms),
-            ms(p.step.p99_ms)
+            ms(p.step.p99_ms),
+            ms(p.evidence.p50_ms),
+            ms(p.evidence.p99_ms),
+            ms(p.step_off.p99_ms),
         );
     }
     if let Some(path) = plot {

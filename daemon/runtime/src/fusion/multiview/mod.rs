@@ -497,7 +497,9 @@ impl Fusion for MultiViewFusion {
         self.score_candidates(detections);
         self.assign_greedily();
         self.update_and_create(frame, detections, &mut report);
+        let started = std::time::Instant::now();
         self.evidence(frame, world_from_camera, detections, &mut report);
+        report.evidence_ns = started.elapsed().as_nanos().min(u128::from(u64::MAX)) as u64;
         let every = u64::from(self.config.maintenance_every_keyframes);
         if every > 0 && self.keyframe.is_multiple_of(every) {
             self.maintain(&mut report);
@@ -556,6 +558,10 @@ impl Fusion for MultiViewFusion {
 
     fn restore_state(&mut self, state: &MapState) -> Result<(), String> {
         self.restore(state)
+    }
+
+    fn set_change_handling(&mut self, on: bool) {
+        self.config.change.enabled = on;
     }
 
     fn take_changes(&mut self, out: &mut Vec<ChangeEvent>) {
