@@ -467,14 +467,14 @@ fn fusion_markdown(s: &mut String, fusion: &FusionCurve, plot: Option<&str>) {
             if p.step_off.p99_ms > 0.0 { format!("{:.2}", p.step.p99_ms / p.step_off.p99_ms) } else { "-".to_owned() };
         let _ = writeln!(
             s,
-            "| {} | {} | {:.1} | {} | {} | {} | {} | {} | {ratio} |",
+            "| {} | {} | {:.1} | {} | {} | {:.3} | {:.3} | {} | {ratio} |",
             p.nodes,
             p.copies,
             p.memory_mib,
             ms(p.step.p50_ms),
             ms(p.step.p99_ms),
-            ms(p.evidence.p50_ms),
-            ms(p.evidence.p99_ms),
+            p.evidence.p50_ms,
+            p.evidence.p99_ms,
             ms(p.step_off.p99_ms),
         );
     }
