@@ -71,8 +71,7 @@ use op3dsg_ipc_types::NodeKind;
 use serde::{Deserialize, Serialize};
 
 /// What happened to a node.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ChangeKind {
     /// A node confirmed where the camera had looked before.
     Appeared,
@@ -151,17 +150,10 @@ pub struct RemovedNode {
 }
 
 /// The bounded history of removed nodes, newest last.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct RemovedHistory {
     capacity: usize,
     nodes: VecDeque<RemovedNode>,
-}
-
-impl RemovedNode {
-    /// Object or part.
-    pub fn node_kind(&self) -> NodeKind {
-        NodeKind::from_u8(self.kind).unwrap_or_default()
-    }
 }
 
 impl RemovedHistory {
@@ -190,21 +182,6 @@ impl RemovedHistory {
     /// Oldest first.
     pub fn iter(&self) -> impl DoubleEndedIterator<Item = &RemovedNode> {
         self.nodes.iter()
-    }
-
-    /// Entries.
-    pub fn len(&self) -> usize {
-        self.nodes.len()
-    }
-
-    /// No entries.
-    pub fn is_empty(&self) -> bool {
-        self.nodes.is_empty()
-    }
-
-    /// The capacity it was made with.
-    pub fn capacity(&self) -> usize {
-        self.capacity
     }
 
     /// A history with this capacity holding the newest of `nodes`.

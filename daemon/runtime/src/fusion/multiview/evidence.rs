@@ -169,7 +169,6 @@ impl MultiViewFusion {
         let samples = (c.samples_per_node as usize).min(points.len()).max(1);
         let step = (points.len() / samples).max(1);
         let (mut seen, mut occluded, mut free) = (0u32, 0u32, 0u32);
-        let (mut lo, mut hi) = ((f32::INFINITY, f32::INFINITY), (f32::NEG_INFINITY, f32::NEG_INFINITY));
         let r = c.window_px as i32;
         let offsets = [(0, 0), (-r, 0), (r, 0), (0, -r), (0, r), (-r, -r), (r, -r), (-r, r), (r, r)];
         let window = if r == 0 { &offsets[..1] } else { &offsets[..] };
@@ -184,8 +183,6 @@ impl MultiViewFusion {
             if ui < 0 || vi < 0 || ui >= w || vi >= h {
                 continue;
             }
-            lo = (lo.0.min(u), lo.1.min(v));
-            hi = (hi.0.max(u), hi.1.max(v));
             let agree = c.agree_m + c.agree_per_m2 * z * z;
             let margin = c.free_margin_m + c.free_margin_per_m2 * z * z;
             let (mut valid, mut near, mut behind, mut agrees) = (0u32, 0u32, 0u32, false);
@@ -229,8 +226,9 @@ impl MultiViewFusion {
             return Some(Reading::Unknown);
         }
         // A detection of its label where its box projects, at about its range: it is in view,
-        // the pose or depth is off.
-        let (lo, hi) = projected_box(n, &camera.camera_from_world, k).unwrap_or((lo, hi));
+        // the pose or depth is off. (A point was read in front of the camera, so a corner of the
+        // box is too, and the box projects.)
+        let Some((lo, hi)) = projected_box(n, &camera.camera_from_world, k) else { return Some(Reading::Free) };
         let grow = c.detection_veto_grow;
         let vetoed = detections.iter().any(|d| {
             let Some(&label) = self.label_ids.get(&d.label) else { return false };
@@ -517,8 +515,8 @@ fn projected_box(
     lo.0.is_finite().then_some((lo, hi))
 }
 
-/// The median depth of up to 64 pixels of `mask` spread over its box, metres; `None` without
-/// depth there.
+/// The median depth of the mask's pixels on a grid over its box (every `width / 8`-th column
+/// and `height / 8`-th row), metres; `None` without depth there.
 fn mask_depth(frame: &Frame, mask: &crate::flow::Mask) -> Option<f32> {
     let w = frame.intrinsics.width;
     let step_x = (mask.width / 8).max(1);

@@ -73,14 +73,14 @@ fn quarter(k: &Intrinsics) -> Intrinsics {
 /// Whether at least half of the box's 9 probe points are in sight in `frame`'s exact depth.
 fn sees(frame: &Frame, k: &Intrinsics, camera_from_world: &glam::Mat4, (min, max): (Vec3, Vec3)) -> bool {
     let centre = (min + max) * 0.5;
-    let mut points = vec![centre];
-    for corner in 0..8u32 {
+    let mut points = [centre; 9];
+    for (corner, point) in points[1..].iter_mut().enumerate() {
         let c = Vec3::new(
             if corner & 1 == 0 { min.x } else { max.x },
             if corner & 2 == 0 { min.y } else { max.y },
             if corner & 4 == 0 { min.z } else { max.z },
         );
-        points.push(c + (centre - c) * 0.25);
+        *point = c + (centre - c) * 0.25;
     }
     let in_sight = points
         .iter()
